@@ -1,1 +1,26 @@
+//! File formats of timesift: images and EXIF, the CSV inputs of a project, `cameras.json`, the COLMAP
+//! text model, GeoTIFF and EXR rasters, LAS/LAZ point clouds, and WGS84 ↔ projected coordinates.
+//!
+//! Invariants:
+//! - Every error names the file, and the line or key where there is one ([`IoError`]).
+//! - Conventions of DESIGN.md are enforced at this boundary: whatever a foreign format stores
+//!   (COLMAP's OpenCV distortion with swapped p1/p2, absolute principal points, GeoTIFF tie points),
+//!   values leave this crate in timesift's conventions.
+//! - Writers are atomic: they write a temporary file beside the target and rename it, so a failure
+//!   never leaves a half-written output.
+//! - Nothing here knows about stages, epochs' meaning or algorithms.
 
+pub mod cameras_json;
+pub mod colmap;
+pub mod coords;
+pub mod csv_inputs;
+mod error;
+pub mod exif;
+pub mod exr;
+pub mod fsutil;
+pub mod geotiff;
+pub mod image;
+pub mod pointcloud;
+pub mod wkt;
+
+pub use error::IoError;

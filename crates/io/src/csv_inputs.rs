@@ -1,0 +1,383 @@
+//! The CSV inputs of a project (DESIGN.md): `gcps.csv`, `checkpoints.csv`, `markers.csv`,
+//! `gnss.csv` and `stable.csv`.
+//!
+//! Rules common to all: comma-separated, `#` starts a comment line, blank lines are skipped, and an
+//! optional first line naming the columns is recognised and skipped. Every record keeps its line
+//! number so that later validation (unknown point, unknown image) can name it.
+
+use std::path::Path;
+
+use nalgebra::{Vector2, Vector3};
+
+use crate::wkt::{Polygon, parse_polygons};
+use crate::{IoError, fsutil};
+
+/// A ground control point or check point with object coordinates.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ControlPoint {
+    /// Point name, unique within its file.
+    pub name: String,
+    /// Object coordinates (E, N, H) in the project CRS, metres.
+    pub position: Vector3<f64>,
+    /// Standard deviations (horizontal, vertical) in metres, when given.
+    pub sigma: Option<(f64, f64)>,
+    /// Line in the file.
+    pub line: usize,
+}
+
+/// An image observation of a control or check point.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Marker {
+    /// Image path relative to the project directory.
+    pub image: String,
+    /// Point name (in gcps.csv or checkpoints.csv).
+    pub name: String,
+    /// Pixel position (DESIGN.md convention).
+    pub pixel: Vector2<f64>,
+    /// Line in the file.
+    pub line: usize,
+}
+
+/// A camera-centre prior from GNSS.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GnssPrior {
+    /// Image path relative to the project directory.
+    pub image: String,
+    /// Camera centre in the project CRS, metres.
+    pub position: Vector3<f64>,
+    /// Standard deviations (horizontal, vertical) in metres, when given.
+    pub sigma: Option<(f64, f64)>,
+    /// Line in the file.
+    pub line: usize,
+}
+
+/// A stable area: one or more polygons.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StableArea {
+    /// Optional name given before the geometry.
+    pub name: Option<String>,
+    /// The polygons.
+    pub polygons: Vec<Polygon>,
+    /// Line in the file.
+    pub line: usize,
+}
+
+/// One data row: its fields and line number.
+struct Row {
+    fields: Vec<String>,
+    line: usize,
+}
+
+/// Reads the rows of a CSV file, skipping comments, blank lines and a header equal (case-
+/// insensitive) to one of `headers`; rows must have one of `counts` fields.
+fn read_rows(
+    path: &Path,
+    headers: &[&[&str]],
+    counts: &[usize],
+    expected: &str,
+) -> Result<Vec<Row>, IoError> {
+    let text = fsutil::read_text(path)?;
+    let mut rows = Vec::new();
+    for (index, raw) in text.lines().enumerate() {
+        let line = index + 1;
+        let trimmed = raw.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            continue;
+        }
+        let mut reader = csv::ReaderBuilder::new()
+            .has_headers(false)
+            .flexible(true)
+            .trim(csv::Trim::All)
+            .from_reader(trimmed.as_bytes());
+        let record = match reader.records().next() {
+            Some(Ok(r)) => r,
+            Some(Err(e)) => return Err(IoError::line(path, line, format!("malformed CSV: {e}"))),
+            None => continue,
+        };
+        let fields: Vec<String> = record.iter().map(str::to_string).collect();
+        if rows.is_empty()
+            && headers.iter().any(|h| {
+                h.len() == fields.len()
+                    && h.iter().zip(&fields).all(|(a, b)| a.eq_ignore_ascii_case(b))
+            })
+        {
+            continue;
+        }
+        if !counts.contains(&fields.len()) {
+            return Err(IoError::line(
+                path,
+                line,
+                format!("expected {expected}, found {} fields", fields.len()),
+            ));
+        }
+        rows.push(Row { fields, line });
+    }
+    Ok(rows)
+}
+
+fn number(path: &Path, row: &Row, index: usize, column: &str) -> Result<f64, IoError> {
+    let text = &row.fields[index];
+    text.parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite())
+        .ok_or_else(|| {
+            IoError::line(
+                path,
+                row.line,
+                format!("column `{column}`: expected a number, found \"{text}\""),
+            )
+        })
+}
+
+fn non_empty(path: &Path, row: &Row, index: usize, column: &str) -> Result<String, IoError> {
+    let text = row.fields[index].clone();
+    if text.is_empty() {
+        return Err(IoError::line(path, row.line, format!("column `{column}` is empty")));
+    }
+    Ok(text)
+}
+
+fn sigma(path: &Path, row: &Row) -> Result<Option<(f64, f64)>, IoError> {
+    if row.fields.len() < 6 {
+        return Ok(None);
+    }
+    let sxy = number(path, row, 4, "sxy")?;
+    let sz = number(path, row, 5, "sz")?;
+    if !(sxy > 0.0 && sz > 0.0) {
+        return Err(IoError::line(
+            path,
+            row.line,
+            "standard deviations sxy and sz must be positive",
+        ));
+    }
+    Ok(Some((sxy, sz)))
+}
+
+fn xyz(path: &Path, row: &Row) -> Result<Vector3<f64>, IoError> {
+    Ok(Vector3::new(
+        number(path, row, 1, "x")?,
+        number(path, row, 2, "y")?,
+        number(path, row, 3, "z")?,
+    ))
+}
+
+fn control_points(path: &Path, with_sigma: bool) -> Result<Vec<ControlPoint>, IoError> {
+    let (counts, expected): (&[usize], _) = if with_sigma {
+        (&[4, 6], "4 fields (name,x,y,z) or 6 (name,x,y,z,sxy,sz)")
+    } else {
+        (&[4], "4 fields (name,x,y,z)")
+    };
+    let rows = read_rows(
+        path,
+        &[&["name", "x", "y", "z"], &["name", "x", "y", "z", "sxy", "sz"]],
+        counts,
+        expected,
+    )?;
+    let mut points: Vec<ControlPoint> = Vec::with_capacity(rows.len());
+    for row in &rows {
+        let name = non_empty(path, row, 0, "name")?;
+        if let Some(first) = points.iter().find(|p| p.name == name) {
+            return Err(IoError::line(
+                path,
+                row.line,
+                format!("point \"{name}\" is already defined on line {}", first.line),
+            ));
+        }
+        points.push(ControlPoint {
+            name,
+            position: xyz(path, row)?,
+            sigma: sigma(path, row)?,
+            line: row.line,
+        });
+    }
+    Ok(points)
+}
+
+/// Reads `gcps.csv`: `name,x,y,z[,sxy,sz]`.
+pub fn read_gcps(path: &Path) -> Result<Vec<ControlPoint>, IoError> {
+    control_points(path, true)
+}
+
+/// Reads `checkpoints.csv`: `name,x,y,z`.
+pub fn read_checkpoints(path: &Path) -> Result<Vec<ControlPoint>, IoError> {
+    control_points(path, false)
+}
+
+/// Reads `markers.csv`: `image,name,u,v`.
+pub fn read_markers(path: &Path) -> Result<Vec<Marker>, IoError> {
+    let rows = read_rows(
+        path,
+        &[&["image", "name", "u", "v"]],
+        &[4],
+        "4 fields (image,name,u,v)",
+    )?;
+    let mut markers = Vec::with_capacity(rows.len());
+    for row in &rows {
+        let marker = Marker {
+            image: non_empty(path, row, 0, "image")?,
+            name: non_empty(path, row, 1, "name")?,
+            pixel: Vector2::new(number(path, row, 2, "u")?, number(path, row, 3, "v")?),
+            line: row.line,
+        };
+        if let Some(dup) = markers
+            .iter()
+            .find(|m: &&Marker| m.image == marker.image && m.name == marker.name)
+        {
+            return Err(IoError::line(
+                path,
+                row.line,
+                format!(
+                    "point \"{}\" in image \"{}\" is already measured on line {}",
+                    marker.name, marker.image, dup.line
+                ),
+            ));
+        }
+        markers.push(marker);
+    }
+    Ok(markers)
+}
+
+/// Reads `gnss.csv`: `image,x,y,z[,sxy,sz]`.
+pub fn read_gnss(path: &Path) -> Result<Vec<GnssPrior>, IoError> {
+    let rows = read_rows(
+        path,
+        &[&["image", "x", "y", "z"], &["image", "x", "y", "z", "sxy", "sz"]],
+        &[4, 6],
+        "4 fields (image,x,y,z) or 6 (image,x,y,z,sxy,sz)",
+    )?;
+    let mut priors: Vec<GnssPrior> = Vec::with_capacity(rows.len());
+    for row in &rows {
+        let image = non_empty(path, row, 0, "image")?;
+        if let Some(first) = priors.iter().find(|p| p.image == image) {
+            return Err(IoError::line(
+                path,
+                row.line,
+                format!("image \"{image}\" already has a prior on line {}", first.line),
+            ));
+        }
+        priors.push(GnssPrior {
+            image,
+            position: xyz(path, row)?,
+            sigma: sigma(path, row)?,
+            line: row.line,
+        });
+    }
+    Ok(priors)
+}
+
+/// Reads `stable.csv`: one stable area per line, `[name,]WKT`, where the WKT (`POLYGON` or
+/// `MULTIPOLYGON`) may be quoted or not (its commas are part of the geometry).
+pub fn read_stable_areas(path: &Path) -> Result<Vec<StableArea>, IoError> {
+    let text = fsutil::read_text(path)?;
+    let mut areas = Vec::new();
+    for (index, raw) in text.lines().enumerate() {
+        let line = index + 1;
+        let trimmed = raw.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            continue;
+        }
+        let upper = trimmed.to_ascii_uppercase();
+        let Some(start) = upper
+            .find("MULTIPOLYGON")
+            .or_else(|| upper.find("POLYGON"))
+        else {
+            let is_header = areas.is_empty()
+                && (upper.replace(' ', "") == "NAME,WKT" || upper == "WKT");
+            if is_header {
+                continue;
+            }
+            return Err(IoError::line(
+                path,
+                line,
+                "expected [name,]POLYGON(...) or [name,]MULTIPOLYGON(...)",
+            ));
+        };
+        let name = trimmed[..start]
+            .trim()
+            .trim_end_matches('"')
+            .trim()
+            .trim_end_matches(',')
+            .trim()
+            .trim_matches('"')
+            .to_string();
+        let geometry = trimmed[start..].trim().trim_end_matches('"');
+        let polygons =
+            parse_polygons(geometry).map_err(|message| IoError::line(path, line, message))?;
+        areas.push(StableArea {
+            name: (!name.is_empty()).then_some(name),
+            polygons,
+            line,
+        });
+    }
+    Ok(areas)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn gcps_with_header_comments_and_sigmas() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(
+            dir.path(),
+            "gcps.csv",
+            "name,x,y,z,sxy,sz\n# surveyed 2018\nG1, 500000.5, 6000000.25, 12.5, 0.02, 0.03\n\nG2,1,2,3,0.1,0.2\n",
+        );
+        let g = read_gcps(&p).unwrap();
+        assert_eq!(g.len(), 2);
+        assert_eq!(g[0].name, "G1");
+        assert_eq!(g[0].position, Vector3::new(500000.5, 6000000.25, 12.5));
+        assert_eq!(g[0].sigma, Some((0.02, 0.03)));
+        assert_eq!(g[1].line, 5);
+    }
+
+    #[test]
+    fn wrong_field_count_names_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "gcps.csv", "G1,1,2,3\nG2,1,2\n");
+        let e = read_gcps(&p).unwrap_err().to_string();
+        assert!(e.contains("gcps.csv") && e.contains("line 2") && e.contains("3 fields"), "{e}");
+        let p = write(dir.path(), "markers.csv", "a.jpg,G1,10,20\na.jpg,G2,10\n");
+        let e = read_markers(&p).unwrap_err().to_string();
+        assert!(e.contains("markers.csv: line 2"), "{e}");
+        let p = write(dir.path(), "checkpoints.csv", "C1,1,2,3,0.1,0.1\n");
+        let e = read_checkpoints(&p).unwrap_err().to_string();
+        assert!(e.contains("checkpoints.csv: line 1"), "{e}");
+    }
+
+    #[test]
+    fn bad_numbers_and_duplicates_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "gnss.csv", "a.jpg,1,two,3\n");
+        let e = read_gnss(&p).unwrap_err().to_string();
+        assert!(e.contains("line 1") && e.contains("`y`"), "{e}");
+        let p = write(dir.path(), "gcps.csv", "G1,1,2,3\nG1,4,5,6\n");
+        assert!(read_gcps(&p).unwrap_err().to_string().contains("line 2"));
+        let p = write(dir.path(), "gnss.csv", "a.jpg,1,2,3,0,1\n");
+        assert!(read_gnss(&p).unwrap_err().to_string().contains("positive"));
+    }
+
+    #[test]
+    fn stable_areas_quoted_or_not() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(
+            dir.path(),
+            "stable.csv",
+            "name,wkt\nrock,\"POLYGON ((0 0, 1 0, 1 1, 0 0))\"\nPOLYGON ((5 5, 6 5, 6 6, 5 5))\nroad,MULTIPOLYGON (((0 0, 1 0, 1 1)),((2 2, 3 2, 3 3)))\n",
+        );
+        let s = read_stable_areas(&p).unwrap();
+        assert_eq!(s.len(), 3);
+        assert_eq!(s[0].name.as_deref(), Some("rock"));
+        assert_eq!(s[1].name, None);
+        assert_eq!(s[2].polygons.len(), 2);
+        let p = write(dir.path(), "stable.csv", "rock,LINESTRING (0 0, 1 1)\n");
+        assert!(read_stable_areas(&p).unwrap_err().to_string().contains("line 1"));
+    }
+}

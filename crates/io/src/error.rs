@@ -1,0 +1,106 @@
+//! The error type of every reader and writer.
+
+use std::path::PathBuf;
+
+use thiserror::Error;
+
+/// A failure to read or write a file; each variant names the file, and the line or key when the
+/// failure has one.
+#[derive(Debug, Error)]
+pub enum IoError {
+    /// The operating system refused (missing file, permissions, disk full).
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// A text file has a bad line.
+    #[error("{}: line {line}: {message}", path.display())]
+    Line {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+    /// A structured file has a bad or missing key.
+    #[error("{}: key `{key}`: {message}", path.display())]
+    Key {
+        path: PathBuf,
+        key: String,
+        message: String,
+    },
+    /// The content is corrupt or not of the expected format.
+    #[error("{}: {message}", path.display())]
+    Invalid { path: PathBuf, message: String },
+    /// The content is valid but uses a layout this reader does not support.
+    #[error("{}: unsupported {what}: {message}", path.display())]
+    Unsupported {
+        path: PathBuf,
+        what: &'static str,
+        message: String,
+    },
+    /// A coordinate transformation failed or a CRS is unknown.
+    #[error("coordinate reference system {crs}: {message}")]
+    Crs { crs: String, message: String },
+}
+
+/// Folds a message onto one line: errors are reported as one line naming the file.
+fn one_line(message: impl Into<String>) -> String {
+    let message = message.into();
+    if !message.contains(['\n', '\r']) {
+        return message;
+    }
+    message
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+impl IoError {
+    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        IoError::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    pub(crate) fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        IoError::Invalid {
+            path: path.into(),
+            message: one_line(message),
+        }
+    }
+
+    pub(crate) fn line(path: impl Into<PathBuf>, line: usize, message: impl Into<String>) -> Self {
+        IoError::Line {
+            path: path.into(),
+            line,
+            message: one_line(message),
+        }
+    }
+
+    pub(crate) fn key(
+        path: impl Into<PathBuf>,
+        key: impl Into<String>,
+        message: impl Into<String>,
+    ) -> Self {
+        IoError::Key {
+            path: path.into(),
+            key: key.into(),
+            message: one_line(message),
+        }
+    }
+
+    pub(crate) fn unsupported(
+        path: impl Into<PathBuf>,
+        what: &'static str,
+        message: impl Into<String>,
+    ) -> Self {
+        IoError::Unsupported {
+            path: path.into(),
+            what,
+            message: one_line(message),
+        }
+    }
+}

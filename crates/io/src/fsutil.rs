@@ -1,0 +1,86 @@
+//! Atomic file output: write beside the target, then rename over it.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::IoError;
+
+/// The temporary path used while writing `path`: same folder, so the final rename is atomic.
+fn temporary_path(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+}
+
+/// Writes a file atomically: `write` fills a buffered writer on a temporary file beside `path`, which
+/// is renamed to `path` only when everything succeeded. On failure the temporary file is removed and
+/// an existing `path` is left untouched.
+pub fn write_atomically<F>(path: &Path, write: F) -> Result<(), IoError>
+where
+    F: FnOnce(&mut BufWriter<File>) -> Result<(), IoError>,
+{
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| IoError::io(parent, e))?;
+    }
+    let tmp = temporary_path(path);
+    let result = (|| {
+        let file = File::create(&tmp).map_err(|e| IoError::io(&tmp, e))?;
+        let mut writer = BufWriter::new(file);
+        write(&mut writer)?;
+        writer.flush().map_err(|e| IoError::io(path, e))?;
+        let file = writer
+            .into_inner()
+            .map_err(|e| IoError::io(path, e.into_error()))?;
+        file.sync_all().map_err(|e| IoError::io(path, e))?;
+        std::fs::rename(&tmp, path).map_err(|e| IoError::io(path, e))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// A temporary path beside `path` that keeps its extension (for writers that choose the encoding
+/// from it), to be renamed over `path` with [`commit_temporary`].
+pub fn temporary_sibling(path: &Path) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let ext = path
+        .extension()
+        .map(|e| format!(".{}", e.to_string_lossy()))
+        .unwrap_or_default();
+    path.with_file_name(format!(".{stem}.tmp-{}{ext}", std::process::id()))
+}
+
+/// Renames a finished temporary file over its target, or removes it when writing failed.
+pub fn commit_temporary<T>(
+    tmp: &Path,
+    path: &Path,
+    written: Result<T, IoError>,
+) -> Result<T, IoError> {
+    match written {
+        Ok(value) => {
+            std::fs::rename(tmp, path).map_err(|e| IoError::io(path, e))?;
+            Ok(value)
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Writes a whole file from bytes, atomically.
+pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_atomically(path, |w| w.write_all(bytes).map_err(|e| IoError::io(path, e)))
+}
+
+/// Reads a whole text file, naming it on failure.
+pub fn read_text(path: &Path) -> Result<String, IoError> {
+    std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))
+}

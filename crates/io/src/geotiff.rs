@@ -1,0 +1,485 @@
+//! GeoTIFF rasters: float32 single band (DEMs, differences) and RGB(A) u8 (orthomosaics), written
+//! with ModelPixelScale, ModelTiepoint, GeoKeyDirectory (EPSG code, pixel-is-area) and GDAL's nodata
+//! tag, and read back from any north-up GeoTIFF with one band of a common numeric type or three/four
+//! u8 bands, striped or tiled, compressed or not.
+//!
+//! Not supported, with an error naming the file: rotated or sheared grids (ModelTransformation or
+//! several tie points), user-defined (non-EPSG) or geocentric CRSs, other band layouts.
+
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::encoder::{Compression, DeflateLevel, TiffEncoder, colortype};
+use tiff::tags::Tag;
+use tiff::{ColorType, TiffError};
+
+use crate::coords::Crs;
+use crate::{IoError, fsutil};
+
+/// A north-up affine grid, GDAL geotransform style.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GeoTransform {
+    /// X of the top-left corner of the top-left pixel.
+    pub origin_x: f64,
+    /// Y of the top-left corner of the top-left pixel.
+    pub origin_y: f64,
+    /// Pixel width (positive).
+    pub pixel_width: f64,
+    /// Pixel height (negative for north-up rasters).
+    pub pixel_height: f64,
+}
+
+impl GeoTransform {
+    /// World coordinates of a pixel position (col, row in pixel units, corner convention).
+    pub fn pixel_to_world(&self, col: f64, row: f64) -> (f64, f64) {
+        (
+            self.origin_x + col * self.pixel_width,
+            self.origin_y + row * self.pixel_height,
+        )
+    }
+
+    /// Pixel position of world coordinates.
+    pub fn world_to_pixel(&self, x: f64, y: f64) -> (f64, f64) {
+        (
+            (x - self.origin_x) / self.pixel_width,
+            (y - self.origin_y) / self.pixel_height,
+        )
+    }
+}
+
+/// Georeferencing of a raster.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GeoReference {
+    /// The grid.
+    pub transform: GeoTransform,
+    /// The CRS (`Crs::Local` when the file has none).
+    pub crs: Crs,
+    /// The nodata value, when declared.
+    pub nodata: Option<f64>,
+    /// Whether the file declared `PixelIsPoint` (the transform here is always corner-based).
+    pub pixel_is_point: bool,
+}
+
+/// A georeferenced raster with interleaved bands.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GeoRaster<T> {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Bands per pixel.
+    pub bands: usize,
+    /// Row-major, bands interleaved.
+    pub data: Vec<T>,
+    /// Georeferencing.
+    pub georef: GeoReference,
+}
+
+impl<T: Copy> GeoRaster<T> {
+    /// Value of band `b` at column `col`, row `row`.
+    pub fn get(&self, col: usize, row: usize, b: usize) -> T {
+        self.data[(row * self.width + col) * self.bands + b]
+    }
+}
+
+const GT_MODEL_TYPE: u16 = 1024;
+const GT_RASTER_TYPE: u16 = 1025;
+const GEOGRAPHIC_TYPE: u16 = 2048;
+const PROJECTED_CS_TYPE: u16 = 3072;
+const MODEL_TRANSFORMATION_TAG: u16 = 34264;
+const USER_DEFINED: u16 = 32767;
+
+fn geokey_directory(georef: &GeoReference) -> Vec<u16> {
+    let mut keys: Vec<[u16; 4]> = Vec::new();
+    match georef.crs {
+        Crs::Epsg(code) if georef.crs.is_geographic() => {
+            keys.push([GT_MODEL_TYPE, 0, 1, 2]);
+            keys.push([GT_RASTER_TYPE, 0, 1, 1 + georef.pixel_is_point as u16]);
+            keys.push([GEOGRAPHIC_TYPE, 0, 1, code]);
+        }
+        Crs::Epsg(code) => {
+            keys.push([GT_MODEL_TYPE, 0, 1, 1]);
+            keys.push([GT_RASTER_TYPE, 0, 1, 1 + georef.pixel_is_point as u16]);
+            keys.push([PROJECTED_CS_TYPE, 0, 1, code]);
+        }
+        Crs::Local => keys.push([GT_RASTER_TYPE, 0, 1, 1 + georef.pixel_is_point as u16]),
+    }
+    let mut dir = vec![1, 1, 0, keys.len() as u16];
+    dir.extend(keys.into_iter().flatten());
+    dir
+}
+
+fn tiff_err(path: &Path, e: TiffError) -> IoError {
+    match e {
+        TiffError::IoError(e) => IoError::io(path, e),
+        TiffError::UnsupportedError(u) => IoError::unsupported(path, "TIFF layout", u.to_string()),
+        other => IoError::invalid(path, format!("invalid TIFF: {other}")),
+    }
+}
+
+fn format_nodata(v: f64) -> String {
+    // Shortest representation that reads back to the same value, as GDAL writes integers.
+    format!("{v}")
+}
+
+macro_rules! write_with_georef {
+    ($path:expr, $raster:expr, $color:ty, $alpha:expr) => {{
+        let path: &Path = $path;
+        let raster = $raster;
+        let georef = &raster.georef;
+        let t = &georef.transform;
+        if !(t.pixel_width > 0.0 && t.pixel_height < 0.0) {
+            return Err(IoError::unsupported(
+                path,
+                "grid",
+                "only north-up rasters (pixel width > 0, pixel height < 0) are written",
+            ));
+        }
+        fsutil::write_atomically(path, |w| {
+            let err = |e| tiff_err(path, e);
+            let mut encoder = TiffEncoder::new(w)
+                .map_err(err)?
+                .with_compression(Compression::Deflate(DeflateLevel::Balanced));
+            let mut image = encoder
+                .new_image::<$color>(raster.width as u32, raster.height as u32)
+                .map_err(err)?;
+            let shift = if georef.pixel_is_point { 0.5 } else { 0.0 };
+            let (tx, ty) = t.pixel_to_world(shift, shift);
+            let dir = image.encoder();
+            dir.write_tag(Tag::ModelPixelScaleTag, &[t.pixel_width, -t.pixel_height, 0.0][..])
+                .map_err(err)?;
+            dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, tx, ty, 0.0][..])
+                .map_err(err)?;
+            dir.write_tag(Tag::GeoKeyDirectoryTag, &geokey_directory(georef)[..])
+                .map_err(err)?;
+            if let Some(nodata) = georef.nodata {
+                dir.write_tag(Tag::GdalNodata, &format_nodata(nodata)[..])
+                    .map_err(err)?;
+            }
+            if $alpha {
+                // Unassociated alpha, so GDAL reads band 4 as alpha.
+                dir.write_tag(Tag::ExtraSamples, &[2u16][..]).map_err(err)?;
+            }
+            image.write_data(&raster.data).map_err(err)
+        })
+    }};
+}
+
+fn check_size<T>(path: &Path, raster: &GeoRaster<T>, bands: &[usize]) -> Result<(), IoError> {
+    if !bands.contains(&raster.bands)
+        || raster.data.len() != raster.width * raster.height * raster.bands
+        || raster.width == 0
+        || raster.height == 0
+        || raster.width > u32::MAX as usize
+        || raster.height > u32::MAX as usize
+    {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "raster of {}x{}x{} does not match its {} values or the band count {:?}",
+                raster.width,
+                raster.height,
+                raster.bands,
+                raster.data.len(),
+                bands
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Writes a single-band float32 GeoTIFF (Deflate-compressed), atomically.
+pub fn write_f32(path: &Path, raster: &GeoRaster<f32>) -> Result<(), IoError> {
+    check_size(path, raster, &[1])?;
+    write_with_georef!(path, raster, colortype::Gray32Float, false)
+}
+
+/// Writes an RGB or RGBA u8 GeoTIFF (band 4 marked as alpha), atomically.
+pub fn write_rgb8(path: &Path, raster: &GeoRaster<u8>) -> Result<(), IoError> {
+    check_size(path, raster, &[3, 4])?;
+    if raster.bands == 3 {
+        write_with_georef!(path, raster, colortype::RGB8, false)
+    } else {
+        write_with_georef!(path, raster, colortype::RGBA8, true)
+    }
+}
+
+/// The decoded samples of a GeoTIFF before conversion.
+struct Decoded {
+    width: usize,
+    height: usize,
+    colortype: ColorType,
+    samples: DecodingResult,
+    georef: GeoReference,
+}
+
+fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
+    let file = File::open(path).map_err(|e| IoError::io(path, e))?;
+    let err = |e| tiff_err(path, e);
+    let mut decoder = Decoder::new(BufReader::new(file))
+        .map_err(err)?
+        .with_limits(Limits::unlimited());
+    let (width, height) = decoder.dimensions().map_err(err)?;
+    let colortype = decoder.colortype().map_err(err)?;
+
+    if decoder
+        .find_tag(Tag::Unknown(MODEL_TRANSFORMATION_TAG))
+        .map_err(err)?
+        .is_some()
+    {
+        return Err(IoError::unsupported(
+            path,
+            "GeoTIFF layout",
+            "ModelTransformationTag (rotated or sheared grid); only north-up grids are read",
+        ));
+    }
+    let scale = decoder
+        .find_tag(Tag::ModelPixelScaleTag)
+        .map_err(err)?
+        .map(|v| v.into_f64_vec())
+        .transpose()
+        .map_err(err)?;
+    let tie = decoder
+        .find_tag(Tag::ModelTiepointTag)
+        .map_err(err)?
+        .map(|v| v.into_f64_vec())
+        .transpose()
+        .map_err(err)?;
+    let (Some(scale), Some(tie)) = (scale, tie) else {
+        return Err(IoError::unsupported(
+            path,
+            "GeoTIFF layout",
+            "not georeferenced (ModelPixelScale and ModelTiepoint are required)",
+        ));
+    };
+    if scale.len() < 2 || tie.len() != 6 {
+        return Err(IoError::unsupported(
+            path,
+            "GeoTIFF layout",
+            format!(
+                "{} tie points; exactly one tie point with a pixel scale is supported",
+                tie.len() / 6
+            ),
+        ));
+    }
+    if !(scale[0] > 0.0 && scale[1] != 0.0) {
+        return Err(IoError::invalid(path, "ModelPixelScale must be non-zero"));
+    }
+
+    let keys = decoder
+        .find_tag(Tag::GeoKeyDirectoryTag)
+        .map_err(err)?
+        .map(|v| v.into_u16_vec())
+        .transpose()
+        .map_err(err)?
+        .unwrap_or_default();
+    let key = |id: u16| {
+        keys.get(4..)
+            .unwrap_or(&[])
+            .chunks_exact(4)
+            .find(|k| k[0] == id && k[1] == 0)
+            .map(|k| k[3])
+    };
+    let pixel_is_point = key(GT_RASTER_TYPE) == Some(2);
+    let crs = match key(GT_MODEL_TYPE) {
+        Some(1) => match key(PROJECTED_CS_TYPE) {
+            Some(USER_DEFINED) | None => {
+                return Err(IoError::unsupported(
+                    path,
+                    "GeoTIFF CRS",
+                    "user-defined projected CRS; only EPSG-coded CRSs are supported",
+                ));
+            }
+            Some(code) => Crs::Epsg(code),
+        },
+        Some(2) => match key(GEOGRAPHIC_TYPE) {
+            Some(USER_DEFINED) | None => {
+                return Err(IoError::unsupported(
+                    path,
+                    "GeoTIFF CRS",
+                    "user-defined geographic CRS; only EPSG-coded CRSs are supported",
+                ));
+            }
+            Some(code) => Crs::Epsg(code),
+        },
+        Some(other) => {
+            return Err(IoError::unsupported(
+                path,
+                "GeoTIFF CRS",
+                format!("model type {other} (geocentric or unknown)"),
+            ));
+        }
+        None => Crs::Local,
+    };
+    let nodata = decoder
+        .find_tag(Tag::GdalNodata)
+        .map_err(err)?
+        .map(|v| v.into_string())
+        .transpose()
+        .map_err(err)?
+        .map(|s| {
+            let s = s.trim_matches(char::from(0)).trim().to_string();
+            s.parse::<f64>().map_err(|_| {
+                IoError::invalid(path, format!("GDAL_NODATA \"{s}\" is not a number"))
+            })
+        })
+        .transpose()?;
+
+    let samples = decoder.read_image().map_err(err)?;
+    let (pw, ph) = (scale[0], -scale[1]);
+    let shift = if pixel_is_point { 0.5 } else { 0.0 };
+    let transform = GeoTransform {
+        origin_x: tie[3] - (tie[0] + shift) * pw,
+        origin_y: tie[4] - (tie[1] + shift) * ph,
+        pixel_width: pw,
+        pixel_height: ph,
+    };
+    Ok(Decoded {
+        width: width as usize,
+        height: height as usize,
+        colortype,
+        samples,
+        georef: GeoReference {
+            transform,
+            crs,
+            nodata,
+            pixel_is_point,
+        },
+    })
+}
+
+/// Reads a single-band GeoTIFF of any common numeric sample type as f32.
+pub fn read_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
+    let d = read_georeferenced(path)?;
+    if !matches!(d.colortype, ColorType::Gray(_)) {
+        return Err(IoError::unsupported(
+            path,
+            "GeoTIFF layout",
+            format!("{:?}; a single-band raster was expected", d.colortype),
+        ));
+    }
+    let data: Vec<f32> = match d.samples {
+        DecodingResult::F32(v) => v,
+        DecodingResult::F64(v) => v.into_iter().map(|x| x as f32).collect(),
+        DecodingResult::U8(v) => v.into_iter().map(f32::from).collect(),
+        DecodingResult::U16(v) => v.into_iter().map(f32::from).collect(),
+        DecodingResult::I8(v) => v.into_iter().map(f32::from).collect(),
+        DecodingResult::I16(v) => v.into_iter().map(f32::from).collect(),
+        DecodingResult::U32(v) => v.into_iter().map(|x| x as f32).collect(),
+        DecodingResult::I32(v) => v.into_iter().map(|x| x as f32).collect(),
+        _ => {
+            return Err(IoError::unsupported(
+                path,
+                "GeoTIFF sample type",
+                "only 8/16/32-bit integers and 32/64-bit floats are read",
+            ));
+        }
+    };
+    Ok(GeoRaster {
+        width: d.width,
+        height: d.height,
+        bands: 1,
+        data,
+        georef: d.georef,
+    })
+}
+
+/// Reads an RGB or RGBA u8 GeoTIFF.
+pub fn read_rgb8(path: &Path) -> Result<GeoRaster<u8>, IoError> {
+    let d = read_georeferenced(path)?;
+    let bands = match (d.colortype, &d.samples) {
+        (ColorType::RGB(8), DecodingResult::U8(_)) => 3,
+        (ColorType::RGBA(8), DecodingResult::U8(_)) => 4,
+        (other, _) => {
+            return Err(IoError::unsupported(
+                path,
+                "GeoTIFF layout",
+                format!("{other:?}; 8-bit RGB or RGBA was expected"),
+            ));
+        }
+    };
+    let DecodingResult::U8(data) = d.samples else {
+        return Err(IoError::invalid(path, "unexpected sample type"));
+    };
+    Ok(GeoRaster {
+        width: d.width,
+        height: d.height,
+        bands,
+        data,
+        georef: d.georef,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn georef() -> GeoReference {
+        GeoReference {
+            transform: GeoTransform {
+                origin_x: 731413.76093,
+                origin_y: 5705559.76249,
+                pixel_width: 1.001249756097561,
+                pixel_height: -1.000769832134293,
+            },
+            crs: Crs::Epsg(32754),
+            nodata: Some(-32767.0),
+            pixel_is_point: false,
+        }
+    }
+
+    #[test]
+    fn float_and_rgba_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("dem.tif");
+        let r = GeoRaster {
+            width: 7,
+            height: 5,
+            bands: 1,
+            data: (0..35).map(|i| i as f32 * 0.25 - 3.0).collect(),
+            georef: georef(),
+        };
+        write_f32(&p, &r).unwrap();
+        assert_eq!(read_f32(&p).unwrap(), r);
+
+        let p = dir.path().join("ortho.tif");
+        let mut g = georef();
+        g.nodata = None;
+        g.crs = Crs::Epsg(4326);
+        g.pixel_is_point = true;
+        let r = GeoRaster {
+            width: 3,
+            height: 2,
+            bands: 4,
+            data: (0..24).map(|i| (i * 10) as u8).collect(),
+            georef: g,
+        };
+        write_rgb8(&p, &r).unwrap();
+        let back = read_rgb8(&p).unwrap();
+        assert_eq!(back.data, r.data);
+        assert_eq!(back.georef.crs, Crs::Epsg(4326));
+        assert!(back.georef.pixel_is_point);
+        assert!((back.georef.transform.origin_x - g.transform.origin_x).abs() < 1e-9);
+        assert!(read_f32(&p).unwrap_err().to_string().contains("single-band"));
+    }
+
+    #[test]
+    fn rotated_grid_is_reported_as_unsupported() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("rotated.tif");
+        let file = std::fs::File::create(&p).unwrap();
+        let mut enc = TiffEncoder::new(std::io::BufWriter::new(file)).unwrap();
+        let mut img = enc.new_image::<colortype::Gray32Float>(2, 2).unwrap();
+        let m = [0.7, -0.7, 0.0, 10.0, 0.7, 0.7, 0.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        img.encoder()
+            .write_tag(Tag::Unknown(MODEL_TRANSFORMATION_TAG), &m[..])
+            .unwrap();
+        img.write_data(&[0.0f32; 4]).unwrap();
+        drop(enc);
+        let e = read_f32(&p).unwrap_err().to_string();
+        assert!(e.contains("rotated.tif") && e.contains("unsupported"), "{e}");
+        assert!(!e.contains('\n'));
+    }
+}

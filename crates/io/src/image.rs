@@ -1,0 +1,121 @@
+//! Image decoding to f32 (grey or RGB), for JPEG, PNG and TIFF in 8 or 16 bits.
+//!
+//! Pixel values are scaled to [0, 1] whatever the bit depth, so that thresholds downstream do not
+//! depend on the file format. The EXIF orientation flag is deliberately ignored: photogrammetry needs
+//! the sensor's own pixel grid, the one the camera model describes.
+
+use std::path::Path;
+
+use image::{DynamicImage, ImageReader, Limits};
+
+use crate::IoError;
+
+/// A decoded image with interleaved channels, values in [0, 1].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageF32 {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// 1 for grey, 3 for RGB.
+    pub channels: u32,
+    /// Row-major, channels interleaved.
+    pub data: Vec<f32>,
+}
+
+impl ImageF32 {
+    /// The value of channel `c` at column `x`, row `y`.
+    pub fn get(&self, x: u32, y: u32, c: u32) -> f32 {
+        self.data[((y as usize * self.width as usize + x as usize) * self.channels as usize)
+            + c as usize]
+    }
+}
+
+fn decode(path: &Path) -> Result<DynamicImage, IoError> {
+    let mut reader = ImageReader::open(path)
+        .map_err(|e| IoError::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| IoError::io(path, e))?;
+    // Scans of archival photos exceed the default 512 MiB decoding limit.
+    reader.limits(Limits::no_limits());
+    reader.decode().map_err(|e| match e {
+        image::ImageError::Unsupported(u) => {
+            IoError::unsupported(path, "image format", u.to_string())
+        }
+        other => IoError::invalid(path, format!("cannot decode image: {other}")),
+    })
+}
+
+/// Reads an image as grey f32 (ITU-R 601 luma for colour images).
+pub fn read_grey(path: &Path) -> Result<ImageF32, IoError> {
+    let img = decode(path)?.to_luma32f();
+    Ok(ImageF32 {
+        width: img.width(),
+        height: img.height(),
+        channels: 1,
+        data: img.into_raw(),
+    })
+}
+
+/// Reads an image as RGB f32 (grey images are replicated to three channels).
+pub fn read_rgb(path: &Path) -> Result<ImageF32, IoError> {
+    let img = decode(path)?.to_rgb32f();
+    Ok(ImageF32 {
+        width: img.width(),
+        height: img.height(),
+        channels: 3,
+        data: img.into_raw(),
+    })
+}
+
+/// Width and height of an image, reading only its header.
+pub fn dimensions(path: &Path) -> Result<(u32, u32), IoError> {
+    ImageReader::open(path)
+        .map_err(|e| IoError::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| IoError::io(path, e))?
+        .into_dimensions()
+        .map_err(|e| IoError::invalid(path, format!("cannot read image header: {e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::{ImageBuffer, Luma, Rgb};
+
+    #[test]
+    fn eight_and_sixteen_bit_scale_to_unit_range() {
+        let dir = tempfile::tempdir().unwrap();
+        let p8 = dir.path().join("g8.png");
+        ImageBuffer::<Luma<u8>, _>::from_fn(4, 3, |x, y| Luma([(x * 60 + y) as u8]))
+            .save(&p8)
+            .unwrap();
+        let g = read_grey(&p8).unwrap();
+        assert_eq!((g.width, g.height, g.channels), (4, 3, 1));
+        assert!((g.get(3, 2, 0) - 182.0 / 255.0).abs() < 1e-6);
+
+        let p16 = dir.path().join("c16.tif");
+        ImageBuffer::<Rgb<u16>, _>::from_fn(5, 2, |x, _| Rgb([65535, (x * 1000) as u16, 0]))
+            .save(&p16)
+            .unwrap();
+        let c = read_rgb(&p16).unwrap();
+        assert_eq!((c.width, c.height, c.channels), (5, 2, 3));
+        assert!((c.get(0, 0, 0) - 1.0).abs() < 1e-6);
+        assert!((c.get(4, 1, 1) - 4000.0 / 65535.0).abs() < 1e-6);
+        assert_eq!(dimensions(&p16).unwrap(), (5, 2));
+        // Grey from colour is the luma.
+        let grey = read_grey(&p16).unwrap();
+        assert!(grey.get(0, 0, 0) > 0.2 && grey.get(0, 0, 0) < 0.35);
+    }
+
+    #[test]
+    fn corrupt_jpeg_is_an_error_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("broken.jpg");
+        // A JPEG start-of-image marker followed by garbage.
+        std::fs::write(&p, [0xFF, 0xD8, 0xFF, 0xE0, 0, 16, b'J', b'F', 1, 2, 3]).unwrap();
+        let err = read_grey(&p).unwrap_err().to_string();
+        assert!(err.contains("broken.jpg"), "{err}");
+        assert!(!err.contains('\n'));
+    }
+}

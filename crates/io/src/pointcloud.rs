@@ -1,0 +1,326 @@
+//! Point clouds in LAS 1.4 / LAZ: positions in f64 through the file's offset and scale, optional RGB,
+//! named extra attributes (the LAS "extra bytes"), and the CRS as a WKT record.
+//!
+//! LAS stores integers scaled and offset; the writer takes the scale (default 1 mm) and puts the
+//! offset at the cloud's minimum corner rounded to the metre, so UTM-sized coordinates keep full
+//! precision. The format (LAS or LAZ) follows the file extension.
+
+use std::path::Path;
+
+use las::{Builder, Color, Point, Reader, Transform, Vector, Version, Vlr, Writer, point::Format};
+
+use crate::coords::Crs;
+use crate::{IoError, fsutil};
+
+/// Values of one extra attribute, one per point.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AttributeValues {
+    /// Unsigned bytes (flags, classes).
+    U8(Vec<u8>),
+    /// Single-precision floats (distances, uncertainties).
+    F32(Vec<f32>),
+    /// Double-precision floats.
+    F64(Vec<f64>),
+}
+
+impl AttributeValues {
+    fn len(&self) -> usize {
+        match self {
+            AttributeValues::U8(v) => v.len(),
+            AttributeValues::F32(v) => v.len(),
+            AttributeValues::F64(v) => v.len(),
+        }
+    }
+    fn size(&self) -> usize {
+        match self {
+            AttributeValues::U8(_) => 1,
+            AttributeValues::F32(_) => 4,
+            AttributeValues::F64(_) => 8,
+        }
+    }
+    /// LAS 1.4 extra-bytes data type code.
+    fn type_code(&self) -> u8 {
+        match self {
+            AttributeValues::U8(_) => 1,
+            AttributeValues::F32(_) => 9,
+            AttributeValues::F64(_) => 10,
+        }
+    }
+    fn push_le(&self, i: usize, out: &mut Vec<u8>) {
+        match self {
+            AttributeValues::U8(v) => out.push(v[i]),
+            AttributeValues::F32(v) => out.extend_from_slice(&v[i].to_le_bytes()),
+            AttributeValues::F64(v) => out.extend_from_slice(&v[i].to_le_bytes()),
+        }
+    }
+}
+
+/// A named per-point attribute.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtraAttribute {
+    /// Attribute name (at most 32 bytes).
+    pub name: String,
+    /// The values.
+    pub values: AttributeValues,
+}
+
+/// A point cloud with optional colours and attributes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointCloud {
+    /// Positions in the CRS, metres.
+    pub positions: Vec<[f64; 3]>,
+    /// 16-bit RGB colours, one per point.
+    pub colors: Option<Vec<[u16; 3]>>,
+    /// Extra attributes, each with one value per point.
+    pub attributes: Vec<ExtraAttribute>,
+    /// The CRS.
+    pub crs: Crs,
+}
+
+/// Options of the LAS writer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LasWriteOptions {
+    /// Coordinate resolution in metres (the LAS scale), per axis.
+    pub scale: [f64; 3],
+}
+
+impl Default for LasWriteOptions {
+    fn default() -> Self {
+        LasWriteOptions {
+            scale: [0.001; 3],
+        }
+    }
+}
+
+const EXTRA_BYTES_USER: &str = "LASF_Spec";
+const EXTRA_BYTES_RECORD: u16 = 4;
+const DESCRIPTOR_LEN: usize = 192;
+
+fn extra_bytes_vlr(attributes: &[ExtraAttribute]) -> Vlr {
+    let mut data = Vec::with_capacity(attributes.len() * DESCRIPTOR_LEN);
+    for a in attributes {
+        let mut d = [0u8; DESCRIPTOR_LEN];
+        d[2] = a.values.type_code();
+        let name = a.name.as_bytes();
+        d[4..4 + name.len().min(32)].copy_from_slice(&name[..name.len().min(32)]);
+        data.extend_from_slice(&d);
+    }
+    Vlr {
+        user_id: EXTRA_BYTES_USER.to_string(),
+        record_id: EXTRA_BYTES_RECORD,
+        description: "extra attributes".to_string(),
+        data,
+    }
+}
+
+/// Writes a LAS 1.4 file (LAZ when the extension is `.laz`), atomically.
+pub fn write_las(path: &Path, cloud: &PointCloud, options: &LasWriteOptions) -> Result<(), IoError> {
+    let n = cloud.positions.len();
+    if cloud.colors.as_ref().is_some_and(|c| c.len() != n)
+        || cloud.attributes.iter().any(|a| a.values.len() != n)
+    {
+        return Err(IoError::invalid(
+            path,
+            "colours and attributes must have one value per point",
+        ));
+    }
+    if let Some(a) = cloud.attributes.iter().find(|a| a.name.len() > 32 || a.name.is_empty()) {
+        return Err(IoError::invalid(
+            path,
+            format!("attribute name \"{}\" must have 1 to 32 bytes", a.name),
+        ));
+    }
+    if options.scale.iter().any(|s| !(*s > 0.0)) {
+        return Err(IoError::invalid(path, "LAS scale must be positive"));
+    }
+    let mut min = [f64::INFINITY; 3];
+    for p in &cloud.positions {
+        for k in 0..3 {
+            if !p[k].is_finite() {
+                return Err(IoError::invalid(path, "non-finite point coordinate"));
+            }
+            min[k] = min[k].min(p[k]);
+        }
+    }
+    let offset = min.map(|m| if m.is_finite() { m.floor() } else { 0.0 });
+
+    let mut builder = Builder::from(Version::new(1, 4));
+    builder.generating_software = format!("timesift {}", env!("CARGO_PKG_VERSION"));
+    let mut format = Format::new(if cloud.colors.is_some() { 7 } else { 6 })
+        .map_err(|e| IoError::invalid(path, e.to_string()))?;
+    let extra: usize = cloud.attributes.iter().map(|a| a.values.size()).sum();
+    format.extra_bytes = extra as u16;
+    builder.point_format = format;
+    builder.transforms = Vector {
+        x: Transform {
+            scale: options.scale[0],
+            offset: offset[0],
+        },
+        y: Transform {
+            scale: options.scale[1],
+            offset: offset[1],
+        },
+        z: Transform {
+            scale: options.scale[2],
+            offset: offset[2],
+        },
+    };
+    if !cloud.attributes.is_empty() {
+        builder.vlrs.push(extra_bytes_vlr(&cloud.attributes));
+    }
+    let mut header = builder
+        .into_header()
+        .map_err(|e| IoError::invalid(path, format!("LAS header: {e}")))?;
+    if let Crs::Epsg(code) = cloud.crs {
+        let wkt = cloud.crs.wkt().ok_or_else(|| IoError::Crs {
+            crs: format!("EPSG:{code}"),
+            message: "no WKT definition known for the LAS header".to_string(),
+        })?;
+        header
+            .set_wkt_crs(wkt.as_bytes().to_vec())
+            .map_err(|e| IoError::invalid(path, format!("LAS CRS: {e}")))?;
+    }
+
+    let tmp = fsutil::temporary_sibling(path);
+    let written = (|| {
+        let las_err = |e: las::Error| IoError::invalid(path, format!("cannot write LAS: {e}"));
+        let mut writer = Writer::from_path(&tmp, header).map_err(las_err)?;
+        let mut bytes = Vec::with_capacity(extra);
+        for i in 0..n {
+            bytes.clear();
+            for a in &cloud.attributes {
+                a.values.push_le(i, &mut bytes);
+            }
+            let [x, y, z] = cloud.positions[i];
+            let point = Point {
+                x,
+                y,
+                z,
+                return_number: 1,
+                number_of_returns: 1,
+                gps_time: Some(0.0),
+                color: cloud.colors.as_ref().map(|c| Color {
+                    red: c[i][0],
+                    green: c[i][1],
+                    blue: c[i][2],
+                }),
+                extra_bytes: bytes.clone(),
+                ..Default::default()
+            };
+            writer.write_point(point).map_err(las_err)?;
+        }
+        writer.close().map_err(las_err)
+    })();
+    fsutil::commit_temporary(&tmp, path, written)
+}
+
+/// One attribute's layout read from the extra-bytes record.
+struct Descriptor {
+    name: String,
+    type_code: u8,
+}
+
+fn descriptors(path: &Path, vlr: &Vlr) -> Result<Vec<Descriptor>, IoError> {
+    if vlr.data.len() % DESCRIPTOR_LEN != 0 {
+        return Err(IoError::invalid(path, "extra-bytes record has a partial descriptor"));
+    }
+    Ok(vlr
+        .data
+        .chunks_exact(DESCRIPTOR_LEN)
+        .map(|d| Descriptor {
+            name: String::from_utf8_lossy(&d[4..36])
+                .trim_end_matches('\0')
+                .to_string(),
+            type_code: d[2],
+        })
+        .collect())
+}
+
+/// Reads a LAS or LAZ file: positions, colours when the format has them, the extra attributes of
+/// type u8, f32 and f64 described by an extra-bytes record, and an EPSG CRS when the WKT names one.
+pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
+    let las_err = |e: las::Error| IoError::invalid(path, format!("cannot read LAS: {e}"));
+    let mut reader = Reader::from_path(path).map_err(las_err)?;
+    let header = reader.header().clone();
+    let descs = match header
+        .all_vlrs()
+        .find(|v| v.user_id == EXTRA_BYTES_USER && v.record_id == EXTRA_BYTES_RECORD)
+    {
+        Some(v) => descriptors(path, v)?,
+        None => Vec::new(),
+    };
+    let mut attributes = Vec::with_capacity(descs.len());
+    for d in &descs {
+        let values = match d.type_code {
+            1 => AttributeValues::U8(Vec::new()),
+            9 => AttributeValues::F32(Vec::new()),
+            10 => AttributeValues::F64(Vec::new()),
+            other => {
+                return Err(IoError::unsupported(
+                    path,
+                    "LAS extra-bytes type",
+                    format!("attribute \"{}\" has data type {other}; u8, f32 and f64 are read", d.name),
+                ));
+            }
+        };
+        attributes.push(ExtraAttribute {
+            name: d.name.clone(),
+            values,
+        });
+    }
+    let crs = header
+        .get_wkt_crs_bytes()
+        .and_then(|wkt| epsg_of_wkt(&String::from_utf8_lossy(wkt)))
+        .map(Crs::Epsg)
+        .unwrap_or(Crs::Local);
+    let has_color = header.point_format().has_color;
+    let n = header.number_of_points() as usize;
+    let mut positions = Vec::with_capacity(n);
+    let mut colors = has_color.then(|| Vec::with_capacity(n));
+    let data = reader.read_all().map_err(las_err)?;
+    for point in data.points() {
+        let p = point.map_err(las_err)?;
+        positions.push([p.x, p.y, p.z]);
+        if let (Some(colors), Some(c)) = (colors.as_mut(), p.color) {
+            colors.push([c.red, c.green, c.blue]);
+        }
+        let mut at = 0;
+        for a in attributes.iter_mut() {
+            let bytes = &p.extra_bytes;
+            let need = at + a.values.size();
+            if bytes.len() < need {
+                return Err(IoError::invalid(path, "point record shorter than its extra attributes"));
+            }
+            match &mut a.values {
+                AttributeValues::U8(v) => v.push(bytes[at]),
+                AttributeValues::F32(v) => {
+                    v.push(f32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]))
+                }
+                AttributeValues::F64(v) => {
+                    let mut b = [0u8; 8];
+                    b.copy_from_slice(&bytes[at..at + 8]);
+                    v.push(f64::from_le_bytes(b))
+                }
+            }
+            at = need;
+        }
+    }
+    Ok(PointCloud {
+        positions,
+        colors,
+        attributes,
+        crs,
+    })
+}
+
+/// The EPSG code of the outermost object of a WKT 1 definition (its last `AUTHORITY["EPSG",…]`).
+fn epsg_of_wkt(wkt: &str) -> Option<u16> {
+    let idx = wkt.rfind("AUTHORITY[\"EPSG\",")?;
+    let rest = &wkt[idx + "AUTHORITY[\"EPSG\",".len()..];
+    let code: String = rest
+        .trim_start_matches('"')
+        .chars()
+        .take_while(|c| c.is_ascii_digit())
+        .collect();
+    code.parse().ok()
+}
