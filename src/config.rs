@@ -1,0 +1,241 @@
+//! `project.toml`: the typed configuration of a project. Every option has a default, documented
+//! here and in the file `timesift init` writes; unknown keys are errors naming the key.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::ProjectError;
+
+/// The whole `project.toml`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectConfig {
+    /// World frame: `"EPSG:<code>"` of a projected CRS, or `"local"`. Default `"local"`.
+    #[serde(default = "default_crs")]
+    pub crs: String,
+    /// The epochs, in chronological order.
+    #[serde(default, rename = "epoch")]
+    pub epochs: Vec<EpochConfig>,
+    /// Where the CSV inputs are.
+    #[serde(default)]
+    pub inputs: InputsConfig,
+    /// Camera-centre priors.
+    #[serde(default)]
+    pub gnss: GnssConfig,
+    /// Orientation options.
+    #[serde(default)]
+    pub align: AlignConfig,
+}
+
+fn default_crs() -> String {
+    "local".to_string()
+}
+
+/// Image selection: one glob or path, or a list of them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ImageSelection {
+    /// One glob or path relative to the project directory.
+    One(String),
+    /// Several globs or paths.
+    Many(Vec<String>),
+}
+
+impl ImageSelection {
+    /// The patterns in order.
+    pub fn patterns(&self) -> Vec<&str> {
+        match self {
+            ImageSelection::One(p) => vec![p.as_str()],
+            ImageSelection::Many(v) => v.iter().map(String::as_str).collect(),
+        }
+    }
+}
+
+/// One `[[epoch]]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EpochConfig {
+    /// Epoch name (e.g. a date); used in output paths, so no `/`.
+    pub name: String,
+    /// Images of the epoch: glob(s) or path(s) relative to the project directory. Default
+    /// `"images/<name>/*"` (every JPEG, PNG or TIFF there). Globs match image files only; a glob
+    /// matching nothing and a listed path that does not exist are errors.
+    #[serde(default)]
+    pub images: Option<ImageSelection>,
+    /// Camera group sharing intrinsics. Default: the epoch's name ("split by epoch").
+    #[serde(default)]
+    pub camera: Option<String>,
+}
+
+/// `[inputs]`: file names relative to the project directory. A file named explicitly must exist;
+/// a default name is used when the file is present.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputsConfig {
+    /// Ground control points. Default `gcps.csv`.
+    pub gcps: Option<String>,
+    /// Image measurements of control and check points. Default `markers.csv`.
+    pub markers: Option<String>,
+    /// Independent check points. Default `checkpoints.csv`.
+    pub checkpoints: Option<String>,
+    /// Camera-centre priors. Default `gnss.csv`.
+    pub gnss: Option<String>,
+    /// Stable-area polygons (WKT). Default `stable.csv`.
+    pub stable: Option<String>,
+}
+
+/// `[gnss]`: camera-centre priors.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GnssConfig {
+    /// Read EXIF GPS positions as priors when there is no gnss file. Default `true`.
+    #[serde(default = "yes")]
+    pub exif: bool,
+    /// Horizontal standard deviation (m) of priors that give none. Default 5 m (consumer GPS).
+    #[serde(default = "default_sxy")]
+    pub sxy: f64,
+    /// Vertical standard deviation (m) of priors that give none. Default 10 m.
+    #[serde(default = "default_sz")]
+    pub sz: f64,
+}
+
+fn yes() -> bool {
+    true
+}
+fn default_sxy() -> f64 {
+    5.0
+}
+fn default_sz() -> f64 {
+    10.0
+}
+
+impl Default for GnssConfig {
+    fn default() -> Self {
+        GnssConfig {
+            exif: true,
+            sxy: default_sxy(),
+            sz: default_sz(),
+        }
+    }
+}
+
+/// Co-registration strategy (DESIGN.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AlignMethod {
+    /// One bundle block for all epochs (the default).
+    #[default]
+    Timesift,
+    /// Epochs oriented alone, then merged progressively into one block.
+    Msfm,
+    /// Epochs oriented alone, then aligned to the reference by a Helmert transform.
+    Chunk,
+    /// Stable tie points of the reference epoch as control for the others.
+    Stp,
+    /// Each epoch oriented and georeferenced alone.
+    Independent,
+}
+
+/// Feature detector and descriptor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FeatureMethod {
+    /// SIFT with RootSIFT descriptors (the default).
+    #[default]
+    Sift,
+    /// Binary LDB descriptors on the same keypoints.
+    Ldb,
+}
+
+/// `[align]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AlignConfig {
+    /// Strategy. Default `timesift`.
+    #[serde(default)]
+    pub method: AlignMethod,
+    /// Epoch carrying the datum. Default: the first epoch.
+    #[serde(default)]
+    pub reference_epoch: Option<String>,
+    /// Features. Default `sift`.
+    #[serde(default)]
+    pub features: FeatureMethod,
+    /// Keypoint limit per image. Default 40000.
+    #[serde(default = "default_max_keypoints")]
+    pub max_keypoints: usize,
+    /// Tie-point accuracy in pixels (bundle weighting). Default 1.0.
+    #[serde(default = "default_tie_px")]
+    pub tie_point_accuracy_px: f64,
+    /// Marker accuracy in pixels. Default 0.5.
+    #[serde(default = "default_marker_px")]
+    pub marker_accuracy_px: f64,
+    /// Use GCPs in every epoch rather than only in the reference epoch. Default `false`.
+    #[serde(default)]
+    pub gcps_in_all_epochs: bool,
+}
+
+fn default_max_keypoints() -> usize {
+    40_000
+}
+fn default_tie_px() -> f64 {
+    1.0
+}
+fn default_marker_px() -> f64 {
+    0.5
+}
+
+impl Default for AlignConfig {
+    fn default() -> Self {
+        AlignConfig {
+            method: AlignMethod::default(),
+            reference_epoch: None,
+            features: FeatureMethod::default(),
+            max_keypoints: default_max_keypoints(),
+            tie_point_accuracy_px: default_tie_px(),
+            marker_accuracy_px: default_marker_px(),
+            gcps_in_all_epochs: false,
+        }
+    }
+}
+
+/// Line (1-based) of a byte offset in a text.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+impl ProjectConfig {
+    /// Parses `project.toml` text; errors name the file and line, and the key for unknown or
+    /// mistyped keys.
+    pub fn parse(path: &Path, text: &str) -> Result<Self, ProjectError> {
+        let config: ProjectConfig = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| line_of(text, s.start)).unwrap_or(1);
+            ProjectError::Reference {
+                path: path.to_path_buf(),
+                line,
+                message: e.message().trim().replace('\n', " "),
+            }
+        })?;
+        let positive = [
+            ("gnss.sxy", config.gnss.sxy),
+            ("gnss.sz", config.gnss.sz),
+            ("align.tie_point_accuracy_px", config.align.tie_point_accuracy_px),
+            ("align.marker_accuracy_px", config.align.marker_accuracy_px),
+        ];
+        for (key, value) in positive {
+            if !(value > 0.0 && value.is_finite()) {
+                return Err(ProjectError::config(path, key, format!("expected a positive number, found {value}")));
+            }
+        }
+        if config.align.max_keypoints == 0 {
+            return Err(ProjectError::config(path, "align.max_keypoints", "expected a positive count"));
+        }
+        Ok(config)
+    }
+
+    /// Reads and parses `project.toml`.
+    pub fn read(path: &Path) -> Result<Self, ProjectError> {
+        let text = timesift_io::fsutil::read_text(path)?;
+        Self::parse(path, &text)
+    }
+}

@@ -1,0 +1,55 @@
+//! Errors of the project layer.
+
+use std::path::PathBuf;
+
+use thiserror::Error;
+use timesift_io::IoError;
+
+/// A failure to load, validate or run a project. Messages are one line naming the file and the
+/// line or key.
+#[derive(Debug, Error)]
+pub enum ProjectError {
+    /// A file could not be read or parsed.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// A configuration value is wrong.
+    #[error("{}: key `{key}`: {message}", path.display())]
+    Config {
+        path: PathBuf,
+        key: String,
+        message: String,
+    },
+    /// A line of an input file refers to something that does not exist.
+    #[error("{}: line {line}: {message}", path.display())]
+    Reference {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+    /// A path given to a command is not usable.
+    #[error("{}: {message}", path.display())]
+    Path { path: PathBuf, message: String },
+    /// `--from` comes after `--to`.
+    #[error("stage range is empty: --from {from} comes after --to {to}")]
+    StageRange {
+        from: &'static str,
+        to: &'static str,
+    },
+    /// A stage of `timesift run` is not built yet.
+    #[error("stage {0} is not available yet")]
+    StageNotAvailable(&'static str),
+}
+
+impl ProjectError {
+    pub(crate) fn config(
+        path: impl Into<PathBuf>,
+        key: impl Into<String>,
+        message: impl Into<String>,
+    ) -> Self {
+        ProjectError::Config {
+            path: path.into(),
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+}

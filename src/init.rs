@@ -1,0 +1,143 @@
+//! `timesift init`: a `project.toml` from the folders of `images/` and the images' EXIF.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use timesift_io::coords::{Crs, utm_epsg_for};
+use timesift_io::{exif, fsutil};
+
+use crate::config::ProjectConfig;
+use crate::project::{IMAGE_EXTENSIONS, PROJECT_FILE};
+use crate::{Project, ProjectError};
+
+/// Options of `timesift init`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct InitOptions {
+    /// Overwrite an existing `project.toml`.
+    pub overwrite: bool,
+}
+
+/// What `init` found and wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InitSummary {
+    /// Epoch names and image counts.
+    pub epochs: Vec<(String, usize)>,
+    /// The CRS chosen.
+    pub crs: Crs,
+    /// Images with an EXIF GPS position.
+    pub images_with_gps: usize,
+}
+
+fn toml_string(s: &str) -> String {
+    toml::Value::String(s.to_string()).to_string()
+}
+
+/// Scans `dir/images/<epoch>/`, reads EXIF, chooses the CRS (the UTM zone of the mean GPS position,
+/// or `local` without GPS), validates the result like `timesift run` would, and writes
+/// `project.toml` atomically.
+pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectError> {
+    let config_path = dir.join(PROJECT_FILE);
+    if config_path.exists() && !options.overwrite {
+        return Err(ProjectError::Path {
+            path: config_path,
+            message: "already exists (use --force to overwrite)".to_string(),
+        });
+    }
+    let images_dir = dir.join("images");
+    let entries = std::fs::read_dir(&images_dir).map_err(|e| ProjectError::Path {
+        path: images_dir.clone(),
+        message: format!("cannot list the epoch folders: {e}"),
+    })?;
+    let mut epoch_dirs: Vec<_> = entries
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .collect();
+    epoch_dirs.sort();
+
+    let mut epochs = Vec::new();
+    let (mut lat_sum, mut lon_sum, mut with_gps) = (0.0, 0.0, 0usize);
+    for epoch_dir in &epoch_dirs {
+        let mut files: Vec<_> = std::fs::read_dir(epoch_dir)
+            .map_err(|e| ProjectError::Path {
+                path: epoch_dir.clone(),
+                message: e.to_string(),
+            })?
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| {
+                p.is_file()
+                    && p.extension()
+                        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+                        .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.as_str()))
+            })
+            .collect();
+        if files.is_empty() {
+            continue;
+        }
+        files.sort();
+        for f in &files {
+            if let Some(gps) = exif::read_exif(f)?.gps {
+                lat_sum += gps.latitude;
+                lon_sum += gps.longitude;
+                with_gps += 1;
+            }
+        }
+        let name = epoch_dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        epochs.push((name, files.len()));
+    }
+    if epochs.is_empty() {
+        return Err(ProjectError::Path {
+            path: images_dir,
+            message: "no epoch folder with images (expected images/<epoch>/*.jpg|png|tif)"
+                .to_string(),
+        });
+    }
+    let crs = if with_gps > 0 {
+        Crs::Epsg(utm_epsg_for(lat_sum / with_gps as f64, lon_sum / with_gps as f64))
+    } else {
+        Crs::Local
+    };
+
+    let mut text = String::new();
+    let _ = writeln!(text, "# timesift project written by `timesift init`. Commented keys show their defaults.");
+    let _ = writeln!(
+        text,
+        "crs = {}  # {}\n",
+        toml_string(&crs.to_string()),
+        if with_gps > 0 {
+            "UTM zone of the images' mean EXIF GPS position"
+        } else {
+            "no EXIF GPS found: a local frame"
+        }
+    );
+    for (name, _) in &epochs {
+        let _ = writeln!(text, "[[epoch]]\nname = {}", toml_string(name));
+        let _ = writeln!(text, "images = {}", toml_string(&format!("images/{name}/*")));
+        let _ = writeln!(text, "# camera = {}  # camera group sharing intrinsics\n", toml_string(name));
+    }
+    let _ = writeln!(text, "[align]");
+    let _ = writeln!(text, "method = \"timesift\"  # timesift | msfm | chunk | stp | independent");
+    let _ = writeln!(text, "reference_epoch = {}", toml_string(&epochs[0].0));
+    let _ = writeln!(text, "features = \"sift\"  # sift | ldb");
+    let _ = writeln!(text, "# max_keypoints = 40000");
+    let _ = writeln!(text, "# tie_point_accuracy_px = 1.0");
+    let _ = writeln!(text, "# marker_accuracy_px = 0.5");
+    let _ = writeln!(text, "# gcps_in_all_epochs = false\n");
+    let _ = writeln!(text, "[gnss]");
+    let _ = writeln!(text, "# exif = true  # EXIF GPS as camera-centre priors when gnss.csv is absent");
+    let _ = writeln!(text, "# sxy = 5.0    # default horizontal standard deviation of priors, m");
+    let _ = writeln!(text, "# sz = 10.0    # default vertical standard deviation of priors, m");
+
+    let config = ProjectConfig::parse(&config_path, &text)?;
+    Project::from_config(dir, config)?;
+    fsutil::write_bytes_atomically(&config_path, text.as_bytes())?;
+    Ok(InitSummary {
+        epochs,
+        crs,
+        images_with_gps: with_gps,
+    })
+}

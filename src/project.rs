@@ -1,0 +1,431 @@
+//! A loaded and validated project directory: epochs with their images, camera groups, and the CSV
+//! inputs cross-checked against each other.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+use nalgebra::Vector3;
+use timesift_core::{EpochId, ImageId};
+use timesift_io::coords::{Crs, Projector};
+use timesift_io::csv_inputs::{self, ControlPoint, GnssPrior, Marker, StableArea};
+use timesift_io::exif;
+
+use crate::ProjectError;
+use crate::config::ProjectConfig;
+
+/// File name of the configuration inside a project directory.
+pub const PROJECT_FILE: &str = "project.toml";
+
+/// Extensions (lower case) of the images a glob selects.
+pub const IMAGE_EXTENSIONS: [&str; 5] = ["jpg", "jpeg", "png", "tif", "tiff"];
+
+/// An epoch of the project.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Epoch {
+    /// Name from `project.toml`.
+    pub name: String,
+    /// Camera group of its images.
+    pub camera_group: String,
+    /// Its images, in path order.
+    pub images: Vec<ImageId>,
+}
+
+/// An image of the project.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProjectImage {
+    /// Path relative to the project directory, with `/` separators.
+    pub name: String,
+    /// Its epoch.
+    pub epoch: EpochId,
+}
+
+/// Where a camera-centre prior came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PriorSource {
+    /// The gnss CSV file.
+    GnssFile,
+    /// EXIF GPS projected into the project CRS.
+    Exif,
+}
+
+/// A camera-centre prior in the project CRS.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraPrior {
+    /// Camera centre (E, N, H), metres.
+    pub position: Vector3<f64>,
+    /// Horizontal standard deviation, metres.
+    pub sxy: f64,
+    /// Vertical standard deviation, metres.
+    pub sz: f64,
+    /// Origin of the prior.
+    pub source: PriorSource,
+}
+
+/// A validated project.
+#[derive(Debug, Clone)]
+pub struct Project {
+    /// The project directory.
+    pub dir: PathBuf,
+    /// The configuration as read.
+    pub config: ProjectConfig,
+    /// The world frame.
+    pub crs: Crs,
+    /// Epochs in configuration order.
+    pub epochs: Vec<Epoch>,
+    /// All images, indexed by [`ImageId`].
+    pub images: Vec<ProjectImage>,
+    /// Index of the reference epoch.
+    pub reference_epoch: EpochId,
+    /// Ground control points.
+    pub gcps: Vec<ControlPoint>,
+    /// Check points.
+    pub checkpoints: Vec<ControlPoint>,
+    /// Marker observations.
+    pub markers: Vec<Marker>,
+    /// Priors from the gnss file.
+    pub gnss: Vec<GnssPrior>,
+    /// Stable areas.
+    pub stable_areas: Vec<StableArea>,
+}
+
+fn is_image_file(path: &Path) -> bool {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.as_str()))
+}
+
+/// `path` relative to `dir`, with `/` separators.
+fn relative_name(dir: &Path, path: &Path) -> String {
+    let rel = path.strip_prefix(dir).unwrap_or(path);
+    rel.components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect::<Vec<_>>()
+        .join("/")
+}
+
+/// Normalises a user-written relative image path (`./a//b.jpg` → `a/b.jpg`).
+fn normalise_name(name: &str) -> String {
+    name.split(['/', '\\'])
+        .filter(|c| !c.is_empty() && *c != ".")
+        .collect::<Vec<_>>()
+        .join("/")
+}
+
+impl Project {
+    /// Loads `project.toml` from `dir` and validates it with every input file it names.
+    pub fn load(dir: &Path) -> Result<Self, ProjectError> {
+        let config_path = dir.join(PROJECT_FILE);
+        if !config_path.is_file() {
+            return Err(ProjectError::Path {
+                path: config_path,
+                message: "no project file (run `timesift init` first)".to_string(),
+            });
+        }
+        let config = ProjectConfig::read(&config_path)?;
+        Self::from_config(dir, config)
+    }
+
+    /// Validates a configuration against the files of `dir`.
+    pub fn from_config(dir: &Path, config: ProjectConfig) -> Result<Self, ProjectError> {
+        let cfg_path = dir.join(PROJECT_FILE);
+        let crs: Crs = config
+            .crs
+            .parse()
+            .map_err(|m: String| ProjectError::config(&cfg_path, "crs", m))?;
+        if crs.is_geographic() {
+            return Err(ProjectError::config(
+                &cfg_path,
+                "crs",
+                format!("{crs} is geographic; the world frame must be projected (metres), e.g. a UTM zone"),
+            ));
+        }
+        if let Crs::Epsg(_) = crs {
+            Projector::new(crs).map_err(|e| ProjectError::config(&cfg_path, "crs", e.to_string()))?;
+        }
+        if config.epochs.is_empty() {
+            return Err(ProjectError::config(&cfg_path, "epoch", "no [[epoch]] is defined"));
+        }
+
+        let mut epochs = Vec::new();
+        let mut images: Vec<ProjectImage> = Vec::new();
+        let mut owner: HashMap<String, usize> = HashMap::new();
+        for (e, ec) in config.epochs.iter().enumerate() {
+            let key = format!("epoch[{e}]");
+            if ec.name.trim().is_empty() || ec.name.contains(['/', '\\']) {
+                return Err(ProjectError::config(
+                    &cfg_path,
+                    format!("{key}.name"),
+                    format!("\"{}\" is not a valid epoch name (non-empty, no slashes)", ec.name),
+                ));
+            }
+            if let Some(first) = config.epochs[..e].iter().position(|o| o.name == ec.name) {
+                return Err(ProjectError::config(
+                    &cfg_path,
+                    format!("{key}.name"),
+                    format!("epoch \"{}\" is already defined as epoch[{first}]", ec.name),
+                ));
+            }
+            let default_pattern = format!("images/{}/*", ec.name);
+            let patterns = ec
+                .images
+                .as_ref()
+                .map(|s| s.patterns().into_iter().map(str::to_string).collect())
+                .unwrap_or_else(|| vec![default_pattern]);
+            let mut names = Vec::new();
+            for pattern in &patterns {
+                names.extend(expand_images(dir, &cfg_path, &format!("{key}.images"), pattern)?);
+            }
+            names.sort();
+            names.dedup();
+            if names.len() < 2 {
+                return Err(ProjectError::config(
+                    &cfg_path,
+                    format!("{key}.images"),
+                    format!(
+                        "epoch \"{}\" has {} image(s); at least 2 are needed",
+                        ec.name,
+                        names.len()
+                    ),
+                ));
+            }
+            let mut ids = Vec::with_capacity(names.len());
+            for name in names {
+                if let Some(&other) = owner.get(&name) {
+                    return Err(ProjectError::config(
+                        &cfg_path,
+                        format!("{key}.images"),
+                        format!(
+                            "image \"{name}\" is listed in epoch \"{}\" and in epoch \"{}\"",
+                            config.epochs[other].name, ec.name
+                        ),
+                    ));
+                }
+                owner.insert(name.clone(), e);
+                ids.push(ImageId::from(images.len()));
+                images.push(ProjectImage {
+                    name,
+                    epoch: EpochId::from(e),
+                });
+            }
+            epochs.push(Epoch {
+                name: ec.name.clone(),
+                camera_group: ec.camera.clone().unwrap_or_else(|| ec.name.clone()),
+                images: ids,
+            });
+        }
+
+        let reference_epoch = match &config.align.reference_epoch {
+            None => EpochId(0),
+            Some(name) => epochs
+                .iter()
+                .position(|e| &e.name == name)
+                .map(EpochId::from)
+                .ok_or_else(|| {
+                    ProjectError::config(
+                        &cfg_path,
+                        "align.reference_epoch",
+                        format!("\"{name}\" is not an epoch of this project"),
+                    )
+                })?,
+        };
+
+        let input = |key: &str, explicit: &Option<String>, default: &str| -> Result<Option<PathBuf>, ProjectError> {
+            match explicit {
+                Some(name) => {
+                    let p = dir.join(name);
+                    if p.is_file() {
+                        Ok(Some(p))
+                    } else {
+                        Err(ProjectError::config(
+                            &cfg_path,
+                            format!("inputs.{key}"),
+                            format!("file \"{name}\" does not exist"),
+                        ))
+                    }
+                }
+                None => {
+                    let p = dir.join(default);
+                    Ok(p.is_file().then_some(p))
+                }
+            }
+        };
+        let inputs = &config.inputs;
+        let gcps = match input("gcps", &inputs.gcps, "gcps.csv")? {
+            Some(p) => csv_inputs::read_gcps(&p)?,
+            None => Vec::new(),
+        };
+        let checkpoints = match input("checkpoints", &inputs.checkpoints, "checkpoints.csv")? {
+            Some(p) => csv_inputs::read_checkpoints(&p)?,
+            None => Vec::new(),
+        };
+        let image_index: HashMap<&str, usize> =
+            images.iter().enumerate().map(|(i, im)| (im.name.as_str(), i)).collect();
+        let mut markers = Vec::new();
+        if let Some(p) = input("markers", &inputs.markers, "markers.csv")? {
+            markers = csv_inputs::read_markers(&p)?;
+            for m in &mut markers {
+                m.image = normalise_name(&m.image);
+                if !image_index.contains_key(m.image.as_str()) {
+                    return Err(ProjectError::Reference {
+                        path: p.clone(),
+                        line: m.line,
+                        message: format!("unknown image \"{}\" (not in any epoch)", m.image),
+                    });
+                }
+                let known = gcps.iter().chain(&checkpoints).any(|g| g.name == m.name);
+                if !known {
+                    return Err(ProjectError::Reference {
+                        path: p.clone(),
+                        line: m.line,
+                        message: format!("unknown point \"{}\" (not in the GCP or check-point file)", m.name),
+                    });
+                }
+            }
+        }
+        if let Some(c) = checkpoints.iter().find(|c| gcps.iter().any(|g| g.name == c.name)) {
+            return Err(ProjectError::Reference {
+                path: input("checkpoints", &inputs.checkpoints, "checkpoints.csv")?.unwrap_or_default(),
+                line: c.line,
+                message: format!("point \"{}\" is also a GCP; a check point must be independent", c.name),
+            });
+        }
+        let mut gnss = Vec::new();
+        if let Some(p) = input("gnss", &inputs.gnss, "gnss.csv")? {
+            gnss = csv_inputs::read_gnss(&p)?;
+            for g in &mut gnss {
+                g.image = normalise_name(&g.image);
+                if !image_index.contains_key(g.image.as_str()) {
+                    return Err(ProjectError::Reference {
+                        path: p.clone(),
+                        line: g.line,
+                        message: format!("unknown image \"{}\" (not in any epoch)", g.image),
+                    });
+                }
+            }
+        }
+        let stable_areas = match input("stable", &inputs.stable, "stable.csv")? {
+            Some(p) => csv_inputs::read_stable_areas(&p)?,
+            None => Vec::new(),
+        };
+
+        Ok(Project {
+            dir: dir.to_path_buf(),
+            config,
+            crs,
+            epochs,
+            images,
+            reference_epoch,
+            gcps,
+            checkpoints,
+            markers,
+            gnss,
+            stable_areas,
+        })
+    }
+
+    /// Absolute path of an image.
+    pub fn image_path(&self, id: ImageId) -> PathBuf {
+        self.dir.join(&self.images[id.index()].name)
+    }
+
+    /// Camera groups and the epochs using each, in order of first use.
+    pub fn camera_groups(&self) -> BTreeMap<String, Vec<EpochId>> {
+        let mut groups: BTreeMap<String, Vec<EpochId>> = BTreeMap::new();
+        for (i, e) in self.epochs.iter().enumerate() {
+            groups.entry(e.camera_group.clone()).or_default().push(EpochId::from(i));
+        }
+        groups
+    }
+
+    /// The camera-centre prior of every image: from the gnss file when there is one, else from
+    /// EXIF GPS projected into the project CRS (when `[gnss] exif` is on and the CRS is projected).
+    pub fn camera_priors(&self) -> Result<Vec<Option<CameraPrior>>, ProjectError> {
+        let cfg = &self.config.gnss;
+        if !self.gnss.is_empty() {
+            let by_name: HashMap<&str, &GnssPrior> =
+                self.gnss.iter().map(|g| (g.image.as_str(), g)).collect();
+            return Ok(self
+                .images
+                .iter()
+                .map(|im| {
+                    by_name.get(im.name.as_str()).map(|g| {
+                        let (sxy, sz) = g.sigma.unwrap_or((cfg.sxy, cfg.sz));
+                        CameraPrior {
+                            position: g.position,
+                            sxy,
+                            sz,
+                            source: PriorSource::GnssFile,
+                        }
+                    })
+                })
+                .collect());
+        }
+        if !cfg.exif || self.crs == Crs::Local {
+            return Ok(vec![None; self.images.len()]);
+        }
+        let projector = Projector::new(self.crs)?;
+        let mut priors = Vec::with_capacity(self.images.len());
+        for i in 0..self.images.len() {
+            let info = exif::read_exif(&self.image_path(ImageId::from(i)))?;
+            let prior = match info.gps {
+                Some(gps) => {
+                    let (e, n) = projector.project(gps.latitude, gps.longitude)?;
+                    gps.altitude.map(|h| CameraPrior {
+                        position: Vector3::new(e, n, h),
+                        sxy: cfg.sxy,
+                        sz: cfg.sz,
+                        source: PriorSource::Exif,
+                    })
+                }
+                None => None,
+            };
+            priors.push(prior);
+        }
+        Ok(priors)
+    }
+}
+
+/// Expands one image pattern relative to `dir` into sorted relative names.
+fn expand_images(
+    dir: &Path,
+    cfg_path: &Path,
+    key: &str,
+    pattern: &str,
+) -> Result<Vec<String>, ProjectError> {
+    let is_glob = pattern.contains(['*', '?', '[']);
+    if !is_glob {
+        let p = dir.join(pattern);
+        if !p.is_file() {
+            return Err(ProjectError::config(
+                cfg_path,
+                key,
+                format!("image \"{pattern}\" does not exist"),
+            ));
+        }
+        return Ok(vec![relative_name(dir, &p)]);
+    }
+    let full = dir.join(pattern);
+    let options = glob::MatchOptions {
+        case_sensitive: true,
+        require_literal_separator: true,
+        require_literal_leading_dot: true,
+    };
+    let paths = glob::glob_with(&full.to_string_lossy(), options)
+        .map_err(|e| ProjectError::config(cfg_path, key, format!("bad glob \"{pattern}\": {e}")))?;
+    let mut names = Vec::new();
+    for entry in paths {
+        let path = entry.map_err(|e| ProjectError::config(cfg_path, key, e.to_string()))?;
+        if path.is_file() && is_image_file(&path) {
+            names.push(relative_name(dir, &path));
+        }
+    }
+    if names.is_empty() {
+        return Err(ProjectError::config(
+            cfg_path,
+            key,
+            format!("\"{pattern}\" matches no image (JPEG, PNG or TIFF)"),
+        ));
+    }
+    names.sort();
+    Ok(names)
+}
