@@ -219,16 +219,27 @@ impl ProjectConfig {
         let positive = [
             ("gnss.sxy", config.gnss.sxy),
             ("gnss.sz", config.gnss.sz),
-            ("align.tie_point_accuracy_px", config.align.tie_point_accuracy_px),
+            (
+                "align.tie_point_accuracy_px",
+                config.align.tie_point_accuracy_px,
+            ),
             ("align.marker_accuracy_px", config.align.marker_accuracy_px),
         ];
         for (key, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
-                return Err(ProjectError::config(path, key, format!("expected a positive number, found {value}")));
+                return Err(ProjectError::config(
+                    path,
+                    key,
+                    format!("expected a positive number, found {value}"),
+                ));
             }
         }
         if config.align.max_keypoints == 0 {
-            return Err(ProjectError::config(path, "align.max_keypoints", "expected a positive count"));
+            return Err(ProjectError::config(
+                path,
+                "align.max_keypoints",
+                "expected a positive count",
+            ));
         }
         Ok(config)
     }

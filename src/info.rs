@@ -143,7 +143,10 @@ pub fn info(project: &Project) -> Result<InfoReport, ProjectError> {
         };
         camera_groups.push(CameraGroupInfo {
             name,
-            epochs: epochs.iter().map(|e| project.epochs[e.index()].name.clone()).collect(),
+            epochs: epochs
+                .iter()
+                .map(|e| project.epochs[e.index()].name.clone())
+                .collect(),
             width,
             height,
             camera,
@@ -217,11 +220,23 @@ impl InfoReport {
         let mut s = String::new();
         let _ = writeln!(s, "project   {}", self.project);
         let _ = writeln!(s, "crs       {}", self.crs);
-        let _ = writeln!(s, "method    {} (reference epoch {})", self.method, self.reference_epoch);
+        let _ = writeln!(
+            s,
+            "method    {} (reference epoch {})",
+            self.method, self.reference_epoch
+        );
         let _ = writeln!(s, "\nepochs");
         for e in &self.epochs {
-            let with_prior = self.images.iter().filter(|i| i.epoch == e.name && i.prior.is_some()).count();
-            let _ = writeln!(s, "  {:<20} {:>5} images  camera {:<16} {} with position prior", e.name, e.images, e.camera, with_prior);
+            let with_prior = self
+                .images
+                .iter()
+                .filter(|i| i.epoch == e.name && i.prior.is_some())
+                .count();
+            let _ = writeln!(
+                s,
+                "  {:<20} {:>5} images  camera {:<16} {} with position prior",
+                e.name, e.images, e.camera, with_prior
+            );
         }
         let _ = writeln!(s, "\ncamera groups");
         for c in &self.camera_groups {
@@ -248,7 +263,11 @@ impl InfoReport {
         for i in &self.images {
             match &i.prior {
                 Some(p) => {
-                    let _ = writeln!(s, "  {:<40} {:>14.3} {:>14.3} {:>9.3}  ±{}/{} m ({})", i.name, p.x, p.y, p.z, p.sxy, p.sz, p.source);
+                    let _ = writeln!(
+                        s,
+                        "  {:<40} {:>14.3} {:>14.3} {:>9.3}  ±{}/{} m ({})",
+                        i.name, p.x, p.y, p.z, p.sxy, p.sz, p.source
+                    );
                 }
                 None => {
                     let _ = writeln!(s, "  {:<40} no prior", i.name);

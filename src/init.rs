@@ -97,13 +97,19 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         });
     }
     let crs = if with_gps > 0 {
-        Crs::Epsg(utm_epsg_for(lat_sum / with_gps as f64, lon_sum / with_gps as f64))
+        Crs::Epsg(utm_epsg_for(
+            lat_sum / with_gps as f64,
+            lon_sum / with_gps as f64,
+        ))
     } else {
         Crs::Local
     };
 
     let mut text = String::new();
-    let _ = writeln!(text, "# timesift project written by `timesift init`. Commented keys show their defaults.");
+    let _ = writeln!(
+        text,
+        "# timesift project written by `timesift init`. Commented keys show their defaults."
+    );
     let _ = writeln!(
         text,
         "crs = {}  # {}\n",
@@ -116,11 +122,22 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     );
     for (name, _) in &epochs {
         let _ = writeln!(text, "[[epoch]]\nname = {}", toml_string(name));
-        let _ = writeln!(text, "images = {}", toml_string(&format!("images/{name}/*")));
-        let _ = writeln!(text, "# camera = {}  # camera group sharing intrinsics\n", toml_string(name));
+        let _ = writeln!(
+            text,
+            "images = {}",
+            toml_string(&format!("images/{name}/*"))
+        );
+        let _ = writeln!(
+            text,
+            "# camera = {}  # camera group sharing intrinsics\n",
+            toml_string(name)
+        );
     }
     let _ = writeln!(text, "[align]");
-    let _ = writeln!(text, "method = \"timesift\"  # timesift | msfm | chunk | stp | independent");
+    let _ = writeln!(
+        text,
+        "method = \"timesift\"  # timesift | msfm | chunk | stp | independent"
+    );
     let _ = writeln!(text, "reference_epoch = {}", toml_string(&epochs[0].0));
     let _ = writeln!(text, "features = \"sift\"  # sift | ldb");
     let _ = writeln!(text, "# max_keypoints = 40000");
@@ -128,9 +145,18 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     let _ = writeln!(text, "# marker_accuracy_px = 0.5");
     let _ = writeln!(text, "# gcps_in_all_epochs = false\n");
     let _ = writeln!(text, "[gnss]");
-    let _ = writeln!(text, "# exif = true  # EXIF GPS as camera-centre priors when gnss.csv is absent");
-    let _ = writeln!(text, "# sxy = 5.0    # default horizontal standard deviation of priors, m");
-    let _ = writeln!(text, "# sz = 10.0    # default vertical standard deviation of priors, m");
+    let _ = writeln!(
+        text,
+        "# exif = true  # EXIF GPS as camera-centre priors when gnss.csv is absent"
+    );
+    let _ = writeln!(
+        text,
+        "# sxy = 5.0    # default horizontal standard deviation of priors, m"
+    );
+    let _ = writeln!(
+        text,
+        "# sz = 10.0    # default vertical standard deviation of priors, m"
+    );
 
     let config = ProjectConfig::parse(&config_path, &text)?;
     Project::from_config(dir, config)?;

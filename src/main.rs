@@ -9,7 +9,11 @@ use timesift::stages::Stage;
 use timesift::{Project, info, init, stages};
 
 #[derive(Parser)]
-#[command(name = "timesift", version, about = "Multi-temporal photogrammetry: one block for all epochs")]
+#[command(
+    name = "timesift",
+    version,
+    about = "Multi-temporal photogrammetry: one block for all epochs"
+)]
 struct Cli {
     /// More log output (repeat for more).
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
@@ -81,7 +85,10 @@ fn run(command: Command) -> anyhow::Result<()> {
             for (name, n) in &summary.epochs {
                 println!("  epoch {name}: {n} images");
             }
-            println!("  crs {} ({} images with EXIF GPS)", summary.crs, summary.images_with_gps);
+            println!(
+                "  crs {} ({} images with EXIF GPS)",
+                summary.crs, summary.images_with_gps
+            );
         }
         Command::Info { dir, json } => {
             let project = Project::load(&dir)?;

@@ -136,14 +136,21 @@ impl Project {
             return Err(ProjectError::config(
                 &cfg_path,
                 "crs",
-                format!("{crs} is geographic; the world frame must be projected (metres), e.g. a UTM zone"),
+                format!(
+                    "{crs} is geographic; the world frame must be projected (metres), e.g. a UTM zone"
+                ),
             ));
         }
         if let Crs::Epsg(_) = crs {
-            Projector::new(crs).map_err(|e| ProjectError::config(&cfg_path, "crs", e.to_string()))?;
+            Projector::new(crs)
+                .map_err(|e| ProjectError::config(&cfg_path, "crs", e.to_string()))?;
         }
         if config.epochs.is_empty() {
-            return Err(ProjectError::config(&cfg_path, "epoch", "no [[epoch]] is defined"));
+            return Err(ProjectError::config(
+                &cfg_path,
+                "epoch",
+                "no [[epoch]] is defined",
+            ));
         }
 
         let mut epochs = Vec::new();
@@ -155,7 +162,10 @@ impl Project {
                 return Err(ProjectError::config(
                     &cfg_path,
                     format!("{key}.name"),
-                    format!("\"{}\" is not a valid epoch name (non-empty, no slashes)", ec.name),
+                    format!(
+                        "\"{}\" is not a valid epoch name (non-empty, no slashes)",
+                        ec.name
+                    ),
                 ));
             }
             if let Some(first) = config.epochs[..e].iter().position(|o| o.name == ec.name) {
@@ -173,7 +183,12 @@ impl Project {
                 .unwrap_or_else(|| vec![default_pattern]);
             let mut names = Vec::new();
             for pattern in &patterns {
-                names.extend(expand_images(dir, &cfg_path, &format!("{key}.images"), pattern)?);
+                names.extend(expand_images(
+                    dir,
+                    &cfg_path,
+                    &format!("{key}.images"),
+                    pattern,
+                )?);
             }
             names.sort();
             names.dedup();
@@ -229,7 +244,10 @@ impl Project {
                 })?,
         };
 
-        let input = |key: &str, explicit: &Option<String>, default: &str| -> Result<Option<PathBuf>, ProjectError> {
+        let input = |key: &str,
+                     explicit: &Option<String>,
+                     default: &str|
+         -> Result<Option<PathBuf>, ProjectError> {
             match explicit {
                 Some(name) => {
                     let p = dir.join(name);
@@ -258,8 +276,11 @@ impl Project {
             Some(p) => csv_inputs::read_checkpoints(&p)?,
             None => Vec::new(),
         };
-        let image_index: HashMap<&str, usize> =
-            images.iter().enumerate().map(|(i, im)| (im.name.as_str(), i)).collect();
+        let image_index: HashMap<&str, usize> = images
+            .iter()
+            .enumerate()
+            .map(|(i, im)| (im.name.as_str(), i))
+            .collect();
         let mut markers = Vec::new();
         if let Some(p) = input("markers", &inputs.markers, "markers.csv")? {
             markers = csv_inputs::read_markers(&p)?;
@@ -277,16 +298,26 @@ impl Project {
                     return Err(ProjectError::Reference {
                         path: p.clone(),
                         line: m.line,
-                        message: format!("unknown point \"{}\" (not in the GCP or check-point file)", m.name),
+                        message: format!(
+                            "unknown point \"{}\" (not in the GCP or check-point file)",
+                            m.name
+                        ),
                     });
                 }
             }
         }
-        if let Some(c) = checkpoints.iter().find(|c| gcps.iter().any(|g| g.name == c.name)) {
+        if let Some(c) = checkpoints
+            .iter()
+            .find(|c| gcps.iter().any(|g| g.name == c.name))
+        {
             return Err(ProjectError::Reference {
-                path: input("checkpoints", &inputs.checkpoints, "checkpoints.csv")?.unwrap_or_default(),
+                path: input("checkpoints", &inputs.checkpoints, "checkpoints.csv")?
+                    .unwrap_or_default(),
                 line: c.line,
-                message: format!("point \"{}\" is also a GCP; a check point must be independent", c.name),
+                message: format!(
+                    "point \"{}\" is also a GCP; a check point must be independent",
+                    c.name
+                ),
             });
         }
         let mut gnss = Vec::new();
@@ -332,7 +363,10 @@ impl Project {
     pub fn camera_groups(&self) -> BTreeMap<String, Vec<EpochId>> {
         let mut groups: BTreeMap<String, Vec<EpochId>> = BTreeMap::new();
         for (i, e) in self.epochs.iter().enumerate() {
-            groups.entry(e.camera_group.clone()).or_default().push(EpochId::from(i));
+            groups
+                .entry(e.camera_group.clone())
+                .or_default()
+                .push(EpochId::from(i));
         }
         groups
     }

@@ -64,9 +64,15 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
     let from = from.unwrap_or(Stage::Features);
     let to = to.unwrap_or(Stage::Report);
     if from > to {
-        return Err(ProjectError::StageRange { from: from.name(), to: to.name() });
+        return Err(ProjectError::StageRange {
+            from: from.name(),
+            to: to.name(),
+        });
     }
-    Ok(Stage::ALL.into_iter().filter(|s| *s >= from && *s <= to).collect())
+    Ok(Stage::ALL
+        .into_iter()
+        .filter(|s| *s >= from && *s <= to)
+        .collect())
 }
 
 /// Runs one stage on a validated project. Stages whose crates are not built yet fail with

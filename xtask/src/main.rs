@@ -1,1 +1,61 @@
-fn main() {}
+//! `cargo xtask`: developer tasks that are not part of the product.
+//!
+//! Today: `data`, a check that the shared real data the tests and benchmarks read in place
+//! (`../shared/data`) is present. The `synth`, `bench` and `bench-methods` tasks of DESIGN.md arrive
+//! with their issues.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "xtask")]
+struct Cli {
+    #[command(subcommand)]
+    task: Task,
+}
+
+#[derive(Subcommand)]
+enum Task {
+    /// Check that ../shared/data holds the data sets the tests and benches read.
+    Data,
+}
+
+/// Folders of ../shared/data the tests and benches read, with one file each must hold.
+const DATA_SETS: [(&str, &str); 5] = [
+    ("opensfm", "lund/images/01.jpg"),
+    ("sandpyper-mar", "dsm/mar_20180601_dsm_resampled_1m.tif"),
+    ("demcompare-srtm", "input/srtm_ref.tif"),
+    ("bal", "lund-29-1863-pre.txt"),
+    ("libmv-ba", "problem_01.bin"),
+];
+
+fn shared_data() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
+}
+
+fn main() -> anyhow::Result<()> {
+    match Cli::parse().task {
+        Task::Data => {
+            let root = shared_data();
+            let mut missing = Vec::new();
+            for (set, file) in DATA_SETS {
+                let path = root.join(set).join(file);
+                if path.is_file() {
+                    let len = std::fs::metadata(&path)
+                        .with_context(|| path.display().to_string())?
+                        .len();
+                    println!("ok       {set:<16} {file} ({len} bytes)");
+                } else {
+                    println!("MISSING  {set:<16} {}", path.display());
+                    missing.push(set);
+                }
+            }
+            if !missing.is_empty() {
+                bail!("shared data missing: {}", missing.join(", "));
+            }
+        }
+    }
+    Ok(())
+}

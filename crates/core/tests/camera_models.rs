@@ -97,7 +97,12 @@ fn rel_err(analytic: f64, numeric: f64, block_scale: f64) -> f64 {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(256))]
+    #![proptest_config(ProptestConfig {
+        cases: 256,
+        // Seeded, so every run explores the same cases (reproducible CI).
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x7153_1f7),
+        ..ProptestConfig::default()
+    })]
 
     #[test]
     fn brown_project_unproject_round_trip_covers_whole_image(
@@ -147,6 +152,13 @@ proptest! {
     }
 }
 
+/// Central difference with one Richardson step (error O(h⁴)), robust to the large higher
+/// derivatives of wide-angle projections.
+fn derivative(g: impl Fn(f64) -> Vector2<f64>, h: f64) -> Vector2<f64> {
+    let d = |h: f64| (g(h) - g(-h)) / (2.0 * h);
+    (d(h * 0.5) * 4.0 - d(h)) / 3.0
+}
+
 fn check_all_jacobians(
     cam: &Camera,
     pose: &Pose,
@@ -161,14 +173,15 @@ fn check_all_jacobians(
     // World point.
     let scale = j.d_world_point.amax();
     for k in 0..3 {
-        let h = 1e-6 * (1.0 + world.norm());
-        let mut plus = *world;
-        plus[k] += h;
-        let mut minus = *world;
-        minus[k] -= h;
-        let num = (project_world(cam, pose, &plus).unwrap()
-            - project_world(cam, pose, &minus).unwrap())
-            / (2.0 * h);
+        let h = 1e-5 * (1.0 + world.norm());
+        let num = derivative(
+            |step| {
+                let mut x = *world;
+                x[k] += step;
+                project_world(cam, pose, &x).unwrap()
+            },
+            h,
+        );
         for r in 0..2 {
             let e = rel_err(j.d_world_point[(r, k)], num[r], scale);
             prop_assert!(
@@ -184,16 +197,18 @@ fn check_all_jacobians(
     let scale = j.d_pose.amax();
     for k in 0..6 {
         let h = if k < 3 {
-            1e-5
+            1e-4
         } else {
-            1e-6 * (1.0 + pose.translation.norm())
+            1e-5 * (1.0 + pose.translation.norm())
         };
-        let mut d = Vector6::zeros();
-        d[k] = h;
-        let plus = project_world(cam, &pose.retract(&d), world).unwrap();
-        d[k] = -h;
-        let minus = project_world(cam, &pose.retract(&d), world).unwrap();
-        let num = (plus - minus) / (2.0 * h);
+        let num = derivative(
+            |step| {
+                let mut d = Vector6::zeros();
+                d[k] = step;
+                project_world(cam, &pose.retract(&d), world).unwrap()
+            },
+            h,
+        );
         for r in 0..2 {
             let e = rel_err(j.d_pose[(r, k)], num[r], scale);
             prop_assert!(

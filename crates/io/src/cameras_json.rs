@@ -336,7 +336,11 @@ mod tests {
         std::fs::write(&p, &text).unwrap();
         let e = read_cameras_json(&p).unwrap_err().to_string();
         assert!(e.contains("images[1].camera") && e.contains("nope"), "{e}");
-        std::fs::write(&p, "{\"crs\": \"local\", \"cameras\": {}, \"images\": [], \"extra\": 1}").unwrap();
+        std::fs::write(
+            &p,
+            "{\"crs\": \"local\", \"cameras\": {}, \"images\": [], \"extra\": 1}",
+        )
+        .unwrap();
         let e = read_cameras_json(&p).unwrap_err().to_string();
         assert!(e.contains("extra") && e.contains("line 1"), "{e}");
     }

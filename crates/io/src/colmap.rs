@@ -88,10 +88,7 @@ pub fn camera_to_colmap(camera: &Camera) -> Result<(&'static str, Vec<f64>), Str
         )),
         Camera::Brown(c) => {
             if c.b2 != 0.0 {
-                return Err(format!(
-                    "skew b2 = {} has no COLMAP equivalent",
-                    c.b2
-                ));
+                return Err(format!("skew b2 = {} has no COLMAP equivalent", c.b2));
             }
             if c.k4 != 0.0 {
                 return Err(format!(
@@ -168,7 +165,9 @@ pub fn camera_from_colmap(
             cx: cx - w2,
             cy: cy - h2,
         };
-        p.validate().map(|_| Camera::Pinhole(p)).map_err(|e| e.to_string())
+        p.validate()
+            .map(|_| Camera::Pinhole(p))
+            .map_err(|e| e.to_string())
     };
     match model {
         "SIMPLE_PINHOLE" => return pinhole(params[0], params[1], params[2]),
@@ -204,7 +203,9 @@ pub fn camera_from_colmap(
             c.k3 = params.get(8).copied().unwrap_or(0.0);
         }
     }
-    c.validate().map(|_| Camera::Brown(c)).map_err(|e| e.to_string())
+    c.validate()
+        .map(|_| Camera::Brown(c))
+        .map_err(|e| e.to_string())
 }
 
 /// Builds the COLMAP model of a reconstruction: camera ids follow the camera names' order, image ids
@@ -230,9 +231,12 @@ pub fn from_reconstruction(reconstruction: &Reconstruction) -> Result<ColmapMode
     }
     for (index, image) in reconstruction.images.iter().enumerate() {
         let Some(pose) = image.pose else { continue };
-        let camera_id = *camera_ids
-            .get(&image.camera)
-            .ok_or_else(|| format!("image \"{}\": unknown camera \"{}\"", image.name, image.camera))?;
+        let camera_id = *camera_ids.get(&image.camera).ok_or_else(|| {
+            format!(
+                "image \"{}\": unknown camera \"{}\"",
+                image.name, image.camera
+            )
+        })?;
         model.images.insert(
             index as u32 + 1,
             ColmapImage {
@@ -293,7 +297,9 @@ pub fn to_reconstruction(model: &ColmapModel, crs: &str) -> Result<Reconstructio
 /// atomically. Numbers are written in shortest round-trip form, so nothing is lost.
 pub fn write_colmap_text(dir: &Path, model: &ColmapModel) -> Result<(), IoError> {
     std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
-    let mut cams = String::from("# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
+    let mut cams = String::from(
+        "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n",
+    );
     let _ = writeln!(cams, "# Number of cameras: {}", model.cameras.len());
     for (id, c) in &model.cameras {
         if let Some(name) = &c.name {
@@ -359,8 +365,13 @@ pub fn write_colmap_text(dir: &Path, model: &ColmapModel) -> Result<(), IoError>
     })
 }
 
-/// Data lines of a COLMAP text file with their numbers, comments returned apart.
-fn lines_of(path: &Path) -> Result<(Vec<(usize, String)>, Vec<String>), IoError> {
+/// The lines of a COLMAP text file: data lines with their numbers, and the comments apart.
+struct TextLines {
+    data: Vec<(usize, String)>,
+    comments: Vec<String>,
+}
+
+fn lines_of(path: &Path) -> Result<TextLines, IoError> {
     let text = fsutil::read_text(path)?;
     let mut data = Vec::new();
     let mut comments = Vec::new();
@@ -372,7 +383,7 @@ fn lines_of(path: &Path) -> Result<(Vec<(usize, String)>, Vec<String>), IoError>
             data.push((i + 1, l.to_string()));
         }
     }
-    Ok((data, comments))
+    Ok(TextLines { data, comments })
 }
 
 fn parse<T: std::str::FromStr>(
@@ -392,7 +403,7 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
     let mut model = ColmapModel::default();
 
     let path = dir.join("cameras.txt");
-    let (data, comments) = lines_of(&path)?;
+    let TextLines { data, comments } = lines_of(&path)?;
     let camera_names: BTreeMap<u32, String> = comments
         .iter()
         .filter_map(|c| {
@@ -423,7 +434,7 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
     }
 
     let path = dir.join("images.txt");
-    let (data, comments) = lines_of(&path)?;
+    let TextLines { data, comments } = lines_of(&path)?;
     let epochs: BTreeMap<u32, String> = comments
         .iter()
         .filter_map(|c| {
@@ -440,7 +451,10 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
         let mut tok = text.split_whitespace();
         let id: u32 = parse(&path, *line, tok.next(), "IMAGE_ID")?;
         let mut v = [0.0f64; 7];
-        for (k, name) in ["QW", "QX", "QY", "QZ", "TX", "TY", "TZ"].iter().enumerate() {
+        for (k, name) in ["QW", "QX", "QY", "QZ", "TX", "TY", "TZ"]
+            .iter()
+            .enumerate()
+        {
             v[k] = parse(&path, *line, tok.next(), name)?;
         }
         let camera_id = parse(&path, *line, tok.next(), "CAMERA_ID")?;
@@ -451,14 +465,25 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
         }
         let q = Quaternion::new(v[0], v[1], v[2], v[3]);
         if !(q.norm() > 0.5 && q.norm() < 2.0) {
-            return Err(IoError::line(&path, *line, "quaternion is not of unit norm"));
+            return Err(IoError::line(
+                &path,
+                *line,
+                "quaternion is not of unit norm",
+            ));
         }
-        let pose = Pose::new(UnitQuaternion::from_quaternion(q), Vector3::new(v[4], v[5], v[6]));
+        let pose = Pose::new(
+            UnitQuaternion::from_quaternion(q),
+            Vector3::new(v[4], v[5], v[6]),
+        );
         let mut points2d = Vec::new();
         if let Some((pline, ptext)) = iter.next() {
             let toks: Vec<&str> = ptext.split_whitespace().collect();
             if toks.len() % 3 != 0 {
-                return Err(IoError::line(&path, *pline, "POINTS2D must be triples (X, Y, POINT3D_ID)"));
+                return Err(IoError::line(
+                    &path,
+                    *pline,
+                    "POINTS2D must be triples (X, Y, POINT3D_ID)",
+                ));
             }
             for t in toks.chunks(3) {
                 points2d.push((
@@ -482,7 +507,7 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
 
     let path = dir.join("points3D.txt");
     if path.exists() {
-        let (data, _) = lines_of(&path)?;
+        let data = lines_of(&path)?.data;
         for (line, text) in data.iter().filter(|(_, t)| !t.trim().is_empty()) {
             let mut tok = text.split_whitespace();
             let id: u64 = parse(&path, *line, tok.next(), "POINT3D_ID")?;
@@ -497,7 +522,11 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
             let error = parse(&path, *line, tok.next(), "ERROR")?;
             let rest: Vec<&str> = tok.collect();
             if rest.len() % 2 != 0 {
-                return Err(IoError::line(&path, *line, "TRACK must be pairs (IMAGE_ID, POINT2D_IDX)"));
+                return Err(IoError::line(
+                    &path,
+                    *line,
+                    "TRACK must be pairs (IMAGE_ID, POINT2D_IDX)",
+                ));
             }
             let track = rest
                 .chunks(2)

@@ -101,7 +101,10 @@ pub struct Projector {
 struct Xyz(f64, f64, f64);
 
 impl Transform for Xyz {
-    fn transform_coordinates<F: TransformClosure>(&mut self, f: &mut F) -> proj4rs::errors::Result<()> {
+    fn transform_coordinates<F: TransformClosure>(
+        &mut self,
+        f: &mut F,
+    ) -> proj4rs::errors::Result<()> {
         let (x, y, z) = f(self.0, self.1, self.2)?;
         *self = Xyz(x, y, z);
         Ok(())
@@ -118,8 +121,8 @@ impl Projector {
         let code = crs
             .epsg()
             .ok_or_else(|| err("a local frame has no geodetic transform"))?;
-        let projected = Proj::from_epsg_code(code)
-            .map_err(|e| err(&format!("unknown EPSG code ({e})")))?;
+        let projected =
+            Proj::from_epsg_code(code).map_err(|e| err(&format!("unknown EPSG code ({e})")))?;
         if projected.is_latlong() {
             return Err(err(
                 "is geographic; the world frame must be a projected (metric) CRS",
@@ -191,7 +194,10 @@ mod tests {
         // Reference values computed with PROJ (pyproj 3.7, EPSG:4326 -> EPSG:326xx/327xx).
         let lund = Projector::new(Crs::Epsg(32633)).unwrap();
         let (e, n) = lund.project(334189.0 / 6000.0, 13.195388888889).unwrap();
-        assert!((e - 386581.5883).abs() < 2e-3 && (n - 6173962.8754).abs() < 2e-3, "{e} {n}");
+        assert!(
+            (e - 386581.5883).abs() < 2e-3 && (n - 6173962.8754).abs() < 2e-3,
+            "{e} {n}"
+        );
         // A southern-hemisphere zone round trip.
         let south = Projector::new(Crs::Epsg(32754)).unwrap();
         let (e, n) = south.project(-38.77, 143.66).unwrap();

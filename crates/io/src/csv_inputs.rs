@@ -98,7 +98,9 @@ fn read_rows(
         if rows.is_empty()
             && headers.iter().any(|h| {
                 h.len() == fields.len()
-                    && h.iter().zip(&fields).all(|(a, b)| a.eq_ignore_ascii_case(b))
+                    && h.iter()
+                        .zip(&fields)
+                        .all(|(a, b)| a.eq_ignore_ascii_case(b))
             })
         {
             continue;
@@ -132,7 +134,11 @@ fn number(path: &Path, row: &Row, index: usize, column: &str) -> Result<f64, IoE
 fn non_empty(path: &Path, row: &Row, index: usize, column: &str) -> Result<String, IoError> {
     let text = row.fields[index].clone();
     if text.is_empty() {
-        return Err(IoError::line(path, row.line, format!("column `{column}` is empty")));
+        return Err(IoError::line(
+            path,
+            row.line,
+            format!("column `{column}` is empty"),
+        ));
     }
     Ok(text)
 }
@@ -169,7 +175,10 @@ fn control_points(path: &Path, with_sigma: bool) -> Result<Vec<ControlPoint>, Io
     };
     let rows = read_rows(
         path,
-        &[&["name", "x", "y", "z"], &["name", "x", "y", "z", "sxy", "sz"]],
+        &[
+            &["name", "x", "y", "z"],
+            &["name", "x", "y", "z", "sxy", "sz"],
+        ],
         counts,
         expected,
     )?;
@@ -241,7 +250,10 @@ pub fn read_markers(path: &Path) -> Result<Vec<Marker>, IoError> {
 pub fn read_gnss(path: &Path) -> Result<Vec<GnssPrior>, IoError> {
     let rows = read_rows(
         path,
-        &[&["image", "x", "y", "z"], &["image", "x", "y", "z", "sxy", "sz"]],
+        &[
+            &["image", "x", "y", "z"],
+            &["image", "x", "y", "z", "sxy", "sz"],
+        ],
         &[4, 6],
         "4 fields (image,x,y,z) or 6 (image,x,y,z,sxy,sz)",
     )?;
@@ -252,7 +264,10 @@ pub fn read_gnss(path: &Path) -> Result<Vec<GnssPrior>, IoError> {
             return Err(IoError::line(
                 path,
                 row.line,
-                format!("image \"{image}\" already has a prior on line {}", first.line),
+                format!(
+                    "image \"{image}\" already has a prior on line {}",
+                    first.line
+                ),
             ));
         }
         priors.push(GnssPrior {
@@ -277,12 +292,9 @@ pub fn read_stable_areas(path: &Path) -> Result<Vec<StableArea>, IoError> {
             continue;
         }
         let upper = trimmed.to_ascii_uppercase();
-        let Some(start) = upper
-            .find("MULTIPOLYGON")
-            .or_else(|| upper.find("POLYGON"))
-        else {
-            let is_header = areas.is_empty()
-                && (upper.replace(' ', "") == "NAME,WKT" || upper == "WKT");
+        let Some(start) = upper.find("MULTIPOLYGON").or_else(|| upper.find("POLYGON")) else {
+            let is_header =
+                areas.is_empty() && (upper.replace(' ', "") == "NAME,WKT" || upper == "WKT");
             if is_header {
                 continue;
             }
@@ -343,7 +355,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = write(dir.path(), "gcps.csv", "G1,1,2,3\nG2,1,2\n");
         let e = read_gcps(&p).unwrap_err().to_string();
-        assert!(e.contains("gcps.csv") && e.contains("line 2") && e.contains("3 fields"), "{e}");
+        assert!(
+            e.contains("gcps.csv") && e.contains("line 2") && e.contains("3 fields"),
+            "{e}"
+        );
         let p = write(dir.path(), "markers.csv", "a.jpg,G1,10,20\na.jpg,G2,10\n");
         let e = read_markers(&p).unwrap_err().to_string();
         assert!(e.contains("markers.csv: line 2"), "{e}");
@@ -378,6 +393,11 @@ mod tests {
         assert_eq!(s[1].name, None);
         assert_eq!(s[2].polygons.len(), 2);
         let p = write(dir.path(), "stable.csv", "rock,LINESTRING (0 0, 1 1)\n");
-        assert!(read_stable_areas(&p).unwrap_err().to_string().contains("line 1"));
+        assert!(
+            read_stable_areas(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("line 1")
+        );
     }
 }

@@ -108,7 +108,8 @@ pub fn read_exif(path: &Path) -> Result<ExifInfo, IoError> {
         if text(Tag::GPSLongitudeRef).is_some_and(|r| r.eq_ignore_ascii_case("W")) {
             longitude = -longitude;
         }
-        let below_sea = matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
+        let below_sea =
+            matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
         let altitude = number(Tag::GPSAltitude).map(|a| if below_sea { -a } else { a });
         (latitude.abs() <= 90.0 && longitude.abs() <= 360.0).then_some(GpsPosition {
             latitude,
@@ -117,10 +118,7 @@ pub fn read_exif(path: &Path) -> Result<ExifInfo, IoError> {
         })
     })();
 
-    let pixel_dimensions = match (
-        number(Tag::PixelXDimension),
-        number(Tag::PixelYDimension),
-    ) {
+    let pixel_dimensions = match (number(Tag::PixelXDimension), number(Tag::PixelYDimension)) {
         (Some(w), Some(h)) if w > 0.0 && h > 0.0 => Some((w as u32, h as u32)),
         _ => None,
     };

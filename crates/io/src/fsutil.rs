@@ -77,7 +77,9 @@ pub fn commit_temporary<T>(
 
 /// Writes a whole file from bytes, atomically.
 pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    write_atomically(path, |w| w.write_all(bytes).map_err(|e| IoError::io(path, e)))
+    write_atomically(path, |w| {
+        w.write_all(bytes).map_err(|e| IoError::io(path, e))
+    })
 }
 
 /// Reads a whole text file, naming it on failure.

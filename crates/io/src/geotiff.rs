@@ -148,8 +148,11 @@ macro_rules! write_with_georef {
             let shift = if georef.pixel_is_point { 0.5 } else { 0.0 };
             let (tx, ty) = t.pixel_to_world(shift, shift);
             let dir = image.encoder();
-            dir.write_tag(Tag::ModelPixelScaleTag, &[t.pixel_width, -t.pixel_height, 0.0][..])
-                .map_err(err)?;
+            dir.write_tag(
+                Tag::ModelPixelScaleTag,
+                &[t.pixel_width, -t.pixel_height, 0.0][..],
+            )
+            .map_err(err)?;
             dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, tx, ty, 0.0][..])
                 .map_err(err)?;
             dir.write_tag(Tag::GeoKeyDirectoryTag, &geokey_directory(georef)[..])
@@ -321,9 +324,8 @@ fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
         .map_err(err)?
         .map(|s| {
             let s = s.trim_matches(char::from(0)).trim().to_string();
-            s.parse::<f64>().map_err(|_| {
-                IoError::invalid(path, format!("GDAL_NODATA \"{s}\" is not a number"))
-            })
+            s.parse::<f64>()
+                .map_err(|_| IoError::invalid(path, format!("GDAL_NODATA \"{s}\" is not a number")))
         })
         .transpose()?;
 
@@ -462,7 +464,12 @@ mod tests {
         assert_eq!(back.georef.crs, Crs::Epsg(4326));
         assert!(back.georef.pixel_is_point);
         assert!((back.georef.transform.origin_x - g.transform.origin_x).abs() < 1e-9);
-        assert!(read_f32(&p).unwrap_err().to_string().contains("single-band"));
+        assert!(
+            read_f32(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("single-band")
+        );
     }
 
     #[test]
@@ -472,14 +479,19 @@ mod tests {
         let file = std::fs::File::create(&p).unwrap();
         let mut enc = TiffEncoder::new(std::io::BufWriter::new(file)).unwrap();
         let mut img = enc.new_image::<colortype::Gray32Float>(2, 2).unwrap();
-        let m = [0.7, -0.7, 0.0, 10.0, 0.7, 0.7, 0.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        let m = [
+            0.7, -0.7, 0.0, 10.0, 0.7, 0.7, 0.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+        ];
         img.encoder()
             .write_tag(Tag::Unknown(MODEL_TRANSFORMATION_TAG), &m[..])
             .unwrap();
         img.write_data(&[0.0f32; 4]).unwrap();
         drop(enc);
         let e = read_f32(&p).unwrap_err().to_string();
-        assert!(e.contains("rotated.tif") && e.contains("unsupported"), "{e}");
+        assert!(
+            e.contains("rotated.tif") && e.contains("unsupported"),
+            "{e}"
+        );
         assert!(!e.contains('\n'));
     }
 }

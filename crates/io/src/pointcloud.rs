@@ -86,9 +86,7 @@ pub struct LasWriteOptions {
 
 impl Default for LasWriteOptions {
     fn default() -> Self {
-        LasWriteOptions {
-            scale: [0.001; 3],
-        }
+        LasWriteOptions { scale: [0.001; 3] }
     }
 }
 
@@ -114,7 +112,11 @@ fn extra_bytes_vlr(attributes: &[ExtraAttribute]) -> Vlr {
 }
 
 /// Writes a LAS 1.4 file (LAZ when the extension is `.laz`), atomically.
-pub fn write_las(path: &Path, cloud: &PointCloud, options: &LasWriteOptions) -> Result<(), IoError> {
+pub fn write_las(
+    path: &Path,
+    cloud: &PointCloud,
+    options: &LasWriteOptions,
+) -> Result<(), IoError> {
     let n = cloud.positions.len();
     if cloud.colors.as_ref().is_some_and(|c| c.len() != n)
         || cloud.attributes.iter().any(|a| a.values.len() != n)
@@ -124,7 +126,11 @@ pub fn write_las(path: &Path, cloud: &PointCloud, options: &LasWriteOptions) -> 
             "colours and attributes must have one value per point",
         ));
     }
-    if let Some(a) = cloud.attributes.iter().find(|a| a.name.len() > 32 || a.name.is_empty()) {
+    if let Some(a) = cloud
+        .attributes
+        .iter()
+        .find(|a| a.name.len() > 32 || a.name.is_empty())
+    {
         return Err(IoError::invalid(
             path,
             format!("attribute name \"{}\" must have 1 to 32 bytes", a.name),
@@ -222,7 +228,10 @@ struct Descriptor {
 
 fn descriptors(path: &Path, vlr: &Vlr) -> Result<Vec<Descriptor>, IoError> {
     if vlr.data.len() % DESCRIPTOR_LEN != 0 {
-        return Err(IoError::invalid(path, "extra-bytes record has a partial descriptor"));
+        return Err(IoError::invalid(
+            path,
+            "extra-bytes record has a partial descriptor",
+        ));
     }
     Ok(vlr
         .data
@@ -259,7 +268,10 @@ pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
                 return Err(IoError::unsupported(
                     path,
                     "LAS extra-bytes type",
-                    format!("attribute \"{}\" has data type {other}; u8, f32 and f64 are read", d.name),
+                    format!(
+                        "attribute \"{}\" has data type {other}; u8, f32 and f64 are read",
+                        d.name
+                    ),
                 ));
             }
         };
@@ -289,13 +301,19 @@ pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
             let bytes = &p.extra_bytes;
             let need = at + a.values.size();
             if bytes.len() < need {
-                return Err(IoError::invalid(path, "point record shorter than its extra attributes"));
+                return Err(IoError::invalid(
+                    path,
+                    "point record shorter than its extra attributes",
+                ));
             }
             match &mut a.values {
                 AttributeValues::U8(v) => v.push(bytes[at]),
-                AttributeValues::F32(v) => {
-                    v.push(f32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]))
-                }
+                AttributeValues::F32(v) => v.push(f32::from_le_bytes([
+                    bytes[at],
+                    bytes[at + 1],
+                    bytes[at + 2],
+                    bytes[at + 3],
+                ])),
                 AttributeValues::F64(v) => {
                     let mut b = [0u8; 8];
                     b.copy_from_slice(&bytes[at..at + 8]);

@@ -66,7 +66,10 @@ pub fn parse_polygons(text: &str) -> Result<Vec<Polygon>, String> {
     };
     p.skip_ws();
     if p.i != p.s.len() {
-        return Err(format!("unexpected text after the geometry at character {}", p.i + 1));
+        return Err(format!(
+            "unexpected text after the geometry at character {}",
+            p.i + 1
+        ));
     }
     Ok(polygons)
 }
@@ -154,7 +157,10 @@ impl Parser<'_> {
         }
         self.expect(b')')?;
         if pts.len() < 3 {
-            return Err(format!("a ring needs at least 3 vertices, got {}", pts.len()));
+            return Err(format!(
+                "a ring needs at least 3 vertices, got {}",
+                pts.len()
+            ));
         }
         Ok(pts)
     }
@@ -176,8 +182,9 @@ mod tests {
 
     #[test]
     fn polygon_with_hole_contains_points_correctly() {
-        let p = parse_polygons("POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0), (4 4, 6 4, 6 6, 4 6, 4 4))")
-            .unwrap();
+        let p =
+            parse_polygons("POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0), (4 4, 6 4, 6 6, 4 6, 4 4))")
+                .unwrap();
         assert_eq!(p.len(), 1);
         assert!(p[0].contains(1.0, 1.0));
         assert!(!p[0].contains(5.0, 5.0));
@@ -196,9 +203,21 @@ mod tests {
 
     #[test]
     fn malformed_wkt_says_what_was_expected() {
-        assert!(parse_polygons("LINESTRING (0 0, 1 1)").unwrap_err().contains("POLYGON"));
-        assert!(parse_polygons("POLYGON ((0 0, 1 x, 1 1))").unwrap_err().contains("number"));
-        assert!(parse_polygons("POLYGON ((0 0, 1 1))").unwrap_err().contains("3 vertices"));
+        assert!(
+            parse_polygons("LINESTRING (0 0, 1 1)")
+                .unwrap_err()
+                .contains("POLYGON")
+        );
+        assert!(
+            parse_polygons("POLYGON ((0 0, 1 x, 1 1))")
+                .unwrap_err()
+                .contains("number")
+        );
+        assert!(
+            parse_polygons("POLYGON ((0 0, 1 1))")
+                .unwrap_err()
+                .contains("3 vertices")
+        );
         assert!(parse_polygons("POLYGON ((0 0, 1 0, 1 1)) junk").is_err());
     }
 }

@@ -5,13 +5,27 @@ use std::collections::BTreeMap;
 use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use timesift_core::{BrownCamera, Camera, PinholeCamera, Pose, project_world};
-use timesift_io::cameras_json::{OrientedImage, Reconstruction, read_cameras_json, write_cameras_json};
-use timesift_io::colmap::{from_reconstruction, read_colmap_text, to_reconstruction, write_colmap_text};
+use timesift_io::cameras_json::{
+    OrientedImage, Reconstruction, read_cameras_json, write_cameras_json,
+};
+use timesift_io::colmap::{
+    from_reconstruction, read_colmap_text, to_reconstruction, write_colmap_text,
+};
 
 fn reconstruction(translation: f64) -> impl Strategy<Value = Reconstruction> {
     let brown = (
-        (500u32..6000, 0.8f64..2.5, -30.0f64..30.0, -30.0f64..30.0, -2.0f64..2.0),
-        (-0.3f64..0.3, -0.3f64..0.3, prop_oneof![Just(0.0), -0.1f64..0.1]),
+        (
+            500u32..6000,
+            0.8f64..2.5,
+            -30.0f64..30.0,
+            -30.0f64..30.0,
+            -2.0f64..2.0,
+        ),
+        (
+            -0.3f64..0.3,
+            -0.3f64..0.3,
+            prop_oneof![Just(0.0), -0.1f64..0.1],
+        ),
         (-0.01f64..0.01, -0.01f64..0.01),
     )
         .prop_map(|((w, f, cx, cy, b1), (k1, k2, k3), (p1, p2))| {
@@ -20,27 +34,63 @@ fn reconstruction(translation: f64) -> impl Strategy<Value = Reconstruction> {
             (c.cx, c.cy, c.b1, c.k1, c.k2, c.k3, c.p1, c.p2) = (cx, cy, b1, k1, k2, k3, p1, p2);
             Camera::Brown(c)
         });
-    let pose = ((-3.1f64..3.1, -1.5f64..1.5, -3.1f64..3.1), (-translation..translation, -translation..translation, -translation..translation))
-        .prop_map(|((r, p, y), (x, yy, z))| Pose::new(UnitQuaternion::from_euler_angles(r, p, y), Vector3::new(x, yy, z)));
-    (prop::collection::vec(brown, 1..4), prop::collection::vec((pose, 0usize..8), 1..12)).prop_map(|(cams, poses)| {
-        let mut cameras: BTreeMap<String, Camera> =
-            cams.into_iter().enumerate().map(|(i, c)| (format!("epoch-{i}"), c)).collect();
-        cameras.insert("pin".into(), Camera::Pinhole(PinholeCamera::new(800, 600, 700.0).unwrap()));
-        let names: Vec<String> = cameras.keys().cloned().collect();
-        let images = poses
-            .into_iter()
-            .enumerate()
-            .map(|(i, (pose, c))| {
-                let camera = names[c % names.len()].clone();
-                OrientedImage { name: format!("images/{camera}/IMG {i:04}.jpg"), epoch: camera.clone(), camera, pose: Some(pose) }
-            })
-            .collect();
-        Reconstruction { crs: "EPSG:32633".into(), cameras, images }
-    })
+    let pose = (
+        (-3.1f64..3.1, -1.5f64..1.5, -3.1f64..3.1),
+        (
+            -translation..translation,
+            -translation..translation,
+            -translation..translation,
+        ),
+    )
+        .prop_map(|((r, p, y), (x, yy, z))| {
+            Pose::new(
+                UnitQuaternion::from_euler_angles(r, p, y),
+                Vector3::new(x, yy, z),
+            )
+        });
+    (
+        prop::collection::vec(brown, 1..4),
+        prop::collection::vec((pose, 0usize..8), 1..12),
+    )
+        .prop_map(|(cams, poses)| {
+            let mut cameras: BTreeMap<String, Camera> = cams
+                .into_iter()
+                .enumerate()
+                .map(|(i, c)| (format!("epoch-{i}"), c))
+                .collect();
+            cameras.insert(
+                "pin".into(),
+                Camera::Pinhole(PinholeCamera::new(800, 600, 700.0).unwrap()),
+            );
+            let names: Vec<String> = cameras.keys().cloned().collect();
+            let images = poses
+                .into_iter()
+                .enumerate()
+                .map(|(i, (pose, c))| {
+                    let camera = names[c % names.len()].clone();
+                    OrientedImage {
+                        name: format!("images/{camera}/IMG {i:04}.jpg"),
+                        epoch: camera.clone(),
+                        camera,
+                        pose: Some(pose),
+                    }
+                })
+                .collect();
+            Reconstruction {
+                crs: "EPSG:32633".into(),
+                cameras,
+                images,
+            }
+        })
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(32))]
+    #![proptest_config(ProptestConfig {
+        cases: 32,
+        // Seeded, so every run explores the same cases (reproducible CI).
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x7153_1f7),
+        ..ProptestConfig::default()
+    })]
     #[test]
     fn round_trip_preserves_utm_sized_poses(r in reconstruction(6e6)) {
         let back = round_trip(&r);
@@ -85,8 +135,16 @@ fn round_trip(r: &Reconstruction) -> Reconstruction {
     let json = dir.path().join("cameras.json");
     write_cameras_json(&json, r).unwrap();
     let original = read_cameras_json(&json).unwrap();
-    write_colmap_text(&dir.path().join("colmap"), &from_reconstruction(&original).unwrap()).unwrap();
-    let back = to_reconstruction(&read_colmap_text(&dir.path().join("colmap")).unwrap(), &original.crs).unwrap();
+    write_colmap_text(
+        &dir.path().join("colmap"),
+        &from_reconstruction(&original).unwrap(),
+    )
+    .unwrap();
+    let back = to_reconstruction(
+        &read_colmap_text(&dir.path().join("colmap")).unwrap(),
+        &original.crs,
+    )
+    .unwrap();
     let json2 = dir.path().join("cameras2.json");
     write_cameras_json(&json2, &back).unwrap();
     read_cameras_json(&json2).unwrap()
@@ -96,10 +154,18 @@ fn round_trip(r: &Reconstruction) -> Reconstruction {
 fn unrepresentable_brown_terms_are_refused() {
     let mut c = BrownCamera::new(100, 100, 90.0).unwrap();
     c.b2 = 0.5;
-    assert!(timesift_io::colmap::camera_to_colmap(&Camera::Brown(c)).unwrap_err().contains("b2"));
+    assert!(
+        timesift_io::colmap::camera_to_colmap(&Camera::Brown(c))
+            .unwrap_err()
+            .contains("b2")
+    );
     c.b2 = 0.0;
     c.k4 = 0.01;
-    assert!(timesift_io::colmap::camera_to_colmap(&Camera::Brown(c)).unwrap_err().contains("k4"));
+    assert!(
+        timesift_io::colmap::camera_to_colmap(&Camera::Brown(c))
+            .unwrap_err()
+            .contains("k4")
+    );
 }
 
 #[test]
@@ -110,5 +176,8 @@ fn opencv_tangential_terms_are_swapped() {
     let (model, params) = timesift_io::colmap::camera_to_colmap(&Camera::Brown(c)).unwrap();
     assert_eq!(model, "OPENCV");
     // OpenCV p1 is our p2; principal point absolute.
-    assert_eq!((params[2], params[3], params[6], params[7]), (500.0, 400.0, -0.002, 0.001));
+    assert_eq!(
+        (params[2], params[3], params[6], params[7]),
+        (500.0, 400.0, -0.002, 0.001)
+    );
 }

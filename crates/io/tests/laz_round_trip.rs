@@ -1,20 +1,41 @@
 //! LAS/LAZ round trips keep points, colours, attributes and the CRS.
 
 use timesift_io::coords::Crs;
-use timesift_io::pointcloud::{AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, write_las};
+use timesift_io::pointcloud::{
+    AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, write_las,
+};
 
 fn cloud(n: usize) -> PointCloud {
     // UTM-sized coordinates on a 1 mm lattice, so the LAS integers represent them exactly.
     let positions = (0..n)
-        .map(|i| [731413.0 + (i * 37 % 1000) as f64 * 0.001 + i as f64, 5705142.0 + (i * 13 % 997) as f64 * 0.001, -2.5 + (i % 100) as f64 * 0.125])
+        .map(|i| {
+            [
+                731413.0 + (i * 37 % 1000) as f64 * 0.001 + i as f64,
+                5705142.0 + (i * 13 % 997) as f64 * 0.001,
+                -2.5 + (i % 100) as f64 * 0.125,
+            ]
+        })
         .collect();
     PointCloud {
         positions,
-        colors: Some((0..n).map(|i| [(i * 7 % 65536) as u16, 300, (i % 256) as u16 * 256]).collect()),
+        colors: Some(
+            (0..n)
+                .map(|i| [(i * 7 % 65536) as u16, 300, (i % 256) as u16 * 256])
+                .collect(),
+        ),
         attributes: vec![
-            ExtraAttribute { name: "distance".into(), values: AttributeValues::F32((0..n).map(|i| i as f32 * -0.01).collect()) },
-            ExtraAttribute { name: "lod95".into(), values: AttributeValues::F64((0..n).map(|i| 1.0 / (i + 1) as f64).collect()) },
-            ExtraAttribute { name: "significant".into(), values: AttributeValues::U8((0..n).map(|i| (i % 2) as u8).collect()) },
+            ExtraAttribute {
+                name: "distance".into(),
+                values: AttributeValues::F32((0..n).map(|i| i as f32 * -0.01).collect()),
+            },
+            ExtraAttribute {
+                name: "lod95".into(),
+                values: AttributeValues::F64((0..n).map(|i| 1.0 / (i + 1) as f64).collect()),
+            },
+            ExtraAttribute {
+                name: "significant".into(),
+                values: AttributeValues::U8((0..n).map(|i| (i % 2) as u8).collect()),
+            },
         ],
         crs: Crs::Epsg(32754),
     }
@@ -41,9 +62,16 @@ fn laz_and_las_round_trip() {
         write_las(&p, &c, &LasWriteOptions::default()).unwrap();
         assert_same(&read_las(&p).unwrap(), &c);
     }
-    let las = std::fs::metadata(dir.path().join("dense.las")).unwrap().len();
-    let laz = std::fs::metadata(dir.path().join("dense.laz")).unwrap().len();
-    assert!(laz < las, "LAZ ({laz} B) must be compressed relative to LAS ({las} B)");
+    let las = std::fs::metadata(dir.path().join("dense.las"))
+        .unwrap()
+        .len();
+    let laz = std::fs::metadata(dir.path().join("dense.laz"))
+        .unwrap()
+        .len();
+    assert!(
+        laz < las,
+        "LAZ ({laz} B) must be compressed relative to LAS ({las} B)"
+    );
 }
 
 #[test]
@@ -64,7 +92,9 @@ fn mismatched_attribute_length_is_an_error() {
     let mut c = cloud(10);
     c.attributes[0].values = AttributeValues::F32(vec![0.0; 3]);
     let p = dir.path().join("bad.laz");
-    let e = write_las(&p, &c, &LasWriteOptions::default()).unwrap_err().to_string();
+    let e = write_las(&p, &c, &LasWriteOptions::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("bad.laz"), "{e}");
     assert!(!p.exists());
 }
