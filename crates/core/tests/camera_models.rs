@@ -100,7 +100,7 @@ proptest! {
     #![proptest_config(ProptestConfig {
         cases: 256,
         // Seeded, so every run explores the same cases (reproducible CI).
-        rng_seed: proptest::test_runner::RngSeed::Fixed(0x7153_1f7),
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x0715_31f7),
         ..ProptestConfig::default()
     })]
 
