@@ -15,6 +15,7 @@ pub mod error;
 pub mod features;
 pub mod ids;
 pub mod pose;
+pub mod rng;
 pub mod tracks;
 
 pub use camera::{
@@ -25,6 +26,7 @@ pub use error::CoreError;
 pub use features::{Descriptors, Keypoint};
 pub use ids::{CameraGroupId, EpochId, FeatureIndex, ImageId, TrackId};
 pub use pose::Pose;
+pub use rng::SeededRng;
 pub use tracks::{Observation, Track, TrackElement};
 
 /// Re-exported so downstream crates name the same nalgebra version.
