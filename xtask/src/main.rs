@@ -1,8 +1,12 @@
 //! `cargo xtask`: developer tasks that are not part of the product.
 //!
-//! Today: `data`, a check that the shared real data the tests and benchmarks read in place
-//! (`../shared/data`) is present. The `synth`, `bench` and `bench-methods` tasks of DESIGN.md arrive
-//! with their issues.
+//! - `data`: checks that the shared real data the tests and benches read in place
+//!   (`../shared/data`) is present.
+//! - `bench geometry`: timesift's RANSAC against OpenCV's on the same correspondences.
+//!
+//! The `synth` and `bench-methods` tasks of DESIGN.md arrive with their issues.
+
+mod bench_geometry;
 
 use std::path::PathBuf;
 
@@ -20,6 +24,21 @@ struct Cli {
 enum Task {
     /// Check that ../shared/data holds the data sets the tests and benches read.
     Data,
+    /// Stage benchmarks against peers, printing time ratios.
+    Bench {
+        #[command(subcommand)]
+        stage: BenchStage,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchStage {
+    /// RANSAC homography and essential matrix against OpenCV (Python).
+    Geometry {
+        /// Repetitions of each estimator.
+        #[arg(long, default_value_t = 20)]
+        runs: usize,
+    },
 }
 
 /// Folders of ../shared/data the tests and benches read, with one file each must hold.
@@ -37,6 +56,9 @@ fn shared_data() -> PathBuf {
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().task {
+        Task::Bench {
+            stage: BenchStage::Geometry { runs },
+        } => bench_geometry::run(runs)?,
         Task::Data => {
             let root = shared_data();
             let mut missing = Vec::new();

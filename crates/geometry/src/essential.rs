@@ -224,7 +224,12 @@ pub fn five_point(
             action[(k, target - 10)] = 1.0;
         }
     }
-    let eigenvalues = action.complex_eigenvalues();
+    // `complex_eigenvalues()` iterates without bound and can hang on rare samples: cap the Schur
+    // iterations and treat non-convergence as a degenerate sample.
+    let Some(schur) = nalgebra::linalg::Schur::try_new(action, f64::EPSILON, 1000) else {
+        return Ok(Vec::new());
+    };
+    let eigenvalues = schur.complex_eigenvalues();
     let mut solutions = Vec::new();
     for lambda in eigenvalues.iter() {
         if lambda.im.abs() > 1e-8 * (1.0 + lambda.re.abs()) {
@@ -307,7 +312,7 @@ pub fn eight_point_essential(
                 row[3 * i + j] = b[i] * a[j];
             }
         }
-        ata += row * row.transpose() * (w * w);
+        ata += row * row.transpose() * w;
     }
     let eig = ata.symmetric_eigen();
     let mut order: Vec<usize> = (0..9).collect();
@@ -414,6 +419,143 @@ pub fn relative_pose_from_essential(
     }
 }
 
+/// Sampson residual (signed) of a correspondence for E and its derivatives with respect to the
+/// local relative-pose update of [`refine_relative_pose`] (three rotation, two translation).
+fn sampson_with_jacobian(
+    e: &Matrix3<f64>,
+    d_e: &[Matrix3<f64>; 5],
+    a: &Vector3<f64>,
+    b: &Vector3<f64>,
+) -> (f64, [f64; 5]) {
+    let ea = e * a;
+    let etb = e.transpose() * b;
+    let n = b.dot(&ea);
+    let d = ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y;
+    let sd = d.sqrt();
+    let mut j = [0.0; 5];
+    for k in 0..5 {
+        let dea = d_e[k] * a;
+        let detb = d_e[k].transpose() * b;
+        let dn = b.dot(&dea);
+        let dd = 2.0 * (ea.x * dea.x + ea.y * dea.y + etb.x * detb.x + etb.y * detb.y);
+        j[k] = dn / sd - n * dd / (2.0 * d * sd);
+    }
+    (n / sd, j)
+}
+
+/// An orthonormal pair spanning the plane perpendicular to a unit vector.
+fn tangent_basis(t: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let helper = if t.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let b1 = t.cross(&helper).normalize();
+    (b1, t.cross(&b1))
+}
+
+/// Applies the local update `(δω, δ1, δ2)`: `R ← exp([δω]×) R`, `t ← normalise(t + δ1 b1 + δ2 b2)`.
+pub fn retract_relative_pose(pose: &Pose, delta: &[f64; 5]) -> Pose {
+    let t = pose.translation.normalize();
+    let (b1, b2) = tangent_basis(&t);
+    Pose::new(
+        UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]))
+            * pose.rotation,
+        (t + b1 * delta[3] + b2 * delta[4]).normalize(),
+    )
+}
+
+/// Sampson residuals of all correspondences for a relative pose and their Jacobian with respect
+/// to the update of [`retract_relative_pose`] (one row per correspondence).
+pub fn relative_pose_residuals(
+    pose: &Pose,
+    x1: &[Vector3<f64>],
+    x2: &[Vector3<f64>],
+) -> Vec<(f64, [f64; 5])> {
+    let t = pose.translation.normalize();
+    let r = pose.rotation_matrix();
+    let (b1, b2) = tangent_basis(&t);
+    let tx = t.cross_matrix();
+    let e = tx * r;
+    let d_e = [
+        tx * Vector3::x().cross_matrix() * r,
+        tx * Vector3::y().cross_matrix() * r,
+        tx * Vector3::z().cross_matrix() * r,
+        b1.cross_matrix() * r,
+        b2.cross_matrix() * r,
+    ];
+    x1.iter()
+        .zip(x2)
+        .map(|(a, b)| sampson_with_jacobian(&e, &d_e, &(a / a.z), &(b / b.z)))
+        .collect()
+}
+
+/// Refines a relative pose (unit translation) by Levenberg–Marquardt on the (weighted) squared
+/// Sampson errors of the correspondences, the first-order geometric error of both images.
+pub fn refine_relative_pose(
+    start: &Pose,
+    x1: &[Vector3<f64>],
+    x2: &[Vector3<f64>],
+    weights: Option<&[f64]>,
+) -> Result<Pose, GeometryError> {
+    check_pairs("relative pose refinement", x1.len(), x2.len(), 5)?;
+    let cost = |rows: &[(f64, [f64; 5])]| -> f64 {
+        rows.iter()
+            .enumerate()
+            .map(|(i, (r, _))| weights.map_or(1.0, |w| w[i]) * r * r)
+            .sum()
+    };
+    let mut pose = Pose::new(start.rotation, start.translation.normalize());
+    let mut rows = relative_pose_residuals(&pose, x1, x2);
+    let mut current = cost(&rows);
+    let mut mu = 1e-4;
+    for _ in 0..50 {
+        let mut h = SMatrix::<f64, 5, 5>::zeros();
+        let mut g = SVector::<f64, 5>::zeros();
+        for (i, (r, j)) in rows.iter().enumerate() {
+            let w = weights.map_or(1.0, |w| w[i]);
+            let jv = SVector::<f64, 5>::from_row_slice(j);
+            h += jv * jv.transpose() * w;
+            g += jv * (r * w);
+        }
+        let mut accepted = false;
+        for _ in 0..10 {
+            let mut damped = h;
+            for k in 0..5 {
+                damped[(k, k)] += mu * h[(k, k)].max(1e-18);
+            }
+            let Some(step) = damped.cholesky().map(|c| -c.solve(&g)) else {
+                mu *= 10.0;
+                continue;
+            };
+            let candidate =
+                retract_relative_pose(&pose, &[step[0], step[1], step[2], step[3], step[4]]);
+            let cand_rows = relative_pose_residuals(&candidate, x1, x2);
+            let c = cost(&cand_rows);
+            if c < current {
+                let decrease = (current - c) / current.max(1e-300);
+                pose = candidate;
+                rows = cand_rows;
+                current = c;
+                mu = (mu * 0.3).max(1e-12);
+                accepted = decrease > 1e-12;
+                break;
+            }
+            mu *= 10.0;
+        }
+        if !accepted {
+            break;
+        }
+    }
+    Ok(pose)
+}
+
+/// The essential matrix `[t]× R` of a relative pose (unit translation), Frobenius-normalised.
+pub fn essential_from_pose(pose: &Pose) -> Matrix3<f64> {
+    let e = pose.translation.normalize().cross_matrix() * pose.rotation_matrix();
+    e / e.norm()
+}
+
 /// RANSAC estimator of the essential matrix from calibrated rays. Residuals are Sampson distances
 /// on the z = 1 plane scaled by `focal_px`, so the threshold is in pixels.
 pub struct EssentialEstimator<'a> {
@@ -442,15 +584,25 @@ impl Estimator for EssentialEstimator<'_> {
             models.extend(sols);
         }
     }
+    /// Decomposes the current model with the cheirality test on the inliers, then refines the
+    /// pose on their Sampson errors (the linear eight-point fit is the fallback start).
     fn fit_nonminimal(
         &self,
         idx: &[usize],
         w: Option<&[f64]>,
-        _: &Matrix3<f64>,
+        start: &Matrix3<f64>,
     ) -> Option<Matrix3<f64>> {
         let a: Vec<Vector3<f64>> = idx.iter().map(|&i| self.x1[i]).collect();
         let b: Vec<Vector3<f64>> = idx.iter().map(|&i| self.x2[i]).collect();
-        eight_point_essential(&a, &b, w).ok()
+        let pose = match relative_pose_from_essential(start, &a, &b) {
+            Ok((pose, _)) => pose,
+            Err(_) => {
+                let e = eight_point_essential(&a, &b, w).ok()?;
+                relative_pose_from_essential(&e, &a, &b).ok()?.0
+            }
+        };
+        let refined = refine_relative_pose(&pose, &a, &b, w).ok()?;
+        Some(essential_from_pose(&refined))
     }
     fn residual_sq(&self, e: &Matrix3<f64>, i: usize) -> f64 {
         sampson_distance_sq(e, &self.x1[i], &self.x2[i]) * self.focal_px * self.focal_px

@@ -73,7 +73,7 @@ pub fn eight_point(
     for k in 0..n1.len() {
         let r = SMatrix::<f64, 9, 1>::from_row_slice(&epipolar_row(&n1[k], &n2[k]));
         let w = weights.map_or(1.0, |w| w[k]);
-        ata += r * r.transpose() * (w * w);
+        ata += r * r.transpose() * w;
     }
     let eig = ata.symmetric_eigen();
     let mut order: Vec<usize> = (0..9).collect();

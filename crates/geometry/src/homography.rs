@@ -80,7 +80,7 @@ pub fn homography_dlt(
             b.y * a.y,
             b.y,
         ]);
-        ata += (r1 * r1.transpose() + r2 * r2.transpose()) * (w * w);
+        ata += (r1 * r1.transpose() + r2 * r2.transpose()) * w;
     }
     let eig = ata.symmetric_eigen();
     let mut order: Vec<usize> = (0..9).collect();

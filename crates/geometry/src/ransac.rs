@@ -20,8 +20,8 @@ pub trait Estimator {
     /// Models fitted to a minimal sample, appended to `models` (several when the minimal problem
     /// has several solutions; none when the sample is degenerate).
     fn fit_minimal(&self, sample: &[usize], models: &mut Vec<Self::Model>);
-    /// A model fitted to many points (least squares), optionally weighted; used by local
-    /// optimisation and the final refit. `start` is the current best model, for iterative fits.
+    /// A model fitted to many points (least squares), optionally weighted (each weight multiplies
+    /// that point's squared residual); used by local optimisation and the final refit. `start` is the current best model, for iterative fits.
     fn fit_nonminimal(
         &self,
         indices: &[usize],
@@ -126,9 +126,13 @@ impl Scorer {
         }
     }
 
+    /// IRLS weight of a residual for the non-minimal fits: points near the threshold, where
+    /// inliers and outliers mix, count little, so an outlier that slips under the threshold cannot
+    /// pull a weakly conditioned model (weight 1 − r²/t², the negative slope of the MSAC loss, for MSAC; the
+    /// marginalised loss's own weight otherwise).
     fn weight(&self, r2: f64) -> f64 {
         match self.scoring {
-            Scoring::Msac => 1.0,
+            Scoring::Msac => 1.0 - (r2 / self.threshold_sq).min(1.0),
             Scoring::Marginalized => 1.0 - (r2.sqrt() / self.threshold).min(1.0),
         }
     }
@@ -210,7 +214,7 @@ pub fn ransac<E: Estimator>(
             let (loss, count) = scorer.evaluate(est, &model, bound);
             if loss < bound {
                 let (model, loss, count) =
-                    local_optimization(est, &scorer, options, model, loss, count);
+                    local_optimization(est, &scorer, options, &mut rng, model, loss, count);
                 best = Some((model, loss, count));
                 needed = required_iterations(count as f64 / n as f64, m, options.confidence)
                     .min(options.max_iterations);
@@ -227,8 +231,7 @@ pub fn ransac<E: Estimator>(
     // Final refit on all inliers, kept only when it does not worsen the loss.
     let (idx, w) = scorer.inliers(est, &model);
     if idx.len() > m {
-        let weights = (options.scoring == Scoring::Marginalized).then_some(&w[..]);
-        if let Some(refit) = est.fit_nonminimal(&idx, weights, &model) {
+        if let Some(refit) = est.fit_nonminimal(&idx, Some(&w), &model) {
             let (l, c) = scorer.evaluate(est, &refit, f64::INFINITY);
             if l <= loss {
                 (model, loss, count) = (refit, l, c);
@@ -253,22 +256,48 @@ pub fn ransac<E: Estimator>(
     })
 }
 
-/// Iterated least-squares refits on the inliers of the current model while the loss decreases.
+/// LO-RANSAC (Chum et al.): an inner RANSAC that fits non-minimal samples drawn from the current
+/// inliers (which escapes shallow wrong basins), then iterated reweighted refits on all inliers
+/// while the loss decreases.
 fn local_optimization<E: Estimator>(
     est: &E,
     scorer: &Scorer,
     options: &RansacOptions,
+    rng: &mut SeededRng,
     mut model: E::Model,
     mut loss: f64,
     mut count: usize,
 ) -> (E::Model, f64, usize) {
+    if options.local_optimization_steps == 0 {
+        return (model, loss, count);
+    }
+    let m = est.min_samples();
+    let (idx, _) = scorer.inliers(est, &model);
+    let inner_size = (7 * m).min(idx.len() / 2);
+    if inner_size > m {
+        let mut pick = vec![0usize; inner_size];
+        let mut subset = vec![0usize; inner_size];
+        let start = model.clone();
+        for _ in 0..options.local_optimization_steps {
+            rng.sample_distinct(idx.len(), &mut pick);
+            for (s, &p) in subset.iter_mut().zip(&pick) {
+                *s = idx[p];
+            }
+            let Some(candidate) = est.fit_nonminimal(&subset, None, &start) else {
+                continue;
+            };
+            let (l, c) = scorer.evaluate(est, &candidate, loss);
+            if l < loss {
+                (model, loss, count) = (candidate, l, c);
+            }
+        }
+    }
     for _ in 0..options.local_optimization_steps {
         let (idx, w) = scorer.inliers(est, &model);
-        if idx.len() <= est.min_samples() {
+        if idx.len() <= m {
             break;
         }
-        let weights = (options.scoring == Scoring::Marginalized).then_some(&w[..]);
-        let Some(refit) = est.fit_nonminimal(&idx, weights, &model) else {
+        let Some(refit) = est.fit_nonminimal(&idx, Some(&w), &model) else {
             break;
         };
         let (l, c) = scorer.evaluate(est, &refit, loss);
