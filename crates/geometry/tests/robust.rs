@@ -312,18 +312,36 @@ impl Drop for SlowTrial {
 #[test]
 fn homography_explained_pairs_are_flagged() {
     use timesift_geometry::homography::{TwoViewType, classify_two_view};
-    for (planar, expected) in [(true, TwoViewType::HomographyExplained), (false, TwoViewType::General)] {
+    for (planar, expected) in [
+        (true, TwoViewType::HomographyExplained),
+        (false, TwoViewType::General),
+    ] {
         let mut flagged = 0;
         for seed in 0..20 {
             let (_, a, b) = contaminated_two_view(seed, planar);
             let (p1, p2) = (pixels(&a), pixels(&b));
-            let e = ransac(&EssentialEstimator { x1: &a, x2: &b, focal_px: FOCAL }, &options(seed, 2.0, Scoring::Msac)).unwrap();
-            let h = ransac(&HomographyEstimator { p1: &p1, p2: &p2 }, &options(seed, 2.0, Scoring::Msac)).unwrap();
+            let e = ransac(
+                &EssentialEstimator {
+                    x1: &a,
+                    x2: &b,
+                    focal_px: FOCAL,
+                },
+                &options(seed, 2.0, Scoring::Msac),
+            )
+            .unwrap();
+            let h = ransac(
+                &HomographyEstimator { p1: &p1, p2: &p2 },
+                &options(seed, 2.0, Scoring::Msac),
+            )
+            .unwrap();
             if classify_two_view(e.num_inliers, h.num_inliers, 0.8) == expected {
                 flagged += 1;
             }
         }
-        assert!(flagged >= 19, "planar = {planar}: {flagged}/20 classified {expected:?}");
+        assert!(
+            flagged >= 19,
+            "planar = {planar}: {flagged}/20 classified {expected:?}"
+        );
     }
 }
 
@@ -331,12 +349,20 @@ fn homography_explained_pairs_are_flagged() {
 fn helmert_report_is_in_surveyors_units() {
     let truth = Similarity {
         scale: 1.0 + 25e-6,
-        rotation: nalgebra::UnitQuaternion::from_euler_angles(0.001f64.to_radians(), -0.002f64.to_radians(), 0.5f64.to_radians()),
+        rotation: nalgebra::UnitQuaternion::from_euler_angles(
+            0.001f64.to_radians(),
+            -0.002f64.to_radians(),
+            0.5f64.to_radians(),
+        ),
         translation: Vector3::new(12.5, -3.0, 0.75),
     };
     let r = truth.helmert_report();
     assert!((r.scale_ppm - 25.0).abs() < 1e-6);
-    assert!((r.rotation_deg[0] - 0.001).abs() < 1e-9 && (r.rotation_deg[1] + 0.002).abs() < 1e-9 && (r.rotation_deg[2] - 0.5).abs() < 1e-9);
+    assert!(
+        (r.rotation_deg[0] - 0.001).abs() < 1e-9
+            && (r.rotation_deg[1] + 0.002).abs() < 1e-9
+            && (r.rotation_deg[2] - 0.5).abs() < 1e-9
+    );
     assert_eq!(r.translation, truth.translation);
     let back = truth.inverse();
     let p = Vector3::new(100.0, 200.0, 30.0);
