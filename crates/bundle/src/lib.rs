@@ -1,6 +1,23 @@
-//! Sparse Levenberg–Marquardt bundle adjustment with a Schur complement over the points,
-//! self-calibration per camera group, control points, GNSS priors and scale bars (issue "Bundle
-//! adjustment").
+//! Bundle adjustment: Levenberg–Marquardt on the reduced camera system (Schur complement over the
+//! points), camera groups with shared intrinsics and a fixed/free mask per parameter, robust losses,
+//! fixed poses and points (issue "Bundle adjustment").
 //!
-//! Invariants (once built): a solver of a problem expressed in `timesift-core` types; knows nothing
-//! of how the observations were obtained. Not implemented yet: this crate holds only its charter.
+//! Built so far: reprojection residuals through any `CameraModel` with per-observation sigmas,
+//! Huber/Cauchy/soft-L1 losses, the dense Schur path, Ceres-like trust-region control and
+//! termination, and the BAL problem conversion. Still to come (see the issue): sparse Cholesky of
+//! the reduced system with faer and the PCG path, marker/GNSS/scale-bar residuals, covariance
+//! output, parallel assembly.
+//!
+//! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
+//! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).
+
+pub mod bal;
+mod error;
+pub mod loss;
+pub mod problem;
+pub mod solver;
+
+pub use error::BundleError;
+pub use loss::Loss;
+pub use problem::{BundleProblem, CameraGroup, Observation};
+pub use solver::{BundleOptions, BundleReport, Termination, solve};

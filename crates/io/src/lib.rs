@@ -10,6 +10,7 @@
 //!   never leaves a half-written output.
 //! - Nothing here knows about stages, epochs' meaning or algorithms.
 
+pub mod bal;
 pub mod cameras_json;
 pub mod colmap;
 pub mod coords;

@@ -1,0 +1,149 @@
+//! The problem: camera groups (shared intrinsics with a free/fixed mask), images with poses,
+//! points, and reprojection observations with per-observation sigmas.
+
+use nalgebra::{Vector2, Vector3};
+use timesift_core::{Camera, CameraModel, Pose};
+
+use crate::BundleError;
+
+/// Intrinsics shared by a group of images, and which of them are adjusted.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraGroup {
+    /// The camera model with its current parameters.
+    pub camera: Camera,
+    /// Per parameter (in `CameraModel::param_names` order): adjusted (`true`) or fixed.
+    pub free: Vec<bool>,
+}
+
+impl CameraGroup {
+    /// A group whose intrinsics are all fixed.
+    pub fn fixed(camera: Camera) -> Self {
+        let n = camera.num_params();
+        CameraGroup {
+            camera,
+            free: vec![false; n],
+        }
+    }
+
+    /// A group adjusting the named parameters (others fixed); unknown names are an error.
+    pub fn with_free(camera: Camera, names: &[&str]) -> Result<Self, BundleError> {
+        let all = camera.param_names();
+        let mut free = vec![false; all.len()];
+        for name in names {
+            let k = all.iter().position(|n| n == name).ok_or_else(|| {
+                BundleError::InvalidProblem(format!(
+                    "camera model {} has no parameter `{name}` (it has {})",
+                    camera.model_name(),
+                    all.join(", ")
+                ))
+            })?;
+            free[k] = true;
+        }
+        Ok(CameraGroup { camera, free })
+    }
+
+    /// Number of adjusted intrinsics.
+    pub fn num_free(&self) -> usize {
+        self.free.iter().filter(|f| **f).count()
+    }
+}
+
+/// An image: its pose, camera group, and whether the pose is held fixed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BundleImage {
+    /// `cam_from_world`.
+    pub pose: Pose,
+    /// Index into [`BundleProblem::groups`].
+    pub group: usize,
+    /// Hold the pose fixed.
+    pub fixed: bool,
+}
+
+/// A 3-D point and whether it is held fixed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BundlePoint {
+    /// World position.
+    pub position: Vector3<f64>,
+    /// Hold the point fixed.
+    pub fixed: bool,
+}
+
+/// A measurement of a point in an image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    /// Index into [`BundleProblem::images`].
+    pub image: usize,
+    /// Index into [`BundleProblem::points`].
+    pub point: usize,
+    /// Measured pixel.
+    pub pixel: Vector2<f64>,
+    /// Standard deviation, pixels.
+    pub sigma_px: f64,
+}
+
+/// A bundle-adjustment problem.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct BundleProblem {
+    /// Camera groups.
+    pub groups: Vec<CameraGroup>,
+    /// Images.
+    pub images: Vec<BundleImage>,
+    /// Points.
+    pub points: Vec<BundlePoint>,
+    /// Reprojection observations.
+    pub observations: Vec<Observation>,
+}
+
+impl BundleProblem {
+    /// Checks indices, masks, sigmas and finiteness.
+    pub fn validate(&self) -> Result<(), BundleError> {
+        for (i, g) in self.groups.iter().enumerate() {
+            if g.free.len() != g.camera.num_params() {
+                return Err(BundleError::InvalidProblem(format!(
+                    "camera group {i}: mask has {} entries for {} parameters",
+                    g.free.len(),
+                    g.camera.num_params()
+                )));
+            }
+        }
+        for (i, im) in self.images.iter().enumerate() {
+            if im.group >= self.groups.len() {
+                return Err(BundleError::InvalidProblem(format!(
+                    "image {i} refers to camera group {} of {}",
+                    im.group,
+                    self.groups.len()
+                )));
+            }
+            if !im
+                .pose
+                .translation
+                .iter()
+                .chain(im.pose.rotation.coords.iter())
+                .all(|v| v.is_finite())
+            {
+                return Err(BundleError::NonFinite("pose"));
+            }
+        }
+        if !self
+            .points
+            .iter()
+            .all(|p| p.position.iter().all(|v| v.is_finite()))
+        {
+            return Err(BundleError::NonFinite("point"));
+        }
+        for (k, o) in self.observations.iter().enumerate() {
+            if o.image >= self.images.len() || o.point >= self.points.len() {
+                return Err(BundleError::InvalidProblem(format!(
+                    "observation {k} refers to image {} / point {} out of range",
+                    o.image, o.point
+                )));
+            }
+            if !(o.sigma_px > 0.0) || !o.pixel.iter().all(|v| v.is_finite()) {
+                return Err(BundleError::InvalidProblem(format!(
+                    "observation {k} has a non-positive sigma or non-finite pixel"
+                )));
+            }
+        }
+        Ok(())
+    }
+}

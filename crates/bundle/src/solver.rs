@@ -1,0 +1,481 @@
+//! Levenberg–Marquardt on the reduced camera system.
+//!
+//! Each iteration linearises every observation once, accumulates the camera-side normal
+//! equations `U`, the point blocks `V_j` and the coupling blocks `E = J_cᵀ W J_p`, then — for each
+//! trial damping — eliminates the points (`S = U − Σ_j E_j V_j⁻¹ E_jᵀ`), solves for the camera-side
+//! step and back-substitutes the point steps. Damping, step acceptance and the three termination
+//! tests follow Ceres's Levenberg–Marquardt, so final costs compare with Ceres's.
+
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3, Vector6};
+use timesift_core::camera::MAX_INTRINSICS;
+use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
+
+use crate::problem::BundleProblem;
+use crate::{BundleError, Loss};
+
+/// Options of [`solve`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BundleOptions {
+    /// Robust loss on each observation's squared, sigma-normalised residual.
+    pub loss: Loss,
+    /// Most iterations.
+    pub max_iterations: usize,
+    /// Stop when a successful step changes the cost by less than this fraction.
+    pub function_tolerance: f64,
+    /// Stop when the largest gradient component falls below this.
+    pub gradient_tolerance: f64,
+    /// Stop when the step is smaller than this fraction of the parameter norm.
+    pub parameter_tolerance: f64,
+    /// Initial trust-region radius (inverse damping).
+    pub initial_trust_region_radius: f64,
+}
+
+impl Default for BundleOptions {
+    fn default() -> Self {
+        BundleOptions {
+            loss: Loss::Trivial,
+            max_iterations: 500,
+            function_tolerance: 1e-6,
+            gradient_tolerance: 1e-10,
+            parameter_tolerance: 1e-8,
+            initial_trust_region_radius: 1e4,
+        }
+    }
+}
+
+/// Why the solver stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Termination {
+    /// Relative cost change below the function tolerance.
+    FunctionTolerance,
+    /// Gradient below the gradient tolerance.
+    GradientTolerance,
+    /// Step below the parameter tolerance.
+    ParameterTolerance,
+    /// Iteration limit reached.
+    MaxIterations,
+    /// The damping grew without finding a decrease.
+    NoProgress,
+}
+
+/// What a solve did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BundleReport {
+    /// Cost ½ Σ ρ(s) before.
+    pub initial_cost: f64,
+    /// Cost after.
+    pub final_cost: f64,
+    /// Iterations (linearisations).
+    pub iterations: usize,
+    /// Accepted steps.
+    pub successful_steps: usize,
+    /// Why it stopped.
+    pub termination: Termination,
+    /// Root mean square reprojection error after, pixels (unweighted, all observations).
+    pub rms_px: f64,
+}
+
+/// Index layout of the camera-side parameters.
+struct Layout {
+    pose_offset: Vec<Option<usize>>,
+    group_offset: Vec<Option<usize>>,
+    group_free: Vec<Vec<usize>>,
+    point_index: Vec<Option<usize>>,
+    num_camera_params: usize,
+    num_free_points: usize,
+}
+
+impl Layout {
+    fn new(p: &BundleProblem) -> Self {
+        let mut n = 0;
+        let pose_offset = p
+            .images
+            .iter()
+            .map(|im| {
+                (!im.fixed).then(|| {
+                    n += 6;
+                    n - 6
+                })
+            })
+            .collect();
+        let group_free: Vec<Vec<usize>> = p
+            .groups
+            .iter()
+            .map(|g| {
+                g.free
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, f)| **f)
+                    .map(|(k, _)| k)
+                    .collect()
+            })
+            .collect();
+        let group_offset = group_free
+            .iter()
+            .map(|f| {
+                (!f.is_empty()).then(|| {
+                    n += f.len();
+                    n - f.len()
+                })
+            })
+            .collect();
+        let mut m = 0;
+        let point_index = p
+            .points
+            .iter()
+            .map(|pt| {
+                (!pt.fixed).then(|| {
+                    m += 1;
+                    m - 1
+                })
+            })
+            .collect();
+        Layout {
+            pose_offset,
+            group_offset,
+            group_free,
+            point_index,
+            num_camera_params: n,
+            num_free_points: m,
+        }
+    }
+}
+
+/// The normal equations of one linearisation, before damping.
+struct Normal {
+    u: DMatrix<f64>,
+    g_c: DVector<f64>,
+    v: Vec<Matrix3<f64>>,
+    g_p: Vec<Vector3<f64>>,
+    /// Per observation: global camera-side columns (start, count) into `cols`.
+    obs_cols: Vec<(usize, usize)>,
+    cols: Vec<usize>,
+    /// Per observation: E = w J_cᵀ J_p, row-major (count × 3), starting at `obs_cols.0 * 3`.
+    e: Vec<f64>,
+    /// Observations of each free point.
+    point_obs: Vec<Vec<usize>>,
+    cost: f64,
+}
+
+fn cost_of(p: &BundleProblem, loss: &Loss) -> f64 {
+    p.observations
+        .iter()
+        .map(|o| {
+            let im = &p.images[o.image];
+            let cam = &p.groups[im.group].camera;
+            match project_world(cam, &im.pose, &p.points[o.point].position) {
+                Ok(px) => {
+                    0.5 * loss
+                        .evaluate(((px - o.pixel) / o.sigma_px).norm_squared())
+                        .0
+                }
+                // A point behind a camera costs as much as a very large residual.
+                Err(_) => 0.5 * loss.evaluate(1e12).0,
+            }
+        })
+        .sum()
+}
+
+fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss) -> Normal {
+    let n = layout.num_camera_params;
+    let mut nm = Normal {
+        u: DMatrix::zeros(n, n),
+        g_c: DVector::zeros(n),
+        v: vec![Matrix3::zeros(); layout.num_free_points],
+        g_p: vec![Vector3::zeros(); layout.num_free_points],
+        obs_cols: Vec::with_capacity(p.observations.len()),
+        cols: Vec::with_capacity(p.observations.len() * 9),
+        e: Vec::with_capacity(p.observations.len() * 27),
+        point_obs: vec![Vec::new(); layout.num_free_points],
+        cost: 0.0,
+    };
+    let mut d_int = [0.0; 2 * MAX_INTRINSICS];
+    let mut jc = [[0.0f64; 6 + MAX_INTRINSICS]; 2];
+    for (k, o) in p.observations.iter().enumerate() {
+        let im = &p.images[o.image];
+        let cam = &p.groups[im.group].camera;
+        let np = cam.num_params();
+        let x = &p.points[o.point].position;
+        let start = nm.cols.len();
+        let Ok(j) = project_world_with_jacobians(cam, &im.pose, x, Some(&mut d_int[..2 * np]))
+        else {
+            nm.cost += 0.5 * loss.evaluate(1e12).0;
+            nm.obs_cols.push((start, 0));
+            continue;
+        };
+        let r = (j.pixel - o.pixel) / o.sigma_px;
+        let (rho, w) = loss.evaluate(r.norm_squared());
+        nm.cost += 0.5 * rho;
+        let inv_sigma = 1.0 / o.sigma_px;
+        // Camera-side Jacobian columns.
+        let mut count = 0;
+        if let Some(off) = layout.pose_offset[o.image] {
+            for c in 0..6 {
+                jc[0][count] = j.d_pose[(0, c)] * inv_sigma;
+                jc[1][count] = j.d_pose[(1, c)] * inv_sigma;
+                nm.cols.push(off + c);
+                count += 1;
+            }
+        }
+        if let Some(off) = layout.group_offset[im.group] {
+            for (q, &param) in layout.group_free[im.group].iter().enumerate() {
+                jc[0][count] = d_int[param] * inv_sigma;
+                jc[1][count] = d_int[np + param] * inv_sigma;
+                nm.cols.push(off + q);
+                count += 1;
+            }
+        }
+        nm.obs_cols.push((start, count));
+        let cols = &nm.cols[start..start + count];
+        for a in 0..count {
+            nm.g_c[cols[a]] += w * (jc[0][a] * r.x + jc[1][a] * r.y);
+            for b in 0..count {
+                nm.u[(cols[a], cols[b])] += w * (jc[0][a] * jc[0][b] + jc[1][a] * jc[1][b]);
+            }
+        }
+        if let Some(pi) = layout.point_index[o.point] {
+            let jp = j.d_world_point * inv_sigma;
+            nm.v[pi] += jp.transpose() * jp * w;
+            nm.g_p[pi] += jp.transpose() * r * w;
+            for a in 0..count {
+                for c in 0..3 {
+                    nm.e.push(w * (jc[0][a] * jp[(0, c)] + jc[1][a] * jp[(1, c)]));
+                }
+            }
+            nm.point_obs[pi].push(k);
+        } else {
+            nm.e.extend(std::iter::repeat_n(0.0, 3 * count));
+        }
+    }
+    nm
+}
+
+/// The damped step: camera-side and per free point.
+struct Step {
+    cameras: DVector<f64>,
+    points: Vec<Vector3<f64>>,
+}
+
+fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
+    let n = nm.u.nrows();
+    let clamp = |d: f64| d.clamp(1e-6, 1e32);
+    let mut s = nm.u.clone();
+    for i in 0..n {
+        s[(i, i)] += lambda * clamp(nm.u[(i, i)]);
+    }
+    let mut rhs = nm.g_c.clone();
+    let mut v_inv = Vec::with_capacity(nm.v.len());
+    for (pi, v) in nm.v.iter().enumerate() {
+        let mut vd = *v;
+        for c in 0..3 {
+            vd[(c, c)] += lambda * clamp(v[(c, c)]);
+        }
+        let inv = vd.try_inverse()?;
+        // S −= E_a V⁻¹ E_bᵀ over pairs of observations of the point; rhs −= E_a V⁻¹ g_p.
+        let obs = &nm.point_obs[pi];
+        let vg = inv * nm.g_p[pi];
+        for &a in obs {
+            let (sa, ca) = nm.obs_cols[a];
+            let ea = &nm.e[sa * 3..(sa + ca) * 3];
+            for ra in 0..ca {
+                let row = SMatrix::<f64, 1, 3>::new(ea[3 * ra], ea[3 * ra + 1], ea[3 * ra + 2]);
+                let row_vinv = row * inv;
+                rhs[nm.cols[sa + ra]] -= (row * vg)[0];
+                for &b in obs {
+                    let (sb, cb) = nm.obs_cols[b];
+                    let eb = &nm.e[sb * 3..(sb + cb) * 3];
+                    for rb in 0..cb {
+                        let v = row_vinv[0] * eb[3 * rb]
+                            + row_vinv[1] * eb[3 * rb + 1]
+                            + row_vinv[2] * eb[3 * rb + 2];
+                        s[(nm.cols[sa + ra], nm.cols[sb + rb])] -= v;
+                    }
+                }
+            }
+        }
+        v_inv.push(inv);
+    }
+    let cameras = if n > 0 {
+        -s.cholesky()?.solve(&rhs)
+    } else {
+        DVector::zeros(0)
+    };
+    let points = nm
+        .point_obs
+        .iter()
+        .enumerate()
+        .map(|(pi, obs)| {
+            let mut acc = nm.g_p[pi];
+            for &a in obs {
+                let (sa, ca) = nm.obs_cols[a];
+                for ra in 0..ca {
+                    let d = cameras[nm.cols[sa + ra]];
+                    let e = &nm.e[(sa + ra) * 3..(sa + ra) * 3 + 3];
+                    acc += Vector3::new(e[0], e[1], e[2]) * d;
+                }
+            }
+            -(v_inv[pi] * acc)
+        })
+        .collect();
+    Some(Step { cameras, points })
+}
+
+fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> BundleProblem {
+    let mut q = p.clone();
+    for (i, im) in q.images.iter_mut().enumerate() {
+        if let Some(off) = layout.pose_offset[i] {
+            let d = Vector6::from_iterator((0..6).map(|c| step.cameras[off + c]));
+            im.pose = im.pose.retract(&d);
+        }
+    }
+    for (g, group) in q.groups.iter_mut().enumerate() {
+        if let Some(off) = layout.group_offset[g] {
+            let mut params = [0.0; MAX_INTRINSICS];
+            let n = group.camera.num_params();
+            group.camera.params(&mut params[..n]);
+            for (q, &k) in layout.group_free[g].iter().enumerate() {
+                params[k] += step.cameras[off + q];
+            }
+            // An invalid update (e.g. f ≤ 0) keeps the old intrinsics; the step's cost then rises
+            // and the damping grows.
+            let _ = group.camera.set_params(&params[..n]);
+        }
+    }
+    for (j, pt) in q.points.iter_mut().enumerate() {
+        if let Some(pi) = layout.point_index[j] {
+            pt.position += step.points[pi];
+        }
+    }
+    q
+}
+
+fn parameter_norm(p: &BundleProblem) -> f64 {
+    let mut s = 0.0;
+    for im in &p.images {
+        s += im.pose.translation.norm_squared() + 1.0;
+    }
+    for g in &p.groups {
+        let mut params = [0.0; MAX_INTRINSICS];
+        let n = g.camera.num_params();
+        g.camera.params(&mut params[..n]);
+        s += params[..n].iter().map(|v| v * v).sum::<f64>();
+    }
+    for pt in &p.points {
+        s += pt.position.norm_squared();
+    }
+    s.sqrt()
+}
+
+fn rms_px(p: &BundleProblem) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for o in &p.observations {
+        let im = &p.images[o.image];
+        if let Ok(px) = project_world(
+            &p.groups[im.group].camera,
+            &im.pose,
+            &p.points[o.point].position,
+        ) {
+            sum += (px - o.pixel).norm_squared();
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum / (2 * n) as f64).sqrt()
+    }
+}
+
+/// Adjusts the problem in place and reports what happened.
+pub fn solve(
+    problem: &mut BundleProblem,
+    options: &BundleOptions,
+) -> Result<BundleReport, BundleError> {
+    problem.validate()?;
+    let layout = Layout::new(problem);
+    if layout.num_camera_params == 0 && layout.num_free_points == 0 {
+        return Err(BundleError::NothingToAdjust);
+    }
+    let initial_cost = cost_of(problem, &options.loss);
+    let mut cost = initial_cost;
+    let mut radius = options.initial_trust_region_radius;
+    let mut nu = 2.0;
+    let mut iterations = 0;
+    let mut successful_steps = 0;
+    let mut termination = Termination::MaxIterations;
+    let mut nm = linearize(problem, &layout, &options.loss);
+    while iterations < options.max_iterations {
+        iterations += 1;
+        let g_max = nm
+            .g_c
+            .iter()
+            .chain(nm.g_p.iter().flat_map(|g| g.iter()))
+            .fold(0.0f64, |m, v| m.max(v.abs()));
+        if g_max <= options.gradient_tolerance {
+            termination = Termination::GradientTolerance;
+            break;
+        }
+        let lambda = 1.0 / radius;
+        let Some(step) = damped_step(&nm, lambda) else {
+            radius /= nu;
+            nu *= 2.0;
+            if radius < 1e-32 {
+                termination = Termination::NoProgress;
+                break;
+            }
+            continue;
+        };
+        // Predicted decrease of the linear model: ½ (λ δᵀDδ − gᵀδ).
+        let clamp = |d: f64| d.clamp(1e-6, 1e32);
+        let mut model = 0.0;
+        for i in 0..step.cameras.len() {
+            let d = step.cameras[i];
+            model += lambda * clamp(nm.u[(i, i)]) * d * d - nm.g_c[i] * d;
+        }
+        let mut step_sq = step.cameras.norm_squared();
+        for (pi, d) in step.points.iter().enumerate() {
+            for c in 0..3 {
+                model += lambda * clamp(nm.v[pi][(c, c)]) * d[c] * d[c] - nm.g_p[pi][c] * d[c];
+            }
+            step_sq += d.norm_squared();
+        }
+        model *= 0.5;
+        let x_norm = parameter_norm(problem);
+        if step_sq.sqrt() <= options.parameter_tolerance * (x_norm + options.parameter_tolerance) {
+            termination = Termination::ParameterTolerance;
+            break;
+        }
+        let candidate = apply_step(problem, &layout, &step);
+        let new_cost = cost_of(&candidate, &options.loss);
+        let rho = (cost - new_cost) / model.max(f64::MIN_POSITIVE);
+        if new_cost.is_finite() && new_cost < cost && rho > 1e-3 {
+            let decrease = (cost - new_cost) / cost;
+            *problem = candidate;
+            cost = new_cost;
+            successful_steps += 1;
+            radius /= (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
+            radius = radius.min(1e16);
+            nu = 2.0;
+            if decrease <= options.function_tolerance {
+                termination = Termination::FunctionTolerance;
+                break;
+            }
+            nm = linearize(problem, &layout, &options.loss);
+        } else {
+            radius /= nu;
+            nu *= 2.0;
+            if radius < 1e-32 {
+                termination = Termination::NoProgress;
+                break;
+            }
+        }
+    }
+    Ok(BundleReport {
+        initial_cost,
+        final_cost: cost,
+        iterations,
+        successful_steps,
+        termination,
+        rms_px: rms_px(problem),
+    })
+}

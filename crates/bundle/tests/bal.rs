@@ -1,0 +1,80 @@
+//! Real problems: the BAL files of ../shared/data/bal solved to Ceres's final cost (+0.1 %), from
+//! the same Huber-1 cost Ceres reports at the start.
+
+use std::path::PathBuf;
+
+use timesift_bundle::bal::from_bal;
+use timesift_bundle::{BundleOptions, Loss, solve};
+use timesift_io::bal::read_bal;
+
+fn bal_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bal")
+}
+
+fn run(file: &str, scene: &str, initial: f64, reference: f64) {
+    let manifest: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(bal_dir().join("bal_manifest.json")).unwrap(),
+    )
+    .unwrap();
+    let cams = manifest["datasets"][scene]["principal_point_per_camera"]
+        .as_array()
+        .unwrap();
+    let pp: Vec<(f64, f64)> = cams
+        .iter()
+        .map(|c| (c["cx"].as_f64().unwrap(), c["cy"].as_f64().unwrap()))
+        .collect();
+    let size = (
+        cams[0]["width"].as_u64().unwrap() as u32,
+        cams[0]["height"].as_u64().unwrap() as u32,
+    );
+    let bal = read_bal(&bal_dir().join(file)).unwrap();
+    let mut problem = from_bal(&bal, &pp, size).unwrap();
+    let options = BundleOptions {
+        loss: Loss::Huber(1.0),
+        ..BundleOptions::default()
+    };
+    let t = std::time::Instant::now();
+    let report = solve(&mut problem, &options).unwrap();
+    println!(
+        "{file}: initial {:.3} (Ceres {initial}), final {:.3} (Ceres {reference}), {} iterations, {:?}, {:.2} s",
+        report.initial_cost,
+        report.final_cost,
+        report.iterations,
+        report.termination,
+        t.elapsed().as_secs_f64()
+    );
+    assert!(
+        (report.initial_cost - initial).abs() <= 1e-6 * initial,
+        "initial cost differs from Ceres's"
+    );
+    assert!(
+        report.final_cost <= reference * 1.001,
+        "final cost {} > Ceres {reference} + 0.1 %",
+        report.final_cost
+    );
+}
+
+#[test]
+fn lund_pre() {
+    run("lund-29-1863-pre.txt", "lund", 2086.048, 1816.915);
+}
+
+#[test]
+fn lund_perturbed() {
+    run("lund-29-1863-perturbed.txt", "lund", 53835.74, 1816.916);
+}
+
+#[test]
+fn sceaux_pre() {
+    run("sceaux-11-8071-pre.txt", "sceaux", 10754.82, 8109.478);
+}
+
+#[test]
+fn sceaux_perturbed() {
+    run(
+        "sceaux-11-8071-perturbed.txt",
+        "sceaux",
+        1236447.6,
+        8109.629,
+    );
+}
