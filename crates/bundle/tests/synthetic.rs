@@ -1,0 +1,134 @@
+//! Random synthetic blocks with 0.5 px noise converge from perturbed starts to a cost consistent
+//! with the noise (χ² test), as free networks with self-calibration, without singular failure.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
+use proptest::prelude::*;
+use timesift_bundle::problem::{BundleImage, BundlePoint};
+use timesift_bundle::{BundleOptions, BundleProblem, CameraGroup, Observation, Termination, solve};
+use timesift_core::{BrownCamera, Camera, Pose, SeededRng, project_world};
+
+const SIGMA: f64 = 0.5;
+
+fn look_at(center: &Vector3<f64>, target: &Vector3<f64>) -> Pose {
+    let z = (target - center).normalize();
+    let x = Vector3::new(0.0, 0.0, 1.0).cross(&z).normalize();
+    let y = z.cross(&x);
+    let r = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
+    Pose::from_rotation_and_center(UnitQuaternion::from_matrix(&r), center)
+}
+
+/// Eight oblique views on a ring around 150 points in a 20 m box; noisy observations; the start
+/// perturbed (poses, points, focal length and k1).
+fn block(seed: u64) -> (BundleProblem, usize) {
+    let mut rng = SeededRng::new(seed);
+    let mut cam = BrownCamera::new(2000, 1500, 1800.0).unwrap();
+    cam.k1 = -0.06;
+    let points: Vec<Vector3<f64>> = (0..150)
+        .map(|_| {
+            Vector3::new(
+                rng.uniform_range(-10.0, 10.0),
+                rng.uniform_range(-10.0, 10.0),
+                rng.uniform_range(-3.0, 3.0),
+            )
+        })
+        .collect();
+    let poses: Vec<Pose> = (0..8)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / 8.0 + rng.uniform_range(-0.1, 0.1);
+            look_at(
+                &Vector3::new(
+                    35.0 * a.cos(),
+                    35.0 * a.sin(),
+                    25.0 + rng.uniform_range(-2.0, 2.0),
+                ),
+                &Vector3::zeros(),
+            )
+        })
+        .collect();
+    let mut observations = Vec::new();
+    for (i, pose) in poses.iter().enumerate() {
+        for (j, x) in points.iter().enumerate() {
+            if let Ok(px) = project_world(&cam, pose, x) {
+                if px.x > 0.0 && px.y > 0.0 && px.x < 2000.0 && px.y < 1500.0 {
+                    let noisy = px + Vector2::new(rng.normal(), rng.normal()) * SIGMA;
+                    observations.push(Observation {
+                        image: i,
+                        point: j,
+                        pixel: noisy,
+                        sigma_px: SIGMA,
+                    });
+                }
+            }
+        }
+    }
+    let mut start = cam;
+    start.f *= 1.01;
+    start.k1 *= 0.8;
+    let images = poses
+        .iter()
+        .map(|p| {
+            let d =
+                nalgebra::Vector6::from_fn(|k, _| if k < 3 { 0.005 } else { 0.1 } * rng.normal());
+            BundleImage {
+                pose: p.retract(&d),
+                group: 0,
+                fixed: false,
+            }
+        })
+        .collect();
+    let pts = points
+        .iter()
+        .map(|x| BundlePoint {
+            position: x + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.05,
+            fixed: false,
+        })
+        .collect();
+    let n_params = 8 * 6 + 2 + 3 * 150;
+    let dof = 2 * observations.len() - n_params + 7;
+    (
+        BundleProblem {
+            groups: vec![CameraGroup::with_free(Camera::Brown(start), &["f", "k1"]).unwrap()],
+            images,
+            points: pts,
+            observations,
+        },
+        dof,
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 12, rng_seed: proptest::test_runner::RngSeed::Fixed(0x0715_31f7), ..ProptestConfig::default() })]
+
+    #[test]
+    fn free_network_with_self_calibration_reaches_the_noise_floor(seed in any::<u64>()) {
+        let (mut problem, dof) = block(seed);
+        let options = BundleOptions { function_tolerance: 1e-10, ..BundleOptions::default() };
+        let report = solve(&mut problem, &options).unwrap();
+        prop_assert!(report.termination != Termination::NoProgress && report.termination != Termination::MaxIterations, "{:?}", report.termination);
+        // cost = ½ χ²; χ² ~ χ²(dof): mean dof, standard deviation √(2 dof); allow 5 of them.
+        let chi2 = 2.0 * report.final_cost;
+        let tol = 5.0 * (2.0 * dof as f64).sqrt();
+        prop_assert!((chi2 - dof as f64).abs() < tol, "χ² = {chi2}, dof = {dof}");
+        prop_assert!((report.rms_px - SIGMA * (dof as f64 / (2 * problem.observations.len()) as f64).sqrt()).abs() < 0.05);
+    }
+}
+
+#[test]
+fn bad_problems_are_errors() {
+    let (mut p, _) = block(1);
+    p.observations[3].point = 10_000;
+    assert!(solve(&mut p, &BundleOptions::default()).is_err());
+    let (mut p, _) = block(1);
+    p.observations[0].sigma_px = 0.0;
+    assert!(solve(&mut p, &BundleOptions::default()).is_err());
+    let (mut p, _) = block(1);
+    for im in &mut p.images {
+        im.fixed = true;
+    }
+    for pt in &mut p.points {
+        pt.fixed = true;
+    }
+    p.groups[0] = CameraGroup::fixed(p.groups[0].camera.clone());
+    assert!(solve(&mut p, &BundleOptions::default()).is_err());
+    assert!(CameraGroup::with_free(p.groups[0].camera.clone(), &["focal"]).is_err());
+}
