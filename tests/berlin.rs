@@ -1,21 +1,25 @@
 //! Real data: relative poses between the three OpenSfM `berlin` photos, estimated from the tracks
 //! shipped with the data (`tracks_example.csv`) by essential-matrix RANSAC, agree with OpenSfM's
 //! `reconstruction_example.json` within 0.5°. As in incremental SfM, the strongest pair (01–02) is
-//! oriented by essential-matrix RANSAC, its tracks triangulated, and 03 registered by P3P RANSAC:
-//! the two-view geometries 01–03 and 02–03 alone are too weak (266 and 629 tracks on a facade).
+//! oriented by essential-matrix RANSAC, its tracks triangulated, 03 registered by P3P RANSAC (the
+//! two-view geometries 01–03 and 02–03 alone are too weak: 266 and 629 tracks on a facade), and the
+//! three views bundle-adjusted.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use nalgebra::{UnitQuaternion, Vector3};
+use timesift_bundle::problem::{BundleImage, BundlePoint};
+use timesift_bundle::{BundleOptions, BundleProblem, CameraGroup, Loss, Observation, solve};
 use timesift_core::{CameraModel, PinholeCamera, Pose};
 use timesift_geometry::essential::{EssentialEstimator, relative_pose_from_essential};
-use timesift_geometry::pnp::{AbsolutePoseEstimator, RefineOptions, refine_pose};
+
+use timesift_geometry::pnp::AbsolutePoseEstimator;
 use timesift_geometry::ransac::{RansacOptions, ransac};
 use timesift_geometry::triangulation::triangulate_dlt;
 
 fn berlin() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/opensfm/berlin")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/opensfm/berlin")
 }
 
 struct Camera {
@@ -59,7 +63,7 @@ fn berlin_relative_poses_match_opensfm_within_half_a_degree() {
             .unwrap()
             .max(cam["height"].as_f64().unwrap()),
     };
-    let mut poses: HashMap<String, Pose> = HashMap::new();
+    let mut poses: BTreeMap<String, Pose> = BTreeMap::new();
     for (name, shot) in rec["shots"].as_object().unwrap() {
         let v = |k: &str, i: usize| shot[k][i].as_f64().unwrap();
         let r = UnitQuaternion::from_scaled_axis(Vector3::new(
@@ -81,7 +85,7 @@ fn berlin_relative_poses_match_opensfm_within_half_a_degree() {
     }
 
     // image -> track -> ray
-    let mut tracks: HashMap<String, HashMap<u64, Vector3<f64>>> = HashMap::new();
+    let mut tracks: BTreeMap<String, BTreeMap<u64, Vector3<f64>>> = BTreeMap::new();
     for line in std::fs::read_to_string(berlin().join("tracks_example.csv"))
         .unwrap()
         .lines()
@@ -128,7 +132,7 @@ fn berlin_relative_poses_match_opensfm_within_half_a_degree() {
 
     // Triangulate its inlier tracks, then register 03 by P3P RANSAC and refinement on the
     // 2-D/3-D correspondences, as incremental SfM does.
-    let mut points: HashMap<u64, Vector3<f64>> = HashMap::new();
+    let mut points: BTreeMap<u64, Vector3<f64>> = BTreeMap::new();
     for &i in &inl {
         if let Ok(p) = triangulate_dlt(&[(cam1, x1[i]), (cam2, x2[i])]) {
             if p.z > 0.0 && cam2.transform_point(&p).z > 0.0 {
@@ -159,56 +163,87 @@ fn berlin_relative_poses_match_opensfm_within_half_a_degree() {
         },
     )
     .unwrap();
-    let mut cam3 = r3.model;
+    let cam3 = r3.model;
     println!(
         "registered 03.jpg from {} of {} 2-D/3-D correspondences",
         r3.num_inliers,
         world.len()
     );
 
-    // Alternate multi-view triangulation of every track and resection of 02 and 03 (01 fixed):
-    // block-coordinate descent on the three-view reprojection error, which is what a bundle
-    // adjustment would minimise jointly.
+    // Bundle adjustment of the three views (01 fixed, Huber loss against remaining mismatches) on
+    // every track seen at least twice, triangulated with the current poses.
     let names = ["01.jpg", "02.jpg", "03.jpg"];
-    let mut cams = [cam1, cam2, cam3];
+    let cams = [cam1, cam2, cam3];
     let mut all_ids: Vec<u64> = names
         .iter()
         .flat_map(|n| tracks[*n].keys().copied())
         .collect();
     all_ids.sort();
     all_ids.dedup();
-    for _ in 0..10 {
-        let mut pts: HashMap<u64, Vector3<f64>> = HashMap::new();
-        for id in &all_ids {
-            let views: Vec<(Pose, Vector3<f64>)> = (0..3)
-                .filter_map(|k| tracks[names[k]].get(id).map(|r| (cams[k], *r)))
-                .collect();
-            if views.len() < 2 {
-                continue;
-            }
-            let Ok(p) = triangulate_dlt(&views) else {
-                continue;
-            };
-            let ok = views.iter().all(|(c, r)| {
-                let q = c.transform_point(&p);
-                q.z > 0.0 && ((q / q.z) - r).xy().norm() * focal_px < 4.0
-            });
-            if ok {
-                pts.insert(*id, p);
-            }
+    let mut problem = BundleProblem {
+        groups: vec![CameraGroup::fixed(timesift_core::Camera::Pinhole(pinhole))],
+        images: cams
+            .iter()
+            .enumerate()
+            .map(|(k, c)| BundleImage {
+                pose: *c,
+                group: 0,
+                fixed: k == 0,
+            })
+            .collect(),
+        points: Vec::new(),
+        observations: Vec::new(),
+    };
+    for id in &all_ids {
+        let views: Vec<(usize, Vector3<f64>)> = (0..3)
+            .filter_map(|k| tracks[names[k]].get(id).map(|r| (k, *r)))
+            .collect();
+        if views.len() < 2 {
+            continue;
         }
-        for k in 1..3 {
-            let t = &tracks[names[k]];
-            let (w, px): (Vec<_>, Vec<_>) = pts
-                .iter()
-                .filter_map(|(id, p)| t.get(id).map(|r| (*p, pinhole.project(r).unwrap())))
-                .unzip();
-            cams[k] =
-                refine_pose(&pinhole, &cams[k], &w, &px, None, &RefineOptions::default()).unwrap();
+        let rays: Vec<(Pose, Vector3<f64>)> = views.iter().map(|(k, r)| (cams[*k], *r)).collect();
+        let Ok(p) = triangulate_dlt(&rays) else {
+            continue;
+        };
+        // Keep tracks consistent with the initial poses within 8 px.
+        let consistent = views.iter().all(|(k, r)| {
+            pinhole
+                .project(&cams[*k].transform_point(&p))
+                .is_ok_and(|px| (px - pinhole.project(r).unwrap()).norm() < 8.0)
+        });
+        if !consistent {
+            continue;
+        }
+        let point = problem.points.len();
+        problem.points.push(BundlePoint {
+            position: p,
+            fixed: false,
+        });
+        for (k, r) in &views {
+            problem.observations.push(Observation {
+                image: *k,
+                point,
+                pixel: pinhole.project(r).unwrap(),
+                sigma_px: 1.0,
+            });
         }
     }
-    cam3 = cams[2];
-    let cam2 = cams[1];
+    let report = solve(
+        &mut problem,
+        &BundleOptions {
+            loss: Loss::Huber(2.0),
+            ..BundleOptions::default()
+        },
+    )
+    .unwrap();
+    println!(
+        "bundle adjustment: {} points, {} observations, RMS {:.2} px, {:?}",
+        problem.points.len(),
+        problem.observations.len(),
+        report.rms_px,
+        report.termination
+    );
+    let (cam2, cam3) = (problem.images[1].pose, problem.images[2].pose);
 
     let ours = [("01.jpg", cam1), ("02.jpg", cam2), ("03.jpg", cam3)];
     for (i, j) in [(0, 1), (0, 2), (1, 2)] {
