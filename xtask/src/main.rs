@@ -3,9 +3,11 @@
 //! - `data`: checks that the shared real data the tests and benches read in place
 //!   (`../shared/data`) is present.
 //! - `bench geometry`: timesift's RANSAC against OpenCV's on the same correspondences.
+//! - `bench bundle`: the BAL problems through timesift's bundle adjuster.
 //!
 //! The `synth` and `bench-methods` tasks of DESIGN.md arrive with their issues.
 
+mod bench_bundle;
 mod bench_geometry;
 
 use std::path::PathBuf;
@@ -39,6 +41,15 @@ enum BenchStage {
         #[arg(long, default_value_t = 20)]
         runs: usize,
     },
+    /// Bundle adjustment on the BAL problems (initial/final cost, iterations, time).
+    Bundle {
+        /// One BAL problem file instead of all of ../shared/data/bal.
+        #[arg(long)]
+        problem: Option<PathBuf>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Folders of ../shared/data the tests and benches read, with one file each must hold.
@@ -59,6 +70,9 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Geometry { runs },
         } => bench_geometry::run(runs)?,
+        Task::Bench {
+            stage: BenchStage::Bundle { problem, json },
+        } => bench_bundle::run(problem, json)?,
         Task::Data => {
             let root = shared_data();
             let mut missing = Vec::new();

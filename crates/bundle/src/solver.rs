@@ -296,7 +296,7 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
         v_inv.push(inv);
     }
     let cameras = if n > 0 {
-        -s.cholesky()?.solve(&rhs)
+        -dense_cholesky_solve(&s, &rhs)?
     } else {
         DVector::zeros(0)
     };
@@ -318,6 +318,18 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
         })
         .collect();
     Some(Step { cameras, points })
+}
+
+/// Solves `S x = b` for symmetric positive-definite `S` with faer's blocked, SIMD Cholesky.
+fn dense_cholesky_solve(s: &DMatrix<f64>, b: &DVector<f64>) -> Option<DVector<f64>> {
+    use faer::prelude::Solve;
+    let n = s.nrows();
+    let m = faer::Mat::<f64>::from_fn(n, n, |i, j| s[(i, j)]);
+    let llt = m.llt(faer::Side::Lower).ok()?;
+    let mut x = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
+    llt.solve_in_place(x.as_mut());
+    let out = DVector::from_fn(n, |i, _| x[(i, 0)]);
+    out.iter().all(|v| v.is_finite()).then_some(out)
 }
 
 fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> BundleProblem {
