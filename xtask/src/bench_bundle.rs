@@ -15,11 +15,11 @@ fn bal_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/bal")
 }
 
+/// Principal point of each camera, and the image size.
+type CameraLayout = (Vec<(f64, f64)>, (u32, u32));
+
 /// Principal points and image size of a BAL file from the manifest (scene = file name prefix).
-fn camera_layout(
-    manifest: &serde_json::Value,
-    file: &Path,
-) -> anyhow::Result<(Vec<(f64, f64)>, (u32, u32))> {
+fn camera_layout(manifest: &serde_json::Value, file: &Path) -> anyhow::Result<CameraLayout> {
     let name = file
         .file_name()
         .and_then(|n| n.to_str())
