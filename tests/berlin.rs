@@ -193,6 +193,7 @@ fn berlin_relative_poses_match_opensfm_within_half_a_degree() {
             .collect(),
         points: Vec::new(),
         observations: Vec::new(),
+        ..BundleProblem::default()
     };
     for id in &all_ids {
         let views: Vec<(usize, Vector3<f64>)> = (0..3)

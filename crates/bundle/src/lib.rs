@@ -3,9 +3,10 @@
 //! fixed poses and points (issue "Bundle adjustment").
 //!
 //! Built so far: reprojection residuals through any `CameraModel` with per-observation sigmas,
+//! camera-centre (GNSS) and control-point priors with horizontal/vertical sigmas,
 //! Huber/Cauchy/soft-L1 losses, the dense Schur path, Ceres-like trust-region control and
 //! termination, and the BAL problem conversion. Still to come (see the issue): sparse Cholesky of
-//! the reduced system with faer and the PCG path, marker/GNSS/scale-bar residuals, covariance
+//! the reduced system with faer and the PCG path, scale-bar residuals, covariance
 //! output, parallel assembly.
 //!
 //! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
@@ -19,5 +20,7 @@ pub mod solver;
 
 pub use error::BundleError;
 pub use loss::Loss;
-pub use problem::{BundleProblem, CameraGroup, Observation};
-pub use solver::{BundleOptions, BundleReport, Termination, solve};
+pub use problem::{BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior};
+pub use solver::{
+    BundleOptions, BundleReport, Termination, cost, gradient, num_parameters, perturbed, solve,
+};

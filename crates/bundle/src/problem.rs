@@ -81,6 +81,32 @@ pub struct Observation {
     pub sigma_px: f64,
 }
 
+/// A prior on a camera centre (GNSS), horizontal and vertical standard deviations apart.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CenterPrior {
+    /// Index into [`BundleProblem::images`].
+    pub image: usize,
+    /// Measured centre (E, N, H), metres.
+    pub position: Vector3<f64>,
+    /// Horizontal standard deviation, metres.
+    pub sigma_xy: f64,
+    /// Vertical standard deviation, metres.
+    pub sigma_z: f64,
+}
+
+/// A prior on a point's object coordinates (a ground control point measured by markers).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointPrior {
+    /// Index into [`BundleProblem::points`].
+    pub point: usize,
+    /// Surveyed coordinates (E, N, H), metres.
+    pub position: Vector3<f64>,
+    /// Horizontal standard deviation, metres.
+    pub sigma_xy: f64,
+    /// Vertical standard deviation, metres.
+    pub sigma_z: f64,
+}
+
 /// A bundle-adjustment problem.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct BundleProblem {
@@ -92,6 +118,10 @@ pub struct BundleProblem {
     pub points: Vec<BundlePoint>,
     /// Reprojection observations.
     pub observations: Vec<Observation>,
+    /// Camera-centre priors (GNSS).
+    pub center_priors: Vec<CenterPrior>,
+    /// Object-coordinate priors of control points.
+    pub point_priors: Vec<PointPrior>,
 }
 
 impl BundleProblem {
@@ -141,6 +171,28 @@ impl BundleProblem {
             if !(o.sigma_px > 0.0) || !o.pixel.iter().all(|v| v.is_finite()) {
                 return Err(BundleError::InvalidProblem(format!(
                     "observation {k} has a non-positive sigma or non-finite pixel"
+                )));
+            }
+        }
+        for (k, c) in self.center_priors.iter().enumerate() {
+            if c.image >= self.images.len()
+                || !(c.sigma_xy > 0.0 && c.sigma_z > 0.0)
+                || !c.position.iter().all(|v| v.is_finite())
+            {
+                return Err(BundleError::InvalidProblem(format!(
+                    "centre prior {k}: image {} out of range, non-positive sigma or non-finite position",
+                    c.image
+                )));
+            }
+        }
+        for (k, c) in self.point_priors.iter().enumerate() {
+            if c.point >= self.points.len()
+                || !(c.sigma_xy > 0.0 && c.sigma_z > 0.0)
+                || !c.position.iter().all(|v| v.is_finite())
+            {
+                return Err(BundleError::InvalidProblem(format!(
+                    "point prior {k}: point {} out of range, non-positive sigma or non-finite position",
+                    c.point
                 )));
             }
         }

@@ -10,7 +10,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
 use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
 
-use crate::problem::BundleProblem;
+use crate::problem::{BundleProblem, CenterPrior, PointPrior};
 use crate::{BundleError, Loss};
 
 /// Options of [`solve`].
@@ -157,23 +157,78 @@ struct Normal {
     cost: f64,
 }
 
-fn cost_of(p: &BundleProblem, loss: &Loss) -> f64 {
-    p.observations
+/// Camera-centre prior residual (sigma-weighted) and its Jacobian with respect to the pose update
+/// of `Pose::retract`: `C = −Rᵀ t`, `dC/dδω = −Rᵀ [t]×`, `dC/dδt = −Rᵀ`.
+fn center_prior_residual(
+    pose: &timesift_core::Pose,
+    prior: &CenterPrior,
+) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {
+    let inv = Vector3::new(
+        1.0 / prior.sigma_xy,
+        1.0 / prior.sigma_xy,
+        1.0 / prior.sigma_z,
+    );
+    let r = (pose.center() - prior.position).component_mul(&inv);
+    let rt = pose.rotation_matrix().transpose();
+    let d_omega = -rt * pose.translation.cross_matrix();
+    let mut j = SMatrix::<f64, 3, 6>::zeros();
+    for row in 0..3 {
+        for c in 0..3 {
+            j[(row, c)] = d_omega[(row, c)] * inv[row];
+            j[(row, 3 + c)] = -rt[(row, c)] * inv[row];
+        }
+    }
+    (r, j)
+}
+
+fn point_prior_scale(prior: &PointPrior) -> Vector3<f64> {
+    Vector3::new(
+        1.0 / prior.sigma_xy,
+        1.0 / prior.sigma_xy,
+        1.0 / prior.sigma_z,
+    )
+}
+
+fn prior_cost(p: &BundleProblem) -> f64 {
+    let centres: f64 = p
+        .center_priors
         .iter()
-        .map(|o| {
-            let im = &p.images[o.image];
-            let cam = &p.groups[im.group].camera;
-            match project_world(cam, &im.pose, &p.points[o.point].position) {
-                Ok(px) => {
-                    0.5 * loss
-                        .evaluate(((px - o.pixel) / o.sigma_px).norm_squared())
-                        .0
-                }
-                // A point behind a camera costs as much as a very large residual.
-                Err(_) => 0.5 * loss.evaluate(1e12).0,
-            }
+        .map(|c| {
+            0.5 * center_prior_residual(&p.images[c.image].pose, c)
+                .0
+                .norm_squared()
         })
-        .sum()
+        .sum();
+    let points: f64 = p
+        .point_priors
+        .iter()
+        .map(|c| {
+            0.5 * (p.points[c.point].position - c.position)
+                .component_mul(&point_prior_scale(c))
+                .norm_squared()
+        })
+        .sum();
+    centres + points
+}
+
+fn cost_of(p: &BundleProblem, loss: &Loss) -> f64 {
+    prior_cost(p)
+        + p.observations
+            .iter()
+            .map(|o| {
+                let im = &p.images[o.image];
+                let cam = &p.groups[im.group].camera;
+                match project_world(cam, &im.pose, &p.points[o.point].position) {
+                    Ok(px) => {
+                        0.5 * loss
+                            .evaluate(((px - o.pixel) / o.sigma_px).norm_squared())
+                            .0
+                    }
+                    // A point behind a camera costs as much as a very large residual.
+                    Err(_) => 0.5 * loss.evaluate(1e12).0,
+                }
+            })
+            .sum::<f64>()
 }
 
 fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss) -> Normal {
@@ -245,6 +300,36 @@ fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss) -> Normal {
             nm.point_obs[pi].push(k);
         } else {
             nm.e.extend(std::iter::repeat_n(0.0, 3 * count));
+        }
+    }
+    for c in &p.center_priors {
+        let Some(off) = layout.pose_offset[c.image] else {
+            nm.cost += 0.5
+                * center_prior_residual(&p.images[c.image].pose, c)
+                    .0
+                    .norm_squared();
+            continue;
+        };
+        let (r, j) = center_prior_residual(&p.images[c.image].pose, c);
+        nm.cost += 0.5 * r.norm_squared();
+        let jtj = j.transpose() * j;
+        let jtr = j.transpose() * r;
+        for a in 0..6 {
+            nm.g_c[off + a] += jtr[a];
+            for b in 0..6 {
+                nm.u[(off + a, off + b)] += jtj[(a, b)];
+            }
+        }
+    }
+    for c in &p.point_priors {
+        let scale = point_prior_scale(c);
+        let r = (p.points[c.point].position - c.position).component_mul(&scale);
+        nm.cost += 0.5 * r.norm_squared();
+        if let Some(pi) = layout.point_index[c.point] {
+            for k in 0..3 {
+                nm.v[pi][(k, k)] += scale[k] * scale[k];
+                nm.g_p[pi][k] += scale[k] * r[k];
+            }
         }
     }
     nm
@@ -490,4 +575,42 @@ pub fn solve(
         termination,
         rms_px: rms_px(problem),
     })
+}
+
+/// Number of adjusted parameters in the local (update) coordinates used by [`gradient`] and
+/// [`perturbed`]: free poses (6 each), free intrinsics, then free points (3 each).
+pub fn num_parameters(problem: &BundleProblem) -> usize {
+    let layout = Layout::new(problem);
+    layout.num_camera_params + 3 * layout.num_free_points
+}
+
+/// Cost ½ Σ ρ(‖r/σ‖²) of the reprojections plus ½ Σ ‖r/σ‖² of the priors.
+pub fn cost(problem: &BundleProblem, loss: &Loss) -> f64 {
+    cost_of(problem, loss)
+}
+
+/// Gradient of [`cost`] in local coordinates, from the analytic Jacobians the solver uses; exposed
+/// so that tools and tests can check those Jacobians against finite differences of the cost.
+pub fn gradient(problem: &BundleProblem, loss: &Loss) -> Vec<f64> {
+    let layout = Layout::new(problem);
+    let nm = linearize(problem, &layout, loss);
+    let mut g: Vec<f64> = nm.g_c.iter().copied().collect();
+    for gp in &nm.g_p {
+        g.extend(gp.iter());
+    }
+    g
+}
+
+/// The problem moved by a local update `delta` (length [`num_parameters`]).
+pub fn perturbed(problem: &BundleProblem, delta: &[f64]) -> BundleProblem {
+    let layout = Layout::new(problem);
+    let n = layout.num_camera_params;
+    let step = Step {
+        cameras: DVector::from_iterator(n, delta[..n].iter().copied()),
+        points: delta[n..]
+            .chunks(3)
+            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .collect(),
+    };
+    apply_step(problem, &layout, &step)
 }
