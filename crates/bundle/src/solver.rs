@@ -356,24 +356,36 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
             vd[(c, c)] += lambda * clamp(v[(c, c)]);
         }
         let inv = vd.try_inverse()?;
-        // S −= E_a V⁻¹ E_bᵀ over pairs of observations of the point; rhs −= E_a V⁻¹ g_p.
+        // S −= E_a V⁻¹ E_bᵀ over pairs of observations of the point (upper pairs, mirrored);
+        // rhs −= E_a V⁻¹ g_p.
         let obs = &nm.point_obs[pi];
         let vg = inv * nm.g_p[pi];
-        for &a in obs {
+        let s_data = s.as_mut_slice();
+        for (ia, &a) in obs.iter().enumerate() {
             let (sa, ca) = nm.obs_cols[a];
             let ea = &nm.e[sa * 3..(sa + ca) * 3];
+            // F_a = E_a V⁻¹, row by row.
+            let mut fa = [[0.0f64; 3]; 6 + MAX_INTRINSICS];
             for ra in 0..ca {
-                let row = SMatrix::<f64, 1, 3>::new(ea[3 * ra], ea[3 * ra + 1], ea[3 * ra + 2]);
-                let row_vinv = row * inv;
-                rhs[nm.cols[sa + ra]] -= (row * vg)[0];
-                for &b in obs {
-                    let (sb, cb) = nm.obs_cols[b];
-                    let eb = &nm.e[sb * 3..(sb + cb) * 3];
-                    for rb in 0..cb {
-                        let v = row_vinv[0] * eb[3 * rb]
-                            + row_vinv[1] * eb[3 * rb + 1]
-                            + row_vinv[2] * eb[3 * rb + 2];
-                        s[(nm.cols[sa + ra], nm.cols[sb + rb])] -= v;
+                let (e0, e1, e2) = (ea[3 * ra], ea[3 * ra + 1], ea[3 * ra + 2]);
+                for c in 0..3 {
+                    fa[ra][c] = e0 * inv[(0, c)] + e1 * inv[(1, c)] + e2 * inv[(2, c)];
+                }
+                rhs[nm.cols[sa + ra]] -= e0 * vg[0] + e1 * vg[1] + e2 * vg[2];
+            }
+            for &b in &obs[ia..] {
+                let (sb, cb) = nm.obs_cols[b];
+                let eb = &nm.e[sb * 3..(sb + cb) * 3];
+                let cols_b = &nm.cols[sb..sb + cb];
+                for ra in 0..ca {
+                    let row = nm.cols[sa + ra];
+                    let f = fa[ra];
+                    for (rb, &col) in cols_b.iter().enumerate() {
+                        let v = f[0] * eb[3 * rb] + f[1] * eb[3 * rb + 1] + f[2] * eb[3 * rb + 2];
+                        s_data[row + col * n] -= v;
+                        if a != b {
+                            s_data[col + row * n] -= v;
+                        }
                     }
                 }
             }
