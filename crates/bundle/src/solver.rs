@@ -211,24 +211,35 @@ fn prior_cost(p: &BundleProblem) -> f64 {
     centres + points
 }
 
+/// Observations per parallel chunk; fixed so that the summation order, and so the result, does not
+/// depend on the thread count.
+const COST_CHUNK: usize = 4096;
+
 fn cost_of(p: &BundleProblem, loss: &Loss) -> f64 {
-    prior_cost(p)
-        + p.observations
-            .iter()
-            .map(|o| {
-                let im = &p.images[o.image];
-                let cam = &p.groups[im.group].camera;
-                match project_world(cam, &im.pose, &p.points[o.point].position) {
-                    Ok(px) => {
-                        0.5 * loss
-                            .evaluate(((px - o.pixel) / o.sigma_px).norm_squared())
-                            .0
+    use rayon::prelude::*;
+    let partial: Vec<f64> = p
+        .observations
+        .par_chunks(COST_CHUNK)
+        .map(|chunk| {
+            chunk
+                .iter()
+                .map(|o| {
+                    let im = &p.images[o.image];
+                    let cam = &p.groups[im.group].camera;
+                    match project_world(cam, &im.pose, &p.points[o.point].position) {
+                        Ok(px) => {
+                            0.5 * loss
+                                .evaluate(((px - o.pixel) / o.sigma_px).norm_squared())
+                                .0
+                        }
+                        // A point behind a camera costs as much as a very large residual.
+                        Err(_) => 0.5 * loss.evaluate(1e12).0,
                     }
-                    // A point behind a camera costs as much as a very large residual.
-                    Err(_) => 0.5 * loss.evaluate(1e12).0,
-                }
-            })
-            .sum::<f64>()
+                })
+                .sum::<f64>()
+        })
+        .collect();
+    prior_cost(p) + partial.iter().sum::<f64>()
 }
 
 fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss) -> Normal {
