@@ -4,10 +4,10 @@
 //!
 //! Built so far: reprojection residuals through any `CameraModel` with per-observation sigmas,
 //! camera-centre (GNSS) and control-point priors with horizontal/vertical sigmas,
-//! Huber/Cauchy/soft-L1 losses, the dense Schur path, Ceres-like trust-region control and
-//! termination, and the BAL problem conversion. Still to come (see the issue): sparse Cholesky of
-//! the reduced system with faer and the PCG path, scale-bar residuals, covariance
-//! output, parallel assembly.
+//! Huber/Cauchy/soft-L1 losses, dense and sparse (faer, symbolic analysis once per solve) Schur
+//! paths, Ceres-like trust-region control and
+//! termination, and the BAL problem conversion. Still to come (see the issue): the PCG path,
+//! scale-bar residuals, covariance output, parallel assembly.
 //!
 //! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).
@@ -16,11 +16,13 @@ pub mod bal;
 mod error;
 pub mod loss;
 pub mod problem;
+mod reduced;
 pub mod solver;
 
 pub use error::BundleError;
 pub use loss::Loss;
 pub use problem::{BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior};
 pub use solver::{
-    BundleOptions, BundleReport, Termination, cost, gradient, num_parameters, perturbed, solve,
+    BundleOptions, BundleReport, LinearSolver, Termination, cost, gradient, num_parameters,
+    perturbed, solve,
 };

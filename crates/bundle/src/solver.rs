@@ -6,11 +6,12 @@
 //! step and back-substitutes the point steps. Damping, step acceptance and the three termination
 //! tests follow Ceres's Levenberg–Marquardt, so final costs compare with Ceres's.
 
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3, Vector6};
+use nalgebra::{DVector, Matrix3, SMatrix, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
 use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
 
 use crate::problem::{BundleProblem, CenterPrior, PointPrior};
+use crate::reduced::{Reduced, SparsePattern};
 use crate::{BundleError, Loss};
 
 /// Options of [`solve`].
@@ -28,7 +29,23 @@ pub struct BundleOptions {
     pub parameter_tolerance: f64,
     /// Initial trust-region radius (inverse damping).
     pub initial_trust_region_radius: f64,
+    /// How the reduced camera system is stored and factored.
+    pub linear_solver: LinearSolver,
 }
+
+/// Storage and factorisation of the reduced camera system.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinearSolver {
+    /// Dense up to [`DENSE_LIMIT`] camera-side parameters, sparse beyond.
+    Auto,
+    /// Dense Cholesky.
+    DenseSchur,
+    /// Sparse Cholesky with the symbolic analysis done once per solve.
+    SparseSchur,
+}
+
+/// Largest number of camera-side parameters solved densely by [`LinearSolver::Auto`].
+pub const DENSE_LIMIT: usize = 1000;
 
 impl Default for BundleOptions {
     fn default() -> Self {
@@ -39,6 +56,7 @@ impl Default for BundleOptions {
             gradient_tolerance: 1e-10,
             parameter_tolerance: 1e-8,
             initial_trust_region_radius: 1e4,
+            linear_solver: LinearSolver::Auto,
         }
     }
 }
@@ -143,7 +161,7 @@ impl Layout {
 
 /// The normal equations of one linearisation, before damping.
 struct Normal {
-    u: DMatrix<f64>,
+    u: Reduced,
     g_c: DVector<f64>,
     v: Vec<Matrix3<f64>>,
     g_p: Vec<Vector3<f64>>,
@@ -242,10 +260,10 @@ fn cost_of(p: &BundleProblem, loss: &Loss) -> f64 {
     prior_cost(p) + partial.iter().sum::<f64>()
 }
 
-fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss) -> Normal {
+fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss, storage: &Reduced) -> Normal {
     let n = layout.num_camera_params;
     let mut nm = Normal {
-        u: DMatrix::zeros(n, n),
+        u: storage.clone(),
         g_c: DVector::zeros(n),
         v: vec![Matrix3::zeros(); layout.num_free_points],
         g_p: vec![Vector3::zeros(); layout.num_free_points],
@@ -296,7 +314,11 @@ fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss) -> Normal {
         for a in 0..count {
             nm.g_c[cols[a]] += w * (jc[0][a] * r.x + jc[1][a] * r.y);
             for b in 0..count {
-                nm.u[(cols[a], cols[b])] += w * (jc[0][a] * jc[0][b] + jc[1][a] * jc[1][b]);
+                nm.u.add(
+                    cols[a],
+                    cols[b],
+                    w * (jc[0][a] * jc[0][b] + jc[1][a] * jc[1][b]),
+                );
             }
         }
         if let Some(pi) = layout.point_index[o.point] {
@@ -328,7 +350,7 @@ fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss) -> Normal {
         for a in 0..6 {
             nm.g_c[off + a] += jtr[a];
             for b in 0..6 {
-                nm.u[(off + a, off + b)] += jtj[(a, b)];
+                nm.u.add(off + a, off + b, jtj[(a, b)]);
             }
         }
     }
@@ -352,14 +374,15 @@ struct Step {
     points: Vec<Vector3<f64>>,
 }
 
-fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
-    let n = nm.u.nrows();
+/// Eliminates the points: `S −= E_a V⁻¹ E_bᵀ` over pairs of observations of each point (upper
+/// pairs, mirrored) and `rhs −= E_a V⁻¹ g_p`; returns the damped `V⁻¹` of every point.
+fn eliminate_points(
+    nm: &Normal,
+    lambda: f64,
+    rhs: &mut DVector<f64>,
+    mut add: impl FnMut(usize, usize, f64),
+) -> Option<Vec<Matrix3<f64>>> {
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
-    let mut s = nm.u.clone();
-    for i in 0..n {
-        s[(i, i)] += lambda * clamp(nm.u[(i, i)]);
-    }
-    let mut rhs = nm.g_c.clone();
     let mut v_inv = Vec::with_capacity(nm.v.len());
     for (pi, v) in nm.v.iter().enumerate() {
         let mut vd = *v;
@@ -367,11 +390,8 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
             vd[(c, c)] += lambda * clamp(v[(c, c)]);
         }
         let inv = vd.try_inverse()?;
-        // S −= E_a V⁻¹ E_bᵀ over pairs of observations of the point (upper pairs, mirrored);
-        // rhs −= E_a V⁻¹ g_p.
         let obs = &nm.point_obs[pi];
         let vg = inv * nm.g_p[pi];
-        let s_data = s.as_mut_slice();
         for (ia, &a) in obs.iter().enumerate() {
             let (sa, ca) = nm.obs_cols[a];
             let ea = &nm.e[sa * 3..(sa + ca) * 3];
@@ -393,9 +413,9 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
                     let f = fa[ra];
                     for (rb, &col) in cols_b.iter().enumerate() {
                         let v = f[0] * eb[3 * rb] + f[1] * eb[3 * rb + 1] + f[2] * eb[3 * rb + 2];
-                        s_data[row + col * n] -= v;
+                        add(row, col, -v);
                         if a != b {
-                            s_data[col + row * n] -= v;
+                            add(col, row, -v);
                         }
                     }
                 }
@@ -403,8 +423,27 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
         }
         v_inv.push(inv);
     }
+    Some(v_inv)
+}
+
+fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
+    let n = nm.g_c.len();
+    let clamp = |d: f64| d.clamp(1e-6, 1e32);
+    let mut s = nm.u.clone();
+    for i in 0..n {
+        s.add(i, i, lambda * clamp(nm.u.diagonal(i)));
+    }
+    let mut rhs = nm.g_c.clone();
+    // One monomorphised elimination per storage, so the dense inner loop indexes a slice.
+    let v_inv = match &mut s {
+        Reduced::Dense(m) => {
+            let data = m.as_mut_slice();
+            eliminate_points(nm, lambda, &mut rhs, |r, c, v| data[r + c * n] += v)?
+        }
+        sparse => eliminate_points(nm, lambda, &mut rhs, |r, c, v| sparse.add(r, c, v))?,
+    };
     let cameras = if n > 0 {
-        -dense_cholesky_solve(&s, &rhs)?
+        -s.solve(&rhs)?
     } else {
         DVector::zeros(0)
     };
@@ -426,18 +465,6 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
         })
         .collect();
     Some(Step { cameras, points })
-}
-
-/// Solves `S x = b` for symmetric positive-definite `S` with faer's blocked, SIMD Cholesky.
-fn dense_cholesky_solve(s: &DMatrix<f64>, b: &DVector<f64>) -> Option<DVector<f64>> {
-    use faer::prelude::Solve;
-    let n = s.nrows();
-    let m = faer::Mat::<f64>::from_fn(n, n, |i, j| s[(i, j)]);
-    let llt = m.llt(faer::Side::Lower).ok()?;
-    let mut x = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
-    llt.solve_in_place(x.as_mut());
-    let out = DVector::from_fn(n, |i, _| x[(i, 0)]);
-    out.iter().all(|v| v.is_finite()).then_some(out)
 }
 
 fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> BundleProblem {
@@ -506,6 +533,55 @@ fn rms_px(p: &BundleProblem) -> f64 {
     }
 }
 
+/// Camera-side columns of an observation.
+fn observation_columns(p: &BundleProblem, layout: &Layout, image: usize) -> Vec<usize> {
+    let mut cols = Vec::new();
+    if let Some(off) = layout.pose_offset[image] {
+        cols.extend(off..off + 6);
+    }
+    let g = p.images[image].group;
+    if let Some(off) = layout.group_offset[g] {
+        cols.extend(off..off + layout.group_free[g].len());
+    }
+    cols
+}
+
+/// Empty storage of the reduced system for the chosen solver; the sparse pattern couples the
+/// columns of each observation and of all observations of each free point.
+fn reduced_storage(
+    p: &BundleProblem,
+    layout: &Layout,
+    solver: LinearSolver,
+) -> Result<Reduced, BundleError> {
+    let n = layout.num_camera_params;
+    let sparse = match solver {
+        LinearSolver::DenseSchur => false,
+        LinearSolver::SparseSchur => true,
+        LinearSolver::Auto => n > DENSE_LIMIT,
+    };
+    if !sparse || n == 0 {
+        return Ok(Reduced::dense(n));
+    }
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut per_point: Vec<Vec<usize>> = vec![Vec::new(); layout.num_free_points];
+    for o in &p.observations {
+        let cols = observation_columns(p, layout, o.image);
+        if let Some(pi) = layout.point_index[o.point] {
+            per_point[pi].extend_from_slice(&cols);
+        }
+        groups.push(cols);
+    }
+    for mut cols in per_point {
+        cols.sort_unstable();
+        cols.dedup();
+        groups.push(cols);
+    }
+    let pattern = SparsePattern::new(n, &groups).ok_or_else(|| {
+        BundleError::InvalidProblem("symbolic analysis of the reduced system failed".to_string())
+    })?;
+    Ok(Reduced::sparse(pattern))
+}
+
 /// Adjusts the problem in place and reports what happened.
 pub fn solve(
     problem: &mut BundleProblem,
@@ -523,7 +599,8 @@ pub fn solve(
     let mut iterations = 0;
     let mut successful_steps = 0;
     let mut termination = Termination::MaxIterations;
-    let mut nm = linearize(problem, &layout, &options.loss);
+    let storage = reduced_storage(problem, &layout, options.linear_solver)?;
+    let mut nm = linearize(problem, &layout, &options.loss, &storage);
     while iterations < options.max_iterations {
         iterations += 1;
         let g_max = nm
@@ -550,7 +627,7 @@ pub fn solve(
         let mut model = 0.0;
         for i in 0..step.cameras.len() {
             let d = step.cameras[i];
-            model += lambda * clamp(nm.u[(i, i)]) * d * d - nm.g_c[i] * d;
+            model += lambda * clamp(nm.u.diagonal(i)) * d * d - nm.g_c[i] * d;
         }
         let mut step_sq = step.cameras.norm_squared();
         for (pi, d) in step.points.iter().enumerate() {
@@ -580,7 +657,7 @@ pub fn solve(
                 termination = Termination::FunctionTolerance;
                 break;
             }
-            nm = linearize(problem, &layout, &options.loss);
+            nm = linearize(problem, &layout, &options.loss, &storage);
         } else {
             radius /= nu;
             nu *= 2.0;
@@ -616,7 +693,8 @@ pub fn cost(problem: &BundleProblem, loss: &Loss) -> f64 {
 /// so that tools and tests can check those Jacobians against finite differences of the cost.
 pub fn gradient(problem: &BundleProblem, loss: &Loss) -> Vec<f64> {
     let layout = Layout::new(problem);
-    let nm = linearize(problem, &layout, loss);
+    let storage = Reduced::dense(layout.num_camera_params);
+    let nm = linearize(problem, &layout, loss, &storage);
     let mut g: Vec<f64> = nm.g_c.iter().copied().collect();
     for gp in &nm.g_p {
         g.extend(gp.iter());

@@ -78,3 +78,37 @@ fn sceaux_perturbed() {
         8109.629,
     );
 }
+
+#[test]
+fn sparse_and_dense_schur_paths_agree() {
+    let manifest: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(bal_dir().join("bal_manifest.json")).unwrap(),
+    )
+    .unwrap();
+    let cams = manifest["datasets"]["lund"]["principal_point_per_camera"]
+        .as_array()
+        .unwrap();
+    let pp: Vec<(f64, f64)> = cams
+        .iter()
+        .map(|c| (c["cx"].as_f64().unwrap(), c["cy"].as_f64().unwrap()))
+        .collect();
+    let bal = read_bal(&bal_dir().join("lund-29-1863-perturbed.txt")).unwrap();
+    let mut costs = Vec::new();
+    for solver in [
+        timesift_bundle::LinearSolver::DenseSchur,
+        timesift_bundle::LinearSolver::SparseSchur,
+    ] {
+        let mut problem = from_bal(&bal, &pp, (1024, 768)).unwrap();
+        let options = BundleOptions {
+            loss: Loss::Huber(1.0),
+            max_iterations: 20,
+            linear_solver: solver,
+            ..BundleOptions::default()
+        };
+        let report = solve(&mut problem, &options).unwrap();
+        costs.push((report.final_cost, report.iterations));
+    }
+    println!("dense {:?} sparse {:?}", costs[0], costs[1]);
+    assert_eq!(costs[0].1, costs[1].1);
+    assert!((costs[0].0 - costs[1].0).abs() <= 1e-9 * costs[0].0);
+}

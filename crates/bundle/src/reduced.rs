@@ -1,0 +1,138 @@
+//! Storage of the reduced camera system `S`: dense for small problems, or sparse (lower triangle,
+//! compressed columns) with a symbolic Cholesky analysis computed once per solve and a numeric
+//! factorisation per trial step (faer).
+
+use std::sync::Arc;
+
+use faer::Side;
+use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use nalgebra::{DMatrix, DVector};
+
+/// The fixed sparsity pattern of `S` (lower triangle) and its symbolic factorisation.
+pub(crate) struct SparsePattern {
+    n: usize,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    symbolic: SymbolicLlt<usize>,
+}
+
+impl SparsePattern {
+    /// Builds the pattern from the sets of camera-side columns that interact (each set couples all
+    /// its columns); the diagonal is always present.
+    pub(crate) fn new(n: usize, groups: &[Vec<usize>]) -> Option<Arc<Self>> {
+        let mut rows: Vec<Vec<usize>> = (0..n).map(|c| vec![c]).collect();
+        for g in groups {
+            for &a in g {
+                for &b in g {
+                    if a >= b {
+                        rows[b].push(a);
+                    }
+                }
+            }
+        }
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let mut row_idx = Vec::new();
+        col_ptr.push(0);
+        for r in rows.iter_mut() {
+            r.sort_unstable();
+            r.dedup();
+            row_idx.extend_from_slice(r);
+            col_ptr.push(row_idx.len());
+        }
+        let symbolic = SymbolicLlt::try_new(
+            SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx),
+            Side::Lower,
+        )
+        .ok()?;
+        Some(Arc::new(SparsePattern {
+            n,
+            col_ptr,
+            row_idx,
+            symbolic,
+        }))
+    }
+
+    fn slot(&self, row: usize, col: usize) -> Option<usize> {
+        let (r, c) = if row >= col { (row, col) } else { (col, row) };
+        let start = self.col_ptr[c];
+        let rows = &self.row_idx[start..self.col_ptr[c + 1]];
+        rows.binary_search(&r).ok().map(|k| start + k)
+    }
+}
+
+/// `S` in one of its two storages.
+#[derive(Clone)]
+pub(crate) enum Reduced {
+    Dense(DMatrix<f64>),
+    Sparse {
+        pattern: Arc<SparsePattern>,
+        values: Vec<f64>,
+    },
+}
+
+impl Reduced {
+    pub(crate) fn dense(n: usize) -> Self {
+        Reduced::Dense(DMatrix::zeros(n, n))
+    }
+
+    pub(crate) fn sparse(pattern: Arc<SparsePattern>) -> Self {
+        let values = vec![0.0; pattern.row_idx.len()];
+        Reduced::Sparse { pattern, values }
+    }
+
+    /// Adds `v` at (row, col). For the sparse storage, which keeps the lower triangle of a
+    /// symmetric matrix, entries above the diagonal are ignored: callers add both halves.
+    #[inline]
+    pub(crate) fn add(&mut self, row: usize, col: usize, v: f64) {
+        match self {
+            Reduced::Dense(m) => {
+                let n = m.nrows();
+                m.as_mut_slice()[row + col * n] += v;
+            }
+            Reduced::Sparse { pattern, values } => {
+                if row >= col {
+                    if let Some(k) = pattern.slot(row, col) {
+                        values[k] += v;
+                    }
+                }
+            }
+        }
+    }
+
+    pub(crate) fn diagonal(&self, i: usize) -> f64 {
+        match self {
+            Reduced::Dense(m) => m[(i, i)],
+            Reduced::Sparse { pattern, values } => pattern.slot(i, i).map_or(0.0, |k| values[k]),
+        }
+    }
+
+    /// Solves `S x = b` by Cholesky; `None` when `S` is not positive definite.
+    pub(crate) fn solve(&self, b: &DVector<f64>) -> Option<DVector<f64>> {
+        use faer::prelude::Solve;
+        let n = b.len();
+        let mut x = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
+        match self {
+            Reduced::Dense(m) => {
+                let fm = faer::Mat::<f64>::from_fn(n, n, |i, j| m[(i, j)]);
+                let llt = fm.llt(Side::Lower).ok()?;
+                llt.solve_in_place(x.as_mut());
+            }
+            Reduced::Sparse { pattern, values } => {
+                let sym = SymbolicSparseColMatRef::new_checked(
+                    pattern.n,
+                    pattern.n,
+                    &pattern.col_ptr,
+                    None,
+                    &pattern.row_idx,
+                );
+                let mat = SparseColMatRef::new(sym, values);
+                let llt =
+                    Llt::try_new_with_symbolic(pattern.symbolic.clone(), mat, Side::Lower).ok()?;
+                llt.solve_in_place(x.as_mut());
+            }
+        }
+        let out = DVector::from_fn(n, |i, _| x[(i, 0)]);
+        out.iter().all(|v| v.is_finite()).then_some(out)
+    }
+}
