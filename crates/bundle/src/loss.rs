@@ -15,6 +15,19 @@ pub enum Loss {
 }
 
 impl Loss {
+    /// Checks that the scale is positive and finite.
+    pub fn validate(&self) -> Result<(), crate::BundleError> {
+        match *self {
+            Loss::Trivial => Ok(()),
+            Loss::Huber(a) | Loss::Cauchy(a) | Loss::SoftL1(a) if a > 0.0 && a.is_finite() => {
+                Ok(())
+            }
+            other => Err(crate::BundleError::InvalidProblem(format!(
+                "loss {other:?}: the scale must be positive and finite"
+            ))),
+        }
+    }
+
     /// ρ(s) and ρ'(s).
     pub fn evaluate(&self, s: f64) -> (f64, f64) {
         match *self {

@@ -89,8 +89,11 @@ pub struct BundleReport {
     pub successful_steps: usize,
     /// Why it stopped.
     pub termination: Termination,
-    /// Root mean square reprojection error after, pixels (unweighted, all observations).
+    /// Root mean square reprojection error after, pixels: `sqrt(Σ‖u − û‖² / n)` over the
+    /// observations that project (the per-observation norm, as in reports).
     pub rms_px: f64,
+    /// Observations whose point ended behind its camera (left out of `rms_px`).
+    pub unprojected: usize,
 }
 
 /// Index layout of the camera-side parameters.
@@ -467,7 +470,7 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
     Some(Step { cameras, points })
 }
 
-fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> BundleProblem {
+fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> Option<BundleProblem> {
     let mut q = p.clone();
     for (i, im) in q.images.iter_mut().enumerate() {
         if let Some(off) = layout.pose_offset[i] {
@@ -483,9 +486,8 @@ fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> BundleProblem 
             for (q, &k) in layout.group_free[g].iter().enumerate() {
                 params[k] += step.cameras[off + q];
             }
-            // An invalid update (e.g. f ≤ 0) keeps the old intrinsics; the step's cost then rises
-            // and the damping grows.
-            let _ = group.camera.set_params(&params[..n]);
+            // An invalid update (e.g. f ≤ 0) rejects the whole step: the damping then grows.
+            group.camera.set_params(&params[..n]).ok()?;
         }
     }
     for (j, pt) in q.points.iter_mut().enumerate() {
@@ -493,7 +495,7 @@ fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> BundleProblem 
             pt.position += step.points[pi];
         }
     }
-    q
+    Some(q)
 }
 
 fn parameter_norm(p: &BundleProblem) -> f64 {
@@ -513,24 +515,25 @@ fn parameter_norm(p: &BundleProblem) -> f64 {
     s.sqrt()
 }
 
-fn rms_px(p: &BundleProblem) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
+/// Root mean square of the reprojection error vectors (pixels, per observation), and the number of
+/// observations that do not project (behind their camera), which the RMS leaves out.
+fn reprojection_rms(p: &BundleProblem) -> (f64, usize) {
+    let (mut sum, mut n, mut lost) = (0.0, 0usize, 0usize);
     for o in &p.observations {
         let im = &p.images[o.image];
-        if let Ok(px) = project_world(
+        match project_world(
             &p.groups[im.group].camera,
             &im.pose,
             &p.points[o.point].position,
         ) {
-            sum += (px - o.pixel).norm_squared();
-            n += 1;
+            Ok(px) => {
+                sum += (px - o.pixel).norm_squared();
+                n += 1;
+            }
+            Err(_) => lost += 1,
         }
     }
-    if n == 0 {
-        0.0
-    } else {
-        (sum / (2 * n) as f64).sqrt()
-    }
+    (if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }, lost)
 }
 
 /// Camera-side columns of an observation.
@@ -571,6 +574,11 @@ fn reduced_storage(
         }
         groups.push(cols);
     }
+    for c in &p.center_priors {
+        if let Some(off) = layout.pose_offset[c.image] {
+            groups.push((off..off + 6).collect());
+        }
+    }
     for mut cols in per_point {
         cols.sort_unstable();
         cols.dedup();
@@ -588,6 +596,7 @@ pub fn solve(
     options: &BundleOptions,
 ) -> Result<BundleReport, BundleError> {
     problem.validate()?;
+    options.loss.validate()?;
     let layout = Layout::new(problem);
     if layout.num_camera_params == 0 && layout.num_free_points == 0 {
         return Err(BundleError::NothingToAdjust);
@@ -642,7 +651,15 @@ pub fn solve(
             termination = Termination::ParameterTolerance;
             break;
         }
-        let candidate = apply_step(problem, &layout, &step);
+        let Some(candidate) = apply_step(problem, &layout, &step) else {
+            radius /= nu;
+            nu *= 2.0;
+            if radius < 1e-32 {
+                termination = Termination::NoProgress;
+                break;
+            }
+            continue;
+        };
         let new_cost = cost_of(&candidate, &options.loss);
         let rho = (cost - new_cost) / model.max(f64::MIN_POSITIVE);
         if new_cost.is_finite() && new_cost < cost && rho > 1e-3 {
@@ -667,13 +684,15 @@ pub fn solve(
             }
         }
     }
+    let (rms_px, unprojected) = reprojection_rms(problem);
     Ok(BundleReport {
         initial_cost,
         final_cost: cost,
         iterations,
         successful_steps,
         termination,
-        rms_px: rms_px(problem),
+        rms_px,
+        unprojected,
     })
 }
 
@@ -703,7 +722,7 @@ pub fn gradient(problem: &BundleProblem, loss: &Loss) -> Vec<f64> {
 }
 
 /// The problem moved by a local update `delta` (length [`num_parameters`]).
-pub fn perturbed(problem: &BundleProblem, delta: &[f64]) -> BundleProblem {
+pub fn perturbed(problem: &BundleProblem, delta: &[f64]) -> Option<BundleProblem> {
     let layout = Layout::new(problem);
     let n = layout.num_camera_params;
     let step = Step {

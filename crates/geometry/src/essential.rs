@@ -93,6 +93,12 @@ pub fn five_point(
     check_pairs("five-point", x1.len(), x2.len(), 5)?;
     check_finite("five-point", x1.iter().chain(x2).flat_map(|v| v.iter()))?;
     // Null space of the 5×9 epipolar constraint matrix, from the SVD of its zero-padded square.
+    if x1[..5].iter().chain(&x2[..5]).any(|v| !(v.norm() > 0.0)) {
+        return Err(GeometryError::Degenerate {
+            solver: "five-point",
+            reason: "a ray has zero length",
+        });
+    }
     let mut q = SMatrix::<f64, 9, 9>::zeros();
     for k in 0..5 {
         let (a, b) = (x1[k].normalize(), x2[k].normalize());
@@ -102,7 +108,10 @@ pub fn five_point(
             }
         }
     }
-    let svd = q.svd(false, true);
+    // Capped iterations: nalgebra's plain `svd()` iterates without bound.
+    let Some(svd) = q.try_svd(false, true, f64::EPSILON, 1000) else {
+        return Ok(Vec::new());
+    };
     let Some(v_t) = svd.v_t else {
         return Ok(Vec::new());
     };
@@ -284,6 +293,9 @@ pub fn eight_point_essential(
         "eight-point essential",
         x1.iter().chain(x2).flat_map(|v| v.iter()),
     )?;
+    if let Some(w) = weights {
+        check_pairs("eight-point essential", x1.len(), w.len(), 8)?;
+    }
     // Hartley normalisation of the z = 1 coordinates: without it the constant third coordinate
     // dominates and the linear fit is badly conditioned.
     let plane = |x: &[Vector3<f64>]| -> Vec<Vector2<f64>> {
@@ -505,6 +517,15 @@ pub fn refine_relative_pose(
             .map(|(i, (r, _))| weights.map_or(1.0, |w| w[i]) * r * r)
             .sum()
     };
+    if !(start.translation.norm() > 0.0) {
+        return Err(GeometryError::Degenerate {
+            solver: "relative pose refinement",
+            reason: "zero translation (no baseline)",
+        });
+    }
+    if let Some(w) = weights {
+        check_pairs("relative pose refinement", x1.len(), w.len(), 5)?;
+    }
     let mut pose = Pose::new(start.rotation, start.translation.normalize());
     let mut rows = relative_pose_residuals(&pose, x1, x2);
     let mut current = cost(&rows);

@@ -63,6 +63,9 @@ pub fn eight_point(
     let solver = "eight-point fundamental";
     check_pairs(solver, p1.len(), p2.len(), 8)?;
     check_finite(solver, p1.iter().chain(p2).flat_map(|v| v.iter()))?;
+    if let Some(w) = weights {
+        check_pairs(solver, p1.len(), w.len(), 8)?;
+    }
     let (Some((t1, n1)), Some((t2, n2))) = (normalize_points(p1), normalize_points(p2)) else {
         return Err(GeometryError::Degenerate {
             solver,
@@ -112,7 +115,12 @@ pub fn seven_point(
             a[(k, c)] = *v;
         }
     }
-    let svd = a.svd(false, true);
+    let Some(svd) = a.try_svd(false, true, f64::EPSILON, 1000) else {
+        return Err(GeometryError::Degenerate {
+            solver,
+            reason: "SVD did not converge",
+        });
+    };
     let Some(vt) = svd.v_t else {
         return Err(GeometryError::Degenerate {
             solver,

@@ -35,6 +35,9 @@ pub fn homography_dlt(
     let solver = "homography DLT";
     check_pairs(solver, p1.len(), p2.len(), 4)?;
     check_finite(solver, p1.iter().chain(p2).flat_map(|v| v.iter()))?;
+    if let Some(w) = weights {
+        check_pairs(solver, p1.len(), w.len(), 4)?;
+    }
     if p1.len() == 4 {
         for pts in [p1, p2] {
             for skip in 0..4 {

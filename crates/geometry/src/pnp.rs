@@ -119,6 +119,9 @@ pub fn refine_pose(
 ) -> Result<Pose, GeometryError> {
     let solver = "pose refinement";
     check_pairs(solver, world.len(), pixels.len(), 3)?;
+    if let Some(w) = weights {
+        check_pairs(solver, world.len(), w.len(), 3)?;
+    }
     let cost = |pose: &Pose| -> f64 {
         world
             .iter()
@@ -126,7 +129,10 @@ pub fn refine_pose(
             .enumerate()
             .map(|(i, (x, u))| {
                 let w = weights.map_or(1.0, |w| w[i]);
-                project_world(camera, pose, x).map_or(0.0, |p| w * (p - u).norm_squared())
+                project_world(camera, pose, x)
+                    // A point that stops projecting costs as much as a huge residual, so no
+                    // step can lower the cost by pushing points behind the camera.
+                    .map_or(w * 1e12, |p| w * (p - u).norm_squared())
             })
             .sum()
     };
