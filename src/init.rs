@@ -125,7 +125,7 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         let _ = writeln!(
             text,
             "images = {}",
-            toml_string(&format!("images/{name}/*"))
+            toml_string(&format!("images/{}/*", glob::Pattern::escape(name)))
         );
         let _ = writeln!(
             text,

@@ -158,7 +158,12 @@ impl Project {
         let mut owner: HashMap<String, usize> = HashMap::new();
         for (e, ec) in config.epochs.iter().enumerate() {
             let key = format!("epoch[{e}]");
-            if ec.name.trim().is_empty() || ec.name.contains(['/', '\\']) {
+            if ec.name.trim().is_empty()
+                || ec.name.contains(['/', '\\'])
+                || ec.name == "."
+                || ec.name == ".."
+                || ec.name.chars().any(char::is_control)
+            {
                 return Err(ProjectError::config(
                     &cfg_path,
                     format!("{key}.name"),
@@ -403,7 +408,12 @@ impl Project {
             let info = exif::read_exif(&self.image_path(ImageId::from(i)))?;
             let prior = match info.gps {
                 Some(gps) => {
-                    let (e, n) = projector.project(gps.latitude, gps.longitude)?;
+                    let (e, n) = projector
+                        .project(gps.latitude, gps.longitude)
+                        .map_err(|e| ProjectError::Path {
+                            path: self.image_path(ImageId::from(i)),
+                            message: format!("EXIF GPS position cannot be projected: {e}"),
+                        })?;
                     gps.altitude.map(|h| CameraPrior {
                         position: Vector3::new(e, n, h),
                         sxy: cfg.sxy,
@@ -438,7 +448,9 @@ fn expand_images(
         }
         return Ok(vec![relative_name(dir, &p)]);
     }
-    let full = dir.join(pattern);
+    // The directory is literal text, not part of the pattern (it may contain `[`, `*` or `?`).
+    let escaped_dir = glob::Pattern::escape(&dir.to_string_lossy());
+    let full = Path::new(&escaped_dir).join(pattern);
     let options = glob::MatchOptions {
         case_sensitive: true,
         require_literal_separator: true,

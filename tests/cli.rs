@@ -351,3 +351,24 @@ fn init_refuses_to_overwrite_and_rejects_single_image_epochs() {
         "{out}"
     );
 }
+
+#[test]
+fn project_path_with_glob_characters_and_dot_epochs() {
+    // A project folder named with glob metacharacters still finds its images.
+    let outer = tempfile::tempdir().unwrap();
+    let p = small_project();
+    let odd = outer.path().join("site[A]*");
+    std::fs::rename(p.path(), &odd).unwrap();
+    let (ok, out, err) = timesift(&["info", odd.to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(report["images"].as_array().unwrap().len(), 6);
+    // An epoch named ".." would put outputs outside out/epochs.
+    write(
+        &odd,
+        "project.toml",
+        "[[epoch]]\nname = \"..\"\nimages = \"images/2018/*\"\n",
+    );
+    let e = info_error(&odd);
+    assert!(e.contains("epoch[0].name"), "{e}");
+}

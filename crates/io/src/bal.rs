@@ -55,7 +55,9 @@ pub fn read_bal(path: &Path) -> Result<BalProblem, IoError> {
     let n_cameras = int(next("the camera count")?, "camera count")?;
     let n_points = int(next("the point count")?, "point count")?;
     let n_obs = int(next("the observation count")?, "observation count")?;
-    let mut observations = Vec::with_capacity(n_obs);
+    // Counts come from the file: cap the preallocation by what the text can hold.
+    let max_tokens = text.len() / 2 + 1;
+    let mut observations = Vec::with_capacity(n_obs.min(max_tokens / 4));
     for k in 0..n_obs {
         let camera = int(next("an observation")?, "observation camera")?;
         let point = int(next("an observation")?, "observation point")?;
@@ -73,7 +75,7 @@ pub fn read_bal(path: &Path) -> Result<BalProblem, IoError> {
             xy: [x, y],
         });
     }
-    let mut cameras = Vec::with_capacity(n_cameras);
+    let mut cameras = Vec::with_capacity(n_cameras.min(max_tokens / 9));
     for _ in 0..n_cameras {
         let mut c = [0.0; 9];
         for v in c.iter_mut() {
@@ -81,7 +83,7 @@ pub fn read_bal(path: &Path) -> Result<BalProblem, IoError> {
         }
         cameras.push(c);
     }
-    let mut points = Vec::with_capacity(n_points);
+    let mut points = Vec::with_capacity(n_points.min(max_tokens / 3));
     for _ in 0..n_points {
         let mut p = [0.0; 3];
         for v in p.iter_mut() {

@@ -386,7 +386,7 @@ fn lines_of(path: &Path) -> Result<TextLines, IoError> {
     Ok(TextLines { data, comments })
 }
 
-fn parse<T: std::str::FromStr>(
+fn parse<T: std::str::FromStr + FiniteCheck>(
     path: &Path,
     line: usize,
     token: Option<&str>,
@@ -394,8 +394,38 @@ fn parse<T: std::str::FromStr>(
 ) -> Result<T, IoError> {
     let token = token.ok_or_else(|| IoError::line(path, line, format!("missing {what}")))?;
     token
-        .parse()
-        .map_err(|_| IoError::line(path, line, format!("{what}: cannot parse \"{token}\"")))
+        .parse::<T>()
+        .ok()
+        .filter(FiniteCheck::is_finite_value)
+        .ok_or_else(|| {
+            IoError::line(
+                path,
+                line,
+                format!("{what}: cannot parse \"{token}\" as a finite number"),
+            )
+        })
+}
+
+/// Rejects NaN and infinities, which `f64::from_str` accepts.
+trait FiniteCheck {
+    fn is_finite_value(&self) -> bool;
+}
+
+impl FiniteCheck for f64 {
+    fn is_finite_value(&self) -> bool {
+        self.is_finite()
+    }
+}
+
+macro_rules! finite_int {
+    ($($t:ty),*) => {$(impl FiniteCheck for $t { fn is_finite_value(&self) -> bool { true } })*};
+}
+finite_int!(u8, u32, u64, i64, usize);
+
+impl FiniteCheck for String {
+    fn is_finite_value(&self) -> bool {
+        true
+    }
 }
 
 /// Reads a COLMAP text model from `dir`. `points3D.txt` may be absent.
@@ -421,6 +451,13 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
         let params = tok
             .map(|t| parse::<f64>(&path, *line, Some(t), "PARAMS"))
             .collect::<Result<Vec<_>, _>>()?;
+        if model.cameras.contains_key(&id) {
+            return Err(IoError::line(
+                &path,
+                *line,
+                format!("camera id {id} is defined twice"),
+            ));
+        }
         model.cameras.insert(
             id,
             ColmapCamera {
@@ -493,6 +530,13 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
                 ));
             }
         }
+        if model.images.contains_key(&id) {
+            return Err(IoError::line(
+                &path,
+                *line,
+                format!("image id {id} is defined twice"),
+            ));
+        }
         model.images.insert(
             id,
             ColmapImage {
@@ -537,6 +581,13 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
                     ))
                 })
                 .collect::<Result<Vec<_>, IoError>>()?;
+            if model.points.contains_key(&id) {
+                return Err(IoError::line(
+                    &path,
+                    *line,
+                    format!("point id {id} is defined twice"),
+                ));
+            }
             model.points.insert(
                 id,
                 ColmapPoint {

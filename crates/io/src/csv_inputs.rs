@@ -280,6 +280,32 @@ pub fn read_gnss(path: &Path) -> Result<Vec<GnssPrior>, IoError> {
     Ok(priors)
 }
 
+/// Byte offset of the WKT keyword: the first `MULTIPOLYGON` or `POLYGON` followed (after spaces
+/// and an optional `Z`/`M`/`ZM`) by `(`, so names containing the word are not mistaken for it.
+fn geometry_start(upper: &str) -> Option<usize> {
+    let mut from = 0;
+    while let Some(rel) = upper[from..].find("POLYGON") {
+        let at = from + rel;
+        let start = if at >= 5 && &upper[at - 5..at] == "MULTI" {
+            at - 5
+        } else {
+            at
+        };
+        let rest = upper[at + "POLYGON".len()..].trim_start();
+        let rest = rest
+            .strip_prefix("ZM")
+            .or_else(|| rest.strip_prefix('Z'))
+            .or_else(|| rest.strip_prefix('M'))
+            .unwrap_or(rest)
+            .trim_start();
+        if rest.starts_with('(') {
+            return Some(start);
+        }
+        from = at + "POLYGON".len();
+    }
+    None
+}
+
 /// Reads `stable.csv`: one stable area per line, `[name,]WKT`, where the WKT (`POLYGON` or
 /// `MULTIPOLYGON`) may be quoted or not (its commas are part of the geometry).
 pub fn read_stable_areas(path: &Path) -> Result<Vec<StableArea>, IoError> {
@@ -292,7 +318,7 @@ pub fn read_stable_areas(path: &Path) -> Result<Vec<StableArea>, IoError> {
             continue;
         }
         let upper = trimmed.to_ascii_uppercase();
-        let Some(start) = upper.find("MULTIPOLYGON").or_else(|| upper.find("POLYGON")) else {
+        let Some(start) = geometry_start(&upper) else {
             let is_header =
                 areas.is_empty() && (upper.replace(' ', "") == "NAME,WKT" || upper == "WKT");
             if is_header {
@@ -385,11 +411,12 @@ mod tests {
         let p = write(
             dir.path(),
             "stable.csv",
-            "name,wkt\nrock,\"POLYGON ((0 0, 1 0, 1 1, 0 0))\"\nPOLYGON ((5 5, 6 5, 6 6, 5 5))\nroad,MULTIPOLYGON (((0 0, 1 0, 1 1)),((2 2, 3 2, 3 3)))\n",
+            "name,wkt\nrock,\"POLYGON ((0 0, 1 0, 1 1, 0 0))\"\nPOLYGON ((5 5, 6 5, 6 6, 5 5))\nroad,MULTIPOLYGON (((0 0, 1 0, 1 1)),((2 2, 3 2, 3 3)))\npolygon rock,POLYGON Z ((0 0 1, 1 0 1, 1 1 1))\n",
         );
         let s = read_stable_areas(&p).unwrap();
-        assert_eq!(s.len(), 3);
+        assert_eq!(s.len(), 4);
         assert_eq!(s[0].name.as_deref(), Some("rock"));
+        assert_eq!(s[3].name.as_deref(), Some("polygon rock"));
         assert_eq!(s[1].name, None);
         assert_eq!(s[2].polygons.len(), 2);
         let p = write(dir.path(), "stable.csv", "rock,LINESTRING (0 0, 1 1)\n");

@@ -111,7 +111,11 @@ pub fn read_exif(path: &Path) -> Result<ExifInfo, IoError> {
         let below_sea =
             matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
         let altitude = number(Tag::GPSAltitude).map(|a| if below_sea { -a } else { a });
-        (latitude.abs() <= 90.0 && longitude.abs() <= 360.0).then_some(GpsPosition {
+        // (0, 0) is what receivers without a fix write.
+        let plausible = latitude.abs() <= 90.0
+            && longitude.abs() <= 180.0
+            && !(latitude == 0.0 && longitude == 0.0);
+        plausible.then_some(GpsPosition {
             latitude,
             longitude,
             altitude,

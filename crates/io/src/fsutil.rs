@@ -82,7 +82,12 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<(), IoError> 
     })
 }
 
-/// Reads a whole text file, naming it on failure.
+/// Reads a whole text file, naming it on failure; a UTF-8 byte-order mark (spreadsheet exports) is
+/// dropped.
 pub fn read_text(path: &Path) -> Result<String, IoError> {
-    std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))
+    let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))?;
+    Ok(match text.strip_prefix('\u{feff}') {
+        Some(rest) => rest.to_string(),
+        None => text,
+    })
 }

@@ -218,12 +218,22 @@ struct Decoded {
     georef: GeoReference,
 }
 
+/// Decoding limits: large enough for the rasters of a survey (8 GiB decoded), finite so that a
+/// corrupt header cannot request an absurd allocation.
+fn decoding_limits() -> Limits {
+    let mut limits = Limits::default();
+    limits.decoding_buffer_size = 8 << 30;
+    limits.intermediate_buffer_size = 1 << 30;
+    limits.ifd_value_size = 64 << 20;
+    limits
+}
+
 fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
     let file = File::open(path).map_err(|e| IoError::io(path, e))?;
     let err = |e| tiff_err(path, e);
     let mut decoder = Decoder::new(BufReader::new(file))
         .map_err(err)?
-        .with_limits(Limits::unlimited());
+        .with_limits(decoding_limits());
     let (width, height) = decoder.dimensions().map_err(err)?;
     let colortype = decoder.colortype().map_err(err)?;
 
@@ -267,8 +277,24 @@ fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
             ),
         ));
     }
-    if !(scale[0] > 0.0 && scale[1] != 0.0) {
-        return Err(IoError::invalid(path, "ModelPixelScale must be non-zero"));
+    if !(scale[0] > 0.0 && scale[0].is_finite() && scale[1].is_finite()) || scale[1] == 0.0 {
+        return Err(IoError::invalid(
+            path,
+            "ModelPixelScale must be finite and non-zero",
+        ));
+    }
+    if scale[1] < 0.0 {
+        return Err(IoError::unsupported(
+            path,
+            "GeoTIFF layout",
+            "south-up grid (negative ModelPixelScale y); only north-up grids are read",
+        ));
+    }
+    if !tie.iter().all(|v| v.is_finite()) {
+        return Err(IoError::invalid(
+            path,
+            "ModelTiepoint holds non-finite values",
+        ));
     }
 
     let keys = decoder

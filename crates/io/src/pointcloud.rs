@@ -140,15 +140,35 @@ pub fn write_las(
         return Err(IoError::invalid(path, "LAS scale must be positive"));
     }
     let mut min = [f64::INFINITY; 3];
+    let mut max = [f64::NEG_INFINITY; 3];
     for p in &cloud.positions {
         for k in 0..3 {
             if !p[k].is_finite() {
                 return Err(IoError::invalid(path, "non-finite point coordinate"));
             }
             min[k] = min[k].min(p[k]);
+            max[k] = max[k].max(p[k]);
         }
     }
-    let offset = min.map(|m| if m.is_finite() { m.floor() } else { 0.0 });
+    // Offset at the centre of the extent (rounded to the metre): LAS stores i32 counts of the
+    // scale from the offset, so the extent may reach ±2^31 scale units either side.
+    let mut offset = [0.0; 3];
+    for k in 0..3 {
+        if min[k].is_finite() {
+            offset[k] = (0.5 * (min[k] + max[k])).round();
+            let half = (max[k] - offset[k]).max(offset[k] - min[k]);
+            if half / options.scale[k] > i32::MAX as f64 - 1.0 {
+                return Err(IoError::invalid(
+                    path,
+                    format!(
+                        "the cloud spans {:.1} m along axis {k}, too wide for a LAS scale of {} m; use a coarser scale",
+                        max[k] - min[k],
+                        options.scale[k]
+                    ),
+                ));
+            }
+        }
+    }
 
     let mut builder = Builder::from(Version::new(1, 4));
     builder.generating_software = format!("timesift {}", env!("CARGO_PKG_VERSION"));
@@ -287,8 +307,10 @@ pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
         .unwrap_or(Crs::Local);
     let has_color = header.point_format().has_color;
     let n = header.number_of_points() as usize;
-    let mut positions = Vec::with_capacity(n);
-    let mut colors = has_color.then(|| Vec::with_capacity(n));
+    // The header's count is not trusted for allocation (a corrupt file could claim anything).
+    let capacity = n.min(1 << 22);
+    let mut positions = Vec::with_capacity(capacity);
+    let mut colors = has_color.then(|| Vec::with_capacity(capacity));
     let data = reader.read_all().map_err(las_err)?;
     for point in data.points() {
         let p = point.map_err(las_err)?;

@@ -181,3 +181,20 @@ fn opencv_tangential_terms_are_swapped() {
         (500.0, 400.0, -0.002, 0.001)
     );
 }
+
+#[test]
+fn non_finite_values_and_duplicate_ids_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("cameras.txt"), "1 PINHOLE 100 80 90 90 50 40\n").unwrap();
+    std::fs::write(d.join("images.txt"), "1 1 0 0 0 nan 0 0 1 a.jpg\n\n").unwrap();
+    let e = read_colmap_text(d).unwrap_err().to_string();
+    assert!(e.contains("images.txt: line 1") && e.contains("TX"), "{e}");
+    std::fs::write(
+        d.join("images.txt"),
+        "1 1 0 0 0 0 0 0 1 a.jpg\n\n1 1 0 0 0 0 0 0 1 b.jpg\n\n",
+    )
+    .unwrap();
+    let e = read_colmap_text(d).unwrap_err().to_string();
+    assert!(e.contains("image id 1 is defined twice"), "{e}");
+}

@@ -98,3 +98,28 @@ fn mismatched_attribute_length_is_an_error() {
     assert!(e.contains("bad.laz"), "{e}");
     assert!(!p.exists());
 }
+
+#[test]
+fn survey_wide_cloud_fits_at_millimetre_scale() {
+    // 3 km wide: beyond what an offset at the minimum corner allows at 1 mm (±2147 m).
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = cloud(3);
+    c.positions = vec![
+        [500000.0, 6000000.0, 10.0],
+        [503000.0, 6003000.0, 12.0],
+        [501500.0, 6001500.0, 11.0],
+    ];
+    let p = dir.path().join("wide.laz");
+    write_las(&p, &c, &LasWriteOptions::default()).unwrap();
+    assert_same(&read_las(&p).unwrap(), &c);
+    // 5,000 km does not fit at 1 mm: a clear error, no file.
+    c.positions[1][0] = 5_500_000.0;
+    let e = write_las(
+        &p.with_file_name("huge.laz"),
+        &c,
+        &LasWriteOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("too wide") && e.contains("huge.laz"), "{e}");
+}
