@@ -56,7 +56,8 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     epoch_dirs.sort();
 
     let mut epochs = Vec::new();
-    let (mut lat_sum, mut lon_sum, mut with_gps) = (0.0, 0.0, 0usize);
+    // Longitudes are averaged on the circle, so blocks across ±180° get the right zone.
+    let (mut lat_sum, mut lon_sin, mut lon_cos, mut with_gps) = (0.0, 0.0, 0.0, 0usize);
     for epoch_dir in &epoch_dirs {
         let mut files: Vec<_> = std::fs::read_dir(epoch_dir)
             .map_err(|e| ProjectError::Path {
@@ -79,7 +80,8 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         for f in &files {
             if let Some(gps) = exif::read_exif(f)?.gps {
                 lat_sum += gps.latitude;
-                lon_sum += gps.longitude;
+                lon_sin += gps.longitude.to_radians().sin();
+                lon_cos += gps.longitude.to_radians().cos();
                 with_gps += 1;
             }
         }
@@ -99,7 +101,7 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     let crs = if with_gps > 0 {
         Crs::Epsg(utm_epsg_for(
             lat_sum / with_gps as f64,
-            lon_sum / with_gps as f64,
+            lon_sin.atan2(lon_cos).to_degrees(),
         ))
     } else {
         Crs::Local

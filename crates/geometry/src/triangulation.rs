@@ -221,14 +221,13 @@ pub fn intersect_weighted(
         views.push((o.pose, ray));
     }
     let mut x = triangulate_dlt(&views)?;
-    let mut normal = Matrix3::zeros();
-    let mut chi2 = 0.0;
-    for _ in 0..20 {
-        normal = Matrix3::zeros();
+    // Normal equations and χ² at a point.
+    let normal_at = |x: &Vector3<f64>| -> Result<(Matrix3<f64>, Vector3<f64>, f64), GeometryError> {
+        let mut normal = Matrix3::zeros();
         let mut rhs = Vector3::zeros();
-        chi2 = 0.0;
+        let mut chi2 = 0.0;
         for o in observations {
-            let j = project_world_with_jacobians(o.camera, &o.pose, &x, None).map_err(|_| {
+            let j = project_world_with_jacobians(o.camera, &o.pose, x, None).map_err(|_| {
                 GeometryError::NoSolution {
                     solver,
                     reason: "point behind a camera",
@@ -240,6 +239,11 @@ pub fn intersect_weighted(
             normal += j.d_world_point.transpose() * j.d_world_point * w;
             rhs += j.d_world_point.transpose() * r * w;
         }
+        Ok((normal, rhs, chi2))
+    };
+    let mut converged = false;
+    for _ in 0..50 {
+        let (normal, rhs, _) = normal_at(&x)?;
         let Some(step) = normal.cholesky().map(|c| c.solve(&rhs)) else {
             return Err(GeometryError::Degenerate {
                 solver,
@@ -248,9 +252,18 @@ pub fn intersect_weighted(
         };
         x += step;
         if step.norm() <= 1e-12 * (1.0 + x.norm()) {
+            converged = true;
             break;
         }
     }
+    if !converged {
+        return Err(GeometryError::NoSolution {
+            solver,
+            reason: "Gauss–Newton did not converge in 50 iterations",
+        });
+    }
+    // Covariance and χ² at the final point.
+    let (normal, _, chi2) = normal_at(&x)?;
     let covariance = normal.try_inverse().ok_or(GeometryError::Degenerate {
         solver,
         reason: "normal equations singular (zero baseline)",

@@ -244,11 +244,29 @@ pub fn read_cameras_json(path: &Path) -> Result<Reconstruction, IoError> {
         }
         let pose = match (j.r, j.t) {
             (Some(r), Some(t)) => {
+                if !t.iter().all(|v| v.is_finite()) {
+                    return Err(IoError::key(
+                        path,
+                        format!("images[{i}].t"),
+                        "non-finite translation",
+                    ));
+                }
                 let m = Matrix3::from_fn(|row, col| r[row][col]);
-                Some(
-                    Pose::from_rt(&m, &Vector3::from(t))
-                        .map_err(|e| IoError::key(path, format!("images[{i}].R"), e.to_string()))?,
-                )
+                let pose = Pose::from_rt(&m, &Vector3::from(t))
+                    .map_err(|e| IoError::key(path, format!("images[{i}].R"), e.to_string()))?;
+                // `center` is redundant with R and t; when given it must agree with them.
+                if let Some(c) = j.center {
+                    let c = Vector3::from(c);
+                    let expected = pose.center();
+                    if !((c - expected).norm() <= 1e-6 + 1e-12 * expected.norm()) {
+                        return Err(IoError::key(
+                            path,
+                            format!("images[{i}].center"),
+                            format!("does not equal −Rᵀt = {expected:?}"),
+                        ));
+                    }
+                }
+                Some(pose)
             }
             (None, None) => None,
             _ => {
@@ -343,5 +361,14 @@ mod tests {
         .unwrap();
         let e = read_cameras_json(&p).unwrap_err().to_string();
         assert!(e.contains("extra") && e.contains("line 1"), "{e}");
+        // A `center` that disagrees with R and t is refused, by key.
+        let mut r = sample();
+        r.images.truncate(1);
+        let mut v: serde_json::Value = serde_json::from_str(&to_json_string(&r)).unwrap();
+        let cx = v["images"][0]["center"][0].as_f64().unwrap();
+        v["images"][0]["center"][0] = serde_json::json!(cx + 1.0);
+        std::fs::write(&p, v.to_string()).unwrap();
+        let e = read_cameras_json(&p).unwrap_err().to_string();
+        assert!(e.contains("images[0].center"), "{e}");
     }
 }
