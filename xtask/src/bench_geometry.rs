@@ -113,46 +113,39 @@ pub fn run(runs: usize) -> anyhow::Result<()> {
         ..RansacOptions::default()
     };
 
-    let mut ours = Vec::new();
-    let mut times = Vec::new();
-    let mut inliers = 0;
-    for run in 0..runs {
-        let t = Instant::now();
-        let r = ransac(
-            &HomographyEstimator { p1: &ha, p2: &hb },
-            &RansacOptions {
-                seed: run as u64,
-                ..options
-            },
-        )?;
-        times.push(t.elapsed().as_secs_f64());
-        inliers = r.num_inliers;
-    }
-    ours.push(("homography", median(times), inliers));
+    // Median time over `runs` seeds, and the inlier count of the last run.
+    let timed = |fit: &dyn Fn(u64) -> anyhow::Result<usize>| -> anyhow::Result<(f64, usize)> {
+        let mut times = Vec::with_capacity(runs);
+        let mut inliers = 0;
+        for run in 0..runs {
+            let t = Instant::now();
+            inliers = fit(run as u64)?;
+            times.push(t.elapsed().as_secs_f64());
+        }
+        Ok((median(times), inliers))
+    };
     let rays = |p: &[Vector2<f64>]| -> Vec<Vector3<f64>> {
         p.iter()
             .map(|q| Vector3::new((q.x - CX) / FOCAL, (q.y - CY) / FOCAL, 1.0))
             .collect()
     };
     let (ra, rb) = (rays(&ea), rays(&eb));
-    let mut times = Vec::new();
-    for run in 0..runs {
-        let t = Instant::now();
-        let r = ransac(
-            &EssentialEstimator {
-                x1: &ra,
-                x2: &rb,
-                focal_px: FOCAL,
-            },
-            &RansacOptions {
-                seed: run as u64,
-                ..options
-            },
-        )?;
-        times.push(t.elapsed().as_secs_f64());
-        inliers = r.num_inliers;
-    }
-    ours.push(("essential", median(times), inliers));
+    let homography = timed(&|seed| {
+        let est = HomographyEstimator { p1: &ha, p2: &hb };
+        Ok(ransac(&est, &RansacOptions { seed, ..options })?.num_inliers)
+    })?;
+    let essential = timed(&|seed| {
+        let est = EssentialEstimator {
+            x1: &ra,
+            x2: &rb,
+            focal_px: FOCAL,
+        };
+        Ok(ransac(&est, &RansacOptions { seed, ..options })?.num_inliers)
+    })?;
+    let ours = [
+        ("homography", homography.0, homography.1),
+        ("essential", essential.0, essential.1),
+    ];
 
     let script = dir.join("opencv_ransac.py");
     std::fs::write(&script, OPENCV_SCRIPT)?;

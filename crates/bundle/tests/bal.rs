@@ -11,7 +11,9 @@ fn bal_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bal")
 }
 
-fn run(file: &str, scene: &str, initial: f64, reference: f64) {
+/// A BAL file of the data set as a bundle problem, with the principal points and image size of
+/// its scene from `bal_manifest.json`.
+fn load(file: &str, scene: &str) -> timesift_bundle::BundleProblem {
     let manifest: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(bal_dir().join("bal_manifest.json")).unwrap(),
     )
@@ -27,8 +29,11 @@ fn run(file: &str, scene: &str, initial: f64, reference: f64) {
         cams[0]["width"].as_u64().unwrap() as u32,
         cams[0]["height"].as_u64().unwrap() as u32,
     );
-    let bal = read_bal(&bal_dir().join(file)).unwrap();
-    let mut problem = from_bal(&bal, &pp, size).unwrap();
+    from_bal(&read_bal(&bal_dir().join(file)).unwrap(), &pp, size).unwrap()
+}
+
+fn run(file: &str, scene: &str, initial: f64, reference: f64) {
+    let mut problem = load(file, scene);
     let options = BundleOptions {
         loss: Loss::Huber(1.0),
         ..BundleOptions::default()
@@ -81,24 +86,12 @@ fn sceaux_perturbed() {
 
 #[test]
 fn sparse_and_dense_schur_paths_agree() {
-    let manifest: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(bal_dir().join("bal_manifest.json")).unwrap(),
-    )
-    .unwrap();
-    let cams = manifest["datasets"]["lund"]["principal_point_per_camera"]
-        .as_array()
-        .unwrap();
-    let pp: Vec<(f64, f64)> = cams
-        .iter()
-        .map(|c| (c["cx"].as_f64().unwrap(), c["cy"].as_f64().unwrap()))
-        .collect();
-    let bal = read_bal(&bal_dir().join("lund-29-1863-perturbed.txt")).unwrap();
     let mut costs = Vec::new();
     for solver in [
         timesift_bundle::LinearSolver::DenseSchur,
         timesift_bundle::LinearSolver::SparseSchur,
     ] {
-        let mut problem = from_bal(&bal, &pp, (1024, 768)).unwrap();
+        let mut problem = load("lund-29-1863-perturbed.txt", "lund");
         let options = BundleOptions {
             loss: Loss::Huber(1.0),
             max_iterations: 20,

@@ -1,21 +1,13 @@
 //! Random synthetic blocks with 0.5 px noise converge from perturbed starts to a cost consistent
 //! with the noise (χ² test), as free networks with self-calibration, without singular failure.
 
-use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_bundle::problem::{BundleImage, BundlePoint};
 use timesift_bundle::{BundleOptions, BundleProblem, CameraGroup, Observation, Termination, solve};
 use timesift_core::{BrownCamera, Camera, Pose, SeededRng, project_world};
 
 const SIGMA: f64 = 0.5;
-
-fn look_at(center: &Vector3<f64>, target: &Vector3<f64>) -> Pose {
-    let z = (target - center).normalize();
-    let x = Vector3::new(0.0, 0.0, 1.0).cross(&z).normalize();
-    let y = z.cross(&x);
-    let r = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
-    Pose::from_rotation_and_center(UnitQuaternion::from_matrix(&r), center)
-}
 
 /// Eight oblique views on a ring around 150 points in a 20 m box; noisy observations; the start
 /// perturbed (poses, points, focal length and k1).
@@ -35,7 +27,7 @@ fn block(seed: u64) -> (BundleProblem, usize) {
     let poses: Vec<Pose> = (0..8)
         .map(|k| {
             let a = k as f64 * std::f64::consts::TAU / 8.0 + rng.uniform_range(-0.1, 0.1);
-            look_at(
+            Pose::look_at(
                 &Vector3::new(
                     35.0 * a.cos(),
                     35.0 * a.sin(),
@@ -43,6 +35,7 @@ fn block(seed: u64) -> (BundleProblem, usize) {
                 ),
                 &Vector3::zeros(),
             )
+            .unwrap()
         })
         .collect();
     let mut observations = Vec::new();

@@ -73,6 +73,19 @@ impl Pose {
         }
     }
 
+    /// The camera at `center` looking at `target`, with image rows (y, down) as close as possible
+    /// to world −Z: the usual oblique or nadir survey camera. `None` when the view direction is
+    /// vertical or `center == target`, where the roll is undefined by this rule.
+    pub fn look_at(center: &Vector3<f64>, target: &Vector3<f64>) -> Option<Self> {
+        let z = (target - center).try_normalize(1e-12)?;
+        let x = Vector3::new(0.0, 0.0, 1.0).cross(&z).try_normalize(1e-12)?;
+        let y = z.cross(&x);
+        // The rows of `cam_from_world` are the camera axes in world coordinates.
+        let r = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
+        let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+        Some(Pose::from_rotation_and_center(rotation, center))
+    }
+
     /// The rotation matrix `R`.
     pub fn rotation_matrix(&self) -> Matrix3<f64> {
         self.rotation.to_rotation_matrix().into_inner()
@@ -157,6 +170,17 @@ mod tests {
     fn center_is_mapped_to_camera_origin() {
         let p = sample();
         assert_relative_eq!(p.transform_point(&p.center()).norm(), 0.0, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn look_at_points_the_optical_axis_at_the_target() {
+        let c = Vector3::new(30.0, -10.0, 25.0);
+        let p = Pose::look_at(&c, &Vector3::zeros()).unwrap();
+        let target_cam = p.transform_point(&Vector3::zeros());
+        assert_relative_eq!(target_cam.x, 0.0, epsilon = 1e-12);
+        assert_relative_eq!(target_cam.y, 0.0, epsilon = 1e-12);
+        assert!(target_cam.z > 0.0);
+        assert!(Pose::look_at(&c, &c).is_none());
     }
 
     #[test]

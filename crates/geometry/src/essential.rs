@@ -10,7 +10,7 @@ use timesift_core::Pose;
 
 use crate::GeometryError;
 use crate::error::{check_finite, check_pairs};
-use crate::normalize::normalize_points;
+use crate::normalize::{normalize_points, null_matrix};
 use crate::ransac::Estimator;
 use crate::triangulation::triangulate_two_view_midpoint;
 
@@ -326,19 +326,13 @@ pub fn eight_point_essential(
         }
         ata += row * row.transpose() * w;
     }
-    let eig = ata.symmetric_eigen();
-    let mut order: Vec<usize> = (0..9).collect();
-    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    let largest = eig.eigenvalues[order[8]];
-    if !(eig.eigenvalues[order[1]] > 1e-14 * largest) {
-        return Err(GeometryError::Degenerate {
-            solver: "eight-point essential",
-            reason: "the correspondences do not determine E (critical configuration)",
-        });
-    }
-    let e = eig.eigenvectors.column(order[0]);
-    let m =
-        t2.transpose() * Matrix3::new(e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]) * t1;
+    let e = null_matrix(
+        &ata,
+        1e-14,
+        "eight-point essential",
+        "the correspondences do not determine E (critical configuration)",
+    )?;
+    let m = t2.transpose() * e * t1;
     Ok(project_to_essential(&m))
 }
 

@@ -1,12 +1,12 @@
 //! The fundamental matrix: normalised eight-point (least squares, rank 2 enforced) and
 //! seven-point (one or three solutions) solvers, and the RANSAC estimator. Pixels in, `x2ᵀ F x1 = 0`.
 
-use nalgebra::{DMatrix, Matrix3, SMatrix, Vector2, Vector3};
+use nalgebra::{DMatrix, Matrix3, SMatrix, Vector2};
 
 use crate::GeometryError;
 use crate::error::{check_finite, check_pairs};
 use crate::essential::sampson_distance_sq;
-use crate::normalize::normalize_points;
+use crate::normalize::{normalize_points, normalized_pair, null_matrix};
 use crate::poly::cubic_roots;
 use crate::ransac::Estimator;
 
@@ -61,36 +61,21 @@ pub fn eight_point(
     weights: Option<&[f64]>,
 ) -> Result<Matrix3<f64>, GeometryError> {
     let solver = "eight-point fundamental";
-    check_pairs(solver, p1.len(), p2.len(), 8)?;
-    check_finite(solver, p1.iter().chain(p2).flat_map(|v| v.iter()))?;
-    if let Some(w) = weights {
-        check_pairs(solver, p1.len(), w.len(), 8)?;
-    }
-    let (Some((t1, n1)), Some((t2, n2))) = (normalize_points(p1), normalize_points(p2)) else {
-        return Err(GeometryError::Degenerate {
-            solver,
-            reason: "all points coincide",
-        });
-    };
+    let ((t1, n1), (t2, n2)) = normalized_pair(solver, p1, p2, weights, 8)?;
     let mut ata = SMatrix::<f64, 9, 9>::zeros();
     for k in 0..n1.len() {
         let r = SMatrix::<f64, 9, 1>::from_row_slice(&epipolar_row(&n1[k], &n2[k]));
         let w = weights.map_or(1.0, |w| w[k]);
         ata += r * r.transpose() * w;
     }
-    let eig = ata.symmetric_eigen();
-    let mut order: Vec<usize> = (0..9).collect();
-    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    // A determined F needs a one-dimensional null space: the second smallest eigenvalue must
-    // not vanish (planar scenes leave a three-dimensional one).
-    if !(eig.eigenvalues[order[1]] > 1e-16 * eig.eigenvalues[order[8]]) {
-        return Err(GeometryError::Degenerate {
-            solver,
-            reason: "correspondences do not determine F (points on a plane or too few distinct)",
-        });
-    }
-    let v: Vec<f64> = eig.eigenvectors.column(order[0]).iter().copied().collect();
-    let f = enforce_rank2(&to_matrix(&v));
+    // A determined F needs a one-dimensional null space (planar scenes leave a three-dimensional
+    // one).
+    let f = enforce_rank2(&null_matrix(
+        &ata,
+        1e-16,
+        solver,
+        "correspondences do not determine F (points on a plane or too few distinct)",
+    )?);
     Ok(normalized_unit(t2.transpose() * f * t1))
 }
 
@@ -211,9 +196,4 @@ impl Estimator for FundamentalEstimator<'_> {
     fn residual_sq(&self, f: &Matrix3<f64>, i: usize) -> f64 {
         sampson_distance_sq(f, &self.p1[i].push(1.0), &self.p2[i].push(1.0))
     }
-}
-
-/// Homogeneous pixel.
-pub fn homogeneous(p: &Vector2<f64>) -> Vector3<f64> {
-    p.push(1.0)
 }

@@ -5,8 +5,7 @@
 use nalgebra::{Matrix3, SMatrix, Vector2};
 
 use crate::GeometryError;
-use crate::error::{check_finite, check_pairs};
-use crate::normalize::normalize_points;
+use crate::normalize::{normalized_pair, null_matrix};
 use crate::ransac::Estimator;
 
 /// Maps a pixel through a homography; `None` at infinity.
@@ -33,11 +32,7 @@ pub fn homography_dlt(
     weights: Option<&[f64]>,
 ) -> Result<Matrix3<f64>, GeometryError> {
     let solver = "homography DLT";
-    check_pairs(solver, p1.len(), p2.len(), 4)?;
-    check_finite(solver, p1.iter().chain(p2).flat_map(|v| v.iter()))?;
-    if let Some(w) = weights {
-        check_pairs(solver, p1.len(), w.len(), 4)?;
-    }
+    let ((t1, n1), (t2, n2)) = normalized_pair(solver, p1, p2, weights, 4)?;
     if p1.len() == 4 {
         for pts in [p1, p2] {
             for skip in 0..4 {
@@ -51,12 +46,6 @@ pub fn homography_dlt(
             }
         }
     }
-    let (Some((t1, n1)), Some((t2, n2))) = (normalize_points(p1), normalize_points(p2)) else {
-        return Err(GeometryError::Degenerate {
-            solver,
-            reason: "all points coincide",
-        });
-    };
     let mut ata = SMatrix::<f64, 9, 9>::zeros();
     for k in 0..n1.len() {
         let (a, b) = (n1[k], n2[k]);
@@ -85,17 +74,12 @@ pub fn homography_dlt(
         ]);
         ata += (r1 * r1.transpose() + r2 * r2.transpose()) * w;
     }
-    let eig = ata.symmetric_eigen();
-    let mut order: Vec<usize> = (0..9).collect();
-    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    if !(eig.eigenvalues[order[1]] > 1e-16 * eig.eigenvalues[order[8]]) {
-        return Err(GeometryError::Degenerate {
-            solver,
-            reason: "correspondences do not determine a homography",
-        });
-    }
-    let v = eig.eigenvectors.column(order[0]);
-    let hn = Matrix3::new(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]);
+    let hn = null_matrix(
+        &ata,
+        1e-16,
+        solver,
+        "correspondences do not determine a homography",
+    )?;
     let inv_t2 = t2.try_inverse().ok_or(GeometryError::Degenerate {
         solver,
         reason: "normalisation not invertible",

@@ -183,7 +183,7 @@ proptest! {
         let poses: Vec<Pose> = (0..4).map(|k| {
             let dir = Vector3::new((k as f64).cos(), (k as f64).sin(), 1.5).normalize();
             let center = point + dir * 30.0 + Vector3::new(rng.normal(), rng.normal(), rng.normal());
-            look_at(&center, &point)
+            Pose::look_at(&center, &point).unwrap()
         }).collect();
         let views: Vec<(Pose, Vector3<f64>)> = poses.iter().map(|p| {
             let q = p.transform_point(&point);
@@ -274,15 +274,6 @@ fn predicted_rotation_std(
     }
     let cov = (j.transpose() * &j).try_inverse().unwrap() * (sigma * sigma);
     (cov[(0, 0)] + cov[(1, 1)] + cov[(2, 2)]).sqrt()
-}
-
-fn look_at(center: &Vector3<f64>, target: &Vector3<f64>) -> Pose {
-    let z = (target - center).normalize();
-    let x = Vector3::new(0.0, 0.0, 1.0).cross(&z).normalize();
-    let y = z.cross(&x);
-    // Rows of cam_from_world are the camera axes in world coordinates.
-    let r = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
-    Pose::from_rotation_and_center(UnitQuaternion::from_matrix(&r), center)
 }
 
 #[test]

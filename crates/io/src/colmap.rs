@@ -386,17 +386,19 @@ fn lines_of(path: &Path) -> Result<TextLines, IoError> {
     Ok(TextLines { data, comments })
 }
 
-fn parse<T: std::str::FromStr + FiniteCheck>(
+fn parse<T: std::str::FromStr>(
     path: &Path,
     line: usize,
     token: Option<&str>,
     what: &str,
 ) -> Result<T, IoError> {
     let token = token.ok_or_else(|| IoError::line(path, line, format!("missing {what}")))?;
+    // `f64::from_str` accepts `nan` and `inf`; no COLMAP field may hold them.
+    let non_finite = token.parse::<f64>().is_ok_and(|v| !v.is_finite());
     token
         .parse::<T>()
         .ok()
-        .filter(FiniteCheck::is_finite_value)
+        .filter(|_| !non_finite)
         .ok_or_else(|| {
             IoError::line(
                 path,
@@ -404,28 +406,6 @@ fn parse<T: std::str::FromStr + FiniteCheck>(
                 format!("{what}: cannot parse \"{token}\" as a finite number"),
             )
         })
-}
-
-/// Rejects NaN and infinities, which `f64::from_str` accepts.
-trait FiniteCheck {
-    fn is_finite_value(&self) -> bool;
-}
-
-impl FiniteCheck for f64 {
-    fn is_finite_value(&self) -> bool {
-        self.is_finite()
-    }
-}
-
-macro_rules! finite_int {
-    ($($t:ty),*) => {$(impl FiniteCheck for $t { fn is_finite_value(&self) -> bool { true } })*};
-}
-finite_int!(u8, u32, u64, i64, usize);
-
-impl FiniteCheck for String {
-    fn is_finite_value(&self) -> bool {
-        true
-    }
 }
 
 /// Reads a COLMAP text model from `dir`. `points3D.txt` may be absent.

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use exr::prelude::*;
 
-use crate::IoError;
+use crate::{IoError, fsutil};
 
 /// Writes named f32 channels of one `width × height` image to an EXR file (ZIP-compressed,
 /// lossless). Each channel holds `width * height` row-major values.
@@ -36,12 +36,12 @@ pub fn write_f32_channels(
         Encoding::SMALL_LOSSLESS,
         AnyChannels::sort(list),
     );
-    let tmp = path.with_extension("exr.tmp");
-    Image::from_layer(layer)
+    let tmp = fsutil::temporary_sibling(path);
+    let written = Image::from_layer(layer)
         .write()
         .to_file(&tmp)
-        .map_err(|e| IoError::invalid(path, format!("cannot write EXR: {e}")))?;
-    std::fs::rename(&tmp, path).map_err(|e| IoError::io(path, e))
+        .map_err(|e| IoError::invalid(path, format!("cannot write EXR: {e}")));
+    fsutil::commit_temporary(&tmp, path, written)
 }
 
 #[cfg(test)]
