@@ -1,6 +1,18 @@
-//! Change detection: DEM of difference, DEM co-registration (Nuth & Kääb), ICP, M3C2, stable-area
-//! statistics and volumes (issue "Change detection").
+//! Change detection between two epochs: DEM of difference, DEM co-registration (Nuth & Kääb),
+//! stable-area statistics, level of detection and volumes, point-cloud ICP and M3C2, and the maps
+//! that go into a report.
 //!
-//! Invariants (once built): works on any two DEMs or point clouds, including ones made by other
-//! software; knows nothing of images or orientation. Not implemented yet: this crate holds only its
-//! charter.
+//! Invariants: works on any two DEMs or point clouds, including ones made by other software; knows
+//! nothing of images, cameras or orientation, and reads or writes no file (the caller does, through
+//! `timesift-io`). Nodata is NaN everywhere inside the crate and is propagated, never filled in.
+
+pub mod dod;
+mod error;
+pub mod grid;
+pub mod mask;
+pub mod nuth_kaab;
+pub mod stats;
+pub mod terrain;
+pub mod volume;
+
+pub use error::ChangeError;

@@ -1,0 +1,352 @@
+//! DEM co-registration by Nuth & Kääb (2011): on stable terrain, a horizontal shift s of a DEM makes
+//! the elevation difference dh ≈ −tan(α) · (s · d), d the downslope direction of aspect ψ. So
+//! dh / tan α = a·cos(b − ψ) + c is fitted (linear least squares in sin ψ, cos ψ, 1), the shift is
+//! updated and the fit repeated on the re-sampled DEM until the update is below a tolerance. A
+//! vertical bias is removed last (median of dh by default).
+//!
+//! Conventions: the result is the translation (east, north, up) to apply to the DEM being aligned,
+//! i.e. `aligned(p) = to_align(p − (sx, sy)) + sz`; it is reported in metres, in world units and in
+//! reference-grid pixels (columns right, rows down). Slope and aspect come from the reference DEM.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::grid::{Dem, check_same_crs};
+use crate::mask::Mask;
+use crate::stats::{median, nmad};
+use crate::terrain::horn_gradients;
+use crate::{ChangeError, error::positive};
+
+/// Estimator of the vertical shift.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VerticalEstimator {
+    /// Median of dh (robust; the default).
+    Median,
+    /// Mean of dh.
+    Mean,
+}
+
+/// Options of the co-registration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NuthKaabOptions {
+    /// Maximum number of fit iterations.
+    pub max_iterations: usize,
+    /// Stop when a shift update is smaller than this, in pixels.
+    pub tolerance_px: f64,
+    /// Cells flatter than this slope (degrees) are left out of the horizontal fit (dh / tan α
+    /// explodes there).
+    pub min_slope_deg: f64,
+    /// Cells steeper than this slope (degrees) are left out (cliffs, DEM artefacts).
+    pub max_slope_deg: f64,
+    /// Cut-off of the Tukey biweight on dh − median, in NMADs: each cell's weight in the fit is
+    /// (1 − (r / (k·NMAD))²)², zero beyond. Smooth weights (rather than a hard rejection) keep the
+    /// iteration from flipping between two inlier sets.
+    pub outlier_nmads: f64,
+    /// Vertical shift estimator.
+    pub vertical: VerticalEstimator,
+    /// When false, only the vertical shift is estimated.
+    pub horizontal: bool,
+}
+
+impl Default for NuthKaabOptions {
+    fn default() -> Self {
+        NuthKaabOptions {
+            max_iterations: 20,
+            tolerance_px: 1e-3,
+            min_slope_deg: 1.0,
+            max_slope_deg: 70.0,
+            outlier_nmads: 4.685,
+            vertical: VerticalEstimator::Median,
+            horizontal: true,
+        }
+    }
+}
+
+/// One iteration of the fit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NuthKaabIteration {
+    /// Shift after this iteration, east and north, metres.
+    pub shift_m: [f64; 2],
+    /// Size of the update, pixels.
+    pub update_px: f64,
+    /// NMAD of dh over the stable cells before this iteration's update, m.
+    pub nmad: f64,
+    /// Cells used in the fit.
+    pub cells: usize,
+}
+
+/// The estimated translation and how it was found.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NuthKaabResult {
+    /// Translation east, north, metres.
+    pub shift_east_m: f64,
+    /// Translation north, metres.
+    pub shift_north_m: f64,
+    /// Vertical translation (added to the aligned DEM's heights), m.
+    pub shift_z: f64,
+    /// Translation in the grid's world units (x, y): degrees for geographic grids.
+    pub shift_world: [f64; 2],
+    /// Translation in reference pixels: columns (right) and rows (down).
+    pub shift_px: [f64; 2],
+    /// Whether the update fell below the tolerance before the iteration limit.
+    pub converged: bool,
+    /// The iterations.
+    pub iterations: Vec<NuthKaabIteration>,
+    /// Stable cells compared before alignment.
+    pub cells_before: usize,
+    /// NMAD of dh over stable cells before / after (m).
+    pub nmad_before: f64,
+    /// NMAD after applying the translation.
+    pub nmad_after: f64,
+    /// Median of dh before / after.
+    pub median_before: f64,
+    /// Median of dh after applying the translation.
+    pub median_after: f64,
+}
+
+impl NuthKaabResult {
+    /// `to_align` moved by the estimated translation (its grid moves; no resampling).
+    pub fn apply(&self, to_align: &Dem) -> Dem {
+        to_align.translated(self.shift_world[0], self.shift_world[1], self.shift_z)
+    }
+}
+
+/// A stable reference cell usable for the fit.
+struct Sample {
+    x: f64,
+    y: f64,
+    z_ref: f64,
+    tan_slope: f64,
+    sin_aspect: f64,
+    cos_aspect: f64,
+    /// Whether slope is in range for the horizontal fit.
+    in_slope_range: bool,
+}
+
+/// Co-registers `to_align` onto `reference`, using only cells selected by `stable` (every cell when
+/// `None`).
+pub fn nuth_kaab(
+    reference: &Dem,
+    to_align: &Dem,
+    stable: Option<&Mask>,
+    options: &NuthKaabOptions,
+) -> Result<NuthKaabResult, ChangeError> {
+    check_same_crs(reference.grid.crs, to_align.grid.crs)?;
+    positive("tolerance_px", options.tolerance_px)?;
+    positive("outlier_nmads", options.outlier_nmads)?;
+    if !(options.min_slope_deg >= 0.0
+        && options.min_slope_deg < options.max_slope_deg
+        && options.max_slope_deg <= 90.0)
+    {
+        return Err(ChangeError::InvalidParameter {
+            name: "min_slope_deg/max_slope_deg",
+            reason: format!(
+                "{}..{} given; 0 ≤ min < max ≤ 90 was expected",
+                options.min_slope_deg, options.max_slope_deg
+            ),
+        });
+    }
+    let stable = match stable {
+        Some(m) => Some(m.onto(&reference.grid)?),
+        None => None,
+    };
+    if stable.as_ref().is_some_and(|m| m.count() == 0) {
+        return Err(ChangeError::EmptyStable(
+            "the stable mask selects no cell of the reference DEM".into(),
+        ));
+    }
+    let samples = reference_samples(reference, stable.as_ref(), options);
+    if samples.is_empty() {
+        return Err(ChangeError::EmptyStable(
+            "no stable reference cell has a height and a slope".into(),
+        ));
+    }
+    let grid = reference.grid;
+    let (cell_e, cell_n) = grid.metric_cell_size();
+    // World units per metre, east and north (north-up: y grows north).
+    let world_per_m = [
+        grid.transform.pixel_width.abs() / cell_e,
+        grid.transform.pixel_height.abs() / cell_n,
+    ];
+    let mut shift_m = [0.0f64; 2];
+    let mut iterations = Vec::new();
+    let mut converged = !options.horizontal;
+    let mut dh = vec![f64::NAN; samples.len()];
+
+    let (cells_before, median_before, nmad_before) = {
+        differences(&samples, to_align, [0.0; 2], &mut dh);
+        let mut valid: Vec<f64> = dh.iter().copied().filter(|v| v.is_finite()).collect();
+        if valid.len() < 3 {
+            return Err(ChangeError::NoOverlap(format!(
+                "only {} stable cells hold a height in both DEMs",
+                valid.len()
+            )));
+        }
+        let n = valid.len();
+        let m = median(&mut valid);
+        (n, m, nmad(&mut valid))
+    };
+
+    if options.horizontal {
+        for _ in 0..options.max_iterations {
+            let world = [shift_m[0] * world_per_m[0], shift_m[1] * world_per_m[1]];
+            differences(&samples, to_align, world, &mut dh);
+            let (update, cells, spread) = fit_shift(&samples, &dh, options)?;
+            shift_m[0] += update[0];
+            shift_m[1] += update[1];
+            let update_px = (update[0] / cell_e).hypot(update[1] / cell_n);
+            iterations.push(NuthKaabIteration {
+                shift_m,
+                update_px,
+                nmad: spread,
+                cells,
+            });
+            if !(shift_m[0].is_finite() && shift_m[1].is_finite()) {
+                return Err(ChangeError::Degenerate(
+                    "the Nuth & Kääb fit diverged (non-finite shift)".into(),
+                ));
+            }
+            if update_px < options.tolerance_px {
+                converged = true;
+                break;
+            }
+        }
+    }
+    let world = [shift_m[0] * world_per_m[0], shift_m[1] * world_per_m[1]];
+    differences(&samples, to_align, world, &mut dh);
+    let mut valid: Vec<f64> = dh.iter().copied().filter(|v| v.is_finite()).collect();
+    if valid.is_empty() {
+        return Err(ChangeError::NoOverlap(
+            "after the horizontal shift no stable cell holds a height in both DEMs".into(),
+        ));
+    }
+    let bias = match options.vertical {
+        VerticalEstimator::Median => median(&mut valid),
+        VerticalEstimator::Mean => valid.iter().sum::<f64>() / valid.len() as f64,
+    };
+    let shift_z = -bias;
+    let mut after: Vec<f64> = valid.iter().map(|v| v + shift_z).collect();
+    let median_after = median(&mut after);
+    let nmad_after = nmad(&mut after);
+    Ok(NuthKaabResult {
+        shift_east_m: shift_m[0],
+        shift_north_m: shift_m[1],
+        shift_z,
+        shift_world: world,
+        shift_px: [
+            world[0] / grid.transform.pixel_width,
+            world[1] / grid.transform.pixel_height,
+        ],
+        converged,
+        iterations,
+        cells_before,
+        nmad_before,
+        nmad_after,
+        median_before,
+        median_after,
+    })
+}
+
+fn reference_samples(
+    reference: &Dem,
+    stable: Option<&Mask>,
+    options: &NuthKaabOptions,
+) -> Vec<Sample> {
+    let gradients = horn_gradients(reference);
+    let tan_min = options.min_slope_deg.to_radians().tan();
+    let tan_max = options.max_slope_deg.to_radians().tan();
+    let grid = reference.grid;
+    (0..grid.len())
+        .filter_map(|i| {
+            if stable.is_some_and(|m| !m.cells[i]) {
+                return None;
+            }
+            let z = reference.values[i];
+            if z.is_nan() {
+                return None;
+            }
+            let g = gradients[i]?;
+            let tan_slope = g.tan_slope();
+            let (x, y) = grid.cell_center(i % grid.width, i / grid.width);
+            let (sin_aspect, cos_aspect) = if tan_slope > 0.0 {
+                (-g.east / tan_slope, -g.north / tan_slope)
+            } else {
+                (0.0, 0.0)
+            };
+            Some(Sample {
+                x,
+                y,
+                z_ref: z as f64,
+                tan_slope,
+                sin_aspect,
+                cos_aspect,
+                in_slope_range: tan_slope >= tan_min && tan_slope <= tan_max && tan_slope > 0.0,
+            })
+        })
+        .collect()
+}
+
+/// dh = to_align(p − shift) − reference(p) at every sample (NaN where to_align has no height).
+fn differences(samples: &[Sample], to_align: &Dem, shift_world: [f64; 2], dh: &mut [f64]) {
+    dh.par_iter_mut()
+        .zip(samples.par_iter())
+        .for_each(|(d, s)| {
+            *d = to_align.bilinear(s.x - shift_world[0], s.y - shift_world[1]) - s.z_ref;
+        });
+}
+
+/// One Nuth & Kääb fit: returns the shift update (east, north, metres), the cells used and the NMAD
+/// of dh.
+fn fit_shift(
+    samples: &[Sample],
+    dh: &[f64],
+    options: &NuthKaabOptions,
+) -> Result<([f64; 2], usize, f64), ChangeError> {
+    let mut valid: Vec<f64> = samples
+        .iter()
+        .zip(dh)
+        .filter(|(s, d)| s.in_slope_range && d.is_finite())
+        .map(|(_, &d)| d)
+        .collect();
+    if valid.len() < 10 {
+        return Err(ChangeError::NotEnoughData(format!(
+            "{} stable cells with slope between {}° and {}° overlap; at least 10 are needed for \
+             the horizontal fit",
+            valid.len(),
+            options.min_slope_deg,
+            options.max_slope_deg
+        )));
+    }
+    let m = median(&mut valid);
+    let spread = nmad(&mut valid);
+    let limit = options.outlier_nmads * spread.max(1e-12);
+    // Normal equations of y = A sin ψ + B cos ψ + C.
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atb = nalgebra::Vector3::<f64>::zeros();
+    let mut cells = 0usize;
+    for (s, &d) in samples.iter().zip(dh) {
+        if !(s.in_slope_range && d.is_finite() && (d - m).abs() < limit) {
+            continue;
+        }
+        let u = (d - m) / limit;
+        let weight = (1.0 - u * u).powi(2);
+        let row = nalgebra::Vector3::new(s.sin_aspect, s.cos_aspect, 1.0);
+        let y = d / s.tan_slope;
+        ata += weight * row * row.transpose();
+        atb += weight * row * y;
+        cells += 1;
+    }
+    if cells < 10 {
+        return Err(ChangeError::NotEnoughData(format!(
+            "{cells} stable cells remain after outlier rejection; at least 10 are needed"
+        )));
+    }
+    let solution = ata.cholesky().map(|c| c.solve(&atb)).ok_or_else(|| {
+        ChangeError::Degenerate(
+            "the stable terrain has too little variety of aspect to fix a horizontal shift".into(),
+        )
+    })?;
+    // dh/tanα = −(s_e sin ψ + s_n cos ψ) + c.
+    Ok(([-solution[0], -solution[1]], cells, spread))
+}

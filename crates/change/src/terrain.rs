@@ -1,0 +1,98 @@
+//! Slope and aspect of a DEM by Horn's (1981) 3 × 3 finite differences, on metric cell sizes.
+
+use rayon::prelude::*;
+
+use crate::grid::Dem;
+
+/// Surface gradient of one cell, metres per metre, east and north components.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gradient {
+    /// ∂z/∂east.
+    pub east: f64,
+    /// ∂z/∂north.
+    pub north: f64,
+}
+
+impl Gradient {
+    /// tan(slope) = |∇z|.
+    pub fn tan_slope(&self) -> f64 {
+        self.east.hypot(self.north)
+    }
+
+    /// Aspect, radians clockwise from north, of the downslope direction (0 = facing north).
+    pub fn aspect(&self) -> f64 {
+        (-self.east)
+            .atan2(-self.north)
+            .rem_euclid(std::f64::consts::TAU)
+    }
+}
+
+/// Horn gradients for every cell; `None` on the border and where any of the 3 × 3 cells is nodata.
+pub fn horn_gradients(dem: &Dem) -> Vec<Option<Gradient>> {
+    let (w, h) = (dem.grid.width, dem.grid.height);
+    let mut out = vec![None; w * h];
+    if w < 3 || h < 3 {
+        return out;
+    }
+    out.par_chunks_mut(w)
+        .enumerate()
+        .skip(1)
+        .take(h - 2)
+        .for_each(|(row, line)| {
+            let (dx, dy) = dem.grid.metric_cell_size_at_row(row);
+            for col in 1..w - 1 {
+                let z = |dc: isize, dr: isize| {
+                    dem.get((col as isize + dc) as usize, (row as isize + dr) as usize) as f64
+                };
+                let (a, b, c) = (z(-1, -1), z(0, -1), z(1, -1));
+                let (d, f) = (z(-1, 0), z(1, 0));
+                let (g, hh, i) = (z(-1, 1), z(0, 1), z(1, 1));
+                let dz_dcol = ((c + 2.0 * f + i) - (a + 2.0 * d + g)) / (8.0 * dx);
+                // Rows grow southwards: ∂z/∂north = −∂z/∂row.
+                let dz_drow = ((g + 2.0 * hh + i) - (a + 2.0 * b + c)) / (8.0 * dy);
+                let grad = Gradient {
+                    east: dz_dcol,
+                    north: -dz_drow,
+                };
+                if grad.east.is_finite() && grad.north.is_finite() {
+                    line[col] = Some(grad);
+                }
+            }
+        });
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Grid;
+    use timesift_io::coords::Crs;
+    use timesift_io::geotiff::GeoTransform;
+
+    #[test]
+    fn plane_gradient_and_aspect() {
+        let grid = Grid {
+            transform: GeoTransform {
+                origin_x: 500.0,
+                origin_y: 800.0,
+                pixel_width: 2.0,
+                pixel_height: -2.0,
+            },
+            width: 6,
+            height: 5,
+            crs: Crs::Epsg(32633),
+        };
+        // z rises to the north-east: the slope faces south-west (aspect 225°).
+        let values = (0..grid.len())
+            .map(|i| {
+                let (x, y) = grid.cell_center(i % 6, i / 6);
+                (0.3 * x + 0.3 * y) as f32
+            })
+            .collect();
+        let g = horn_gradients(&Dem { grid, values });
+        let inner = g[2 * 6 + 2].expect("interior");
+        assert!((inner.east - 0.3).abs() < 1e-3 && (inner.north - 0.3).abs() < 1e-3);
+        assert!((inner.aspect().to_degrees() - 225.0).abs() < 0.1);
+        assert!(g[0].is_none() && g[5 * 6 - 1].is_none());
+    }
+}
