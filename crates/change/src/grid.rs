@@ -289,6 +289,22 @@ impl Dem {
     }
 }
 
+impl Dem {
+    /// One point per valid cell, at the cell centre: the cloud a DEM stands for.
+    pub fn to_points(&self) -> Vec<[f64; 3]> {
+        let w = self.grid.width;
+        self.values
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| !v.is_nan())
+            .map(|(i, &v)| {
+                let (x, y) = self.grid.cell_center(i % w, i / w);
+                [x, y, v as f64]
+            })
+            .collect()
+    }
+}
+
 /// Fails unless the two CRSs are the same.
 pub fn check_same_crs(a: Crs, b: Crs) -> Result<(), ChangeError> {
     if a == b {

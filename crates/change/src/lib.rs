@@ -6,9 +6,12 @@
 //! nothing of images, cameras or orientation, and reads or writes no file (the caller does, through
 //! `timesift-io`). Nodata is NaN everywhere inside the crate and is propagated, never filled in.
 
+pub mod cloud;
 pub mod dod;
 mod error;
 pub mod grid;
+pub mod icp;
+pub mod m3c2;
 pub mod mask;
 pub mod nuth_kaab;
 pub mod stats;

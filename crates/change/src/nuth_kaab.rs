@@ -1,6 +1,7 @@
 //! DEM co-registration by Nuth & Kääb (2011): on stable terrain, a horizontal shift s of a DEM makes
 //! the elevation difference dh ≈ −tan(α) · (s · d), d the downslope direction of aspect ψ. So
-//! dh / tan α = a·cos(b − ψ) + c is fitted (linear least squares in sin ψ, cos ψ, 1), the shift is
+//! (dh − median dh) / tan α = a·cos(b − ψ) + c is fitted (Tukey-weighted linear least squares in
+//! sin ψ, cos ψ, 1), the shift is
 //! updated and the fit repeated on the re-sampled DEM until the update is below a tolerance. A
 //! vertical bias is removed last (median of dh by default).
 //!
@@ -320,7 +321,8 @@ fn fit_shift(
     }
     let m = median(&mut valid);
     let spread = nmad(&mut valid);
-    let limit = options.outlier_nmads * spread.max(1e-12);
+    // A floor of 1 µm keeps exact data (NMAD 0) from rejecting everything.
+    let limit = options.outlier_nmads * spread.max(1e-6);
     // Normal equations of y = A sin ψ + B cos ψ + C.
     let mut ata = nalgebra::Matrix3::<f64>::zeros();
     let mut atb = nalgebra::Vector3::<f64>::zeros();
@@ -332,7 +334,9 @@ fn fit_shift(
         let u = (d - m) / limit;
         let weight = (1.0 - u * u).powi(2);
         let row = nalgebra::Vector3::new(s.sin_aspect, s.cos_aspect, 1.0);
-        let y = d / s.tan_slope;
+        // The vertical bias is removed first (as xdem does): left in, bias / tan α would correlate
+        // with aspect wherever slopes differ by aspect and show up as a spurious shift.
+        let y = (d - m) / s.tan_slope;
         ata += weight * row * row.transpose();
         atb += weight * row * y;
         cells += 1;
