@@ -4,10 +4,12 @@
 //!   (`../shared/data`) is present.
 //! - `bench geometry`: timesift's RANSAC against OpenCV's on the same correspondences.
 //! - `bench bundle`: the BAL problems through timesift's bundle adjuster.
+//! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
 //!
 //! The `synth` and `bench-methods` tasks of DESIGN.md arrive with their issues.
 
 mod bench_bundle;
+mod bench_change;
 mod bench_geometry;
 
 use std::path::PathBuf;
@@ -50,6 +52,15 @@ enum BenchStage {
         #[arg(long)]
         json: bool,
     },
+    /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
+    Change {
+        /// Core-point spacing for M3C2, metres.
+        #[arg(long, default_value_t = 1.0)]
+        spacing: f64,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Folders of ../shared/data the tests and benches read, with one file each must hold.
@@ -73,6 +84,9 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Bundle { problem, json },
         } => bench_bundle::run(problem, json)?,
+        Task::Bench {
+            stage: BenchStage::Change { spacing, json },
+        } => bench_change::run(spacing, json)?,
         Task::Data => {
             let root = shared_data();
             let mut missing = Vec::new();

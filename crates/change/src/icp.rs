@@ -150,10 +150,15 @@ pub fn icp(
     let up = Vector3::z();
     let normals: Vec<Option<Vector3<f64>>> = target
         .par_iter()
-        .map_init(Vec::new, |buf, p| {
-            index.nearest_k(p, options.normal_neighbours, buf);
-            fit_plane(target, buf, p, &up).map(|f| f.normal)
-        })
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(indices, positions), p| {
+                index.nearest_k(p, options.normal_neighbours, indices);
+                positions.clear();
+                positions.extend(indices.iter().map(|&i| target[i as usize]));
+                fit_plane(positions, p, &up).map(|f| f.normal)
+            },
+        )
         .collect();
     let centred = |p: &[f64; 3]| Vector3::from(*p) - centre;
     let source_c: Vec<Vector3<f64>> = source.iter().map(centred).collect();
@@ -244,9 +249,7 @@ pub fn icp(
     }
     // Back to the clouds' frame: y + c = s R (x − c) + t + c.
     let world_translation = translation + centre - scale * (rotation * centre);
-    let angle = Rotation3::from_matrix_unchecked(rotation)
-        .angle()
-        .to_degrees();
+    let angle = rotation_angle(&rotation).to_degrees();
     Ok(IcpResult {
         rotation: [0, 1, 2].map(|r| [0, 1, 2].map(|c| rotation[(r, c)])),
         translation: [
@@ -280,4 +283,18 @@ fn solve(ata: &SMatrix<f64, 7, 7>, atb: &SVector<f64, 7>, n: usize) -> Option<SV
     let mut out = SVector::<f64, 7>::zeros();
     out.rows_mut(0, n).copy_from(&x);
     Some(out)
+}
+
+/// Angle of a rotation matrix, stable near zero (atan2 of sin and cos rather than acos of the
+/// trace, which returns NaN when rounding pushes the trace past 3).
+pub fn rotation_angle(r: &Matrix3<f64>) -> f64 {
+    let sin = 0.5
+        * Vector3::new(
+            r[(2, 1)] - r[(1, 2)],
+            r[(0, 2)] - r[(2, 0)],
+            r[(1, 0)] - r[(0, 1)],
+        )
+        .norm();
+    let cos = 0.5 * (r.trace() - 1.0);
+    sin.atan2(cos)
 }

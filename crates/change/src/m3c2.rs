@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::ChangeError;
-use crate::cloud::{PointIndex, fit_plane};
+use crate::cloud::{PointIndex, distance_squared, fit_plane};
 use crate::error::positive;
 
 /// How the positions inside a cylinder are aggregated.
@@ -139,6 +139,12 @@ pub fn m3c2(
 }
 
 /// M3C2 with prebuilt indices (to reuse them over several runs).
+///
+/// Two search strategies give the same result (membership is decided on f64 positions by the same
+/// tests): when core points are dense (several per tile of one normal radius) and cylinders short
+/// (max depth ≤ 4 cylinder radii), each tile gathers its candidates with one k-d tree query per
+/// cloud and its core points scan that short, contiguous list; otherwise each core point queries
+/// the trees itself (normal ball, then the cylinder as a stack of slabs).
 pub fn m3c2_indexed(
     epoch1: &PointIndex,
     epoch2: &PointIndex,
@@ -155,24 +161,251 @@ pub fn m3c2_indexed(
         )));
     }
     let orientation = Vector3::from(params.orientation).normalize();
-    Ok(core_points
-        .par_iter()
-        .map_init(Scratch::default, |scratch, core| {
-            one_core_point(epoch1, epoch2, core, params, &orientation, scratch)
+    let tile = params.normal_radii.iter().copied().fold(0.0, f64::max);
+    let tiles = tiles_of(core_points, tile);
+    let dense = core_points.len() as f64 >= 2.0 * tiles.len() as f64;
+    let short = params.max_depth <= 4.0 * params.cylinder_radius;
+    let mut out = vec![M3c2Point::UNDEFINED; core_points.len()];
+    if dense && short {
+        let results: Vec<(usize, M3c2Point)> = tiles
+            .par_iter()
+            .map_init(Scratch::default, |scratch, members| {
+                gathered_tile(
+                    epoch1,
+                    epoch2,
+                    core_points,
+                    members,
+                    params,
+                    &orientation,
+                    scratch,
+                )
+            })
+            .flatten_iter()
+            .collect();
+        for (i, r) in results {
+            out[i] = r;
+        }
+    } else {
+        out.par_iter_mut()
+            .zip(core_points.par_iter())
+            .for_each_init(Scratch::default, |scratch, (o, core)| {
+                let mut search = TreeSearch { epoch1, epoch2 };
+                *o = one_core_point(&mut search, core, params, &orientation, scratch);
+            });
+    }
+    Ok(out)
+}
+
+/// Core-point indices grouped by cubic tile of side `size`, in a deterministic order.
+fn tiles_of(core_points: &[[f64; 3]], size: f64) -> Vec<Vec<u32>> {
+    let Some(origin) = core_points.first() else {
+        return Vec::new();
+    };
+    let mut keyed: Vec<([i64; 3], u32)> = core_points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            (
+                [0, 1, 2].map(|k| ((p[k] - origin[k]) / size).floor() as i64),
+                i as u32,
+            )
         })
-        .collect())
+        .collect();
+    keyed.sort_unstable();
+    let mut tiles: Vec<Vec<u32>> = Vec::new();
+    let mut last = None;
+    for (key, i) in keyed {
+        if last != Some(key) {
+            tiles.push(Vec::new());
+            last = Some(key);
+        }
+        if let Some(t) = tiles.last_mut() {
+            t.push(i);
+        }
+    }
+    tiles
 }
 
 /// Per-thread buffers, reused across core points.
 #[derive(Default)]
 struct Scratch {
-    neighbours: Vec<u32>,
+    neighbourhood: Vec<[f64; 3]>,
     projections: [Vec<f64>; 2],
+    candidates: [Vec<[f64; 3]>; 2],
+}
+
+/// Where the points around a core point come from.
+trait Search {
+    /// Positions of the first cloud within `radius` of `centre` (into `out`, cleared first).
+    fn ball1(&mut self, centre: &[f64; 3], radius: f64, out: &mut Vec<[f64; 3]>);
+    /// Pushes into `out` (cleared first) the projection t on the axis of every point of cloud `k`
+    /// (0 or 1) inside the cylinder (see [`in_cylinder`]).
+    fn cylinder(
+        &mut self,
+        k: usize,
+        core: &[f64; 3],
+        normal: &Vector3<f64>,
+        params: &M3c2Params,
+        out: &mut Vec<f64>,
+    );
+}
+
+/// Each core point queries the k-d trees.
+struct TreeSearch<'i, 'a> {
+    epoch1: &'i PointIndex<'a>,
+    epoch2: &'i PointIndex<'a>,
+}
+
+impl Search for TreeSearch<'_, '_> {
+    fn ball1(&mut self, centre: &[f64; 3], radius: f64, out: &mut Vec<[f64; 3]>) {
+        out.clear();
+        self.epoch1
+            .visit_within(centre, radius, |_, p| out.push(*p));
+    }
+
+    fn cylinder(
+        &mut self,
+        k: usize,
+        core: &[f64; 3],
+        normal: &Vector3<f64>,
+        params: &M3c2Params,
+        out: &mut Vec<f64>,
+    ) {
+        out.clear();
+        let index = if k == 0 { self.epoch1 } else { self.epoch2 };
+        let (r, depth) = (params.cylinder_radius, params.max_depth);
+        let slabs = (depth / r).ceil().max(1.0) as usize;
+        let half = depth / slabs as f64;
+        // A hair wider than the slab's bounding ball: the caller's slab assignment is by floor().
+        let ball = (r * r + half * half).sqrt() * (1.0 + 1e-9);
+        for s in 0..slabs {
+            let offset = -depth + (2 * s + 1) as f64 * half;
+            let centre = [0, 1, 2].map(|a| core[a] + offset * normal[a]);
+            index.visit_within(&centre, ball, |_, p| {
+                if let Some(t) = in_cylinder(p, core, normal, r * r, depth) {
+                    // Each point belongs to one slab, so a point seen by two balls counts once.
+                    let slab =
+                        (((t + depth) / (2.0 * half)).floor().max(0.0) as usize).min(slabs - 1);
+                    if slab == s {
+                        out.push(t);
+                    }
+                }
+            });
+        }
+    }
+}
+
+/// Core points of one tile scan candidate lists gathered once for the tile.
+struct GatheredSearch<'c> {
+    candidates: &'c [Vec<[f64; 3]>; 2],
+}
+
+impl Search for GatheredSearch<'_> {
+    fn ball1(&mut self, centre: &[f64; 3], radius: f64, out: &mut Vec<[f64; 3]>) {
+        out.clear();
+        let r2 = radius * radius;
+        out.extend(
+            self.candidates[0]
+                .iter()
+                .filter(|p| distance_squared(p, centre) <= r2),
+        );
+    }
+
+    fn cylinder(
+        &mut self,
+        k: usize,
+        core: &[f64; 3],
+        normal: &Vector3<f64>,
+        params: &M3c2Params,
+        out: &mut Vec<f64>,
+    ) {
+        out.clear();
+        let r2 = params.cylinder_radius * params.cylinder_radius;
+        out.extend(
+            self.candidates[k]
+                .iter()
+                .filter_map(|p| in_cylinder(p, core, normal, r2, params.max_depth)),
+        );
+    }
+}
+
+fn gathered_tile(
+    epoch1: &PointIndex,
+    epoch2: &PointIndex,
+    core_points: &[[f64; 3]],
+    members: &[u32],
+    params: &M3c2Params,
+    orientation: &Vector3<f64>,
+    scratch: &mut Scratch,
+) -> Vec<(usize, M3c2Point)> {
+    // Bounding ball of the tile's core points.
+    let pts = || members.iter().map(|&i| &core_points[i as usize]);
+    let (lo, hi) = pts().fold(
+        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(lo, hi), p| {
+            (
+                [0, 1, 2].map(|k| lo[k].min(p[k])),
+                [0, 1, 2].map(|k| hi[k].max(p[k])),
+            )
+        },
+    );
+    let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+    let spread = pts()
+        .map(|p| distance_squared(p, &centre).sqrt())
+        .fold(0.0, f64::max);
+    let cylinder_reach = params.cylinder_radius.hypot(params.max_depth) * (1.0 + 1e-9);
+    let normal_reach = params.normal_radii.iter().copied().fold(0.0, f64::max);
+    let mut candidates = std::mem::take(&mut scratch.candidates);
+    for (k, (index, reach)) in [
+        (epoch1, cylinder_reach.max(normal_reach)),
+        (epoch2, cylinder_reach),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        candidates[k].clear();
+        let list = &mut candidates[k];
+        index.visit_within(&centre, reach + spread, |_, p| list.push(*p));
+    }
+    let mut search = GatheredSearch {
+        candidates: &candidates,
+    };
+    let results = members
+        .iter()
+        .map(|&i| {
+            let core = &core_points[i as usize];
+            (
+                i as usize,
+                one_core_point(&mut search, core, params, orientation, scratch),
+            )
+        })
+        .collect();
+    scratch.candidates = candidates;
+    results
+}
+
+/// The projection t = (p − core)·n when p is in the cylinder: |t| ≤ depth and distance to the axis
+/// ≤ r (r2 = r²). The one membership rule of both search strategies.
+#[inline]
+fn in_cylinder(
+    p: &[f64; 3],
+    core: &[f64; 3],
+    normal: &Vector3<f64>,
+    r2: f64,
+    depth: f64,
+) -> Option<f64> {
+    let d = [p[0] - core[0], p[1] - core[1], p[2] - core[2]];
+    let t = d[0] * normal.x + d[1] * normal.y + d[2] * normal.z;
+    let e = [
+        d[0] - t * normal.x,
+        d[1] - t * normal.y,
+        d[2] - t * normal.z,
+    ];
+    (t.abs() <= depth && e[0] * e[0] + e[1] * e[1] + e[2] * e[2] <= r2).then_some(t)
 }
 
 fn one_core_point(
-    epoch1: &PointIndex,
-    epoch2: &PointIndex,
+    search: &mut dyn Search,
     core: &[f64; 3],
     params: &M3c2Params,
     orientation: &Vector3<f64>,
@@ -181,8 +414,8 @@ fn one_core_point(
     // Normal: most planar scale of the first cloud.
     let mut best: Option<(f64, Vector3<f64>, f64)> = None;
     for &radius in &params.normal_radii {
-        epoch1.within(core, radius, &mut scratch.neighbours);
-        if let Some(fit) = fit_plane(epoch1.points(), &scratch.neighbours, core, orientation) {
+        search.ball1(core, radius, &mut scratch.neighbourhood);
+        if let Some(fit) = fit_plane(&scratch.neighbourhood, core, orientation) {
             let planarity = fit.planarity();
             if best.is_none_or(|(p, _, _)| planarity > p) {
                 best = Some((planarity, fit.normal, radius));
@@ -198,16 +431,9 @@ fn one_core_point(
         ..M3c2Point::UNDEFINED
     };
     let mut centre = [f64::NAN; 2];
-    for (k, index) in [epoch1, epoch2].into_iter().enumerate() {
+    for k in 0..2 {
         let projections = &mut scratch.projections[k];
-        cylinder_projections(
-            index,
-            core,
-            &normal,
-            params,
-            &mut scratch.neighbours,
-            projections,
-        );
+        search.cylinder(k, core, &normal, params, projections);
         let n = projections.len();
         result.count[k] = n as u32;
         if n == 0 {
@@ -225,8 +451,7 @@ fn one_core_point(
             }
             Aggregation::Median => {
                 projections.sort_unstable_by(f64::total_cmp);
-                let (median, iqr) = median_and_iqr(projections);
-                (median, iqr)
+                median_and_iqr(projections)
             }
         };
         centre[k] = c;
@@ -237,48 +462,6 @@ fn one_core_point(
     let [s1, s2] = result.spread;
     result.lod95 = 1.96 * ((s1 * s1 / n1 + s2 * s2 / n2).sqrt() + params.registration_error);
     result
-}
-
-/// Projections t = (p − core)·n of the points of `index` in the cylinder (axis distance ≤ r,
-/// |t| ≤ max_depth).
-fn cylinder_projections(
-    index: &PointIndex,
-    core: &[f64; 3],
-    normal: &Vector3<f64>,
-    params: &M3c2Params,
-    neighbours: &mut Vec<u32>,
-    out: &mut Vec<f64>,
-) {
-    out.clear();
-    let r = params.cylinder_radius;
-    let depth = params.max_depth;
-    let slabs = (depth / r).ceil().max(1.0) as usize;
-    let half = depth / slabs as f64;
-    let ball = (r * r + half * half).sqrt();
-    let points = index.points();
-    for s in 0..slabs {
-        let offset = -depth + (2 * s + 1) as f64 * half;
-        let centre = [
-            core[0] + offset * normal.x,
-            core[1] + offset * normal.y,
-            core[2] + offset * normal.z,
-        ];
-        let (lo, hi) = (offset - half, offset + half);
-        let last = s + 1 == slabs;
-        index.within(&centre, ball, neighbours);
-        for &i in neighbours.iter() {
-            let p = points[i as usize];
-            let d = Vector3::new(p[0] - core[0], p[1] - core[1], p[2] - core[2]);
-            let t = d.dot(normal);
-            // Half-open slabs so a point on a boundary is counted once; the last one is closed.
-            if t < lo || t > hi || (t == hi && !last) {
-                continue;
-            }
-            if (d - t * normal).norm_squared() <= r * r {
-                out.push(t);
-            }
-        }
-    }
 }
 
 /// Median and inter-quartile range of sorted values (py4dgeo's order-statistic rules).

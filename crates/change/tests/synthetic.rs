@@ -468,3 +468,45 @@ fn icp_with_scale_and_its_errors() {
     .unwrap_err();
     assert!(e.to_string().contains("overlap"), "{e}");
 }
+
+#[test]
+fn m3c2_search_strategies_agree() {
+    // Dense core points take the tile-gathering path; one core point at a time takes the per-point
+    // slab path. Same membership rules, so the same numbers.
+    let (mut a, mut b) = surface_points(80, 0.2);
+    let mut rng = SeededRng::new(9);
+    for p in a.iter_mut().chain(b.iter_mut()) {
+        p[0] += 0.03 * rng.normal();
+        p[2] += 0.05 * rng.normal();
+    }
+    let core = subsample_core_points(&a, 0.4).expect("core");
+    for aggregation in [Aggregation::Mean, Aggregation::Median] {
+        let params = M3c2Params {
+            normal_radii: vec![0.6, 1.2],
+            cylinder_radius: 0.3,
+            max_depth: 1.0,
+            aggregation,
+            ..M3c2Params::default()
+        };
+        let together = m3c2(&a, &b, &core, &params).expect("m3c2");
+        let mut compared = 0;
+        for (i, c) in core.iter().enumerate().step_by(7) {
+            let alone = m3c2(&a, &b, std::slice::from_ref(c), &params).expect("m3c2")[0];
+            let t = together[i];
+            assert_eq!(t.count, alone.count, "{i}");
+            assert_eq!(t.distance.is_nan(), alone.distance.is_nan());
+            if t.distance.is_finite() {
+                assert!(
+                    (t.distance - alone.distance).abs() < 1e-12,
+                    "{t:?} {alone:?}"
+                );
+                assert!(
+                    (t.lod95 - alone.lod95).abs() < 1e-12
+                        || (t.lod95.is_nan() && alone.lod95.is_nan())
+                );
+                compared += 1;
+            }
+        }
+        assert!(compared > 100, "{compared}");
+    }
+}

@@ -162,5 +162,11 @@ fn robust(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, minimal_solvers, robust);
+// No plots: criterion's plotters charts need system fonts, which the workspace's plotters build
+// (ab_glyph, no font discovery) does not provide.
+criterion_group! {
+    name = benches;
+    config = Criterion::default().without_plots();
+    targets = minimal_solvers, robust
+}
 criterion_main!(benches);
