@@ -19,7 +19,8 @@ use anyhow::{Context, bail};
 use timesift_change::dod::dem_of_difference;
 use timesift_change::grid::Dem;
 use timesift_change::m3c2::{M3c2Params, m3c2, subsample_core_points};
-use timesift_change::nuth_kaab::{NuthKaabOptions, nuth_kaab};
+use timesift_change::mask::Mask;
+use timesift_change::nuth_kaab::{NuthKaabOptions, NuthKaabResult, nuth_kaab};
 use timesift_change::stats::statistics;
 use timesift_io::geotiff::read_f32;
 
@@ -72,7 +73,7 @@ pub fn run(m3c2_spacing: f64, json: bool) -> anyhow::Result<()> {
     std::fs::write(&xdem_script, XDEM_SCRIPT)?;
     std::fs::write(&py4dgeo_script, PY4DGEO_SCRIPT)?;
     let mut report = serde_json::Map::new();
-    let nk = nuth_kaab_pairs(&xdem_script, json)?;
+    let nk = nuth_kaab_pairs(&dir, &xdem_script, json)?;
     report.insert("nuth_kaab".into(), nk);
     let m = m3c2_against_py4dgeo(&dir, &py4dgeo_script, m3c2_spacing, json)?;
     report.insert("m3c2".into(), m);
@@ -83,144 +84,191 @@ pub fn run(m3c2_spacing: f64, json: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn nuth_kaab_pairs(script: &Path, json: bool) -> anyhow::Result<serde_json::Value> {
+/// The landward side of the `mar` beach (road, dune scrub, grass), west of the vegetation line
+/// traced on the 2018-06-01 orthophoto: the beach, surf and sea, which change between surveys, are
+/// left out (EPSG:32754).
+const STABLE_WKT: &str = "POLYGON ((731598.99 5705559.76, 731578.97 5705509.72, 731553.94 5705459.69, \
+    731521.40 5705409.65, 731501.37 5705359.61, 731488.85 5705309.57, 731478.84 5705259.53, \
+    731468.83 5705209.49, 731461.32 5705142.44, 731413.76 5705142.44, 731413.76 5705559.76, \
+    731598.99 5705559.76))";
+
+/// A translation injected into the later DSM (pixels east, pixels north) so that the fits have a
+/// real shift to find; (0, 0) compares them on the data as it is.
+const SCENARIOS: [(&str, [f64; 2]); 2] = [
+    ("as surveyed", [0.0, 0.0]),
+    ("later DSM moved by (+1.5, −2.5) px", [1.5, -2.5]),
+];
+
+fn nuth_kaab_pairs(dir: &Path, script: &Path, json: bool) -> anyhow::Result<serde_json::Value> {
+    let road = timesift_io::wkt::parse_polygons(STABLE_WKT).map_err(anyhow::Error::msg)?;
     let mut rows = Vec::new();
-    if !json {
-        println!(
-            "Nuth & Kääb and DoD statistics, sandpyper `mar` consecutive dates (TBA = later date, on the earlier date's grid)"
-        );
-        println!(
-            "shift = translation applied to the later DSM, in pixels (+x east, +y north); NMAD in m"
-        );
-        println!(
-            "{:<19} | {:>7} {:>8} {:>7} | {:>7} {:>8} {:>7} | {:>8} {:>8} {:>7} {:>7} {:>6} | {:>8} {:>8} {:>7} {:>7} {:>6} | {:>7} {:>5}",
-            "pair",
-            "n",
-            "median",
-            "nmad",
-            "n xdem",
-            "median",
-            "nmad",
-            "x px",
-            "y px",
-            "nmad0",
-            "nmad1",
-            "s",
-            "xdem x",
-            "xdem y",
-            "nmad0",
-            "nmad1",
-            "s",
-            "|Δ| px",
-            "agree"
-        );
-    }
-    for pair in DATES.windows(2) {
-        let (a, b) = (pair[0], pair[1]);
-        let reference = load(a)?;
-        let later = load(b)?;
-        let dod = dem_of_difference(&reference, &later)?;
-        let ours_stats = statistics(dod.values.iter().map(|&v| v as f64)).context("empty DoD")?;
-        let t0 = Instant::now();
-        let ours = nuth_kaab(&reference, &later, None, &NuthKaabOptions::default());
-        let ours_time = t0.elapsed().as_secs_f64();
-        let peer = python(
-            script,
-            &[
-                dsm_path(a).display().to_string(),
-                dsm_path(b).display().to_string(),
-                "--nodata".into(),
-                SANDPYPER_NODATA.to_string(),
-            ],
-        );
-        let (ox, oy, on0, on1) = match &ours {
-            Ok(r) => (
-                r.shift_east_m / reference.grid.transform.pixel_width,
-                r.shift_north_m / reference.grid.transform.pixel_height.abs(),
-                r.nmad_before,
-                r.nmad_after,
-            ),
-            Err(_) => (f64::NAN, f64::NAN, f64::NAN, f64::NAN),
-        };
-        let get = |v: &serde_json::Value, path: &[&str]| {
-            path.iter()
-                .try_fold(v, |v, k| v.get(k))
-                .and_then(|v| v.as_f64())
-                .unwrap_or(f64::NAN)
-        };
-        let (px, py, pn0, pn1, pn, pmed, pnmad, ptime) = match &peer {
-            Ok(v) => (
-                get(v, &["shift_x_px"]),
-                get(v, &["shift_y_px"]),
-                get(v, &["nmad_before"]),
-                get(v, &["nmad_after"]),
-                get(v, &["stats_before", "count"]),
-                get(v, &["stats_before", "median"]),
-                get(v, &["stats_before", "nmad"]),
-                get(v, &["fit_seconds"]),
-            ),
-            Err(_) => (
-                f64::NAN,
-                f64::NAN,
-                f64::NAN,
-                f64::NAN,
-                f64::NAN,
-                f64::NAN,
-                f64::NAN,
-                f64::NAN,
-            ),
-        };
-        let xdem_improves = pn1 < pn0;
-        let diff = (ox - px).hypot(oy - py);
-        let agree = if !xdem_improves {
-            "n/a".to_string()
-        } else if diff <= 0.1 {
-            "yes".to_string()
-        } else {
-            "NO".to_string()
-        };
+    for (scenario, injected_px) in SCENARIOS {
         if !json {
             println!(
-                "{:<19} | {:>7} {:>8.4} {:>7.4} | {:>7} {:>8.4} {:>7.4} | {:>8.3} {:>8.3} {:>7.4} {:>7.4} {:>6.2} | {:>8.3} {:>8.3} {:>7.4} {:>7.4} {:>6.2} | {:>7.3} {:>5}",
-                format!("{a}→{b}"),
-                ours_stats.count,
-                ours_stats.median,
-                ours_stats.nmad,
-                pn,
-                pmed,
-                pnmad,
-                ox,
-                oy,
-                on0,
-                on1,
-                ours_time,
-                px,
-                py,
-                pn0,
-                pn1,
-                ptime,
-                diff,
-                agree
+                "Nuth & Kääb and stable-area DoD statistics (landward polygon), sandpyper `mar` consecutive dates, {scenario}"
             );
-            if let Err(e) = &ours {
-                println!("    timesift: {e}");
-            }
-            if let Err(e) = &peer {
-                println!("    xdem unavailable (pip install xdem): {e}");
-            }
+            println!(
+                "shift = translation applied to the later DSM, pixels (+x east, +y north); DoD = later − earlier on the earlier grid; m"
+            );
+            println!(
+                "timesift: default options (x, y) and xdem-like options (xl: central differences, 72 aspect bins); nmad0/nmad1 = stable NMAD before/after"
+            );
+            println!(
+                "{:<19} | {:>6} {:>8} {:>7} | {:>6} {:>8} {:>7} | {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>5} | {:>7} {:>7} {:>7} {:>7} {:>5} | {:>6} {:>5}",
+                "pair",
+                "n",
+                "median",
+                "nmad",
+                "n xdem",
+                "median",
+                "nmad",
+                "x",
+                "y",
+                "nmad1",
+                "x (xl)",
+                "y (xl)",
+                "nmad1",
+                "s",
+                "xdem x",
+                "xdem y",
+                "nmad0",
+                "nmad1",
+                "s",
+                "|Δ| px",
+                "agree"
+            );
         }
-        rows.push(serde_json::json!({
-            "pair": [a, b],
-            "timesift": { "dod": ours_stats, "result": ours.as_ref().ok(), "seconds": ours_time },
-            "xdem": peer.as_ref().ok(),
-            "shift_difference_px": diff,
-            "xdem_improves_nmad": xdem_improves,
-        }));
-    }
-    if !json {
-        println!(
-            "agree: shifts within 0.1 px, judged where xdem's fit lowers the NMAD (n/a otherwise)\n"
-        );
+        for pair in DATES.windows(2) {
+            let (a, b) = (pair[0], pair[1]);
+            let reference = load(a)?;
+            let original = load(b)?;
+            let t = original.grid.transform;
+            let later = original.translated(
+                injected_px[0] * t.pixel_width,
+                injected_px[1] * t.pixel_height.abs(),
+                0.0,
+            );
+            let later_path = dir.join(format!("later_{b}.tif"));
+            timesift_io::geotiff::write_f32(&later_path, &later.to_raster())?;
+            let stable = Mask::from_polygons(reference.grid, &road);
+            let mask_path = dir.join(format!("stable_{a}.tif"));
+            let mask_dem = Dem {
+                grid: reference.grid,
+                values: stable.cells.iter().map(|&c| c as u8 as f32).collect(),
+            };
+            timesift_io::geotiff::write_f32(&mask_path, &mask_dem.to_raster())?;
+
+            let dod = dem_of_difference(&reference, &later)?;
+            let dod_stable = stable.onto(&dod.grid)?;
+            let ours_stats = statistics(
+                dod.values
+                    .iter()
+                    .zip(&dod_stable.cells)
+                    .filter(|(_, s)| **s)
+                    .map(|(&v, _)| v as f64),
+            )
+            .context("empty stable DoD")?;
+            let default = nuth_kaab(
+                &reference,
+                &later,
+                Some(&stable),
+                &NuthKaabOptions::default(),
+            );
+            let t0 = Instant::now();
+            let ours = nuth_kaab(
+                &reference,
+                &later,
+                Some(&stable),
+                &NuthKaabOptions::xdem_like(),
+            );
+            let ours_time = t0.elapsed().as_secs_f64();
+            let peer = python(
+                script,
+                &[
+                    dsm_path(a).display().to_string(),
+                    later_path.display().to_string(),
+                    "--nodata".into(),
+                    SANDPYPER_NODATA.to_string(),
+                    "--stable-mask".into(),
+                    mask_path.display().to_string(),
+                ],
+            );
+            let rt = reference.grid.transform;
+            let in_px = |r: &Result<NuthKaabResult, _>| match r {
+                Ok(r) => (
+                    r.shift_east_m / rt.pixel_width,
+                    r.shift_north_m / rt.pixel_height.abs(),
+                    r.nmad_after,
+                ),
+                Err(_) => (f64::NAN, f64::NAN, f64::NAN),
+            };
+            let (ox, oy, on1) = in_px(&ours);
+            let (dx, dy, dn1) = in_px(&default);
+            let get = |path: &[&str]| {
+                peer.as_ref()
+                    .ok()
+                    .and_then(|v| path.iter().try_fold(v, |v, k| v.get(k)))
+                    .and_then(|v| v.as_f64())
+                    .unwrap_or(f64::NAN)
+            };
+            let (px, py) = (get(&["shift_x_px"]), get(&["shift_y_px"]));
+            let (pn0, pn1) = (get(&["nmad_before"]), get(&["nmad_after"]));
+            let xdem_improves = pn1 < pn0;
+            let diff = (ox - px).hypot(oy - py);
+            let agree = match (xdem_improves, diff <= 0.1) {
+                (false, _) => "n/a",
+                (true, true) => "yes",
+                (true, false) => "NO",
+            };
+            if !json {
+                println!(
+                    "{:<19} | {:>6} {:>8.4} {:>7.4} | {:>6} {:>8.4} {:>7.4} | {:>7.3} {:>7.3} {:>7.4} | {:>7.3} {:>7.3} {:>7.4} {:>5.2} | {:>7.3} {:>7.3} {:>7.4} {:>7.4} {:>5.2} | {:>6.3} {:>5}",
+                    format!("{a}→{b}"),
+                    ours_stats.count,
+                    ours_stats.median,
+                    ours_stats.nmad,
+                    get(&["stats_before", "count"]),
+                    get(&["stats_before", "median"]),
+                    get(&["stats_before", "nmad"]),
+                    dx,
+                    dy,
+                    dn1,
+                    ox,
+                    oy,
+                    on1,
+                    ours_time,
+                    px,
+                    py,
+                    pn0,
+                    pn1,
+                    get(&["fit_seconds"]),
+                    diff,
+                    agree
+                );
+                for r in [&default, &ours] {
+                    if let Err(e) = r {
+                        println!("    timesift: {e}");
+                    }
+                }
+                if let Err(e) = &peer {
+                    println!("    xdem unavailable (pip install xdem): {e}");
+                }
+            }
+            rows.push(serde_json::json!({
+                "scenario": scenario,
+                "injected_shift_px": injected_px,
+                "pair": [a, b],
+                "timesift": { "stable_dod": ours_stats, "default": default.as_ref().ok(), "xdem_like": ours.as_ref().ok(), "xdem_like_seconds": ours_time },
+                "xdem": peer.as_ref().ok(),
+                "shift_difference_px": diff,
+                "xdem_improves_nmad": xdem_improves,
+            }));
+        }
+        if !json {
+            println!(
+                "agree: timesift (xdem-like options) and xdem shifts within 0.1 px, judged where xdem's fit lowers the stable-area NMAD (n/a otherwise)\n"
+            );
+        }
     }
     Ok(serde_json::Value::Array(rows))
 }

@@ -62,6 +62,54 @@ pub fn horn_gradients(dem: &Dem) -> Vec<Option<Gradient>> {
     out
 }
 
+/// How surface gradients are computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GradientMethod {
+    /// Horn (1981) 3 × 3 weighted differences (smooths noise; the usual slope/aspect of GIS).
+    Horn,
+    /// Central differences of the four direct neighbours (numpy's `gradient`, as xdem's Nuth &
+    /// Kääb uses).
+    Central,
+}
+
+/// Gradients by `method`.
+pub fn gradients(dem: &Dem, method: GradientMethod) -> Vec<Option<Gradient>> {
+    match method {
+        GradientMethod::Horn => horn_gradients(dem),
+        GradientMethod::Central => central_gradients(dem),
+    }
+}
+
+/// Central-difference gradients; `None` on the border and where a neighbour is nodata.
+pub fn central_gradients(dem: &Dem) -> Vec<Option<Gradient>> {
+    let (w, h) = (dem.grid.width, dem.grid.height);
+    let mut out = vec![None; w * h];
+    if w < 3 || h < 3 {
+        return out;
+    }
+    out.par_chunks_mut(w)
+        .enumerate()
+        .skip(1)
+        .take(h - 2)
+        .for_each(|(row, line)| {
+            let (dx, dy) = dem.grid.metric_cell_size_at_row(row);
+            for col in 1..w - 1 {
+                let east =
+                    (dem.get(col + 1, row) as f64 - dem.get(col - 1, row) as f64) / (2.0 * dx);
+                let south =
+                    (dem.get(col, row + 1) as f64 - dem.get(col, row - 1) as f64) / (2.0 * dy);
+                if east.is_finite() && south.is_finite() {
+                    line[col] = Some(Gradient {
+                        east,
+                        north: -south,
+                    });
+                }
+            }
+        });
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -89,10 +137,13 @@ mod tests {
                 (0.3 * x + 0.3 * y) as f32
             })
             .collect();
-        let g = horn_gradients(&Dem { grid, values });
-        let inner = g[2 * 6 + 2].expect("interior");
-        assert!((inner.east - 0.3).abs() < 1e-3 && (inner.north - 0.3).abs() < 1e-3);
-        assert!((inner.aspect().to_degrees() - 225.0).abs() < 0.1);
-        assert!(g[0].is_none() && g[5 * 6 - 1].is_none());
+        let dem = Dem { grid, values };
+        for method in [GradientMethod::Horn, GradientMethod::Central] {
+            let g = gradients(&dem, method);
+            let inner = g[2 * 6 + 2].expect("interior");
+            assert!((inner.east - 0.3).abs() < 1e-3 && (inner.north - 0.3).abs() < 1e-3);
+            assert!((inner.aspect().to_degrees() - 225.0).abs() < 0.1);
+            assert!(g[0].is_none() && g[5 * 6 - 1].is_none());
+        }
     }
 }

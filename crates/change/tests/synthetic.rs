@@ -8,7 +8,7 @@ use timesift_change::grid::{Dem, Grid};
 use timesift_change::icp::{IcpModel, IcpOptions, icp};
 use timesift_change::m3c2::{Aggregation, M3c2Params, m3c2, subsample_core_points};
 use timesift_change::mask::Mask;
-use timesift_change::nuth_kaab::{NuthKaabOptions, nuth_kaab};
+use timesift_change::nuth_kaab::{NuthKaabFit, NuthKaabOptions, nuth_kaab};
 use timesift_change::volume::{VolumeOptions, volumes};
 use timesift_core::rng::SeededRng;
 use timesift_io::coords::Crs;
@@ -78,13 +78,20 @@ fn shifted_pair(shift: [f64; 2], bias: f64, noise: f64, seed: u64) -> (Dem, Dem,
 #[test]
 fn nuth_kaab_recovers_a_subpixel_shift_and_bias_on_stable_ground() {
     let (reference, moved, stable) = shifted_pair([1.37, -2.21], 0.8, 0.0, 1);
-    let r = nuth_kaab(
-        &reference,
-        &moved,
-        Some(&stable),
-        &NuthKaabOptions::default(),
-    )
-    .expect("fit");
+    for options in [
+        NuthKaabOptions::default(),
+        NuthKaabOptions {
+            fit: NuthKaabFit::Weighted,
+            ..Default::default()
+        },
+        NuthKaabOptions::xdem_like(),
+    ] {
+        check_recovery(&reference, &moved, &stable, &options);
+    }
+}
+
+fn check_recovery(reference: &Dem, moved: &Dem, stable: &Mask, options: &NuthKaabOptions) {
+    let r = nuth_kaab(reference, moved, Some(stable), options).expect("fit");
     assert!(r.converged);
     assert!((r.shift_east_m - 1.37).abs() < 0.01, "{r:?}");
     assert!((r.shift_north_m + 2.21).abs() < 0.01, "{r:?}");
@@ -92,7 +99,7 @@ fn nuth_kaab_recovers_a_subpixel_shift_and_bias_on_stable_ground() {
     // Pixel convention: +east = +columns, +north = −rows.
     assert!((r.shift_px[0] - 1.37).abs() < 0.01 && (r.shift_px[1] - 2.21).abs() < 0.01);
     // The aligned DEM's difference is flat on stable ground, and the pit is still there.
-    let dod = dem_of_difference(&reference, &r.apply(&moved)).expect("dod");
+    let dod = dem_of_difference(reference, &r.apply(moved)).expect("dod");
     let stable_dod = stable.onto(&dod.grid).expect("mask");
     let worst = dod
         .values
