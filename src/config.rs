@@ -26,6 +26,9 @@ pub struct ProjectConfig {
     /// Orientation options.
     #[serde(default)]
     pub align: AlignConfig,
+    /// Change-detection options.
+    #[serde(default)]
+    pub change: ChangeConfig,
 }
 
 fn default_crs() -> String {
@@ -199,6 +202,84 @@ impl Default for AlignConfig {
     }
 }
 
+/// Which epochs the `change` stage compares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ChangePairs {
+    /// Each epoch with the next one (the default).
+    #[default]
+    Consecutive,
+    /// Each epoch with the reference epoch.
+    Reference,
+}
+
+/// DEM co-registration before differencing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Coregistration {
+    /// None: Time-SIFT products share one frame by construction (the default).
+    #[default]
+    None,
+    /// Vertical shift only, from the stable areas.
+    Vertical,
+    /// Nuth & Kääb horizontal and vertical shift, from the stable areas.
+    NuthKaab,
+}
+
+/// `[change]`: the `change` stage (and defaults of `timesift compare`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChangeConfig {
+    /// Epoch pairs. Default `consecutive`.
+    #[serde(default)]
+    pub pairs: ChangePairs,
+    /// DEM co-registration. Default `none`.
+    #[serde(default)]
+    pub coregistration: Coregistration,
+    /// M3C2 normal radius, m. Default 2.0.
+    #[serde(default = "default_normal_radius")]
+    pub normal_radius: f64,
+    /// M3C2 cylinder radius, m. Default 1.0.
+    #[serde(default = "default_cylinder_radius")]
+    pub cylinder_radius: f64,
+    /// M3C2 half-length of the cylinder, m. Default 5.0.
+    #[serde(default = "default_max_depth")]
+    pub max_depth: f64,
+    /// Spacing of M3C2 core points, m. Default 1.0.
+    #[serde(default = "default_core_spacing")]
+    pub core_spacing: f64,
+    /// Registration error added to the M3C2 LoD, m. Default 0.
+    #[serde(default)]
+    pub registration_error: f64,
+}
+
+fn default_normal_radius() -> f64 {
+    2.0
+}
+fn default_cylinder_radius() -> f64 {
+    1.0
+}
+fn default_max_depth() -> f64 {
+    5.0
+}
+fn default_core_spacing() -> f64 {
+    1.0
+}
+
+impl Default for ChangeConfig {
+    fn default() -> Self {
+        ChangeConfig {
+            pairs: ChangePairs::default(),
+            coregistration: Coregistration::default(),
+            normal_radius: default_normal_radius(),
+            cylinder_radius: default_cylinder_radius(),
+            max_depth: default_max_depth(),
+            core_spacing: default_core_spacing(),
+            registration_error: 0.0,
+        }
+    }
+}
+
 /// Line (1-based) of a byte offset in a text.
 fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
@@ -224,6 +305,10 @@ impl ProjectConfig {
                 config.align.tie_point_accuracy_px,
             ),
             ("align.marker_accuracy_px", config.align.marker_accuracy_px),
+            ("change.normal_radius", config.change.normal_radius),
+            ("change.cylinder_radius", config.change.cylinder_radius),
+            ("change.max_depth", config.change.max_depth),
+            ("change.core_spacing", config.change.core_spacing),
         ];
         for (key, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
@@ -233,6 +318,14 @@ impl ProjectConfig {
                     format!("expected a positive number, found {value}"),
                 ));
             }
+        }
+        let e = config.change.registration_error;
+        if !(e >= 0.0 && e.is_finite()) {
+            return Err(ProjectError::config(
+                path,
+                "change.registration_error",
+                format!("expected a number ≥ 0, found {e}"),
+            ));
         }
         if config.align.max_keypoints == 0 {
             return Err(ProjectError::config(

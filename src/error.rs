@@ -35,6 +35,12 @@ pub enum ProjectError {
         from: &'static str,
         to: &'static str,
     },
+    /// A change computation failed; `context` names the inputs.
+    #[error("{context}: {source}")]
+    Change {
+        context: String,
+        source: timesift_change::ChangeError,
+    },
     /// A stage of `timesift run` is not built yet.
     #[error("stage {0} is not available yet")]
     StageNotAvailable(&'static str),

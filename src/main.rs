@@ -4,9 +4,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use timesift::config::Coregistration;
 use timesift::init::InitOptions;
 use timesift::stages::Stage;
-use timesift::{Project, info, init, stages};
+use timesift::{Project, compare, info, init, stages};
+use timesift_change::icp::IcpModel;
+use timesift_change::m3c2::{Aggregation, M3c2Params};
 
 #[derive(Parser)]
 #[command(
@@ -51,6 +54,69 @@ enum Command {
         #[arg(long, value_enum)]
         to: Option<Stage>,
     },
+    /// Compare two DEMs (GeoTIFF: DoD, co-registration, statistics, LoD, volumes) or two point
+    /// clouds (LAS/LAZ: ICP, M3C2), made by timesift or any other software.
+    Compare(Box<CompareArgs>),
+}
+
+#[derive(clap::Args)]
+struct CompareArgs {
+    /// The earlier DEM or cloud (the reference).
+    a: PathBuf,
+    /// The later DEM or cloud.
+    b: PathBuf,
+    /// Output folder.
+    #[arg(long, default_value = "compare")]
+    out: PathBuf,
+    /// Stable areas: polygons ([name,]WKT lines, as stable.csv) or, for DEMs, a mask GeoTIFF.
+    #[arg(long)]
+    stable: Option<PathBuf>,
+    /// DEMs: a value to treat as nodata besides the declared one (e.g. -10000).
+    #[arg(long, allow_hyphen_values = true)]
+    nodata: Option<f64>,
+    /// DEMs: co-registration of b onto a before differencing.
+    #[arg(long, value_enum, default_value = "none")]
+    coregister: CoregisterArg,
+    /// DEMs: σ of a and of b (m) for the LoD95; default 1.96 × the stable-area NMAD.
+    #[arg(long, num_args = 2, value_names = ["SIGMA_A", "SIGMA_B"])]
+    sigma: Option<Vec<f64>>,
+    /// DEMs: polygons bounding the volume computation.
+    #[arg(long)]
+    region: Option<PathBuf>,
+    /// Clouds: register b onto a by ICP on the stable areas first.
+    #[arg(long, value_enum)]
+    icp: Option<IcpArg>,
+    /// Clouds: M3C2 normal radius (m); repeat for multi-scale normals.
+    #[arg(long = "normal-radius", default_values_t = [2.0])]
+    normal_radius: Vec<f64>,
+    /// Clouds: M3C2 cylinder radius (m).
+    #[arg(long, default_value_t = 1.0)]
+    cylinder_radius: f64,
+    /// Clouds: M3C2 half-length of the cylinder (m).
+    #[arg(long, default_value_t = 5.0)]
+    max_depth: f64,
+    /// Clouds: registration error added to the LoD (m); default the ICP RMS, or 0.
+    #[arg(long)]
+    registration_error: Option<f64>,
+    /// Clouds: core-point spacing (m).
+    #[arg(long, default_value_t = 1.0)]
+    core_spacing: f64,
+    /// Clouds: median and inter-quartile range instead of mean and standard deviation.
+    #[arg(long)]
+    median: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum CoregisterArg {
+    None,
+    Vertical,
+    NuthKaab,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum IcpArg {
+    Rigid,
+    Similarity,
 }
 
 fn main() -> ExitCode {
@@ -102,6 +168,135 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Run { dir, from, to } => {
             let project = Project::load(&dir)?;
             stages::run(&project, from, to)?;
+        }
+        Command::Compare(args) => compare(*args)?,
+    }
+    Ok(())
+}
+
+fn is_cloud(path: &std::path::Path) -> Option<bool> {
+    let ext = path.extension()?.to_string_lossy().to_ascii_lowercase();
+    match ext.as_str() {
+        "tif" | "tiff" => Some(false),
+        "las" | "laz" => Some(true),
+        _ => None,
+    }
+}
+
+fn compare(args: CompareArgs) -> anyhow::Result<()> {
+    let kind = |p: &PathBuf| {
+        is_cloud(p).ok_or_else(|| {
+            anyhow::anyhow!(
+                "{}: expected a DEM (.tif, .tiff) or a point cloud (.las, .laz)",
+                p.display()
+            )
+        })
+    };
+    let (cloud_a, cloud_b) = (kind(&args.a)?, kind(&args.b)?);
+    if cloud_a != cloud_b {
+        anyhow::bail!(
+            "{} and {}: one is a DEM and the other a point cloud; compare like with like",
+            args.a.display(),
+            args.b.display()
+        );
+    }
+    if cloud_a {
+        let options = compare::CloudCompareOptions {
+            stable: args.stable,
+            icp: args.icp.map(|m| match m {
+                IcpArg::Rigid => IcpModel::Rigid,
+                IcpArg::Similarity => IcpModel::Similarity,
+            }),
+            m3c2: M3c2Params {
+                normal_radii: args.normal_radius,
+                cylinder_radius: args.cylinder_radius,
+                max_depth: args.max_depth,
+                registration_error: 0.0,
+                aggregation: if args.median {
+                    Aggregation::Median
+                } else {
+                    Aggregation::Mean
+                },
+                ..M3c2Params::default()
+            },
+            registration_error: args.registration_error,
+            core_spacing: args.core_spacing,
+        };
+        let r = compare::compare_clouds(&args.a, &args.b, &args.out, &options)?;
+        if let Some(icp) = &r.icp {
+            println!(
+                "ICP: rotation {:.4}°, translation {:.3?} m, scale {:.6}, RMS {:.4} m over {} pairs",
+                icp.rotation_deg, icp.translation, icp.scale, icp.rms, icp.pairs
+            );
+        }
+        println!(
+            "M3C2: {} core points, {} with a distance, {} significant",
+            r.core_points, r.defined, r.significant
+        );
+        if let Some(d) = &r.distance {
+            println!(
+                "distance: median {:.4} m, mean {:.4} m, NMAD {:.4} m",
+                d.median, d.mean, d.nmad
+            );
+        }
+        for f in &r.outputs {
+            println!("wrote {f}");
+        }
+    } else {
+        let options = compare::DemCompareOptions {
+            extra_nodata: args.nodata,
+            stable: args.stable,
+            coregistration: match args.coregister {
+                CoregisterArg::None => Coregistration::None,
+                CoregisterArg::Vertical => Coregistration::Vertical,
+                CoregisterArg::NuthKaab => Coregistration::NuthKaab,
+            },
+            sigmas: args.sigma.map(|s| (s[0], s[1])),
+            region: args.region,
+        };
+        let r = compare::compare_dems(&args.a, &args.b, &args.out, &options)?;
+        for w in &r.warnings {
+            eprintln!("warning: {w}");
+        }
+        if let Some(c) = &r.coregistration {
+            println!(
+                "co-registration: shift east {:.3} m, north {:.3} m ({:.3}, {:.3} px), vertical {:.3} m; stable NMAD {:.4} → {:.4} m",
+                c.shift_east_m,
+                c.shift_north_m,
+                c.shift_px[0],
+                c.shift_px[1],
+                c.shift_z,
+                c.nmad_before,
+                c.nmad_after
+            );
+        }
+        let s = &r.all;
+        println!(
+            "DoD (b − a): {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, NMAD {:.4} m",
+            s.count, s.mean, s.median, s.std, s.nmad
+        );
+        if let Some(s) = &r.stable {
+            println!(
+                "stable: {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
+                s.count, s.mean, s.median, s.std, s.rmse, s.nmad
+            );
+        }
+        if let Some(l) = r.lod95 {
+            println!("LoD95 {l:.4} m ({})", r.lod_source);
+        }
+        let v = &r.volumes;
+        println!(
+            "volumes: cut {:.2} m³, fill {:.2} m³, net {:.2} ± {:.2} m³ over {:.1} m²",
+            v.cut, v.fill, v.net, v.sigma_net, v.area
+        );
+        if let Some(v) = &r.volumes_beyond_lod {
+            println!(
+                "beyond LoD: cut {:.2} m³, fill {:.2} m³, net {:.2} ± {:.2} m³",
+                v.cut, v.fill, v.net, v.sigma_net
+            );
+        }
+        for f in &r.outputs {
+            println!("wrote {f}");
         }
     }
     Ok(())

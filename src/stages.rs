@@ -77,8 +77,16 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
 
 /// Runs one stage on a validated project. Stages whose crates are not built yet fail with
 /// [`ProjectError::StageNotAvailable`], leaving earlier outputs untouched.
-pub fn run_stage(_project: &Project, stage: Stage) -> Result<(), ProjectError> {
-    Err(ProjectError::StageNotAvailable(stage.name()))
+pub fn run_stage(project: &Project, stage: Stage) -> Result<(), ProjectError> {
+    match stage {
+        Stage::Change => {
+            for dir in crate::compare::change_stage(project)? {
+                tracing::info!(out = %dir.display(), "change products written");
+            }
+            Ok(())
+        }
+        other => Err(ProjectError::StageNotAvailable(other.name())),
+    }
 }
 
 /// Runs the stages from `from` to `to` in order, stopping at the first failure.

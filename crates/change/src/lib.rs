@@ -12,6 +12,7 @@ mod error;
 pub mod grid;
 pub mod icp;
 pub mod m3c2;
+pub mod maps;
 pub mod mask;
 pub mod nuth_kaab;
 pub mod stats;

@@ -58,14 +58,16 @@ fn one_line(message: impl Into<String>) -> String {
 }
 
 impl IoError {
-    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+    /// An operating-system failure on `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         IoError::Io {
             path: path.into(),
             source,
         }
     }
 
-    pub(crate) fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+    /// Content of `path` that is corrupt or cannot be encoded (message folded onto one line).
+    pub fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         IoError::Invalid {
             path: path.into(),
             message: one_line(message),

@@ -1,0 +1,639 @@
+//! `timesift compare` and the `change` stage: DEM of difference (optionally co-registered), stable-
+//! area statistics, level of detection, volumes and maps for two DEMs; ICP and M3C2 for two point
+//! clouds. Files in, files out; the computations are in `timesift-change`.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use timesift_change::ChangeError;
+use timesift_change::dod::dem_of_difference;
+use timesift_change::grid::{Dem, Grid, check_same_crs};
+use timesift_change::icp::{IcpModel, IcpOptions, IcpResult, icp, select};
+use timesift_change::m3c2::{M3c2Params, M3c2Point, m3c2, subsample_core_points};
+use timesift_change::maps::{MapOptions, difference_map, histogram};
+use timesift_change::mask::Mask;
+use timesift_change::nuth_kaab::{NuthKaabOptions, NuthKaabResult, nuth_kaab};
+use timesift_change::stats::{Statistics, statistics};
+use timesift_change::volume::{VolumeOptions, Volumes, lod95, significance, volumes};
+use timesift_io::IoError;
+use timesift_io::coords::Crs;
+use timesift_io::geotiff::{GeoTransform, read_f32, write_f32};
+use timesift_io::pointcloud::{
+    AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, write_las,
+};
+use timesift_io::wkt::Polygon;
+
+use crate::ProjectError;
+use crate::config::Coregistration;
+
+/// Options of a DEM comparison.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DemCompareOptions {
+    /// A value to treat as nodata in both DEMs besides their declared nodata (e.g. −10000).
+    pub extra_nodata: Option<f64>,
+    /// Stable areas: a CSV/WKT file of polygons or a mask GeoTIFF (non-zero = stable).
+    pub stable: Option<PathBuf>,
+    /// Co-registration of the second DEM onto the first.
+    pub coregistration: Coregistration,
+    /// σ of each DEM (m), for the LoD; default: from the stable-area NMAD of the difference.
+    pub sigmas: Option<(f64, f64)>,
+    /// Region for the volumes (polygons file); default: every cell.
+    pub region: Option<PathBuf>,
+}
+
+/// Options of a point-cloud comparison.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CloudCompareOptions {
+    /// Stable-area polygons (CSV/WKT), used by ICP.
+    pub stable: Option<PathBuf>,
+    /// Register the second cloud onto the first by ICP (on stable points) before M3C2.
+    pub icp: Option<IcpModel>,
+    /// M3C2 parameters; a registration error of `None` takes the ICP RMS (or 0).
+    pub m3c2: M3c2Params,
+    /// Registration error given by the user.
+    pub registration_error: Option<f64>,
+    /// Core-point spacing, m.
+    pub core_spacing: f64,
+}
+
+/// What a DEM comparison found; written as `stats.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct DemReport {
+    /// The first (earlier) DEM.
+    pub a: String,
+    /// The second (later) DEM.
+    pub b: String,
+    /// CRS of both.
+    pub crs: String,
+    /// Co-registration applied to `b`.
+    pub coregistration: Option<NuthKaabResult>,
+    /// Statistics of the difference over every cell.
+    pub all: Statistics,
+    /// Statistics over the stable areas.
+    pub stable: Option<Statistics>,
+    /// 95 % level of detection, m.
+    pub lod95: Option<f64>,
+    /// Where the LoD came from.
+    pub lod_source: &'static str,
+    /// Cells with |dz| > LoD95 among valid cells.
+    pub significant_cells: Option<usize>,
+    /// Volumes over the region, every cell counted.
+    pub volumes: Volumes,
+    /// Volumes counting only cells beyond the LoD.
+    pub volumes_beyond_lod: Option<Volumes>,
+    /// Things the user should know (e.g. a co-registration that did not lower the stable NMAD).
+    pub warnings: Vec<String>,
+    /// Files written.
+    pub outputs: Vec<String>,
+}
+
+/// What a cloud comparison found; written as `stats.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct CloudReport {
+    /// The first cloud.
+    pub a: String,
+    /// The second cloud.
+    pub b: String,
+    /// ICP result (second cloud onto the first), when run.
+    pub icp: Option<IcpResult>,
+    /// Core points.
+    pub core_points: usize,
+    /// Core points with a distance.
+    pub defined: usize,
+    /// Core points with significant change.
+    pub significant: usize,
+    /// Statistics of the M3C2 distances.
+    pub distance: Option<Statistics>,
+    /// Statistics of the LoD95.
+    pub lod95: Option<Statistics>,
+    /// Registration error used in the LoD, m.
+    pub registration_error: f64,
+    /// Files written.
+    pub outputs: Vec<String>,
+}
+
+fn change_err(context: impl Into<String>) -> impl FnOnce(ChangeError) -> ProjectError {
+    let context = context.into();
+    move |source| ProjectError::Change { context, source }
+}
+
+fn load_dem(path: &Path, extra_nodata: Option<f64>) -> Result<Dem, ProjectError> {
+    let raster = read_f32(path)?;
+    Dem::from_raster(raster, extra_nodata).map_err(change_err(path.display().to_string()))
+}
+
+/// Polygons of a stable-area or region file: `stable.csv` lines (`[name,]WKT`) or bare WKT.
+pub fn read_polygons(path: &Path) -> Result<Vec<Polygon>, ProjectError> {
+    let areas = timesift_io::csv_inputs::read_stable_areas(path)?;
+    let polygons: Vec<Polygon> = areas.into_iter().flat_map(|a| a.polygons).collect();
+    if polygons.is_empty() {
+        return Err(ProjectError::Path {
+            path: path.to_path_buf(),
+            message: "holds no polygon; expected lines of [name,]POLYGON(...) or MULTIPOLYGON(...)"
+                .into(),
+        });
+    }
+    Ok(polygons)
+}
+
+/// A mask on `grid` from a polygons file or a mask GeoTIFF.
+fn load_mask(path: &Path, grid: Grid) -> Result<Mask, ProjectError> {
+    let is_tiff = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"));
+    let mask = if is_tiff {
+        let raster = load_dem(path, None)?;
+        Mask::from_raster(grid, &raster).map_err(change_err(path.display().to_string()))?
+    } else {
+        Mask::from_polygons(grid, &read_polygons(path)?)
+    };
+    if mask.count() == 0 {
+        return Err(ProjectError::Change {
+            context: path.display().to_string(),
+            source: ChangeError::EmptyStable("it selects no cell of the DEM's grid".into()),
+        });
+    }
+    Ok(mask)
+}
+
+fn write_png(path: &Path, img: &image::RgbImage) -> Result<(), ProjectError> {
+    let mut bytes = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut bytes)
+        .write_image(
+            img.as_raw(),
+            img.width(),
+            img.height(),
+            image::ExtendedColorType::Rgb8,
+        )
+        .map_err(|e| IoError::invalid(path, format!("PNG encoding failed: {e}")))?;
+    timesift_io::fsutil::write_bytes_atomically(path, &bytes)?;
+    Ok(())
+}
+
+fn write_json(path: &Path, value: &impl Serialize) -> Result<(), ProjectError> {
+    let text = serde_json::to_string_pretty(value)
+        .map_err(|e| IoError::invalid(path, format!("JSON encoding failed: {e}")))?;
+    timesift_io::fsutil::write_bytes_atomically(path, text.as_bytes())?;
+    Ok(())
+}
+
+fn create_dir(out: &Path) -> Result<(), ProjectError> {
+    std::fs::create_dir_all(out).map_err(|e| IoError::io(out, e).into())
+}
+
+use image::ImageEncoder;
+
+/// Compares two DEMs and writes `dod.tif`, `stats.json`, `dod.png`, `histogram.png` (and
+/// `coregistered.tif` when co-registering) into `out`.
+pub fn compare_dems(
+    a: &Path,
+    b: &Path,
+    out: &Path,
+    options: &DemCompareOptions,
+) -> Result<DemReport, ProjectError> {
+    let dem_a = load_dem(a, options.extra_nodata)?;
+    let dem_b = load_dem(b, options.extra_nodata)?;
+    let pair = format!("{} and {}", a.display(), b.display());
+    check_same_crs(dem_a.grid.crs, dem_b.grid.crs).map_err(change_err(pair.clone()))?;
+    let stable = match &options.stable {
+        Some(path) => Some(load_mask(path, dem_a.grid)?),
+        None => None,
+    };
+    create_dir(out)?;
+    let mut outputs = Vec::new();
+    let mut warnings = Vec::new();
+    if stable.is_none() && options.coregistration != Coregistration::None {
+        warnings.push(
+            "co-registration used every cell: without stable areas, real change biases the shift"
+                .to_string(),
+        );
+    }
+
+    let coregistration = match options.coregistration {
+        Coregistration::None => None,
+        mode => {
+            let nk_options = NuthKaabOptions {
+                horizontal: mode == Coregistration::NuthKaab,
+                ..Default::default()
+            };
+            Some(
+                nuth_kaab(&dem_a, &dem_b, stable.as_ref(), &nk_options)
+                    .map_err(change_err(format!("co-registration of {pair}")))?,
+            )
+        }
+    };
+    if let Some(r) = &coregistration {
+        if !(r.nmad_after < r.nmad_before) {
+            warnings.push(format!(
+                "co-registration did not lower the stable-area NMAD ({:.4} → {:.4} m): the DEMs \
+                 were probably aligned already, or the stable areas changed",
+                r.nmad_before, r.nmad_after
+            ));
+        }
+        if !r.converged {
+            warnings.push("co-registration stopped at its iteration limit".to_string());
+        }
+    }
+    let dem_b = match &coregistration {
+        Some(r) => {
+            let moved = r.apply(&dem_b);
+            let path = out.join("coregistered.tif");
+            write_f32(&path, &moved.to_raster())?;
+            outputs.push(path.display().to_string());
+            moved
+        }
+        None => dem_b,
+    };
+    let dod = dem_of_difference(&dem_a, &dem_b).map_err(change_err(pair.clone()))?;
+    let values = || dod.values.iter().map(|&v| v as f64);
+    let all = statistics(values()).ok_or_else(|| ProjectError::Change {
+        context: pair.clone(),
+        source: ChangeError::NoOverlap("no cell holds a height in both DEMs".into()),
+    })?;
+    let stable_on_dod = match &stable {
+        Some(m) => Some(m.onto(&dod.grid).map_err(change_err(pair.clone()))?),
+        None => None,
+    };
+    let stable_stats = match &stable_on_dod {
+        Some(m) => Some(
+            statistics(values().zip(&m.cells).filter(|(_, s)| **s).map(|(v, _)| v)).ok_or_else(
+                || ProjectError::Change {
+                    context: pair.clone(),
+                    source: ChangeError::EmptyStable(
+                        "no stable cell holds a height in both DEMs".into(),
+                    ),
+                },
+            )?,
+        ),
+        None => None,
+    };
+    let (lod, lod_source) = match (options.sigmas, &stable_stats) {
+        (Some((sa, sb)), _) => (Some(lod95(sa, sb)), "sigmas given"),
+        (None, Some(s)) => (
+            Some(1.96 * s.nmad),
+            "1.96 × stable-area NMAD of the difference",
+        ),
+        (None, None) => (None, "none (no stable area and no sigma given)"),
+    };
+    let region = match &options.region {
+        Some(path) => Some(Mask::from_polygons(dod.grid, &read_polygons(path)?)),
+        None => None,
+    };
+    let sigma_random = match (options.sigmas, &stable_stats) {
+        (Some((sa, sb)), _) => sa.hypot(sb),
+        (None, Some(s)) => s.nmad,
+        (None, None) => 0.0,
+    };
+    let sigma_systematic = stable_stats.as_ref().map_or(0.0, |s| s.median.abs());
+    let volume_options = VolumeOptions {
+        threshold: 0.0,
+        sigma_random,
+        sigma_systematic,
+    };
+    let vol = volumes(&dod, region.as_ref(), volume_options)
+        .map_err(change_err(format!("volumes of {pair}")))?;
+    let vol_lod = match lod {
+        Some(l) => Some(
+            volumes(
+                &dod,
+                region.as_ref(),
+                VolumeOptions {
+                    threshold: l,
+                    ..volume_options
+                },
+            )
+            .map_err(change_err(format!("volumes of {pair}")))?,
+        ),
+        None => None,
+    };
+    let significant_cells = lod.map(|l| significance(&dod, l).iter().filter(|&&f| f == 1).count());
+
+    let dod_path = out.join("dod.tif");
+    write_f32(&dod_path, &dod.to_raster())?;
+    outputs.push(dod_path.display().to_string());
+    let name = |p: &Path| {
+        p.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let title = format!("{} - {}", name(b), name(a));
+    let map = difference_map(
+        &dod,
+        &MapOptions {
+            title: title.clone(),
+            lod,
+            ..Default::default()
+        },
+    );
+    let map_path = out.join("dod.png");
+    write_png(&map_path, &map)?;
+    outputs.push(map_path.display().to_string());
+    let hist_values: Vec<f64> = values().collect();
+    let hist = histogram(&hist_values, &title, "m", None, lod);
+    let hist_path = out.join("histogram.png");
+    write_png(&hist_path, &hist)?;
+    outputs.push(hist_path.display().to_string());
+    let stats_path = out.join("stats.json");
+    outputs.push(stats_path.display().to_string());
+    let report = DemReport {
+        a: a.display().to_string(),
+        b: b.display().to_string(),
+        crs: dod.grid.crs.to_string(),
+        coregistration,
+        all,
+        stable: stable_stats,
+        lod95: lod,
+        lod_source,
+        significant_cells,
+        volumes: vol,
+        volumes_beyond_lod: vol_lod,
+        warnings,
+        outputs,
+    };
+    write_json(&stats_path, &report)?;
+    Ok(report)
+}
+
+/// Compares two point clouds (LAS/LAZ): optional ICP of `b` onto `a`, then M3C2 from `a` to `b`;
+/// writes `m3c2.laz` (core points with distance, lod95, significant, counts), `m3c2_stats.json`,
+/// `m3c2.png` (distances gridded at the core spacing) and `m3c2_histogram.png`.
+pub fn compare_clouds(
+    a: &Path,
+    b: &Path,
+    out: &Path,
+    options: &CloudCompareOptions,
+) -> Result<CloudReport, ProjectError> {
+    let cloud_a = read_las(a)?;
+    let cloud_b = read_las(b)?;
+    let pair = format!("{} and {}", a.display(), b.display());
+    check_same_crs(cloud_a.crs, cloud_b.crs).map_err(change_err(pair.clone()))?;
+    let stable = match &options.stable {
+        Some(path) => Some(read_polygons(path)?),
+        None => None,
+    };
+    let in_stable = |points: &[[f64; 3]]| -> Vec<bool> {
+        match &stable {
+            Some(polygons) => points
+                .iter()
+                .map(|p| polygons.iter().any(|poly| poly.contains(p[0], p[1])))
+                .collect(),
+            None => vec![true; points.len()],
+        }
+    };
+    let mut positions_b = cloud_b.positions.clone();
+    let icp_result = match options.icp {
+        Some(model) => {
+            let keep_a = in_stable(&cloud_a.positions);
+            let keep_b = in_stable(&positions_b);
+            if !keep_a.iter().any(|&k| k) || !keep_b.iter().any(|&k| k) {
+                return Err(ProjectError::Change {
+                    context: pair,
+                    source: ChangeError::EmptyStable("no point lies in the stable areas".into()),
+                });
+            }
+            let r = icp(
+                &select(&positions_b, &keep_b),
+                &select(&cloud_a.positions, &keep_a),
+                &IcpOptions {
+                    model,
+                    ..Default::default()
+                },
+            )
+            .map_err(change_err(format!("ICP of {pair}")))?;
+            for p in &mut positions_b {
+                *p = r.transform(p);
+            }
+            Some(r)
+        }
+        None => None,
+    };
+    let registration_error = options
+        .registration_error
+        .or(icp_result.as_ref().map(|r| r.rms))
+        .unwrap_or(0.0);
+    let params = M3c2Params {
+        registration_error,
+        ..options.m3c2.clone()
+    };
+    let core = subsample_core_points(&cloud_a.positions, options.core_spacing)
+        .map_err(change_err("core points"))?;
+    let results = m3c2(&cloud_a.positions, &positions_b, &core, &params)
+        .map_err(change_err(format!("M3C2 of {pair}")))?;
+    create_dir(out)?;
+    let mut outputs = Vec::new();
+    let laz = out.join("m3c2.laz");
+    write_las(
+        &laz,
+        &m3c2_cloud(&core, &results, cloud_a.crs),
+        &LasWriteOptions::default(),
+    )?;
+    outputs.push(laz.display().to_string());
+
+    let distances: Vec<f64> = results.iter().map(|r| r.distance).collect();
+    let lods: Vec<f64> = results.iter().map(|r| r.lod95).collect();
+    let title = "M3C2 distance";
+    let median_lod = statistics(lods.iter().copied()).map(|s| s.median);
+    let hist_path = out.join("m3c2_histogram.png");
+    write_png(
+        &hist_path,
+        &histogram(&distances, title, "m", None, median_lod),
+    )?;
+    outputs.push(hist_path.display().to_string());
+    if let Some(grid_dem) = grid_points(&core, &distances, options.core_spacing, cloud_a.crs) {
+        let map_path = out.join("m3c2.png");
+        let map = difference_map(
+            &grid_dem,
+            &MapOptions {
+                title: title.into(),
+                ..Default::default()
+            },
+        );
+        write_png(&map_path, &map)?;
+        outputs.push(map_path.display().to_string());
+    }
+    let stats_path = out.join("m3c2_stats.json");
+    outputs.push(stats_path.display().to_string());
+    let report = CloudReport {
+        a: a.display().to_string(),
+        b: b.display().to_string(),
+        icp: icp_result,
+        core_points: core.len(),
+        defined: distances.iter().filter(|d| d.is_finite()).count(),
+        significant: results.iter().filter(|r| r.significant()).count(),
+        distance: statistics(distances.iter().copied()),
+        lod95: statistics(lods.iter().copied()),
+        registration_error,
+        outputs,
+    };
+    write_json(&stats_path, &report)?;
+    Ok(report)
+}
+
+/// The M3C2 result as a cloud: core points with distance, lod95, significant, count1, count2.
+fn m3c2_cloud(core: &[[f64; 3]], results: &[M3c2Point], crs: Crs) -> PointCloud {
+    let f64s =
+        |f: &dyn Fn(&M3c2Point) -> f64| AttributeValues::F64(results.iter().map(f).collect());
+    PointCloud {
+        positions: core.to_vec(),
+        colors: None,
+        attributes: vec![
+            ExtraAttribute {
+                name: "distance".into(),
+                values: f64s(&|r| r.distance),
+            },
+            ExtraAttribute {
+                name: "lod95".into(),
+                values: f64s(&|r| r.lod95),
+            },
+            ExtraAttribute {
+                name: "significant".into(),
+                values: AttributeValues::U8(
+                    results.iter().map(|r| r.significant() as u8).collect(),
+                ),
+            },
+            ExtraAttribute {
+                name: "count1".into(),
+                values: AttributeValues::F32(results.iter().map(|r| r.count[0] as f32).collect()),
+            },
+            ExtraAttribute {
+                name: "count2".into(),
+                values: AttributeValues::F32(results.iter().map(|r| r.count[1] as f32).collect()),
+            },
+        ],
+        crs,
+    }
+}
+
+/// Values at points averaged on a north-up grid of `cell` metres, for a map.
+fn grid_points(points: &[[f64; 3]], values: &[f64], cell: f64, crs: Crs) -> Option<Dem> {
+    let (mut xmin, mut ymin, mut xmax, mut ymax) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for (p, v) in points.iter().zip(values) {
+        if v.is_finite() {
+            xmin = xmin.min(p[0]);
+            ymin = ymin.min(p[1]);
+            xmax = xmax.max(p[0]);
+            ymax = ymax.max(p[1]);
+        }
+    }
+    if xmin > xmax {
+        return None;
+    }
+    let width = ((xmax - xmin) / cell).floor() as usize + 1;
+    let height = ((ymax - ymin) / cell).floor() as usize + 1;
+    if width * height > 50_000_000 {
+        return None;
+    }
+    let grid = Grid {
+        transform: GeoTransform {
+            origin_x: xmin,
+            origin_y: ymax + cell,
+            pixel_width: cell,
+            pixel_height: -cell,
+        },
+        width,
+        height,
+        crs,
+    };
+    let mut sum = vec![0.0f64; grid.len()];
+    let mut count = vec![0u32; grid.len()];
+    for (p, v) in points.iter().zip(values) {
+        if v.is_finite() {
+            let (c, r) = grid.transform.world_to_pixel(p[0], p[1]);
+            let (c, r) = ((c as usize).min(width - 1), (r as usize).min(height - 1));
+            sum[r * width + c] += v;
+            count[r * width + c] += 1;
+        }
+    }
+    Some(Dem {
+        grid,
+        values: sum
+            .iter()
+            .zip(&count)
+            .map(|(&s, &n)| {
+                if n > 0 {
+                    (s / n as f64) as f32
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect(),
+    })
+}
+
+/// The `change` stage: for each pair of epochs (`[change] pairs`), the DEM comparison of
+/// `out/epochs/<e>/dem.tif` and, when both dense clouds exist, M3C2 of `dense.laz`, into
+/// `out/change/<a>__<b>/`. Stable areas come from the project's stable-area file.
+pub fn change_stage(project: &crate::Project) -> Result<Vec<PathBuf>, ProjectError> {
+    let config = &project.config.change;
+    let names: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
+    if names.len() < 2 {
+        return Err(ProjectError::Path {
+            path: project.dir.join("project.toml"),
+            message: format!("the change stage needs two epochs; {} given", names.len()),
+        });
+    }
+    let reference = names[project.reference_epoch.0 as usize];
+    let pairs: Vec<(&str, &str)> = match config.pairs {
+        crate::config::ChangePairs::Consecutive => names.windows(2).map(|w| (w[0], w[1])).collect(),
+        crate::config::ChangePairs::Reference => names
+            .iter()
+            .filter(|&&n| n != reference)
+            .map(|&n| (reference, n))
+            .collect(),
+    };
+    let stable_file = project
+        .config
+        .inputs
+        .stable
+        .as_ref()
+        .map(|s| project.dir.join(s))
+        .or_else(|| Some(project.dir.join("stable.csv")).filter(|p| p.is_file()));
+    let epoch_dir = |e: &str| project.dir.join("out").join("epochs").join(e);
+    let mut written = Vec::new();
+    for (a, b) in pairs {
+        let out = project
+            .dir
+            .join("out")
+            .join("change")
+            .join(format!("{a}__{b}"));
+        let (dem_a, dem_b) = (epoch_dir(a).join("dem.tif"), epoch_dir(b).join("dem.tif"));
+        let (laz_a, laz_b) = (
+            epoch_dir(a).join("dense.laz"),
+            epoch_dir(b).join("dense.laz"),
+        );
+        let have_dems = dem_a.is_file() && dem_b.is_file();
+        let have_clouds = laz_a.is_file() && laz_b.is_file();
+        if !have_dems && !have_clouds {
+            let missing = if dem_a.is_file() { dem_b } else { dem_a };
+            return Err(ProjectError::Path {
+                path: missing,
+                message: "missing; run the dense and dem stages first".into(),
+            });
+        }
+        if have_dems {
+            let options = DemCompareOptions {
+                stable: stable_file.clone(),
+                coregistration: config.coregistration,
+                ..Default::default()
+            };
+            compare_dems(&dem_a, &dem_b, &out, &options)?;
+        }
+        if have_clouds {
+            let options = CloudCompareOptions {
+                stable: stable_file.clone(),
+                icp: None,
+                m3c2: M3c2Params {
+                    normal_radii: vec![config.normal_radius],
+                    cylinder_radius: config.cylinder_radius,
+                    max_depth: config.max_depth,
+                    ..M3c2Params::default()
+                },
+                registration_error: Some(config.registration_error),
+                core_spacing: config.core_spacing,
+            };
+            compare_clouds(&laz_a, &laz_b, &out, &options)?;
+        }
+        written.push(out);
+    }
+    Ok(written)
+}
