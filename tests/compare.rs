@@ -2,24 +2,13 @@
 //! one-line error for every kind of bad pair.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
+use common::timesift;
 
 use timesift_change::grid::{Dem, Grid};
 use timesift_io::coords::Crs;
 use timesift_io::geotiff::{GeoTransform, read_f32, write_f32};
 use timesift_io::pointcloud::{AttributeValues, LasWriteOptions, PointCloud, read_las, write_las};
-
-fn timesift(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_timesift"))
-        .args(args)
-        .output()
-        .expect("the binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn path(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
