@@ -143,11 +143,15 @@ fn nuth_kaab_pairs(dir: &Path, script: &Path, json: bool) -> anyhow::Result<serd
             let reference = load(a)?;
             let original = load(b)?;
             let t = original.grid.transform;
-            let later = original.translated(
-                injected_px[0] * t.pixel_width,
-                injected_px[1] * t.pixel_height.abs(),
-                0.0,
-            );
+            // Both tools get the later DSM already on the earlier grid (bilinear, nodata propagated),
+            // so neither resamples it before its own interpolation: the same input for both.
+            let later = original
+                .translated(
+                    injected_px[0] * t.pixel_width,
+                    injected_px[1] * t.pixel_height.abs(),
+                    0.0,
+                )
+                .resample_onto(&reference.grid)?;
             let later_path = dir.join(format!("later_{b}.tif"));
             timesift_io::geotiff::write_f32(&later_path, &later.to_raster())?;
             let stable = Mask::from_polygons(reference.grid, &road);
