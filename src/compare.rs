@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use timesift_change::ChangeError;
+use timesift_change::checkpoints::{CheckPointReport, dem_residuals};
 use timesift_change::dod::dem_of_difference;
 use timesift_change::grid::{Dem, Grid, check_same_crs};
 use timesift_change::icp::{IcpModel, IcpOptions, IcpResult, icp, select};
@@ -39,6 +40,8 @@ pub struct DemCompareOptions {
     pub sigmas: Option<(f64, f64)>,
     /// Region for the volumes (polygons file); default: every cell.
     pub region: Option<PathBuf>,
+    /// Check points (name, E, N, H): DEM height residuals are reported for both DEMs.
+    pub checkpoints: Vec<(String, [f64; 3])>,
 }
 
 /// Options of a point-cloud comparison.
@@ -81,6 +84,8 @@ pub struct DemReport {
     pub volumes: Volumes,
     /// Volumes counting only cells beyond the LoD.
     pub volumes_beyond_lod: Option<Volumes>,
+    /// DEM height minus check-point height, for the first DEM and the (co-registered) second.
+    pub checkpoints: Option<[CheckPointReport; 2]>,
     /// Things the user should know (e.g. a co-registration that did not lower the stable NMAD).
     pub warnings: Vec<String>,
     /// Files written.
@@ -182,6 +187,14 @@ fn create_dir(out: &Path) -> Result<(), ProjectError> {
 }
 
 use image::ImageEncoder;
+
+/// Check points of a CSV file (`name,x,y,z`) as (name, position).
+pub fn read_checkpoints(path: &Path) -> Result<Vec<(String, [f64; 3])>, ProjectError> {
+    Ok(timesift_io::csv_inputs::read_checkpoints(path)?
+        .into_iter()
+        .map(|c| (c.name, [c.position.x, c.position.y, c.position.z]))
+        .collect())
+}
 
 /// Compares two DEMs and writes `dod.tif`, `stats.json`, `dod.png`, `histogram.png` (and
 /// `coregistered.tif` when co-registering) into `out`.
@@ -347,6 +360,12 @@ pub fn compare_dems(
         significant_cells,
         volumes: vol,
         volumes_beyond_lod: vol_lod,
+        checkpoints: (!options.checkpoints.is_empty()).then(|| {
+            [
+                dem_residuals(&dem_a, &options.checkpoints),
+                dem_residuals(&dem_b, &options.checkpoints),
+            ]
+        }),
         warnings,
         outputs,
     };
@@ -614,6 +633,11 @@ pub fn change_stage(project: &crate::Project) -> Result<Vec<PathBuf>, ProjectErr
             let options = DemCompareOptions {
                 stable: stable_file.clone(),
                 coregistration: config.coregistration,
+                checkpoints: project
+                    .checkpoints
+                    .iter()
+                    .map(|c| (c.name.clone(), [c.position.x, c.position.y, c.position.z]))
+                    .collect(),
                 ..Default::default()
             };
             compare_dems(&dem_a, &dem_b, &out, &options)?;

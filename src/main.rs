@@ -83,6 +83,9 @@ struct CompareArgs {
     /// DEMs: polygons bounding the volume computation.
     #[arg(long)]
     region: Option<PathBuf>,
+    /// DEMs: check points (CSV name,x,y,z): DEM height residuals of both DEMs.
+    #[arg(long)]
+    checkpoints: Option<PathBuf>,
     /// Clouds: register b onto a by ICP on the stable areas first.
     #[arg(long, value_enum)]
     icp: Option<IcpArg>,
@@ -253,6 +256,10 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
             },
             sigmas: args.sigma.map(|s| (s[0], s[1])),
             region: args.region,
+            checkpoints: match &args.checkpoints {
+                Some(path) => compare::read_checkpoints(path)?,
+                None => Vec::new(),
+            },
         };
         let r = compare::compare_dems(&args.a, &args.b, &args.out, &options)?;
         for w in &r.warnings {
@@ -283,6 +290,20 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
         }
         if let Some(l) = r.lod95 {
             println!("LoD95 {l:.4} m ({})", r.lod_source);
+        }
+        if let Some(reports) = &r.checkpoints {
+            for (label, c) in ["a", "b"].iter().zip(reports) {
+                if let Some(h) = &c.height {
+                    println!(
+                        "check points on {label}: {} (missing {}), dH mean {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
+                        h.count,
+                        c.missing.len(),
+                        h.mean,
+                        h.rmse,
+                        h.nmad
+                    );
+                }
+            }
         }
         let v = &r.volumes;
         println!(

@@ -86,6 +86,18 @@ fn dem_compare_recovers_the_excavation_volume_after_vertical_coregistration() {
     let stable = dir.path().join("stable.csv");
     write_stable(&stable);
     let out = dir.path().join("out");
+    // Check points on stable ground (true heights), one off the DEM.
+    let checkpoints = dir.path().join("checkpoints.csv");
+    let mut csv = String::from("name,x,y,z\n");
+    for (name, x, y) in [
+        ("c1", X0 + 5.3, Y0 - 7.1),
+        ("c2", X0 + 70.2, Y0 - 50.4),
+        ("c3", X0 + 60.0, Y0 - 10.0),
+    ] {
+        csv.push_str(&format!("{name},{x},{y},{}\n", ground(x, y)));
+    }
+    csv.push_str(&format!("off,{},{},100\n", X0 - 50.0, Y0));
+    std::fs::write(&checkpoints, csv).expect("write");
     let (ok, stdout, err) = timesift(&[
         "compare",
         path(&a),
@@ -94,6 +106,8 @@ fn dem_compare_recovers_the_excavation_volume_after_vertical_coregistration() {
         path(&stable),
         "--coregister",
         "vertical",
+        "--checkpoints",
+        path(&checkpoints),
         "--out",
         path(&out),
     ]);
@@ -112,6 +126,15 @@ fn dem_compare_recovers_the_excavation_volume_after_vertical_coregistration() {
     );
     assert!(fill < 1e-3 * PIT_VOLUME, "{fill}");
     assert!(stats["stable"]["nmad"].as_f64().expect("nmad") < 1e-4);
+    // Bilinear DEM heights at the check points: within the interpolation error of the smooth
+    // surface, for the earlier DEM and for the co-registered later one; the point off the DEM is
+    // listed as missing.
+    for k in 0..2 {
+        let c = &stats["checkpoints"][k];
+        assert_eq!(c["height"]["count"].as_u64(), Some(3), "{c}");
+        assert!(c["height"]["rmse"].as_f64().expect("rmse") < 5e-3, "{c}");
+        assert_eq!(c["missing"][0].as_str(), Some("off"));
+    }
     // The DoD on disk is the later minus the earlier, co-registered.
     let dod = read_f32(&out.join("dod.tif")).expect("dod");
     let centre = dod.get(120, 120, 0);
