@@ -38,7 +38,7 @@ pub struct DemCompareOptions {
     pub coregistration: Coregistration,
     /// σ of each DEM (m), for the LoD; default: from the stable-area NMAD of the difference.
     pub sigmas: Option<(f64, f64)>,
-    /// Region for the volumes (polygons file); default: every cell.
+    /// Region for the volumes (polygons file or mask GeoTIFF); default: every cell.
     pub region: Option<PathBuf>,
     /// Check points (name, E, N, H): DEM height residuals are reported for both DEMs.
     pub checkpoints: Vec<(String, [f64; 3])>,
@@ -196,8 +196,9 @@ pub fn read_checkpoints(path: &Path) -> Result<Vec<(String, [f64; 3])>, ProjectE
         .collect())
 }
 
-/// Compares two DEMs and writes `dod.tif`, `stats.json`, `dod.png`, `histogram.png` (and
-/// `coregistered.tif` when co-registering) into `out`.
+/// Compares two DEMs and writes `dod.tif`, `stats.json`, `dod.png`, `histogram.png`,
+/// `significant.tif` (1 where |dz| > LoD95, when there is a LoD) and `coregistered.tif` (when
+/// co-registering) into `out`.
 pub fn compare_dems(
     a: &Path,
     b: &Path,
@@ -289,7 +290,7 @@ pub fn compare_dems(
         (None, None) => (None, "none (no stable area and no sigma given)"),
     };
     let region = match &options.region {
-        Some(path) => Some(Mask::from_polygons(dod.grid, &read_polygons(path)?)),
+        Some(path) => Some(load_mask(path, dod.grid)?),
         None => None,
     };
     let sigma_random = match (options.sigmas, &stable_stats) {
@@ -324,6 +325,20 @@ pub fn compare_dems(
     let dod_path = out.join("dod.tif");
     write_f32(&dod_path, &dod.to_raster())?;
     outputs.push(dod_path.display().to_string());
+    if let Some(l) = lod {
+        // 1 significant, 0 not, nodata where the DoD has none.
+        let flags = significance(&dod, l);
+        let mask = Dem {
+            grid: dod.grid,
+            values: flags
+                .iter()
+                .map(|&f| if f == 255 { f32::NAN } else { f as f32 })
+                .collect(),
+        };
+        let path = out.join("significant.tif");
+        write_f32(&path, &mask.to_raster())?;
+        outputs.push(path.display().to_string());
+    }
     let name = |p: &Path| {
         p.file_stem()
             .map(|s| s.to_string_lossy().into_owned())

@@ -80,7 +80,7 @@ struct CompareArgs {
     /// DEMs: σ of a and of b (m) for the LoD95; default 1.96 × the stable-area NMAD.
     #[arg(long, num_args = 2, value_names = ["SIGMA_A", "SIGMA_B"])]
     sigma: Option<Vec<f64>>,
-    /// DEMs: polygons bounding the volume computation.
+    /// DEMs: polygons (or a mask GeoTIFF) bounding the volume computation.
     #[arg(long)]
     region: Option<PathBuf>,
     /// DEMs: check points (CSV name,x,y,z): DEM height residuals of both DEMs.

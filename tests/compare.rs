@@ -139,6 +139,34 @@ fn dem_compare_recovers_the_excavation_volume_after_vertical_coregistration() {
     let dod = read_f32(&out.join("dod.tif")).expect("dod");
     let centre = dod.get(120, 120, 0);
     assert!((centre + 2.0).abs() < 0.01, "{centre}");
+    // Relative volume error, for the record.
+    eprintln!(
+        "excavation: cut {cut:.3} m³ vs analytic {PIT_VOLUME:.3} m³ ({:+.4} %)",
+        100.0 * (cut / PIT_VOLUME - 1.0)
+    );
+    // With σ = 5 cm per DEM (LoD95 = 0.139 m) the pit is significant and stable ground is not.
+    let out_sigma = dir.path().join("out_sigma");
+    let (ok, stdout, err) = timesift(&[
+        "compare",
+        path(&a),
+        path(&b),
+        "--coregister",
+        "vertical",
+        "--stable",
+        path(&stable),
+        "--sigma",
+        "0.05",
+        "0.05",
+        "--out",
+        path(&out_sigma),
+    ]);
+    assert!(
+        ok && stdout.contains("LoD95 0.1386 m (sigmas given)"),
+        "{stdout}{err}"
+    );
+    let significant = read_f32(&out_sigma.join("significant.tif")).expect("significant");
+    assert_eq!(significant.get(120, 120, 0), 1.0);
+    assert_eq!(significant.get(300, 20, 0), 0.0);
     for f in ["dod.png", "histogram.png", "coregistered.tif"] {
         assert!(out.join(f).is_file(), "{f}");
     }
