@@ -11,6 +11,9 @@ pub enum BundleError {
     /// A value is NaN or infinite at the start.
     #[error("non-finite {0} in the problem")]
     NonFinite(&'static str),
+    /// The normal equations are singular where a regular system is needed (covariances).
+    #[error("singular problem: {0}")]
+    Singular(String),
     /// No parameter is free.
     #[error("nothing to adjust: every parameter is fixed")]
     NothingToAdjust,

@@ -6,8 +6,10 @@
 //! camera-centre (GNSS) and control-point priors with horizontal/vertical sigmas,
 //! Huber/Cauchy/soft-L1 losses, dense and sparse (faer, symbolic analysis once per solve) Schur
 //! paths, Ceres-like trust-region control and
-//! termination, and the BAL problem conversion. Still to come (see the issue): the PCG path,
-//! scale-bar residuals, covariance output, parallel assembly.
+//! termination, the BAL problem conversion, and `precision`: residual statistics per kind, group
+//! and image, the posterior variance factor, outlier flags, covariances of camera centres and
+//! intrinsics. Still to come (see the issue): the PCG path, scale-bar residuals, parallel
+//! assembly, libmv problems.
 //!
 //! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).
@@ -15,6 +17,7 @@
 pub mod bal;
 mod error;
 pub mod loss;
+pub mod precision;
 pub mod problem;
 mod reduced;
 pub mod solver;

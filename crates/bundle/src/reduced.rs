@@ -135,4 +135,72 @@ impl Reduced {
         let out = DVector::from_fn(n, |i, _| x[(i, 0)]);
         out.iter().all(|v| v.is_finite()).then_some(out)
     }
+
+    /// Diagonal blocks `(start, len)` of `S⁻¹`, from one Cholesky factorisation and solves against
+    /// the identity columns of the blocks (in batches, so memory stays at n × 256); `None` when
+    /// `S` is not positive definite.
+    pub(crate) fn inverse_diagonal_blocks(
+        &self,
+        blocks: &[(usize, usize)],
+    ) -> Option<Vec<DMatrix<f64>>> {
+        use faer::prelude::Solve;
+        let n = match self {
+            Reduced::Dense(m) => m.nrows(),
+            Reduced::Sparse { pattern, .. } => pattern.n,
+        };
+        // (column of S, block, column within the block)
+        let columns: Vec<(usize, usize, usize)> = blocks
+            .iter()
+            .enumerate()
+            .flat_map(|(b, &(s, l))| (0..l).map(move |j| (s + j, b, j)))
+            .collect();
+        let mut out: Vec<DMatrix<f64>> =
+            blocks.iter().map(|&(_, l)| DMatrix::zeros(l, l)).collect();
+        let solve_batch = |rhs: &mut faer::Mat<f64>| -> Option<()> {
+            match self {
+                Reduced::Dense(m) => {
+                    let fm = faer::Mat::<f64>::from_fn(n, n, |i, j| m[(i, j)]);
+                    fm.llt(Side::Lower).ok()?.solve_in_place(rhs.as_mut());
+                }
+                Reduced::Sparse { pattern, values } => {
+                    let sym = SymbolicSparseColMatRef::new_checked(
+                        pattern.n,
+                        pattern.n,
+                        &pattern.col_ptr,
+                        None,
+                        &pattern.row_idx,
+                    );
+                    let mat = SparseColMatRef::new(sym, values);
+                    Llt::try_new_with_symbolic(pattern.symbolic.clone(), mat, Side::Lower)
+                        .ok()?
+                        .solve_in_place(rhs.as_mut());
+                }
+            }
+            Some(())
+        };
+        // Dense: one factorisation for all columns; sparse: one per batch of 256 columns (cheap
+        // next to the solves, and keeps the borrow simple).
+        let batch = if matches!(self, Reduced::Dense(_)) {
+            columns.len().max(1)
+        } else {
+            256
+        };
+        for chunk in columns.chunks(batch) {
+            let mut rhs = faer::Mat::<f64>::zeros(n, chunk.len());
+            for (k, &(c, _, _)) in chunk.iter().enumerate() {
+                rhs[(c, k)] = 1.0;
+            }
+            solve_batch(&mut rhs)?;
+            for (k, &(_, b, j)) in chunk.iter().enumerate() {
+                let (start, len) = blocks[b];
+                for i in 0..len {
+                    out[b][(i, j)] = rhs[(start + i, k)];
+                }
+            }
+        }
+        if !out.iter().all(|m| m.iter().all(|v| v.is_finite())) {
+            return None;
+        }
+        Some(out)
+    }
 }

@@ -97,17 +97,17 @@ pub struct BundleReport {
 }
 
 /// Index layout of the camera-side parameters.
-struct Layout {
-    pose_offset: Vec<Option<usize>>,
-    group_offset: Vec<Option<usize>>,
-    group_free: Vec<Vec<usize>>,
-    point_index: Vec<Option<usize>>,
-    num_camera_params: usize,
-    num_free_points: usize,
+pub(crate) struct Layout {
+    pub(crate) pose_offset: Vec<Option<usize>>,
+    pub(crate) group_offset: Vec<Option<usize>>,
+    pub(crate) group_free: Vec<Vec<usize>>,
+    pub(crate) point_index: Vec<Option<usize>>,
+    pub(crate) num_camera_params: usize,
+    pub(crate) num_free_points: usize,
 }
 
 impl Layout {
-    fn new(p: &BundleProblem) -> Self {
+    pub(crate) fn new(p: &BundleProblem) -> Self {
         let mut n = 0;
         let pose_offset = p
             .images
@@ -178,9 +178,31 @@ struct Normal {
     cost: f64,
 }
 
+/// The reduced camera system `S = U − E V⁻¹ Eᵀ` of the squared (non-robust) cost at the current
+/// parameters, undamped: the inverse of the camera-side block of the normal matrix, whose inverse
+/// is the covariance of the camera-side parameters. `None` when a point block is singular.
+pub(crate) fn reduced_system(
+    p: &BundleProblem,
+    layout: &Layout,
+) -> Result<Option<Reduced>, BundleError> {
+    let storage = reduced_storage(p, layout, LinearSolver::Auto)?;
+    let nm = linearize(p, layout, &Loss::Trivial, &storage);
+    let mut s = nm.u.clone();
+    let mut rhs = nm.g_c.clone();
+    let n = rhs.len();
+    let ok = match &mut s {
+        Reduced::Dense(m) => {
+            let data = m.as_mut_slice();
+            eliminate_points(&nm, 0.0, &mut rhs, |r, c, v| data[r + c * n] += v).is_some()
+        }
+        sparse => eliminate_points(&nm, 0.0, &mut rhs, |r, c, v| sparse.add(r, c, v)).is_some(),
+    };
+    Ok(ok.then_some(s))
+}
+
 /// Camera-centre prior residual (sigma-weighted) and its Jacobian with respect to the pose update
 /// of `Pose::retract`: `C = −Rᵀ t`, `dC/dδω = −Rᵀ [t]×`, `dC/dδt = −Rᵀ`.
-fn center_prior_residual(
+pub(crate) fn center_prior_residual(
     pose: &timesift_core::Pose,
     prior: &CenterPrior,
 ) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {

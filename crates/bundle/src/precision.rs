@@ -1,0 +1,272 @@
+//! What an adjusted block is worth: residual statistics per kind, camera group and image; the
+//! posterior variance factor; flagged outlier observations; and the covariances (standard
+//! deviations) of camera centres and intrinsics from the inverse of the reduced camera system.
+//!
+//! The covariance of the camera-side parameters is the inverse of `S = U − E V⁻¹ Eᵀ` (the points
+//! eliminated), computed from one Cholesky factorisation and solves against the identity columns of
+//! the blocks asked for, so only diagonal blocks are ever formed. The datum must be fixed (control
+//! points, camera-centre priors or fixed cameras): a free network's `S` is singular and is reported
+//! as such rather than given an arbitrary gauge.
+
+use nalgebra::{Matrix3, Matrix6, SMatrix};
+use timesift_core::project_world;
+
+use crate::BundleError;
+use crate::problem::BundleProblem;
+use crate::solver::{Layout, center_prior_residual, reduced_system};
+
+/// Root mean square and count.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Rms {
+    /// Root mean square of the per-item error norms.
+    pub rms: f64,
+    /// Items.
+    pub count: usize,
+}
+
+impl Rms {
+    fn from_sum(sum_sq: f64, count: usize) -> Rms {
+        Rms {
+            rms: if count == 0 {
+                0.0
+            } else {
+                (sum_sq / count as f64).sqrt()
+            },
+            count,
+        }
+    }
+}
+
+/// Residual statistics of an adjusted problem.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ResidualStatistics {
+    /// Reprojection error (pixels, norm per observation) over every observation that projects.
+    pub reprojection: Rms,
+    /// The same per camera group.
+    pub per_group: Vec<Rms>,
+    /// The same per image.
+    pub per_image: Vec<Rms>,
+    /// Camera centre minus GNSS prior: RMS east, north, up (m), and count.
+    pub center_priors: Option<([f64; 3], usize)>,
+    /// Adjusted minus surveyed control-point coordinates: RMS east, north, up (m), and count.
+    pub point_priors: Option<([f64; 3], usize)>,
+    /// Observations minus unknowns (residual components counted singly).
+    pub redundancy: i64,
+    /// Posterior variance factor σ0² = Σ ‖r/σ‖² / redundancy over every residual (no robust loss):
+    /// 1 when the given sigmas are right.
+    pub variance_factor: f64,
+    /// Observations whose normalised residual ‖r‖/σ exceeds `threshold · σ0`.
+    pub outliers: Vec<usize>,
+}
+
+/// Residual statistics; observations beyond `outlier_threshold · σ0` (normalised) are flagged.
+pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> ResidualStatistics {
+    let layout = Layout::new(p);
+    let mut per_group = vec![(0.0, 0usize); p.groups.len()];
+    let mut per_image = vec![(0.0, 0usize); p.images.len()];
+    let (mut sum, mut count) = (0.0, 0usize);
+    let mut normalised_sq = 0.0;
+    let mut components = 0i64;
+    let mut normalised: Vec<(usize, f64)> = Vec::with_capacity(p.observations.len());
+    for (k, o) in p.observations.iter().enumerate() {
+        let im = &p.images[o.image];
+        let Ok(px) = project_world(
+            &p.groups[im.group].camera,
+            &im.pose,
+            &p.points[o.point].position,
+        ) else {
+            continue;
+        };
+        let e2 = (px - o.pixel).norm_squared();
+        sum += e2;
+        count += 1;
+        per_group[im.group].0 += e2;
+        per_group[im.group].1 += 1;
+        per_image[o.image].0 += e2;
+        per_image[o.image].1 += 1;
+        let n2 = e2 / (o.sigma_px * o.sigma_px);
+        normalised_sq += n2;
+        components += 2;
+        normalised.push((k, n2.sqrt()));
+    }
+    let mut prior_stats = |residuals: Vec<(SMatrix<f64, 3, 1>, SMatrix<f64, 3, 1>)>| {
+        if residuals.is_empty() {
+            return None;
+        }
+        let mut sq = [0.0; 3];
+        for (d, inv_sigma) in &residuals {
+            for c in 0..3 {
+                sq[c] += d[c] * d[c];
+                normalised_sq += (d[c] * inv_sigma[c]).powi(2);
+            }
+            components += 3;
+        }
+        let n = residuals.len() as f64;
+        Some((sq.map(|s| (s / n).sqrt()), residuals.len()))
+    };
+    let center_priors = prior_stats(
+        p.center_priors
+            .iter()
+            .map(|c| {
+                let d = p.images[c.image].pose.center() - c.position;
+                (
+                    d,
+                    nalgebra::Vector3::new(1.0 / c.sigma_xy, 1.0 / c.sigma_xy, 1.0 / c.sigma_z),
+                )
+            })
+            .collect(),
+    );
+    let point_priors = prior_stats(
+        p.point_priors
+            .iter()
+            .map(|c| {
+                let d = p.points[c.point].position - c.position;
+                (
+                    d,
+                    nalgebra::Vector3::new(1.0 / c.sigma_xy, 1.0 / c.sigma_xy, 1.0 / c.sigma_z),
+                )
+            })
+            .collect(),
+    );
+    let unknowns = (layout.num_camera_params + 3 * layout.num_free_points) as i64;
+    let redundancy = components - unknowns;
+    let variance_factor = if redundancy > 0 {
+        normalised_sq / redundancy as f64
+    } else {
+        f64::NAN
+    };
+    let sigma0 = variance_factor.sqrt();
+    let outliers = normalised
+        .iter()
+        .filter(|(_, r)| *r > outlier_threshold * sigma0)
+        .map(|(k, _)| *k)
+        .collect();
+    ResidualStatistics {
+        reprojection: Rms::from_sum(sum, count),
+        per_group: per_group
+            .into_iter()
+            .map(|(s, n)| Rms::from_sum(s, n))
+            .collect(),
+        per_image: per_image
+            .into_iter()
+            .map(|(s, n)| Rms::from_sum(s, n))
+            .collect(),
+        center_priors,
+        point_priors,
+        redundancy,
+        variance_factor,
+        outliers,
+    }
+}
+
+/// Covariances of the adjusted camera-side parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Precision {
+    /// The factor the covariances were scaled by (σ0², or 1 for a-priori covariances).
+    pub scale: f64,
+    /// Covariance of each free image's camera centre (m²), world axes.
+    pub centers: Vec<Option<Matrix3<f64>>>,
+    /// Covariance of each free image's pose update (rotation δω then translation δt).
+    pub poses: Vec<Option<Matrix6<f64>>>,
+    /// Per camera group: (parameter index in the camera model, standard deviation) of each free
+    /// intrinsic.
+    pub intrinsics: Vec<Vec<(usize, f64)>>,
+}
+
+impl Precision {
+    /// Standard deviations (east, north, up) of an image's camera centre.
+    pub fn center_std(&self, image: usize) -> Option<[f64; 3]> {
+        self.centers[image].map(|c| [c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()])
+    }
+
+    /// Standard deviation of intrinsic `param` (camera-model index) of `group`, when free.
+    pub fn intrinsic_std(&self, group: usize, param: usize) -> Option<f64> {
+        self.intrinsics[group]
+            .iter()
+            .find(|(k, _)| *k == param)
+            .map(|(_, s)| *s)
+    }
+}
+
+/// Whether covariances are scaled by the posterior variance factor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CovarianceScale {
+    /// A-posteriori: scaled by σ0² (what adjustment reports usually give).
+    Posterior,
+    /// A-priori: from the given sigmas alone.
+    Prior,
+}
+
+/// Covariances of camera centres, poses and free intrinsics at the current (adjusted) parameters.
+pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision, BundleError> {
+    p.validate()?;
+    let layout = Layout::new(p);
+    if layout.num_camera_params == 0 {
+        return Err(BundleError::NothingToAdjust);
+    }
+    let singular = || {
+        BundleError::Singular(
+            "the reduced camera system is not positive definite: the datum is not fixed (no \
+             control points, camera-centre priors or fixed cameras) or a parameter is not \
+             observable"
+                .to_string(),
+        )
+    };
+    let s = reduced_system(p, &layout)?.ok_or_else(singular)?;
+    let mut blocks = Vec::new();
+    for off in layout.pose_offset.iter().flatten() {
+        blocks.push((*off, 6));
+    }
+    for (g, off) in layout.group_offset.iter().enumerate() {
+        if let Some(off) = off {
+            blocks.push((*off, layout.group_free[g].len()));
+        }
+    }
+    let inverse = s.inverse_diagonal_blocks(&blocks).ok_or_else(singular)?;
+    let factor = match scale {
+        CovarianceScale::Prior => 1.0,
+        CovarianceScale::Posterior => {
+            let v = residual_statistics(p, f64::INFINITY).variance_factor;
+            if v.is_finite() { v } else { 1.0 }
+        }
+    };
+    let mut k = 0;
+    let mut poses = vec![None; p.images.len()];
+    let mut centers = vec![None; p.images.len()];
+    for (i, off) in layout.pose_offset.iter().enumerate() {
+        if off.is_none() {
+            continue;
+        }
+        let cov = Matrix6::from_fn(|r, c| inverse[k][(r, c)] * factor);
+        k += 1;
+        // dC/dδ of Pose::retract (see center_prior_residual with unit sigmas).
+        let unit = crate::problem::CenterPrior {
+            image: i,
+            position: p.images[i].pose.center(),
+            sigma_xy: 1.0,
+            sigma_z: 1.0,
+        };
+        let (_, j) = center_prior_residual(&p.images[i].pose, &unit);
+        centers[i] = Some(j * cov * j.transpose());
+        poses[i] = Some(cov);
+    }
+    let mut intrinsics = vec![Vec::new(); p.groups.len()];
+    for (g, off) in layout.group_offset.iter().enumerate() {
+        if off.is_none() {
+            continue;
+        }
+        let block = &inverse[k];
+        k += 1;
+        intrinsics[g] = layout.group_free[g]
+            .iter()
+            .enumerate()
+            .map(|(q, &param)| (param, (block[(q, q)] * factor).sqrt()))
+            .collect();
+    }
+    Ok(Precision {
+        scale: factor,
+        centers,
+        poses,
+        intrinsics,
+    })
+}
