@@ -15,6 +15,7 @@
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).
 
 pub mod bal;
+pub mod libmv;
 mod error;
 pub mod loss;
 pub mod precision;

@@ -53,6 +53,11 @@ impl SparsePattern {
         }))
     }
 
+    /// Stored entries (lower triangle with the diagonal).
+    pub(crate) fn nnz_lower(&self) -> usize {
+        self.row_idx.len()
+    }
+
     fn slot(&self, row: usize, col: usize) -> Option<usize> {
         let (r, c) = if row >= col { (row, col) } else { (col, row) };
         let start = self.col_ptr[c];

@@ -47,6 +47,10 @@ pub enum LinearSolver {
 /// Largest number of camera-side parameters solved densely by [`LinearSolver::Auto`].
 pub const DENSE_LIMIT: usize = 1000;
 
+/// Largest number of camera-side parameters solved densely by [`LinearSolver::Auto`] when the
+/// reduced system is more than a quarter full anyway.
+pub const DENSE_FILL_LIMIT: usize = 6000;
+
 impl Default for BundleOptions {
     fn default() -> Self {
         BundleOptions {
@@ -609,6 +613,12 @@ fn reduced_storage(
     let pattern = SparsePattern::new(n, &groups).ok_or_else(|| {
         BundleError::InvalidProblem("symbolic analysis of the reduced system failed".to_string())
     })?;
+    // Few points seen by many cameras make `S` nearly full: then dense storage (direct indexing,
+    // dense Cholesky) beats sparse, up to a size where n² memory stays modest.
+    let density = pattern.nnz_lower() as f64 / (0.5 * n as f64 * (n + 1) as f64);
+    if solver == LinearSolver::Auto && density > 0.25 && n <= DENSE_FILL_LIMIT {
+        return Ok(Reduced::dense(n));
+    }
     Ok(Reduced::sparse(pattern))
 }
 

@@ -21,6 +21,7 @@ pub mod exr;
 pub mod fsutil;
 pub mod geotiff;
 pub mod image;
+pub mod libmv;
 pub mod pointcloud;
 pub mod wkt;
 
