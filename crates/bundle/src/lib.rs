@@ -15,8 +15,8 @@
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).
 
 pub mod bal;
-pub mod libmv;
 mod error;
+pub mod libmv;
 pub mod loss;
 pub mod precision;
 pub mod problem;

@@ -41,22 +41,39 @@ pub fn from_libmv(libmv: &LibmvProblem) -> Result<BundleProblem, BundleError> {
     for c in &libmv.cameras {
         let m = Matrix3::from_fn(|r, k| c.rotation[r][k]);
         let rotation = nearest_rotation(&m).ok_or_else(|| {
-            BundleError::InvalidProblem(format!("camera of image {}: the rotation is degenerate", c.image))
+            BundleError::InvalidProblem(format!(
+                "camera of image {}: the rotation is degenerate",
+                c.image
+            ))
         })?;
-        let pose = Pose::from_rt(&rotation, &Vector3::from(c.translation))
-            .map_err(|e| BundleError::InvalidProblem(format!("camera of image {}: {e}", c.image)))?;
+        let pose = Pose::from_rt(&rotation, &Vector3::from(c.translation)).map_err(|e| {
+            BundleError::InvalidProblem(format!("camera of image {}: {e}", c.image))
+        })?;
         // A later camera of the same image replaces an earlier one, as in libmv.
         match image_index.get(&c.image) {
-            Some(&i) => problem.images[i] = BundleImage { pose, group: 0, fixed: false },
+            Some(&i) => {
+                problem.images[i] = BundleImage {
+                    pose,
+                    group: 0,
+                    fixed: false,
+                }
+            }
             None => {
                 image_index.insert(c.image, problem.images.len());
-                problem.images.push(BundleImage { pose, group: 0, fixed: false });
+                problem.images.push(BundleImage {
+                    pose,
+                    group: 0,
+                    fixed: false,
+                });
             }
         }
     }
     let mut point_index = BTreeMap::new();
     for p in &libmv.points {
-        let point = BundlePoint { position: Vector3::from(p.position), fixed: false };
+        let point = BundlePoint {
+            position: Vector3::from(p.position),
+            fixed: false,
+        };
         match point_index.get(&p.track) {
             Some(&i) => problem.points[i] = point,
             None => {
@@ -67,7 +84,8 @@ pub fn from_libmv(libmv: &LibmvProblem) -> Result<BundleProblem, BundleError> {
     }
     let mut fixed_first = false;
     for m in &libmv.markers {
-        let (Some(&image), Some(&point)) = (image_index.get(&m.image), point_index.get(&m.track)) else {
+        let (Some(&image), Some(&point)) = (image_index.get(&m.image), point_index.get(&m.track))
+        else {
             continue;
         };
         if !fixed_first {

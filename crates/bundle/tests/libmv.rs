@@ -20,10 +20,15 @@ fn problem_path(k: usize) -> PathBuf {
 
 #[test]
 fn libmv_problems_read_with_the_readme_counts() {
-    for (k, cameras, points, markers) in [(1, 333, 26, 5421), (2, 440, 71, 16718), (3, 500, 37, 6184)] {
+    for (k, cameras, points, markers) in
+        [(1, 333, 26, 5421), (2, 440, 71, 16718), (3, 500, 37, 6184)]
+    {
         let p = read_libmv(&problem_path(k)).expect("read");
         assert!(p.pixel_space);
-        assert_eq!((p.cameras.len(), p.points.len(), p.markers.len()), (cameras, points, markers));
+        assert_eq!(
+            (p.cameras.len(), p.points.len(), p.markers.len()),
+            (cameras, points, markers)
+        );
     }
 }
 
@@ -40,7 +45,11 @@ fn libmv_problems_solve() {
             report.final_cost, report.iterations, report.termination, report.rms_px
         );
         assert!(report.final_cost <= before);
-        assert!(report.final_cost <= ceres * 1.001, "{} vs Ceres {ceres}", report.final_cost);
+        assert!(
+            report.final_cost <= ceres * 1.001,
+            "{} vs Ceres {ceres}",
+            report.final_cost
+        );
     }
 }
 

@@ -65,7 +65,10 @@ struct Reader<'a> {
 impl Reader<'_> {
     fn word(&mut self, what: &str) -> Result<[u8; 4], IoError> {
         let b = self.bytes.get(self.at..self.at + 4).ok_or_else(|| {
-            IoError::invalid(self.path, format!("file ends at byte {} before {what}", self.at))
+            IoError::invalid(
+                self.path,
+                format!("file ends at byte {} before {what}", self.at),
+            )
         })?;
         self.at += 4;
         let mut w = [b[0], b[1], b[2], b[3]];
@@ -81,7 +84,10 @@ impl Reader<'_> {
         if v.is_finite() {
             Ok(v)
         } else {
-            Err(IoError::invalid(self.path, format!("{what} at byte {at} is not finite")))
+            Err(IoError::invalid(
+                self.path,
+                format!("{what} at byte {at} is not finite"),
+            ))
         }
     }
 
@@ -117,7 +123,9 @@ pub fn read_libmv(path: &Path) -> Result<LibmvProblem, IoError> {
         other => {
             return Err(IoError::invalid(
                 path,
-                format!("byte 0 is {other:?}; 'v' (little-endian) or 'V' (big-endian) was expected"),
+                format!(
+                    "byte 0 is {other:?}; 'v' (little-endian) or 'V' (big-endian) was expected"
+                ),
             ));
         }
     };
@@ -174,7 +182,10 @@ pub fn read_libmv(path: &Path) -> Result<LibmvProblem, IoError> {
     for _ in 0..n {
         let image = r.index("a marker's image number")?;
         let track = r.index("a marker's track number")?;
-        let xy = [r.real("a marker coordinate")?, r.real("a marker coordinate")?];
+        let xy = [
+            r.real("a marker coordinate")?,
+            r.real("a marker coordinate")?,
+        ];
         markers.push(LibmvMarker { image, track, xy });
     }
     if r.at != bytes.len() {
