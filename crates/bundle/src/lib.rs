@@ -27,6 +27,6 @@ pub use error::BundleError;
 pub use loss::Loss;
 pub use problem::{BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior};
 pub use solver::{
-    BundleOptions, BundleReport, LinearSolver, Termination, cost, gradient, num_parameters,
-    perturbed, solve,
+    BundleOptions, BundleReport, Elimination, LinearSolver, Termination, cost, gradient,
+    num_parameters, perturbed, solve,
 };

@@ -6,7 +6,7 @@
 //! step and back-substitutes the point steps. Damping, step acceptance and the three termination
 //! tests follow Ceres's Levenberg–Marquardt, so final costs compare with Ceres's.
 
-use nalgebra::{DVector, Matrix3, SMatrix, Vector3, Vector6};
+use nalgebra::{DVector, SMatrix, SVector, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
 use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
 
@@ -31,6 +31,19 @@ pub struct BundleOptions {
     pub initial_trust_region_radius: f64,
     /// How the reduced camera system is stored and factored.
     pub linear_solver: LinearSolver,
+    /// Which blocks the Schur complement eliminates.
+    pub elimination: Elimination,
+}
+
+/// Which parameter blocks the Schur complement eliminates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Elimination {
+    /// Whichever leaves the smaller reduced system (the default).
+    Auto,
+    /// The points (many points, fewer cameras: photogrammetric blocks).
+    Points,
+    /// The camera poses (many cameras, few points: camera tracking).
+    Poses,
 }
 
 /// Storage and factorisation of the reduced camera system.
@@ -61,6 +74,7 @@ impl Default for BundleOptions {
             parameter_tolerance: 1e-8,
             initial_trust_region_radius: 1e4,
             linear_solver: LinearSolver::Auto,
+            elimination: Elimination::Auto,
         }
     }
 }
@@ -100,29 +114,60 @@ pub struct BundleReport {
     pub unprojected: usize,
 }
 
-/// Index layout of the camera-side parameters.
+/// Which parameter blocks the Schur complement eliminates. Each observation touches one pose and
+/// one point, so either kind forms a block-diagonal set; eliminating the more numerous kind leaves
+/// the smaller reduced system (Ceres picks its elimination groups the same way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Eliminate {
+    /// Points (3 × 3 blocks): the usual choice, many points seen by fewer cameras.
+    Points,
+    /// Poses (6 × 6 blocks): many cameras, few points (camera tracking); the reduced system holds
+    /// the points and the intrinsics.
+    Poses,
+}
+
+/// Index layout: offsets of reduced-side parameters, indices of eliminated blocks.
 pub(crate) struct Layout {
+    pub(crate) eliminate: Eliminate,
+    /// Reduced-side offset of each free pose (points elimination only).
     pub(crate) pose_offset: Vec<Option<usize>>,
+    /// Reduced-side offset of each group's free intrinsics.
     pub(crate) group_offset: Vec<Option<usize>>,
     pub(crate) group_free: Vec<Vec<usize>>,
+    /// Reduced-side offset of each free point (poses elimination only).
+    pub(crate) point_offset: Vec<Option<usize>>,
+    /// Eliminated block of each free point (points elimination only).
     pub(crate) point_index: Vec<Option<usize>>,
+    /// Eliminated block of each free pose (poses elimination only).
+    pub(crate) pose_index: Vec<Option<usize>>,
+    /// Size of the reduced system.
     pub(crate) num_camera_params: usize,
+    /// Number of eliminated blocks.
     pub(crate) num_free_points: usize,
 }
 
-impl Layout {
-    pub(crate) fn new(p: &BundleProblem) -> Self {
-        let mut n = 0;
-        let pose_offset = p
-            .images
-            .iter()
-            .map(|im| {
-                (!im.fixed).then(|| {
-                    n += 6;
-                    n - 6
-                })
+fn counter(
+    flags: impl Iterator<Item = bool>,
+    start: &mut usize,
+    step: usize,
+) -> Vec<Option<usize>> {
+    flags
+        .map(|free| {
+            free.then(|| {
+                *start += step;
+                *start - step
             })
-            .collect();
+        })
+        .collect()
+}
+
+impl Layout {
+    /// The layout that eliminates points (the public parameter order: poses, intrinsics, points).
+    pub(crate) fn new(p: &BundleProblem) -> Self {
+        Self::with(p, Eliminate::Points)
+    }
+
+    pub(crate) fn with(p: &BundleProblem, eliminate: Eliminate) -> Self {
         let group_free: Vec<Vec<usize>> = p
             .groups
             .iter()
@@ -135,71 +180,120 @@ impl Layout {
                     .collect()
             })
             .collect();
-        let group_offset = group_free
-            .iter()
-            .map(|f| {
-                (!f.is_empty()).then(|| {
-                    n += f.len();
-                    n - f.len()
-                })
-            })
-            .collect();
+        let free_poses = p.images.iter().map(|im| !im.fixed);
+        let free_points = p.points.iter().map(|pt| !pt.fixed);
+        let mut n = 0;
         let mut m = 0;
-        let point_index = p
-            .points
-            .iter()
-            .map(|pt| {
-                (!pt.fixed).then(|| {
-                    m += 1;
-                    m - 1
-                })
-            })
-            .collect();
+        let none_i = vec![None; p.images.len()];
+        let none_p = vec![None; p.points.len()];
+        let (pose_offset, pose_index, point_offset, point_index, group_offset);
+        match eliminate {
+            Eliminate::Points => {
+                pose_offset = counter(free_poses, &mut n, 6);
+                group_offset = group_free
+                    .iter()
+                    .map(|f| {
+                        (!f.is_empty()).then(|| {
+                            n += f.len();
+                            n - f.len()
+                        })
+                    })
+                    .collect();
+                point_index = counter(free_points, &mut m, 1);
+                point_offset = none_p;
+                pose_index = none_i;
+            }
+            Eliminate::Poses => {
+                point_offset = counter(free_points, &mut n, 3);
+                group_offset = group_free
+                    .iter()
+                    .map(|f| {
+                        (!f.is_empty()).then(|| {
+                            n += f.len();
+                            n - f.len()
+                        })
+                    })
+                    .collect();
+                pose_index = counter(free_poses, &mut m, 1);
+                pose_offset = none_i;
+                point_index = none_p;
+            }
+        }
         Layout {
+            eliminate,
             pose_offset,
             group_offset,
             group_free,
+            point_offset,
             point_index,
+            pose_index,
             num_camera_params: n,
             num_free_points: m,
         }
     }
+
+    /// The eliminated block an observation of `image` and `point` belongs to.
+    fn eliminated(&self, image: usize, point: usize) -> Option<usize> {
+        match self.eliminate {
+            Eliminate::Points => self.point_index[point],
+            Eliminate::Poses => self.pose_index[image],
+        }
+    }
+
+    /// Reduced-side columns of an observation.
+    fn observation_columns(&self, p: &BundleProblem, image: usize, point: usize) -> Vec<usize> {
+        let mut cols = Vec::new();
+        if let Some(off) = self.pose_offset[image] {
+            cols.extend(off..off + 6);
+        }
+        if let Some(off) = self.point_offset[point] {
+            cols.extend(off..off + 3);
+        }
+        let g = p.images[image].group;
+        if let Some(off) = self.group_offset[g] {
+            cols.extend(off..off + self.group_free[g].len());
+        }
+        cols
+    }
 }
 
-/// The normal equations of one linearisation, before damping.
-struct Normal {
+/// Most reduced-side columns of one observation: a pose (or a point) and every intrinsic.
+const MAX_COLS: usize = 6 + MAX_INTRINSICS;
+
+/// The normal equations of one linearisation, before damping, with eliminated blocks of size `D`.
+struct Normal<const D: usize> {
     u: Reduced,
     g_c: DVector<f64>,
-    v: Vec<Matrix3<f64>>,
-    g_p: Vec<Vector3<f64>>,
-    /// Per observation: global camera-side columns (start, count) into `cols`.
+    v: Vec<SMatrix<f64, D, D>>,
+    g_p: Vec<SVector<f64, D>>,
+    /// Per observation: reduced-side columns (start, count) into `cols`.
     obs_cols: Vec<(usize, usize)>,
     cols: Vec<usize>,
-    /// Per observation: E = w J_cᵀ J_p, row-major (count × 3), starting at `obs_cols.0 * 3`.
+    /// Per observation: E = w J_cᵀ J_e, row-major (count × D), starting at `obs_cols.0 * D`.
     e: Vec<f64>,
-    /// Observations of each free point.
+    /// Observations of each eliminated block.
     point_obs: Vec<Vec<usize>>,
     cost: f64,
 }
 
 /// The reduced camera system `S = U − E V⁻¹ Eᵀ` of the squared (non-robust) cost at the current
-/// parameters, undamped: the inverse of the camera-side block of the normal matrix, whose inverse
-/// is the covariance of the camera-side parameters. `None` when a point block is singular.
+/// parameters, points eliminated, undamped: its inverse is the covariance of the camera-side
+/// parameters. `None` when a point block is singular.
 pub(crate) fn reduced_system(
     p: &BundleProblem,
     layout: &Layout,
 ) -> Result<Option<Reduced>, BundleError> {
     let storage = reduced_storage(p, layout, LinearSolver::Auto)?;
-    let nm = linearize(p, layout, &Loss::Trivial, &storage);
+    let nm = linearize::<3>(p, layout, &Loss::Trivial, &storage);
     let mut s = nm.u.clone();
     let mut rhs = nm.g_c.clone();
     let n = rhs.len();
     let ok = match &mut s {
         Reduced::Dense(m) => {
             let data = m.as_mut_slice();
-            eliminate_points(&nm, 0.0, &mut rhs, |r, c, v| data[r + c * n] += v).is_some()
+            eliminate_blocks(&nm, 0.0, &mut rhs, |r, c, v| data[r + c * n] += v).is_some()
         }
-        sparse => eliminate_points(&nm, 0.0, &mut rhs, |r, c, v| sparse.add(r, c, v)).is_some(),
+        sparse => eliminate_blocks(&nm, 0.0, &mut rhs, |r, c, v| sparse.add(r, c, v)).is_some(),
     };
     Ok(ok.then_some(s))
 }
@@ -289,21 +383,29 @@ fn cost_of(p: &BundleProblem, loss: &Loss) -> f64 {
     prior_cost(p) + partial.iter().sum::<f64>()
 }
 
-fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss, storage: &Reduced) -> Normal {
+fn linearize<const D: usize>(
+    p: &BundleProblem,
+    layout: &Layout,
+    loss: &Loss,
+    storage: &Reduced,
+) -> Normal<D> {
     let n = layout.num_camera_params;
-    let mut nm = Normal {
+    let poses_eliminated = layout.eliminate == Eliminate::Poses;
+    debug_assert_eq!(D, if poses_eliminated { 6 } else { 3 });
+    let mut nm = Normal::<D> {
         u: storage.clone(),
         g_c: DVector::zeros(n),
-        v: vec![Matrix3::zeros(); layout.num_free_points],
-        g_p: vec![Vector3::zeros(); layout.num_free_points],
+        v: vec![SMatrix::zeros(); layout.num_free_points],
+        g_p: vec![SVector::zeros(); layout.num_free_points],
         obs_cols: Vec::with_capacity(p.observations.len()),
         cols: Vec::with_capacity(p.observations.len() * 9),
-        e: Vec::with_capacity(p.observations.len() * 27),
+        e: Vec::with_capacity(p.observations.len() * 3 * D),
         point_obs: vec![Vec::new(); layout.num_free_points],
         cost: 0.0,
     };
     let mut d_int = [0.0; 2 * MAX_INTRINSICS];
-    let mut jc = [[0.0f64; 6 + MAX_INTRINSICS]; 2];
+    let mut jc = [[0.0f64; MAX_COLS]; 2];
+    let mut je = [[0.0f64; D]; 2];
     for (k, o) in p.observations.iter().enumerate() {
         let im = &p.images[o.image];
         let cam = &p.groups[im.group].camera;
@@ -320,12 +422,20 @@ fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss, storage: &Reduced)
         let (rho, w) = loss.evaluate(r.norm_squared());
         nm.cost += 0.5 * rho;
         let inv_sigma = 1.0 / o.sigma_px;
-        // Camera-side Jacobian columns.
+        // Reduced-side Jacobian columns: the pose or the point, then the intrinsics.
         let mut count = 0;
         if let Some(off) = layout.pose_offset[o.image] {
             for c in 0..6 {
                 jc[0][count] = j.d_pose[(0, c)] * inv_sigma;
                 jc[1][count] = j.d_pose[(1, c)] * inv_sigma;
+                nm.cols.push(off + c);
+                count += 1;
+            }
+        }
+        if let Some(off) = layout.point_offset[o.point] {
+            for c in 0..3 {
+                jc[0][count] = j.d_world_point[(0, c)] * inv_sigma;
+                jc[1][count] = j.d_world_point[(1, c)] * inv_sigma;
                 nm.cols.push(off + c);
                 count += 1;
             }
@@ -350,36 +460,52 @@ fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss, storage: &Reduced)
                 );
             }
         }
-        if let Some(pi) = layout.point_index[o.point] {
-            let jp = j.d_world_point * inv_sigma;
-            nm.v[pi] += jp.transpose() * jp * w;
-            nm.g_p[pi] += jp.transpose() * r * w;
-            for a in 0..count {
-                for c in 0..3 {
-                    nm.e.push(w * (jc[0][a] * jp[(0, c)] + jc[1][a] * jp[(1, c)]));
+        if let Some(bi) = layout.eliminated(o.image, o.point) {
+            for c in 0..D {
+                let (j0, j1) = if poses_eliminated {
+                    (j.d_pose[(0, c)], j.d_pose[(1, c)])
+                } else {
+                    (j.d_world_point[(0, c)], j.d_world_point[(1, c)])
+                };
+                je[0][c] = j0 * inv_sigma;
+                je[1][c] = j1 * inv_sigma;
+            }
+            let v = &mut nm.v[bi];
+            let g = &mut nm.g_p[bi];
+            for a in 0..D {
+                g[a] += w * (je[0][a] * r.x + je[1][a] * r.y);
+                for b in 0..D {
+                    v[(a, b)] += w * (je[0][a] * je[0][b] + je[1][a] * je[1][b]);
                 }
             }
-            nm.point_obs[pi].push(k);
+            for a in 0..count {
+                for c in 0..D {
+                    nm.e.push(w * (jc[0][a] * je[0][c] + jc[1][a] * je[1][c]));
+                }
+            }
+            nm.point_obs[bi].push(k);
         } else {
-            nm.e.extend(std::iter::repeat_n(0.0, 3 * count));
+            nm.e.extend(std::iter::repeat_n(0.0, D * count));
         }
     }
     for c in &p.center_priors {
-        let Some(off) = layout.pose_offset[c.image] else {
-            nm.cost += 0.5
-                * center_prior_residual(&p.images[c.image].pose, c)
-                    .0
-                    .norm_squared();
-            continue;
-        };
         let (r, j) = center_prior_residual(&p.images[c.image].pose, c);
         nm.cost += 0.5 * r.norm_squared();
         let jtj = j.transpose() * j;
         let jtr = j.transpose() * r;
-        for a in 0..6 {
-            nm.g_c[off + a] += jtr[a];
-            for b in 0..6 {
-                nm.u.add(off + a, off + b, jtj[(a, b)]);
+        if let Some(off) = layout.pose_offset[c.image] {
+            for a in 0..6 {
+                nm.g_c[off + a] += jtr[a];
+                for b in 0..6 {
+                    nm.u.add(off + a, off + b, jtj[(a, b)]);
+                }
+            }
+        } else if let Some(bi) = layout.pose_index[c.image] {
+            for a in 0..6 {
+                nm.g_p[bi][a] += jtr[a];
+                for b in 0..6 {
+                    nm.v[bi][(a, b)] += jtj[(a, b)];
+                }
             }
         }
     }
@@ -392,30 +518,36 @@ fn linearize(p: &BundleProblem, layout: &Layout, loss: &Loss, storage: &Reduced)
                 nm.v[pi][(k, k)] += scale[k] * scale[k];
                 nm.g_p[pi][k] += scale[k] * r[k];
             }
+        } else if let Some(off) = layout.point_offset[c.point] {
+            for k in 0..3 {
+                nm.u.add(off + k, off + k, scale[k] * scale[k]);
+                nm.g_c[off + k] += scale[k] * r[k];
+            }
         }
     }
     nm
 }
 
-/// The damped step: camera-side and per free point.
-struct Step {
+/// The damped step: reduced side and per eliminated block.
+struct Step<const D: usize> {
     cameras: DVector<f64>,
-    points: Vec<Vector3<f64>>,
+    points: Vec<SVector<f64, D>>,
 }
 
-/// Eliminates the points: `S −= E_a V⁻¹ E_bᵀ` over pairs of observations of each point (upper
-/// pairs, mirrored) and `rhs −= E_a V⁻¹ g_p`; returns the damped `V⁻¹` of every point.
-fn eliminate_points(
-    nm: &Normal,
+/// Eliminates the blocks: `S −= E_a V⁻¹ E_bᵀ` over pairs of observations of each block (upper
+/// pairs, mirrored) and `rhs −= E_a V⁻¹ g`; returns the damped `V⁻¹` of every block.
+fn eliminate_blocks<const D: usize>(
+    nm: &Normal<D>,
     lambda: f64,
     rhs: &mut DVector<f64>,
     mut add: impl FnMut(usize, usize, f64),
-) -> Option<Vec<Matrix3<f64>>> {
+) -> Option<Vec<SMatrix<f64, D, D>>> {
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
     let mut v_inv = Vec::with_capacity(nm.v.len());
+    let mut fa = [[0.0f64; D]; MAX_COLS];
     for (pi, v) in nm.v.iter().enumerate() {
         let mut vd = *v;
-        for c in 0..3 {
+        for c in 0..D {
             vd[(c, c)] += lambda * clamp(v[(c, c)]);
         }
         let inv = vd.try_inverse()?;
@@ -423,25 +555,34 @@ fn eliminate_points(
         let vg = inv * nm.g_p[pi];
         for (ia, &a) in obs.iter().enumerate() {
             let (sa, ca) = nm.obs_cols[a];
-            let ea = &nm.e[sa * 3..(sa + ca) * 3];
+            let ea = &nm.e[sa * D..(sa + ca) * D];
             // F_a = E_a V⁻¹, row by row.
-            let mut fa = [[0.0f64; 3]; 6 + MAX_INTRINSICS];
             for ra in 0..ca {
-                let (e0, e1, e2) = (ea[3 * ra], ea[3 * ra + 1], ea[3 * ra + 2]);
-                for c in 0..3 {
-                    fa[ra][c] = e0 * inv[(0, c)] + e1 * inv[(1, c)] + e2 * inv[(2, c)];
+                let row = &ea[D * ra..D * ra + D];
+                let mut dot = 0.0;
+                for c in 0..D {
+                    let mut acc = 0.0;
+                    for k in 0..D {
+                        acc += row[k] * inv[(k, c)];
+                    }
+                    fa[ra][c] = acc;
+                    dot += row[c] * vg[c];
                 }
-                rhs[nm.cols[sa + ra]] -= e0 * vg[0] + e1 * vg[1] + e2 * vg[2];
+                rhs[nm.cols[sa + ra]] -= dot;
             }
             for &b in &obs[ia..] {
                 let (sb, cb) = nm.obs_cols[b];
-                let eb = &nm.e[sb * 3..(sb + cb) * 3];
+                let eb = &nm.e[sb * D..(sb + cb) * D];
                 let cols_b = &nm.cols[sb..sb + cb];
                 for ra in 0..ca {
                     let row = nm.cols[sa + ra];
-                    let f = fa[ra];
+                    let f = &fa[ra];
                     for (rb, &col) in cols_b.iter().enumerate() {
-                        let v = f[0] * eb[3 * rb] + f[1] * eb[3 * rb + 1] + f[2] * eb[3 * rb + 2];
+                        let erow = &eb[D * rb..D * rb + D];
+                        let mut v = 0.0;
+                        for c in 0..D {
+                            v += f[c] * erow[c];
+                        }
                         add(row, col, -v);
                         if a != b {
                             add(col, row, -v);
@@ -455,7 +596,7 @@ fn eliminate_points(
     Some(v_inv)
 }
 
-fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
+fn damped_step<const D: usize>(nm: &Normal<D>, lambda: f64) -> Option<Step<D>> {
     let n = nm.g_c.len();
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
     let mut s = nm.u.clone();
@@ -467,9 +608,9 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
     let v_inv = match &mut s {
         Reduced::Dense(m) => {
             let data = m.as_mut_slice();
-            eliminate_points(nm, lambda, &mut rhs, |r, c, v| data[r + c * n] += v)?
+            eliminate_blocks(nm, lambda, &mut rhs, |r, c, v| data[r + c * n] += v)?
         }
-        sparse => eliminate_points(nm, lambda, &mut rhs, |r, c, v| sparse.add(r, c, v))?,
+        sparse => eliminate_blocks(nm, lambda, &mut rhs, |r, c, v| sparse.add(r, c, v))?,
     };
     let cameras = if n > 0 {
         -s.solve(&rhs)?
@@ -486,8 +627,10 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
                 let (sa, ca) = nm.obs_cols[a];
                 for ra in 0..ca {
                     let d = cameras[nm.cols[sa + ra]];
-                    let e = &nm.e[(sa + ra) * 3..(sa + ra) * 3 + 3];
-                    acc += Vector3::new(e[0], e[1], e[2]) * d;
+                    let e = &nm.e[(sa + ra) * D..(sa + ra) * D + D];
+                    for c in 0..D {
+                        acc[c] += e[c] * d;
+                    }
                 }
             }
             -(v_inv[pi] * acc)
@@ -496,13 +639,21 @@ fn damped_step(nm: &Normal, lambda: f64) -> Option<Step> {
     Some(Step { cameras, points })
 }
 
-fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> Option<BundleProblem> {
+fn apply_step<const D: usize>(
+    p: &BundleProblem,
+    layout: &Layout,
+    step: &Step<D>,
+) -> Option<BundleProblem> {
     let mut q = p.clone();
     for (i, im) in q.images.iter_mut().enumerate() {
-        if let Some(off) = layout.pose_offset[i] {
-            let d = Vector6::from_iterator((0..6).map(|c| step.cameras[off + c]));
-            im.pose = im.pose.retract(&d);
-        }
+        let d = if let Some(off) = layout.pose_offset[i] {
+            Vector6::from_iterator((0..6).map(|c| step.cameras[off + c]))
+        } else if let Some(bi) = layout.pose_index[i] {
+            Vector6::from_iterator((0..6).map(|c| step.points[bi][c]))
+        } else {
+            continue;
+        };
+        im.pose = im.pose.retract(&d);
     }
     for (g, group) in q.groups.iter_mut().enumerate() {
         if let Some(off) = layout.group_offset[g] {
@@ -518,12 +669,17 @@ fn apply_step(p: &BundleProblem, layout: &Layout, step: &Step) -> Option<BundleP
     }
     for (j, pt) in q.points.iter_mut().enumerate() {
         if let Some(pi) = layout.point_index[j] {
-            pt.position += step.points[pi];
+            pt.position += Vector3::new(step.points[pi][0], step.points[pi][1], step.points[pi][2]);
+        } else if let Some(off) = layout.point_offset[j] {
+            pt.position += Vector3::new(
+                step.cameras[off],
+                step.cameras[off + 1],
+                step.cameras[off + 2],
+            );
         }
     }
     Some(q)
 }
-
 fn parameter_norm(p: &BundleProblem) -> f64 {
     let mut s = 0.0;
     for im in &p.images {
@@ -562,21 +718,8 @@ fn reprojection_rms(p: &BundleProblem) -> (f64, usize) {
     (if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }, lost)
 }
 
-/// Camera-side columns of an observation.
-fn observation_columns(p: &BundleProblem, layout: &Layout, image: usize) -> Vec<usize> {
-    let mut cols = Vec::new();
-    if let Some(off) = layout.pose_offset[image] {
-        cols.extend(off..off + 6);
-    }
-    let g = p.images[image].group;
-    if let Some(off) = layout.group_offset[g] {
-        cols.extend(off..off + layout.group_free[g].len());
-    }
-    cols
-}
-
 /// Empty storage of the reduced system for the chosen solver; the sparse pattern couples the
-/// columns of each observation and of all observations of each free point.
+/// columns of each observation and of all observations of each eliminated block.
 fn reduced_storage(
     p: &BundleProblem,
     layout: &Layout,
@@ -592,11 +735,11 @@ fn reduced_storage(
         return Ok(Reduced::dense(n));
     }
     let mut groups: Vec<Vec<usize>> = Vec::new();
-    let mut per_point: Vec<Vec<usize>> = vec![Vec::new(); layout.num_free_points];
+    let mut per_block: Vec<Vec<usize>> = vec![Vec::new(); layout.num_free_points];
     for o in &p.observations {
-        let cols = observation_columns(p, layout, o.image);
-        if let Some(pi) = layout.point_index[o.point] {
-            per_point[pi].extend_from_slice(&cols);
+        let cols = layout.observation_columns(p, o.image, o.point);
+        if let Some(bi) = layout.eliminated(o.image, o.point) {
+            per_block[bi].extend_from_slice(&cols);
         }
         groups.push(cols);
     }
@@ -605,7 +748,7 @@ fn reduced_storage(
             groups.push((off..off + 6).collect());
         }
     }
-    for mut cols in per_point {
+    for mut cols in per_block {
         cols.sort_unstable();
         cols.dedup();
         groups.push(cols);
@@ -613,8 +756,8 @@ fn reduced_storage(
     let pattern = SparsePattern::new(n, &groups).ok_or_else(|| {
         BundleError::InvalidProblem("symbolic analysis of the reduced system failed".to_string())
     })?;
-    // Few points seen by many cameras make `S` nearly full: then dense storage (direct indexing,
-    // dense Cholesky) beats sparse, up to a size where n² memory stays modest.
+    // Few eliminated blocks seen by many reduced-side blocks make `S` nearly full: then dense
+    // storage (direct indexing, dense Cholesky) beats sparse, up to a size where n² stays modest.
     let density = pattern.nnz_lower() as f64 / (0.5 * n as f64 * (n + 1) as f64);
     if solver == LinearSolver::Auto && density > 0.25 && n <= DENSE_FILL_LIMIT {
         return Ok(Reduced::dense(n));
@@ -622,17 +765,36 @@ fn reduced_storage(
     Ok(Reduced::sparse(pattern))
 }
 
-/// Adjusts the problem in place and reports what happened.
+/// Adjusts the problem in place and reports what happened. Points are eliminated, or the poses
+/// when that leaves the smaller reduced system (many cameras, few points).
 pub fn solve(
     problem: &mut BundleProblem,
     options: &BundleOptions,
 ) -> Result<BundleReport, BundleError> {
     problem.validate()?;
     options.loss.validate()?;
-    let layout = Layout::new(problem);
-    if layout.num_camera_params == 0 && layout.num_free_points == 0 {
+    let by_points = Layout::with(problem, Eliminate::Points);
+    if by_points.num_camera_params == 0 && by_points.num_free_points == 0 {
         return Err(BundleError::NothingToAdjust);
     }
+    let by_poses = Layout::with(problem, Eliminate::Poses);
+    let poses = match options.elimination {
+        Elimination::Auto => by_poses.num_camera_params < by_points.num_camera_params,
+        Elimination::Points => false,
+        Elimination::Poses => true,
+    };
+    if poses {
+        run::<6>(problem, &by_poses, options)
+    } else {
+        run::<3>(problem, &by_points, options)
+    }
+}
+
+fn run<const D: usize>(
+    problem: &mut BundleProblem,
+    layout: &Layout,
+    options: &BundleOptions,
+) -> Result<BundleReport, BundleError> {
     let initial_cost = cost_of(problem, &options.loss);
     let mut cost = initial_cost;
     let mut radius = options.initial_trust_region_radius;
@@ -640,8 +802,8 @@ pub fn solve(
     let mut iterations = 0;
     let mut successful_steps = 0;
     let mut termination = Termination::MaxIterations;
-    let storage = reduced_storage(problem, &layout, options.linear_solver)?;
-    let mut nm = linearize(problem, &layout, &options.loss, &storage);
+    let storage = reduced_storage(problem, layout, options.linear_solver)?;
+    let mut nm = linearize::<D>(problem, layout, &options.loss, &storage);
     while iterations < options.max_iterations {
         iterations += 1;
         let g_max = nm
@@ -672,7 +834,7 @@ pub fn solve(
         }
         let mut step_sq = step.cameras.norm_squared();
         for (pi, d) in step.points.iter().enumerate() {
-            for c in 0..3 {
+            for c in 0..D {
                 model += lambda * clamp(nm.v[pi][(c, c)]) * d[c] * d[c] - nm.g_p[pi][c] * d[c];
             }
             step_sq += d.norm_squared();
@@ -683,7 +845,7 @@ pub fn solve(
             termination = Termination::ParameterTolerance;
             break;
         }
-        let Some(candidate) = apply_step(problem, &layout, &step) else {
+        let Some(candidate) = apply_step(problem, layout, &step) else {
             radius /= nu;
             nu *= 2.0;
             if radius < 1e-32 {
@@ -706,7 +868,7 @@ pub fn solve(
                 termination = Termination::FunctionTolerance;
                 break;
             }
-            nm = linearize(problem, &layout, &options.loss, &storage);
+            nm = linearize::<D>(problem, layout, &options.loss, &storage);
         } else {
             radius /= nu;
             nu *= 2.0;
@@ -745,7 +907,7 @@ pub fn cost(problem: &BundleProblem, loss: &Loss) -> f64 {
 pub fn gradient(problem: &BundleProblem, loss: &Loss) -> Vec<f64> {
     let layout = Layout::new(problem);
     let storage = Reduced::dense(layout.num_camera_params);
-    let nm = linearize(problem, &layout, loss, &storage);
+    let nm = linearize::<3>(problem, &layout, loss, &storage);
     let mut g: Vec<f64> = nm.g_c.iter().copied().collect();
     for gp in &nm.g_p {
         g.extend(gp.iter());
@@ -757,11 +919,11 @@ pub fn gradient(problem: &BundleProblem, loss: &Loss) -> Vec<f64> {
 pub fn perturbed(problem: &BundleProblem, delta: &[f64]) -> Option<BundleProblem> {
     let layout = Layout::new(problem);
     let n = layout.num_camera_params;
-    let step = Step {
+    let step = Step::<3> {
         cameras: DVector::from_iterator(n, delta[..n].iter().copied()),
         points: delta[n..]
             .chunks(3)
-            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .map(|c| SVector::<f64, 3>::new(c[0], c[1], c[2]))
             .collect(),
     };
     apply_step(problem, &layout, &step)
