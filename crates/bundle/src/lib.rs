@@ -8,8 +8,9 @@
 //! paths, Ceres-like trust-region control and
 //! termination, the BAL problem conversion, and `precision`: residual statistics per kind, group
 //! and image, the posterior variance factor, outlier flags, covariances of camera centres and
-//! intrinsics. Still to come (see the issue): the PCG path, scale-bar residuals, parallel
-//! assembly, libmv problems.
+//! intrinsics; scale bars (distances between two points), whose end points stay in the reduced
+//! system since they couple two points; libmv problems. Still to come (see the issue): the PCG
+//! path, parallel assembly.
 //!
 //! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).
@@ -25,7 +26,7 @@ pub mod solver;
 
 pub use error::BundleError;
 pub use loss::Loss;
-pub use problem::{BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior};
+pub use problem::{BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior, ScaleBar};
 pub use solver::{
     BundleOptions, BundleReport, Elimination, LinearSolver, Termination, cost, gradient,
     num_parameters, perturbed, solve,

@@ -50,6 +50,8 @@ pub struct ResidualStatistics {
     pub center_priors: Option<([f64; 3], usize)>,
     /// Adjusted minus surveyed control-point coordinates: RMS east, north, up (m), and count.
     pub point_priors: Option<([f64; 3], usize)>,
+    /// Measured minus adjusted scale-bar lengths: RMS (m) and count.
+    pub scale_bars: Option<(f64, usize)>,
     /// Observations minus unknowns (residual components counted singly).
     pub redundancy: i64,
     /// Posterior variance factor σ0² = Σ ‖r/σ‖² / redundancy over every residual (no robust loss):
@@ -128,6 +130,16 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
             })
             .collect(),
     );
+    let scale_bars = (!p.scale_bars.is_empty()).then(|| {
+        let mut sq = 0.0;
+        for bar in &p.scale_bars {
+            let (r, _) = crate::solver::scale_bar_residual(p, bar);
+            normalised_sq += r * r;
+            components += 1;
+            sq += (r * bar.sigma).powi(2);
+        }
+        ((sq / p.scale_bars.len() as f64).sqrt(), p.scale_bars.len())
+    });
     let unknowns = (layout.num_camera_params + 3 * layout.num_free_points) as i64;
     let redundancy = components - unknowns;
     let variance_factor = if redundancy > 0 {
@@ -153,6 +165,7 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
             .collect(),
         center_priors,
         point_priors,
+        scale_bars,
         redundancy,
         variance_factor,
         outliers,

@@ -107,6 +107,19 @@ pub struct PointPrior {
     pub sigma_z: f64,
 }
 
+/// A scale bar: the measured distance between two points (markers), with its accuracy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScaleBar {
+    /// Index into [`BundleProblem::points`] of one end.
+    pub a: usize,
+    /// The other end.
+    pub b: usize,
+    /// Measured distance, metres.
+    pub length: f64,
+    /// Standard deviation of the distance, metres.
+    pub sigma: f64,
+}
+
 /// A bundle-adjustment problem.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct BundleProblem {
@@ -122,6 +135,8 @@ pub struct BundleProblem {
     pub center_priors: Vec<CenterPrior>,
     /// Object-coordinate priors of control points.
     pub point_priors: Vec<PointPrior>,
+    /// Distances between pairs of points.
+    pub scale_bars: Vec<ScaleBar>,
 }
 
 impl BundleProblem {
@@ -193,6 +208,26 @@ impl BundleProblem {
                 return Err(BundleError::InvalidProblem(format!(
                     "point prior {k}: point {} out of range, non-positive sigma or non-finite position",
                     c.point
+                )));
+            }
+        }
+        for (k, bar) in self.scale_bars.iter().enumerate() {
+            if bar.a >= self.points.len() || bar.b >= self.points.len() || bar.a == bar.b {
+                return Err(BundleError::InvalidProblem(format!(
+                    "scale bar {k}: points {} and {} must be two distinct points of {}",
+                    bar.a,
+                    bar.b,
+                    self.points.len()
+                )));
+            }
+            if !(bar.length > 0.0
+                && bar.length.is_finite()
+                && bar.sigma > 0.0
+                && bar.sigma.is_finite())
+            {
+                return Err(BundleError::InvalidProblem(format!(
+                    "scale bar {k}: length {} and sigma {} must be finite and positive",
+                    bar.length, bar.sigma
                 )));
             }
         }

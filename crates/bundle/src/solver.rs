@@ -10,7 +10,7 @@ use nalgebra::{DVector, SMatrix, SVector, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
 use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
 
-use crate::problem::{BundleProblem, CenterPrior, PointPrior};
+use crate::problem::{BundleProblem, CenterPrior, PointPrior, ScaleBar};
 use crate::reduced::{Reduced, SparsePattern};
 use crate::{BundleError, Loss};
 
@@ -185,7 +185,6 @@ impl Layout {
         let mut n = 0;
         let mut m = 0;
         let none_i = vec![None; p.images.len()];
-        let none_p = vec![None; p.points.len()];
         let (pose_offset, pose_index, point_offset, point_index, group_offset);
         match eliminate {
             Eliminate::Points => {
@@ -199,12 +198,20 @@ impl Layout {
                         })
                     })
                     .collect();
-                point_index = counter(free_points, &mut m, 1);
-                point_offset = none_p;
+                // Ends of scale bars couple two points, so they stay in the reduced system.
+                let mut on_bar = vec![false; p.points.len()];
+                for bar in &p.scale_bars {
+                    on_bar[bar.a] = true;
+                    on_bar[bar.b] = true;
+                }
+                let free: Vec<bool> = free_points.collect();
+                point_offset = counter(free.iter().zip(&on_bar).map(|(f, b)| *f && *b), &mut n, 3);
+                point_index = counter(free.iter().zip(&on_bar).map(|(f, b)| *f && !*b), &mut m, 1);
                 pose_index = none_i;
             }
             Eliminate::Poses => {
                 point_offset = counter(free_points, &mut n, 3);
+                let none_p = vec![None; p.points.len()];
                 group_offset = group_free
                     .iter()
                     .map(|f| {
@@ -257,8 +264,8 @@ impl Layout {
     }
 }
 
-/// Most reduced-side columns of one observation: a pose (or a point) and every intrinsic.
-const MAX_COLS: usize = 6 + MAX_INTRINSICS;
+/// Most reduced-side columns of one observation: a pose, a point (scale-bar ends), every intrinsic.
+const MAX_COLS: usize = 9 + MAX_INTRINSICS;
 
 /// The normal equations of one linearisation, before damping, with eliminated blocks of size `D`.
 struct Normal<const D: usize> {
@@ -349,7 +356,12 @@ fn prior_cost(p: &BundleProblem) -> f64 {
                 .norm_squared()
         })
         .sum();
-    centres + points
+    let bars: f64 = p
+        .scale_bars
+        .iter()
+        .map(|bar| 0.5 * scale_bar_residual(p, bar).0.powi(2))
+        .sum();
+    centres + points + bars
 }
 
 /// Observations per parallel chunk; fixed so that the summation order, and so the result, does not
@@ -525,7 +537,43 @@ fn linearize<const D: usize>(
             }
         }
     }
+    for bar in &p.scale_bars {
+        let (r, ja) = scale_bar_residual(p, bar);
+        nm.cost += 0.5 * r * r;
+        let ends = [
+            (layout.point_offset[bar.a], ja),
+            (layout.point_offset[bar.b], -ja),
+        ];
+        for &(oa, ja) in &ends {
+            let Some(oa) = oa else { continue };
+            for k in 0..3 {
+                nm.g_c[oa + k] += ja[k] * r;
+            }
+            for &(ob, jb) in &ends {
+                let Some(ob) = ob else { continue };
+                for k in 0..3 {
+                    for l in 0..3 {
+                        nm.u.add(oa + k, ob + l, ja[k] * jb[l]);
+                    }
+                }
+            }
+        }
+    }
     nm
+}
+
+/// Scale-bar residual `(‖X_a − X_b‖ − L) / σ` and its gradient with respect to `X_a` (that with
+/// respect to `X_b` is the opposite).
+pub(crate) fn scale_bar_residual(p: &BundleProblem, bar: &ScaleBar) -> (f64, Vector3<f64>) {
+    let d = p.points[bar.a].position - p.points[bar.b].position;
+    let len = d.norm();
+    let r = (len - bar.length) / bar.sigma;
+    let j = if len > 0.0 {
+        d / (len * bar.sigma)
+    } else {
+        Vector3::zeros()
+    };
+    (r, j)
 }
 
 /// The damped step: reduced side and per eliminated block.
@@ -748,6 +796,14 @@ fn reduced_storage(
             groups.push((off..off + 6).collect());
         }
     }
+    for bar in &p.scale_bars {
+        let cols: Vec<usize> = [layout.point_offset[bar.a], layout.point_offset[bar.b]]
+            .into_iter()
+            .flatten()
+            .flat_map(|o| o..o + 3)
+            .collect();
+        groups.push(cols);
+    }
     for mut cols in per_block {
         cols.sort_unstable();
         cols.dedup();
@@ -891,7 +947,8 @@ fn run<const D: usize>(
 }
 
 /// Number of adjusted parameters in the local (update) coordinates used by [`gradient`] and
-/// [`perturbed`]: free poses (6 each), free intrinsics, then free points (3 each).
+/// [`perturbed`]: free poses (6 each), free intrinsics, free points on scale bars (3 each), then
+/// the other free points (3 each).
 pub fn num_parameters(problem: &BundleProblem) -> usize {
     let layout = Layout::new(problem);
     layout.num_camera_params + 3 * layout.num_free_points

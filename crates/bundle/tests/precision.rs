@@ -132,6 +132,7 @@ fn realisation(t: &Truth, seed: u64) -> BundleProblem {
         observations,
         center_priors,
         point_priors,
+        scale_bars: Vec::new(),
     }
 }
 

@@ -181,6 +181,55 @@ fn georeferenced_block(seed: u64) -> (BundleProblem, Vec<Vector3<f64>>) {
 }
 
 #[test]
+fn a_scale_bar_fixes_the_scale_of_a_free_network() {
+    // Truth from the noise-free generator: the same seed gives the same geometry.
+    let (mut p, _) = block(21);
+    let truth: Vec<Vector3<f64>> = {
+        let mut rng = SeededRng::new(21);
+        (0..150)
+            .map(|_| {
+                Vector3::new(
+                    rng.uniform_range(-10.0, 10.0),
+                    rng.uniform_range(-10.0, 10.0),
+                    rng.uniform_range(-3.0, 3.0),
+                )
+            })
+            .collect()
+    };
+    // Start 10 % too large (points and camera centres scaled about the origin).
+    for pt in &mut p.points {
+        pt.position *= 1.1;
+    }
+    for im in &mut p.images {
+        let c = im.pose.center() * 1.1;
+        im.pose = Pose::from_rotation_and_center(im.pose.rotation, &c);
+    }
+    p.scale_bars = vec![timesift_bundle::ScaleBar {
+        a: 0,
+        b: 1,
+        length: (truth[0] - truth[1]).norm(),
+        sigma: 0.001,
+    }];
+    let report = solve(&mut p, &BundleOptions::default()).unwrap();
+    assert!(matches!(
+        report.termination,
+        Termination::FunctionTolerance
+            | Termination::ParameterTolerance
+            | Termination::GradientTolerance
+    ));
+    // Every other distance is right to the noise level: compare the spread of all pairwise ratios.
+    let mut worst = 0.0f64;
+    for (a, b) in [(2usize, 50usize), (10, 120), (33, 77), (5, 140)] {
+        let est = (p.points[a].position - p.points[b].position).norm();
+        let tru = (truth[a] - truth[b]).norm();
+        worst = worst.max((est / tru - 1.0).abs());
+    }
+    assert!(worst < 2e-3, "relative distance error {worst}");
+    let stats = timesift_bundle::precision::residual_statistics(&p, 4.0);
+    assert_eq!(stats.scale_bars.map(|s| s.1), Some(1));
+}
+
+#[test]
 fn analytic_gradient_matches_finite_differences_for_every_residual_type() {
     let (mut p, _) = georeferenced_block(5);
     // Every intrinsic free, control-point priors on ten points, a robust loss.
@@ -191,6 +240,16 @@ fn analytic_gradient_matches_finite_differences_for_every_residual_type() {
             position: p.points[j].position + Vector3::new(0.01, -0.02, 0.03),
             sigma_xy: 0.01,
             sigma_z: 0.02,
+        })
+        .collect();
+    // Two scale bars (one sharing an end with a control point), slightly off the current lengths.
+    p.scale_bars = [(3usize, 40usize), (60, 90)]
+        .iter()
+        .map(|&(a, b)| timesift_bundle::ScaleBar {
+            a,
+            b,
+            length: (p.points[a].position - p.points[b].position).norm() + 0.02,
+            sigma: 0.005,
         })
         .collect();
     for loss in [
