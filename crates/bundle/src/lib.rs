@@ -9,8 +9,9 @@
 //! termination, the BAL problem conversion, and `precision`: residual statistics per kind, group
 //! and image, the posterior variance factor, outlier flags, covariances of camera centres and
 //! intrinsics; scale bars (distances between two points), whose end points stay in the reduced
-//! system since they couple two points; libmv problems. Still to come (see the issue): the PCG
-//! path, parallel assembly.
+//! system since they couple two points; libmv problems; Schur elimination of points or poses
+//! (whichever leaves the smaller system); an iterative (PCG, Schur–Jacobi) path that never forms
+//! the reduced system. Still to come (see the issue): parallel assembly.
 //!
 //! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).

@@ -14,13 +14,15 @@ pub(crate) struct SparsePattern {
     n: usize,
     col_ptr: Vec<usize>,
     row_idx: Vec<usize>,
-    symbolic: SymbolicLlt<usize>,
+    /// `None` for patterns used only for products (the iterative solver).
+    symbolic: Option<SymbolicLlt<usize>>,
 }
 
 impl SparsePattern {
     /// Builds the pattern from the sets of camera-side columns that interact (each set couples all
     /// its columns); the diagonal is always present.
-    pub(crate) fn new(n: usize, groups: &[Vec<usize>]) -> Option<Arc<Self>> {
+    /// `factorise`: run the symbolic Cholesky analysis (not needed by the iterative solver).
+    pub(crate) fn new(n: usize, groups: &[Vec<usize>], factorise: bool) -> Option<Arc<Self>> {
         let mut rows: Vec<Vec<usize>> = (0..n).map(|c| vec![c]).collect();
         for g in groups {
             for &a in g {
@@ -40,11 +42,17 @@ impl SparsePattern {
             row_idx.extend_from_slice(r);
             col_ptr.push(row_idx.len());
         }
-        let symbolic = SymbolicLlt::try_new(
-            SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx),
-            Side::Lower,
-        )
-        .ok()?;
+        let symbolic = if factorise {
+            Some(
+                SymbolicLlt::try_new(
+                    SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx),
+                    Side::Lower,
+                )
+                .ok()?,
+            )
+        } else {
+            None
+        };
         Some(Arc::new(SparsePattern {
             n,
             col_ptr,
@@ -105,6 +113,36 @@ impl Reduced {
         }
     }
 
+    /// Entry (row, col) of the symmetric matrix.
+    pub(crate) fn get(&self, row: usize, col: usize) -> f64 {
+        match self {
+            Reduced::Dense(m) => m[(row, col)],
+            Reduced::Sparse { pattern, values } => {
+                pattern.slot(row, col).map_or(0.0, |k| values[k])
+            }
+        }
+    }
+
+    /// `y = S x` (the sparse storage holds the lower triangle of a symmetric matrix).
+    pub(crate) fn mul_vec(&self, x: &DVector<f64>) -> DVector<f64> {
+        match self {
+            Reduced::Dense(m) => m * x,
+            Reduced::Sparse { pattern, values } => {
+                let mut y = DVector::zeros(x.len());
+                for c in 0..pattern.n {
+                    for k in pattern.col_ptr[c]..pattern.col_ptr[c + 1] {
+                        let r = pattern.row_idx[k];
+                        y[r] += values[k] * x[c];
+                        if r != c {
+                            y[c] += values[k] * x[r];
+                        }
+                    }
+                }
+                y
+            }
+        }
+    }
+
     pub(crate) fn diagonal(&self, i: usize) -> f64 {
         match self {
             Reduced::Dense(m) => m[(i, i)],
@@ -133,7 +171,7 @@ impl Reduced {
                 );
                 let mat = SparseColMatRef::new(sym, values);
                 let llt =
-                    Llt::try_new_with_symbolic(pattern.symbolic.clone(), mat, Side::Lower).ok()?;
+                    Llt::try_new_with_symbolic(pattern.symbolic.clone()?, mat, Side::Lower).ok()?;
                 llt.solve_in_place(x.as_mut());
             }
         }
@@ -176,7 +214,7 @@ impl Reduced {
                         &pattern.row_idx,
                     );
                     let mat = SparseColMatRef::new(sym, values);
-                    Llt::try_new_with_symbolic(pattern.symbolic.clone(), mat, Side::Lower)
+                    Llt::try_new_with_symbolic(pattern.symbolic.clone()?, mat, Side::Lower)
                         .ok()?
                         .solve_in_place(rhs.as_mut());
                 }

@@ -55,6 +55,10 @@ pub enum LinearSolver {
     DenseSchur,
     /// Sparse Cholesky with the symbolic analysis done once per solve.
     SparseSchur,
+    /// Conjugate gradients on the reduced system without forming it (products through the
+    /// eliminated blocks), preconditioned by its block diagonal (Schur–Jacobi): memory linear in
+    /// the observations, for very large blocks.
+    IterativeSchur,
 }
 
 /// Largest number of camera-side parameters solved densely by [`LinearSolver::Auto`].
@@ -237,6 +241,44 @@ impl Layout {
             num_camera_params: n,
             num_free_points: m,
         }
+    }
+
+    /// The reduced-side parameter blocks of the iterative solver's preconditioner, as column
+    /// lists: each pose (with its camera group's intrinsics when no other image shares them, as in
+    /// BAL's per-camera intrinsics), each point, each shared group's intrinsics.
+    pub(crate) fn parameter_blocks(&self, p: &BundleProblem) -> Vec<Vec<usize>> {
+        let mut users = vec![0usize; p.groups.len()];
+        for (i, im) in p.images.iter().enumerate() {
+            if self.pose_offset[i].is_some() {
+                users[im.group] += 1;
+            }
+        }
+        let group_cols = |g: usize| -> Vec<usize> {
+            self.group_offset[g].map_or(Vec::new(), |o| (o..o + self.group_free[g].len()).collect())
+        };
+        let mut merged = vec![false; p.groups.len()];
+        let mut blocks = Vec::new();
+        for (i, off) in self.pose_offset.iter().enumerate() {
+            if let Some(o) = off {
+                let mut cols: Vec<usize> = (*o..o + 6).collect();
+                let g = p.images[i].group;
+                if users[g] == 1 {
+                    cols.extend(group_cols(g));
+                    merged[g] = true;
+                }
+                blocks.push(cols);
+            }
+        }
+        for o in self.point_offset.iter().flatten() {
+            blocks.push((*o..o + 3).collect());
+        }
+        for g in 0..p.groups.len() {
+            let cols = group_cols(g);
+            if !merged[g] && !cols.is_empty() {
+                blocks.push(cols);
+            }
+        }
+        blocks
     }
 
     /// The eliminated block an observation of `image` and `point` belongs to.
@@ -644,7 +686,14 @@ fn eliminate_blocks<const D: usize>(
     Some(v_inv)
 }
 
-fn damped_step<const D: usize>(nm: &Normal<D>, lambda: f64) -> Option<Step<D>> {
+fn damped_step<const D: usize>(
+    nm: &Normal<D>,
+    lambda: f64,
+    iterative: Option<&[Vec<usize>]>,
+) -> Option<Step<D>> {
+    if let Some(blocks) = iterative {
+        return iterative_step(nm, lambda, blocks);
+    }
     let n = nm.g_c.len();
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
     let mut s = nm.u.clone();
@@ -665,8 +714,19 @@ fn damped_step<const D: usize>(nm: &Normal<D>, lambda: f64) -> Option<Step<D>> {
     } else {
         DVector::zeros(0)
     };
-    let points = nm
-        .point_obs
+    Some(Step {
+        points: back_substitute(nm, &cameras, &v_inv),
+        cameras,
+    })
+}
+
+/// The eliminated blocks' steps from the reduced-side step.
+fn back_substitute<const D: usize>(
+    nm: &Normal<D>,
+    cameras: &DVector<f64>,
+    v_inv: &[SMatrix<f64, D, D>],
+) -> Vec<SVector<f64, D>> {
+    nm.point_obs
         .iter()
         .enumerate()
         .map(|(pi, obs)| {
@@ -683,9 +743,176 @@ fn damped_step<const D: usize>(nm: &Normal<D>, lambda: f64) -> Option<Step<D>> {
             }
             -(v_inv[pi] * acc)
         })
-        .collect();
-    Some(Step { cameras, points })
+        .collect()
 }
+
+/// Damped inverses of the eliminated blocks.
+fn damped_inverses<const D: usize>(nm: &Normal<D>, lambda: f64) -> Option<Vec<SMatrix<f64, D, D>>> {
+    let clamp = |d: f64| d.clamp(1e-6, 1e32);
+    nm.v.iter()
+        .map(|v| {
+            let mut vd = *v;
+            for c in 0..D {
+                vd[(c, c)] += lambda * clamp(v[(c, c)]);
+            }
+            vd.try_inverse()
+        })
+        .collect()
+}
+
+/// The damped step by preconditioned conjugate gradients on `S x = −rhs`, with `S` applied as
+/// `(U + λD) x − Σ_b E_b V_b⁻¹ E_bᵀ x` and a block-Jacobi preconditioner made of the diagonal
+/// blocks of `U + λD − Σ_a F_a E_aᵀ` (each observation's own contribution).
+fn iterative_step<const D: usize>(
+    nm: &Normal<D>,
+    lambda: f64,
+    blocks: &[Vec<usize>],
+) -> Option<Step<D>> {
+    let n = nm.g_c.len();
+    let clamp = |d: f64| d.clamp(1e-6, 1e32);
+    let v_inv = damped_inverses(nm, lambda)?;
+    let damping = DVector::from_fn(n, |i, _| lambda * clamp(nm.u.diagonal(i)));
+    // Right-hand side: g_c − Σ E V⁻¹ g_p.
+    let mut rhs = nm.g_c.clone();
+    for (pi, obs) in nm.point_obs.iter().enumerate() {
+        let vg = v_inv[pi] * nm.g_p[pi];
+        for &a in obs {
+            let (sa, ca) = nm.obs_cols[a];
+            for ra in 0..ca {
+                let e = &nm.e[(sa + ra) * D..(sa + ra) * D + D];
+                rhs[nm.cols[sa + ra]] -= (0..D).map(|c| e[c] * vg[c]).sum::<f64>();
+            }
+        }
+    }
+    let apply = |x: &DVector<f64>| -> DVector<f64> {
+        let mut y = nm.u.mul_vec(x) + damping.component_mul(x);
+        for (pi, obs) in nm.point_obs.iter().enumerate() {
+            let mut t = SVector::<f64, D>::zeros();
+            for &a in obs {
+                let (sa, ca) = nm.obs_cols[a];
+                for ra in 0..ca {
+                    let xv = x[nm.cols[sa + ra]];
+                    let e = &nm.e[(sa + ra) * D..(sa + ra) * D + D];
+                    for c in 0..D {
+                        t[c] += e[c] * xv;
+                    }
+                }
+            }
+            let w = v_inv[pi] * t;
+            for &a in obs {
+                let (sa, ca) = nm.obs_cols[a];
+                for ra in 0..ca {
+                    let e = &nm.e[(sa + ra) * D..(sa + ra) * D + D];
+                    y[nm.cols[sa + ra]] -= (0..D).map(|c| e[c] * w[c]).sum::<f64>();
+                }
+            }
+        }
+        y
+    };
+    // Block-Jacobi preconditioner.
+    // Block and position within the block of every reduced-side column.
+    let mut block_of = vec![(0usize, 0usize); n];
+    for (k, cols) in blocks.iter().enumerate() {
+        for (q, &c) in cols.iter().enumerate() {
+            block_of[c] = (k, q);
+        }
+    }
+    let mut m: Vec<nalgebra::DMatrix<f64>> = blocks
+        .iter()
+        .map(|cols| {
+            nalgebra::DMatrix::from_fn(cols.len(), cols.len(), |i, j| {
+                nm.u.get(cols[i], cols[j]) + if i == j { damping[cols[i]] } else { 0.0 }
+            })
+        })
+        .collect();
+    for (pi, obs) in nm.point_obs.iter().enumerate() {
+        for &a in obs {
+            let (sa, ca) = nm.obs_cols[a];
+            for ra in 0..ca {
+                let ea = &nm.e[(sa + ra) * D..(sa + ra) * D + D];
+                let fa = SVector::<f64, D>::from_fn(|c, _| {
+                    (0..D).map(|k| ea[k] * v_inv[pi][(k, c)]).sum()
+                });
+                let col_a = nm.cols[sa + ra];
+                for rb in 0..ca {
+                    let col_b = nm.cols[sa + rb];
+                    let ((ka, qa), (kb, qb)) = (block_of[col_a], block_of[col_b]);
+                    if ka != kb {
+                        continue;
+                    }
+                    let eb = &nm.e[(sa + rb) * D..(sa + rb) * D + D];
+                    let v: f64 = (0..D).map(|c| fa[c] * eb[c]).sum();
+                    m[ka][(qa, qb)] -= v;
+                }
+            }
+        }
+    }
+    let preconditioners: Vec<nalgebra::DMatrix<f64>> = m
+        .into_iter()
+        .map(|b| {
+            let d = b.diagonal();
+            match b.clone().cholesky() {
+                Some(c) => c.inverse(),
+                None => nalgebra::DMatrix::from_diagonal(
+                    &d.map(|v| if v > 0.0 { 1.0 / v } else { 1.0 }),
+                ),
+            }
+        })
+        .collect();
+    let precondition = |r: &DVector<f64>| -> DVector<f64> {
+        let mut z = DVector::zeros(n);
+        for (k, cols) in blocks.iter().enumerate() {
+            let rk = DVector::from_iterator(cols.len(), cols.iter().map(|&c| r[c]));
+            let zk = &preconditioners[k] * rk;
+            for (q, &c) in cols.iter().enumerate() {
+                z[c] = zk[q];
+            }
+        }
+        z
+    };
+    // PCG on S x = −rhs.
+    let b = -rhs;
+    let b_norm = b.norm();
+    let mut x = DVector::zeros(n);
+    if b_norm == 0.0 {
+        return Some(Step {
+            points: back_substitute(nm, &x, &v_inv),
+            cameras: x,
+        });
+    }
+    let mut r = b.clone();
+    let mut z = precondition(&r);
+    let mut p = z.clone();
+    let mut rz = r.dot(&z);
+    for _ in 0..PCG_MAX_ITERATIONS.min(10 * n + 10) {
+        let q = apply(&p);
+        let pq = p.dot(&q);
+        if !(pq > 0.0) {
+            break;
+        }
+        let alpha = rz / pq;
+        x += alpha * &p;
+        r -= alpha * &q;
+        if r.norm() <= PCG_TOLERANCE * b_norm {
+            break;
+        }
+        z = precondition(&r);
+        let rz_new = r.dot(&z);
+        p = &z + (rz_new / rz) * &p;
+        rz = rz_new;
+    }
+    if !x.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    Some(Step {
+        points: back_substitute(nm, &x, &v_inv),
+        cameras: x,
+    })
+}
+
+/// Conjugate-gradient limits of the iterative path: relative residual and iteration cap.
+const PCG_TOLERANCE: f64 = 1e-6;
+const PCG_MAX_ITERATIONS: usize = 1000;
 
 fn apply_step<const D: usize>(
     p: &BundleProblem,
@@ -774,9 +1001,10 @@ fn reduced_storage(
     solver: LinearSolver,
 ) -> Result<Reduced, BundleError> {
     let n = layout.num_camera_params;
+    let iterative = solver == LinearSolver::IterativeSchur;
     let sparse = match solver {
         LinearSolver::DenseSchur => false,
-        LinearSolver::SparseSchur => true,
+        LinearSolver::SparseSchur | LinearSolver::IterativeSchur => true,
         LinearSolver::Auto => n > DENSE_LIMIT,
     };
     if !sparse || n == 0 {
@@ -804,18 +1032,21 @@ fn reduced_storage(
             .collect();
         groups.push(cols);
     }
-    for mut cols in per_block {
-        cols.sort_unstable();
-        cols.dedup();
-        groups.push(cols);
+    // The iterative solver never forms S: U's pattern (observations, priors, bars) is enough.
+    if !iterative {
+        for mut cols in per_block {
+            cols.sort_unstable();
+            cols.dedup();
+            groups.push(cols);
+        }
     }
-    let pattern = SparsePattern::new(n, &groups).ok_or_else(|| {
+    let pattern = SparsePattern::new(n, &groups, !iterative).ok_or_else(|| {
         BundleError::InvalidProblem("symbolic analysis of the reduced system failed".to_string())
     })?;
     // Few eliminated blocks seen by many reduced-side blocks make `S` nearly full: then dense
     // storage (direct indexing, dense Cholesky) beats sparse, up to a size where n² stays modest.
     let density = pattern.nnz_lower() as f64 / (0.5 * n as f64 * (n + 1) as f64);
-    if solver == LinearSolver::Auto && density > 0.25 && n <= DENSE_FILL_LIMIT {
+    if solver == LinearSolver::Auto && density > 0.25 && n <= DENSE_FILL_LIMIT && !iterative {
         return Ok(Reduced::dense(n));
     }
     Ok(Reduced::sparse(pattern))
@@ -859,6 +1090,8 @@ fn run<const D: usize>(
     let mut successful_steps = 0;
     let mut termination = Termination::MaxIterations;
     let storage = reduced_storage(problem, layout, options.linear_solver)?;
+    let blocks = layout.parameter_blocks(problem);
+    let iterative = (options.linear_solver == LinearSolver::IterativeSchur).then_some(&blocks[..]);
     let mut nm = linearize::<D>(problem, layout, &options.loss, &storage);
     while iterations < options.max_iterations {
         iterations += 1;
@@ -872,7 +1105,7 @@ fn run<const D: usize>(
             break;
         }
         let lambda = 1.0 / radius;
-        let Some(step) = damped_step(&nm, lambda) else {
+        let Some(step) = damped_step(&nm, lambda, iterative) else {
             radius /= nu;
             nu *= 2.0;
             if radius < 1e-32 {

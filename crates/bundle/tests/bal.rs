@@ -85,6 +85,36 @@ fn sceaux_perturbed() {
 }
 
 #[test]
+fn iterative_schur_reaches_the_direct_solvers_minimum() {
+    // sceaux (11 cameras, 8071 points); lund converges too but needs many more CG iterations per
+    // step (an ill-conditioned reduced system), which makes it a benchmark rather than a test.
+    for (file, scene) in [("sceaux-11-8071-pre.txt", "sceaux")] {
+        let mut costs = Vec::new();
+        for solver in [
+            timesift_bundle::LinearSolver::SparseSchur,
+            timesift_bundle::LinearSolver::IterativeSchur,
+        ] {
+            let mut problem = load(file, scene);
+            let options = BundleOptions {
+                loss: Loss::Huber(1.0),
+                linear_solver: solver,
+                ..BundleOptions::default()
+            };
+            let t = std::time::Instant::now();
+            let r = solve(&mut problem, &options).unwrap();
+            println!(
+                "{solver:?}: {} iterations, {:.2} s",
+                r.iterations,
+                t.elapsed().as_secs_f64()
+            );
+            costs.push(r.final_cost);
+        }
+        println!("{file}: sparse {} iterative {}", costs[0], costs[1]);
+        assert!((costs[1] / costs[0] - 1.0).abs() < 1e-6, "{costs:?}");
+    }
+}
+
+#[test]
 fn sparse_and_dense_schur_paths_agree() {
     let mut costs = Vec::new();
     for solver in [
