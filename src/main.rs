@@ -306,9 +306,14 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
             }
         }
         let v = &r.volumes;
+        let uncertainty = if r.lod95.is_some() {
+            format!(" ± {:.2}", v.sigma_net)
+        } else {
+            " (uncertainty unknown: give --stable or --sigma)".to_string()
+        };
         println!(
-            "volumes: cut {:.2} m³, fill {:.2} m³, net {:.2} ± {:.2} m³ over {:.1} m²",
-            v.cut, v.fill, v.net, v.sigma_net, v.area
+            "volumes: cut {:.2} m³, fill {:.2} m³, net {:.2}{uncertainty} m³ over {:.1} m²",
+            v.cut, v.fill, v.net, v.area
         );
         if let Some(v) = &r.volumes_beyond_lod {
             println!(
