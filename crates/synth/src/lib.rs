@@ -10,7 +10,10 @@
 //! Invariants: only ever writes the project format of DESIGN.md, so that what it makes is
 //! consumed exactly like user data; every random choice comes from a seed.
 
+pub mod effects;
+pub mod noise;
 pub mod render;
+pub mod terrain;
 
 use thiserror::Error;
 

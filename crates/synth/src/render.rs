@@ -14,6 +14,9 @@ use timesift_core::{CameraModel, Pose};
 
 use crate::SynthError;
 
+/// Longest ray (in units of the ray direction): finite, since BVH traversal does arithmetic on it.
+const MAX_RAY_LENGTH: f64 = 1e9;
+
 /// What a surface looks like: albedo (0–1) as a function of the world position.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Material {
@@ -34,6 +37,19 @@ pub enum Material {
         dark: f64,
         /// Albedo of light squares.
         light: f64,
+    },
+    /// Fractal noise texture: `mean + amplitude · fBm(position / scale)`, clamped to [0, 1].
+    Noise {
+        /// The noise (its seed).
+        noise: crate::noise::Noise,
+        /// Mean albedo.
+        mean: f64,
+        /// Amplitude of the variation.
+        amplitude: f64,
+        /// Longest wavelength, metres.
+        scale: f64,
+        /// Octaves (each halves the wavelength).
+        octaves: u32,
     },
 }
 
@@ -61,6 +77,14 @@ impl Material {
                     *light
                 }
             }
+            Material::Noise {
+                noise,
+                mean,
+                amplitude,
+                scale,
+                octaves,
+            } => (mean + amplitude * noise.fbm(x.x, x.y, x.z, *scale, *octaves, 0.55))
+                .clamp(0.0, 1.0),
         }
     }
 }
@@ -117,6 +141,17 @@ impl Scene {
         })
     }
 
+    /// The first surface point along a world ray, if any.
+    pub fn hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<Vector3<f64>> {
+        let ray = Ray::new(
+            PVector::new(origin.x, origin.y, origin.z),
+            PVector::new(dir.x, dir.y, dir.z),
+        );
+        self.mesh
+            .cast_local_ray(&ray, MAX_RAY_LENGTH, false)
+            .map(|t| origin + dir * t)
+    }
+
     /// Radiance along a world ray (origin, direction): albedo × (ambient + (1 − ambient)·cos θ).
     pub fn trace(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> f64 {
         let ray = Ray::new(
@@ -125,7 +160,7 @@ impl Scene {
         );
         let Some(hit) = self
             .mesh
-            .cast_local_ray_and_get_normal(&ray, f64::MAX, false)
+            .cast_local_ray_and_get_normal(&ray, MAX_RAY_LENGTH, false)
         else {
             return self.background;
         };
