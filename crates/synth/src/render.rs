@@ -41,7 +41,7 @@ pub enum Material {
     /// Fractal noise texture: `mean + amplitude · fBm(position / scale)`, clamped to [0, 1].
     Noise {
         /// The noise (its seed).
-        noise: crate::noise::Noise,
+        noise: Box<crate::noise::Noise>,
         /// Mean albedo.
         mean: f64,
         /// Amplitude of the variation.
