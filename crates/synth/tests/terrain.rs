@@ -56,7 +56,7 @@ fn textured_terrain_renders_with_detail() {
     let field = terrain();
     let (vertices, triangles) = field.mesh();
     let material = Material::Noise {
-        noise: Noise::new(11),
+        noise: Box::new(Noise::new(11)),
         mean: 0.45,
         amplitude: 0.5,
         scale: 8.0,
