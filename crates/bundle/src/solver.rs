@@ -624,8 +624,10 @@ struct Step<const D: usize> {
     points: Vec<SVector<f64, D>>,
 }
 
-/// Eliminates the blocks: `S −= E_a V⁻¹ E_bᵀ` over pairs of observations of each block (upper
-/// pairs, mirrored) and `rhs −= E_a V⁻¹ g`; returns the damped `V⁻¹` of every block.
+/// Eliminates the blocks: `S −= Ê V⁻¹ Êᵀ` and `rhs −= Ê V⁻¹ g` per block, where `Ê` stacks the
+/// block's coupling rows by distinct reduced-side column (rows of observations that share a column,
+/// such as a camera group's intrinsics, are summed first — exact, and far fewer products when many
+/// observations of a block share columns); returns the damped `V⁻¹` of every block.
 fn eliminate_blocks<const D: usize>(
     nm: &Normal<D>,
     lambda: f64,
@@ -634,7 +636,12 @@ fn eliminate_blocks<const D: usize>(
 ) -> Option<Vec<SMatrix<f64, D, D>>> {
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
     let mut v_inv = Vec::with_capacity(nm.v.len());
-    let mut fa = [[0.0f64; D]; MAX_COLS];
+    // Scratch, reused across blocks: local index of each reduced column, the block's columns,
+    // its stacked coupling rows Ê and F = Ê V⁻¹.
+    let mut local = vec![usize::MAX; nm.g_c.len()];
+    let mut cols: Vec<usize> = Vec::new();
+    let mut e_hat: Vec<[f64; D]> = Vec::new();
+    let mut f_hat: Vec<[f64; D]> = Vec::new();
     for (pi, v) in nm.v.iter().enumerate() {
         let mut vd = *v;
         for c in 0..D {
@@ -642,48 +649,132 @@ fn eliminate_blocks<const D: usize>(
         }
         let inv = vd.try_inverse()?;
         let obs = &nm.point_obs[pi];
-        let vg = inv * nm.g_p[pi];
-        for (ia, &a) in obs.iter().enumerate() {
+        // Count distinct columns; when no two observations share one, the pairwise loop over
+        // observations does the same work without the merge.
+        let mut rows = 0;
+        cols.clear();
+        for &a in obs {
             let (sa, ca) = nm.obs_cols[a];
-            let ea = &nm.e[sa * D..(sa + ca) * D];
-            // F_a = E_a V⁻¹, row by row.
+            rows += ca;
+            for &col in &nm.cols[sa..sa + ca] {
+                if local[col] == usize::MAX {
+                    local[col] = cols.len();
+                    cols.push(col);
+                }
+            }
+        }
+        for &c in &cols {
+            local[c] = usize::MAX;
+        }
+        if cols.len() == rows {
+            eliminate_pairwise(nm, pi, &inv, rhs, &mut add);
+            v_inv.push(inv);
+            continue;
+        }
+        cols.clear();
+        e_hat.clear();
+        for &a in obs {
+            let (sa, ca) = nm.obs_cols[a];
             for ra in 0..ca {
-                let row = &ea[D * ra..D * ra + D];
-                let mut dot = 0.0;
+                let col = nm.cols[sa + ra];
+                if local[col] == usize::MAX {
+                    local[col] = cols.len();
+                    cols.push(col);
+                    e_hat.push([0.0; D]);
+                }
+                let row = &mut e_hat[local[col]];
+                let e = &nm.e[(sa + ra) * D..(sa + ra) * D + D];
                 for c in 0..D {
-                    let mut acc = 0.0;
-                    for k in 0..D {
-                        acc += row[k] * inv[(k, c)];
-                    }
-                    fa[ra][c] = acc;
-                    dot += row[c] * vg[c];
-                }
-                rhs[nm.cols[sa + ra]] -= dot;
-            }
-            for &b in &obs[ia..] {
-                let (sb, cb) = nm.obs_cols[b];
-                let eb = &nm.e[sb * D..(sb + cb) * D];
-                let cols_b = &nm.cols[sb..sb + cb];
-                for ra in 0..ca {
-                    let row = nm.cols[sa + ra];
-                    let f = &fa[ra];
-                    for (rb, &col) in cols_b.iter().enumerate() {
-                        let erow = &eb[D * rb..D * rb + D];
-                        let mut v = 0.0;
-                        for c in 0..D {
-                            v += f[c] * erow[c];
-                        }
-                        add(row, col, -v);
-                        if a != b {
-                            add(col, row, -v);
-                        }
-                    }
+                    row[c] += e[c];
                 }
             }
+        }
+        let vg = inv * nm.g_p[pi];
+        f_hat.clear();
+        for (l, row) in e_hat.iter().enumerate() {
+            let mut f = [0.0; D];
+            let mut dot = 0.0;
+            for c in 0..D {
+                let mut acc = 0.0;
+                for k in 0..D {
+                    acc += row[k] * inv[(k, c)];
+                }
+                f[c] = acc;
+                dot += row[c] * vg[c];
+            }
+            rhs[cols[l]] -= dot;
+            f_hat.push(f);
+        }
+        for (l1, f) in f_hat.iter().enumerate() {
+            let c1 = cols[l1];
+            for (l2, e) in e_hat.iter().enumerate().skip(l1) {
+                let mut v = 0.0;
+                for c in 0..D {
+                    v += f[c] * e[c];
+                }
+                add(c1, cols[l2], -v);
+                if l1 != l2 {
+                    add(cols[l2], c1, -v);
+                }
+            }
+        }
+        for &c in &cols {
+            local[c] = usize::MAX;
         }
         v_inv.push(inv);
     }
     Some(v_inv)
+}
+
+/// `S −= E_a V⁻¹ E_bᵀ` over pairs of observations of block `pi` (upper pairs, mirrored) and
+/// `rhs −= E_a V⁻¹ g`: for blocks whose observations share no reduced column.
+fn eliminate_pairwise<const D: usize>(
+    nm: &Normal<D>,
+    pi: usize,
+    inv: &SMatrix<f64, D, D>,
+    rhs: &mut DVector<f64>,
+    add: &mut impl FnMut(usize, usize, f64),
+) {
+    let mut fa = [[0.0f64; D]; MAX_COLS];
+    let obs = &nm.point_obs[pi];
+    let vg = inv * nm.g_p[pi];
+    for (ia, &a) in obs.iter().enumerate() {
+        let (sa, ca) = nm.obs_cols[a];
+        let ea = &nm.e[sa * D..(sa + ca) * D];
+        for ra in 0..ca {
+            let row = &ea[D * ra..D * ra + D];
+            let mut dot = 0.0;
+            for c in 0..D {
+                let mut acc = 0.0;
+                for k in 0..D {
+                    acc += row[k] * inv[(k, c)];
+                }
+                fa[ra][c] = acc;
+                dot += row[c] * vg[c];
+            }
+            rhs[nm.cols[sa + ra]] -= dot;
+        }
+        for &b in &obs[ia..] {
+            let (sb, cb) = nm.obs_cols[b];
+            let eb = &nm.e[sb * D..(sb + cb) * D];
+            let cols_b = &nm.cols[sb..sb + cb];
+            for ra in 0..ca {
+                let row = nm.cols[sa + ra];
+                let f = &fa[ra];
+                for (rb, &col) in cols_b.iter().enumerate() {
+                    let erow = &eb[D * rb..D * rb + D];
+                    let mut v = 0.0;
+                    for c in 0..D {
+                        v += f[c] * erow[c];
+                    }
+                    add(row, col, -v);
+                    if a != b {
+                        add(col, row, -v);
+                    }
+                }
+            }
+        }
+    }
 }
 
 fn damped_step<const D: usize>(
