@@ -322,6 +322,9 @@ struct Normal<const D: usize> {
     e: Vec<f64>,
     /// Observations of each eliminated block.
     point_obs: Vec<Vec<usize>>,
+    /// Whether observations of one block can share reduced columns (a camera group with free
+    /// intrinsics used by several images); when not, elimination skips the column merge.
+    shared_columns: bool,
     cost: f64,
 }
 
@@ -455,6 +458,13 @@ fn linearize<const D: usize>(
         cols: Vec::with_capacity(p.observations.len() * 9),
         e: Vec::with_capacity(p.observations.len() * 3 * D),
         point_obs: vec![Vec::new(); layout.num_free_points],
+        shared_columns: {
+            let mut users = vec![0usize; p.groups.len()];
+            for im in &p.images {
+                users[im.group] += 1;
+            }
+            (0..p.groups.len()).any(|g| layout.group_offset[g].is_some() && users[g] > 1)
+        },
         cost: 0.0,
     };
     let mut d_int = [0.0; 2 * MAX_INTRINSICS];
@@ -649,6 +659,11 @@ fn eliminate_blocks<const D: usize>(
         }
         let inv = vd.try_inverse()?;
         let obs = &nm.point_obs[pi];
+        if !nm.shared_columns {
+            eliminate_pairwise(nm, pi, &inv, rhs, &mut add);
+            v_inv.push(inv);
+            continue;
+        }
         // Count distinct columns; when no two observations share one, the pairwise loop over
         // observations does the same work without the merge.
         let mut rows = 0;
