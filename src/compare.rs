@@ -552,15 +552,16 @@ fn grid_points(points: &[[f64; 3]], values: &[f64], cell: f64, crs: Crs) -> Opti
     if xmin > xmax {
         return None;
     }
-    let width = ((xmax - xmin) / cell).floor() as usize + 1;
-    let height = ((ymax - ymin) / cell).floor() as usize + 1;
-    if width * height > 50_000_000 {
+    // Cells centred on the spacing lattice through (xmin, ymax).
+    let width = ((xmax - xmin) / cell).round() as usize + 1;
+    let height = ((ymax - ymin) / cell).round() as usize + 1;
+    if width.checked_mul(height).is_none_or(|n| n > 50_000_000) {
         return None;
     }
     let grid = Grid {
         transform: GeoTransform {
-            origin_x: xmin,
-            origin_y: ymax + cell,
+            origin_x: xmin - 0.5 * cell,
+            origin_y: ymax + 0.5 * cell,
             pixel_width: cell,
             pixel_height: -cell,
         },
@@ -573,7 +574,10 @@ fn grid_points(points: &[[f64; 3]], values: &[f64], cell: f64, crs: Crs) -> Opti
     for (p, v) in points.iter().zip(values) {
         if v.is_finite() {
             let (c, r) = grid.transform.world_to_pixel(p[0], p[1]);
-            let (c, r) = ((c as usize).min(width - 1), (r as usize).min(height - 1));
+            let (c, r) = (
+                (c.floor().max(0.0) as usize).min(width - 1),
+                (r.floor().max(0.0) as usize).min(height - 1),
+            );
             sum[r * width + c] += v;
             count[r * width + c] += 1;
         }
@@ -675,4 +679,35 @@ pub fn change_stage(project: &crate::Project) -> Result<Vec<PathBuf>, ProjectErr
         written.push(out);
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gridded_points_keep_one_cell_each() {
+        // A 3 × 2 lattice of points 10 m apart: six cells, one value each, north row first.
+        let points: Vec<[f64; 3]> = [
+            (0.0, 0.0),
+            (10.0, 0.0),
+            (20.0, 0.0),
+            (0.0, 10.0),
+            (10.0, 10.0),
+            (20.0, 10.0),
+        ]
+        .iter()
+        .map(|&(x, y)| [x, y, 0.0])
+        .collect();
+        let values = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        let dem = grid_points(&points, &values, 10.0, Crs::Local).expect("grid");
+        assert_eq!((dem.grid.width, dem.grid.height), (3, 2));
+        assert_eq!(dem.values, vec![4.0, 5.0, 6.0, 1.0, 2.0, 3.0]);
+        let (x, y) = dem.grid.cell_center(0, 0);
+        assert_eq!((x, y), (0.0, 10.0));
+        assert!(
+            grid_points(&points, &values, 1e-9, Crs::Local).is_none(),
+            "absurd sizes refused"
+        );
+    }
 }

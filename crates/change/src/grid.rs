@@ -157,6 +157,17 @@ impl Dem {
         if raster.width == 0 || raster.height == 0 {
             return Err(ChangeError::InvalidInput("the DEM has no cell".into()));
         }
+        let t = raster.georef.transform;
+        if !(t.pixel_width.is_finite()
+            && t.pixel_width > 0.0
+            && t.pixel_height.is_finite()
+            && t.pixel_height < 0.0)
+        {
+            return Err(ChangeError::InvalidInput(format!(
+                "pixel size ({}, {}); a north-up grid (width > 0, height < 0) was expected",
+                t.pixel_width, t.pixel_height
+            )));
+        }
         let declared = raster.georef.nodata;
         let is_nodata = |v: f32| {
             !v.is_finite()

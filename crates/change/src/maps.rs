@@ -148,9 +148,9 @@ pub fn histogram(
     let bins = 60usize;
     let mut counts = vec![0usize; bins];
     for v in &finite {
-        let b = ((v + limit) / (2.0 * limit) * bins as f64).floor();
-        if b >= 0.0 && (b as usize) < bins {
-            counts[b as usize] += 1;
+        if v.abs() <= limit {
+            let b = ((v + limit) / (2.0 * limit) * bins as f64).floor() as usize;
+            counts[b.min(bins - 1)] += 1;
         }
     }
     let peak = counts.iter().copied().max().unwrap_or(0).max(1);

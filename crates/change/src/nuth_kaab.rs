@@ -40,9 +40,9 @@ pub struct NuthKaabOptions {
     pub min_slope_deg: f64,
     /// Cells steeper than this slope (degrees) are left out (cliffs, DEM artefacts).
     pub max_slope_deg: f64,
-    /// Cut-off of the Tukey biweight on dh − median, in NMADs: each cell's weight in the fit is
-    /// (1 − (r / (k·NMAD))²)², zero beyond. Smooth weights (rather than a hard rejection) keep the
-    /// iteration from flipping between two inlier sets.
+    /// Outlier cut-off on dh − median, in NMADs: cells beyond it are left out of the fit. The
+    /// weighted fit also weights the others by the Tukey biweight (1 − (r / (k·NMAD))²)² — smooth
+    /// weights keep its iteration from flipping between two inlier sets.
     pub outlier_nmads: f64,
     /// Vertical shift estimator.
     pub vertical: VerticalEstimator,
@@ -109,7 +109,7 @@ pub struct NuthKaabIteration {
     pub shift_m: [f64; 2],
     /// Size of the update, pixels.
     pub update_px: f64,
-    /// NMAD of dh over the stable cells before this iteration's update, m.
+    /// NMAD of dh over the stable cells within the slope limits, before this iteration's update, m.
     pub nmad: f64,
     /// Cells used in the fit.
     pub cells: usize,
@@ -305,7 +305,20 @@ fn reference_samples(
             if z.is_nan() {
                 return None;
             }
-            let g = gradients[i]?;
+            // Vertical-only fits need no slope: cells without a gradient (borders, next to
+            // nodata) still count there.
+            let Some(g) = gradients[i] else {
+                let (x, y) = grid.cell_center(i % grid.width, i / grid.width);
+                return (!options.horizontal).then_some(Sample {
+                    x,
+                    y,
+                    z_ref: z as f64,
+                    tan_slope: 0.0,
+                    sin_aspect: 0.0,
+                    cos_aspect: 0.0,
+                    in_slope_range: false,
+                });
+            };
             let tan_slope = g.tan_slope();
             let (x, y) = grid.cell_center(i % grid.width, i / grid.width);
             let (sin_aspect, cos_aspect) = if tan_slope > 0.0 {
@@ -362,7 +375,7 @@ fn fit_shift(
     // A floor of 1 µm keeps exact data (NMAD 0) from rejecting everything.
     let limit = options.outlier_nmads * spread.max(1e-6);
     if let NuthKaabFit::AspectBins { bins } = options.fit {
-        return fit_binned(samples, dh, m, bins).map(|u| (u, valid.len(), spread));
+        return fit_binned(samples, dh, m, limit, bins).map(|u| (u, valid.len(), spread));
     }
     // Normal equations of y = A sin ψ + B cos ψ + C.
     let mut ata = nalgebra::Matrix3::<f64>::zeros();
@@ -401,6 +414,7 @@ fn fit_binned(
     samples: &[Sample],
     dh: &[f64],
     median_dh: f64,
+    limit: f64,
     bins: usize,
 ) -> Result<[f64; 2], ChangeError> {
     if bins < 3 {
@@ -412,7 +426,7 @@ fn fit_binned(
     let used: Vec<(f64, f64)> = samples
         .iter()
         .zip(dh)
-        .filter(|(s, d)| s.in_slope_range && d.is_finite())
+        .filter(|(s, d)| s.in_slope_range && d.is_finite() && (**d - median_dh).abs() < limit)
         .map(|(s, &d)| {
             (
                 s.sin_aspect

@@ -74,7 +74,8 @@ pub fn quantile_sorted(sorted: &[f64], q: f64) -> f64 {
     }
 }
 
-/// Median of finite values (NaN when there is none), without sorting the whole slice.
+/// Median of values, which must be finite (NaN for an empty slice), without sorting the whole
+/// slice.
 pub fn median(values: &mut [f64]) -> f64 {
     let n = values.len();
     if n == 0 {

@@ -517,3 +517,38 @@ fn m3c2_search_strategies_agree() {
         assert!(compared > 100, "{compared}");
     }
 }
+
+#[test]
+fn south_up_or_degenerate_grids_are_refused_and_tiny_dems_shift_vertically() {
+    use timesift_io::geotiff::{GeoRaster, GeoReference};
+    let raster = |pw: f64, ph: f64, w: usize, h: usize, z: f32| GeoRaster {
+        width: w,
+        height: h,
+        bands: 1,
+        data: vec![z; w * h],
+        georef: GeoReference {
+            transform: GeoTransform {
+                origin_x: 0.0,
+                origin_y: 0.0,
+                pixel_width: pw,
+                pixel_height: ph,
+            },
+            crs: Crs::Epsg(32632),
+            nodata: None,
+            pixel_is_point: false,
+        },
+    };
+    for (pw, ph) in [(1.0, 1.0), (-1.0, -1.0), (0.0, -1.0)] {
+        let e = Dem::from_raster(raster(pw, ph, 4, 4, 1.0), None).unwrap_err();
+        assert!(e.to_string().contains("north-up"), "{e}");
+    }
+    // 2 × 2 DEMs have no interior slope, but a vertical shift needs none.
+    let a = Dem::from_raster(raster(1.0, -1.0, 2, 2, 10.0), None).expect("dem");
+    let b = Dem::from_raster(raster(1.0, -1.0, 2, 2, 10.4), None).expect("dem");
+    let options = NuthKaabOptions {
+        horizontal: false,
+        ..Default::default()
+    };
+    let r = nuth_kaab(&a, &b, None, &options).expect("vertical");
+    assert!((r.shift_z + 0.4).abs() < 1e-5, "{}", r.shift_z);
+}
