@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use image::ImageEncoder;
 use serde::Serialize;
 use timesift_change::ChangeError;
 use timesift_change::checkpoints::{CheckPointReport, dem_residuals};
@@ -186,14 +187,19 @@ fn create_dir(out: &Path) -> Result<(), ProjectError> {
     std::fs::create_dir_all(out).map_err(|e| IoError::io(out, e).into())
 }
 
-use image::ImageEncoder;
-
 /// Check points of a CSV file (`name,x,y,z`) as (name, position).
 pub fn read_checkpoints(path: &Path) -> Result<Vec<(String, [f64; 3])>, ProjectError> {
-    Ok(timesift_io::csv_inputs::read_checkpoints(path)?
-        .into_iter()
-        .map(|c| (c.name, [c.position.x, c.position.y, c.position.z]))
-        .collect())
+    Ok(named_positions(&timesift_io::csv_inputs::read_checkpoints(
+        path,
+    )?))
+}
+
+/// Control or check points as (name, position).
+fn named_positions(points: &[timesift_io::csv_inputs::ControlPoint]) -> Vec<(String, [f64; 3])> {
+    points
+        .iter()
+        .map(|c| (c.name.clone(), [c.position.x, c.position.y, c.position.z]))
+        .collect()
 }
 
 /// Compares two DEMs and writes `dod.tif`, `stats.json`, `dod.png`, `histogram.png`,
@@ -652,11 +658,7 @@ pub fn change_stage(project: &crate::Project) -> Result<Vec<PathBuf>, ProjectErr
             let options = DemCompareOptions {
                 stable: stable_file.clone(),
                 coregistration: config.coregistration,
-                checkpoints: project
-                    .checkpoints
-                    .iter()
-                    .map(|c| (c.name.clone(), [c.position.x, c.position.y, c.position.z]))
-                    .collect(),
+                checkpoints: named_positions(&project.checkpoints),
                 ..Default::default()
             };
             compare_dems(&dem_a, &dem_b, &out, &options)?;

@@ -13,7 +13,7 @@ use timesift_core::project_world;
 
 use crate::BundleError;
 use crate::problem::BundleProblem;
-use crate::solver::{Layout, center_prior_residual, reduced_system};
+use crate::solver::{Layout, center_jacobian, reduced_system};
 
 /// Root mean square and count.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -252,14 +252,7 @@ pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision,
         }
         let cov = Matrix6::from_fn(|r, c| inverse[k][(r, c)] * factor);
         k += 1;
-        // dC/dδ of Pose::retract (see center_prior_residual with unit sigmas).
-        let unit = crate::problem::CenterPrior {
-            image: i,
-            position: p.images[i].pose.center(),
-            sigma_xy: 1.0,
-            sigma_z: 1.0,
-        };
-        let (_, j) = center_prior_residual(&p.images[i].pose, &unit);
+        let j = center_jacobian(&p.images[i].pose);
         centers[i] = Some(j * cov * j.transpose());
         poses[i] = Some(cov);
     }

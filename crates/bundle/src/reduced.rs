@@ -150,16 +150,15 @@ impl Reduced {
         }
     }
 
-    /// Solves `S x = b` by Cholesky; `None` when `S` is not positive definite.
-    pub(crate) fn solve(&self, b: &DVector<f64>) -> Option<DVector<f64>> {
+    /// Factors `S` by Cholesky and solves `S X = B` in place for the columns of `rhs`; `None` when
+    /// `S` is not positive definite.
+    fn solve_in_place(&self, rhs: &mut faer::Mat<f64>) -> Option<()> {
         use faer::prelude::Solve;
-        let n = b.len();
-        let mut x = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
         match self {
             Reduced::Dense(m) => {
+                let n = m.nrows();
                 let fm = faer::Mat::<f64>::from_fn(n, n, |i, j| m[(i, j)]);
-                let llt = fm.llt(Side::Lower).ok()?;
-                llt.solve_in_place(x.as_mut());
+                fm.llt(Side::Lower).ok()?.solve_in_place(rhs.as_mut());
             }
             Reduced::Sparse { pattern, values } => {
                 let sym = SymbolicSparseColMatRef::new_checked(
@@ -170,11 +169,19 @@ impl Reduced {
                     &pattern.row_idx,
                 );
                 let mat = SparseColMatRef::new(sym, values);
-                let llt =
-                    Llt::try_new_with_symbolic(pattern.symbolic.clone()?, mat, Side::Lower).ok()?;
-                llt.solve_in_place(x.as_mut());
+                Llt::try_new_with_symbolic(pattern.symbolic.clone()?, mat, Side::Lower)
+                    .ok()?
+                    .solve_in_place(rhs.as_mut());
             }
         }
+        Some(())
+    }
+
+    /// Solves `S x = b` by Cholesky; `None` when `S` is not positive definite.
+    pub(crate) fn solve(&self, b: &DVector<f64>) -> Option<DVector<f64>> {
+        let n = b.len();
+        let mut x = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
+        self.solve_in_place(&mut x)?;
         let out = DVector::from_fn(n, |i, _| x[(i, 0)]);
         out.iter().all(|v| v.is_finite()).then_some(out)
     }
@@ -186,7 +193,6 @@ impl Reduced {
         &self,
         blocks: &[(usize, usize)],
     ) -> Option<Vec<DMatrix<f64>>> {
-        use faer::prelude::Solve;
         let n = match self {
             Reduced::Dense(m) => m.nrows(),
             Reduced::Sparse { pattern, .. } => pattern.n,
@@ -199,28 +205,6 @@ impl Reduced {
             .collect();
         let mut out: Vec<DMatrix<f64>> =
             blocks.iter().map(|&(_, l)| DMatrix::zeros(l, l)).collect();
-        let solve_batch = |rhs: &mut faer::Mat<f64>| -> Option<()> {
-            match self {
-                Reduced::Dense(m) => {
-                    let fm = faer::Mat::<f64>::from_fn(n, n, |i, j| m[(i, j)]);
-                    fm.llt(Side::Lower).ok()?.solve_in_place(rhs.as_mut());
-                }
-                Reduced::Sparse { pattern, values } => {
-                    let sym = SymbolicSparseColMatRef::new_checked(
-                        pattern.n,
-                        pattern.n,
-                        &pattern.col_ptr,
-                        None,
-                        &pattern.row_idx,
-                    );
-                    let mat = SparseColMatRef::new(sym, values);
-                    Llt::try_new_with_symbolic(pattern.symbolic.clone()?, mat, Side::Lower)
-                        .ok()?
-                        .solve_in_place(rhs.as_mut());
-                }
-            }
-            Some(())
-        };
         // Dense: one factorisation for all columns; sparse: one per batch of 256 columns (cheap
         // next to the solves, and keeps the borrow simple).
         let batch = if matches!(self, Reduced::Dense(_)) {
@@ -233,7 +217,7 @@ impl Reduced {
             for (k, &(c, _, _)) in chunk.iter().enumerate() {
                 rhs[(c, k)] = 1.0;
             }
-            solve_batch(&mut rhs)?;
+            self.solve_in_place(&mut rhs)?;
             for (k, &(_, b, j)) in chunk.iter().enumerate() {
                 let (start, len) = blocks[b];
                 for i in 0..len {

@@ -165,6 +165,19 @@ fn counter(
         .collect()
 }
 
+/// Reduced-side offsets of the groups with free intrinsics, numbered from `start` on.
+fn group_offsets(group_free: &[Vec<usize>], start: &mut usize) -> Vec<Option<usize>> {
+    group_free
+        .iter()
+        .map(|f| {
+            (!f.is_empty()).then(|| {
+                *start += f.len();
+                *start - f.len()
+            })
+        })
+        .collect()
+}
+
 impl Layout {
     /// The layout that eliminates points (the public parameter order: poses, intrinsics, points).
     pub(crate) fn new(p: &BundleProblem) -> Self {
@@ -193,15 +206,7 @@ impl Layout {
         match eliminate {
             Eliminate::Points => {
                 pose_offset = counter(free_poses, &mut n, 6);
-                group_offset = group_free
-                    .iter()
-                    .map(|f| {
-                        (!f.is_empty()).then(|| {
-                            n += f.len();
-                            n - f.len()
-                        })
-                    })
-                    .collect();
+                group_offset = group_offsets(&group_free, &mut n);
                 // Ends of scale bars couple two points, so they stay in the reduced system.
                 let mut on_bar = vec![false; p.points.len()];
                 for bar in &p.scale_bars {
@@ -216,15 +221,7 @@ impl Layout {
             Eliminate::Poses => {
                 point_offset = counter(free_points, &mut n, 3);
                 let none_p = vec![None; p.points.len()];
-                group_offset = group_free
-                    .iter()
-                    .map(|f| {
-                        (!f.is_empty()).then(|| {
-                            n += f.len();
-                            n - f.len()
-                        })
-                    })
-                    .collect();
+                group_offset = group_offsets(&group_free, &mut n);
                 pose_index = counter(free_poses, &mut m, 1);
                 pose_offset = none_i;
                 point_index = none_p;
@@ -350,8 +347,18 @@ pub(crate) fn reduced_system(
     Ok(ok.then_some(s))
 }
 
-/// Camera-centre prior residual (sigma-weighted) and its Jacobian with respect to the pose update
-/// of `Pose::retract`: `C = −Rᵀ t`, `dC/dδω = −Rᵀ [t]×`, `dC/dδt = −Rᵀ`.
+/// Jacobian of the camera centre `C = −Rᵀ t` with respect to the pose update of
+/// `Pose::retract`: `dC/dδω = −Rᵀ [t]×`, `dC/dδt = −Rᵀ`.
+pub(crate) fn center_jacobian(pose: &timesift_core::Pose) -> SMatrix<f64, 3, 6> {
+    let rt = pose.rotation_matrix().transpose();
+    let d_omega = -rt * pose.translation.cross_matrix();
+    let mut j = SMatrix::<f64, 3, 6>::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&d_omega);
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-rt));
+    j
+}
+
+/// Camera-centre prior residual (sigma-weighted) and its Jacobian (see [`center_jacobian`]).
 pub(crate) fn center_prior_residual(
     pose: &timesift_core::Pose,
     prior: &CenterPrior,
@@ -362,13 +369,10 @@ pub(crate) fn center_prior_residual(
         1.0 / prior.sigma_z,
     );
     let r = (pose.center() - prior.position).component_mul(&inv);
-    let rt = pose.rotation_matrix().transpose();
-    let d_omega = -rt * pose.translation.cross_matrix();
-    let mut j = SMatrix::<f64, 3, 6>::zeros();
+    let mut j = center_jacobian(pose);
     for row in 0..3 {
-        for c in 0..3 {
-            j[(row, c)] = d_omega[(row, c)] * inv[row];
-            j[(row, 3 + c)] = -rt[(row, c)] * inv[row];
+        for c in 0..6 {
+            j[(row, c)] *= inv[row];
         }
     }
     (r, j)

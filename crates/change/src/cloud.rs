@@ -260,7 +260,8 @@ mod tests {
 
     #[test]
     fn closed_form_eigenpair_matches_nalgebra() {
-        let mut rng = timesift_io_free_rng(17);
+        let mut rng = timesift_core::SeededRng::new(17);
+        let mut rng = move || rng.uniform_range(-1.0, 1.0);
         for _ in 0..500 {
             let m = Matrix3::from_fn(|_, _| rng());
             let a =
@@ -280,17 +281,6 @@ mod tests {
                 let residual = (a * vector - vector * values[0]).norm();
                 assert!(residual < 1e-8 * sorted[2], "{residual}");
             }
-        }
-    }
-
-    /// A tiny deterministic generator (the crate has no RNG dependency).
-    fn timesift_io_free_rng(seed: u64) -> impl FnMut() -> f64 {
-        let mut state = seed;
-        move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         }
     }
 }

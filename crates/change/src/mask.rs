@@ -46,16 +46,15 @@ impl Mask {
                 for pair in crossings.chunks_exact(2) {
                     let (c0, _) = grid.continuous_index(pair[0], y);
                     let (c1, _) = grid.continuous_index(pair[1], y);
+                    // Cell centres (continuous index = col) in [lo, hi], clipped to the grid.
                     let (lo, hi) = (c0.min(c1), c0.max(c1));
-                    let first = lo.ceil().max(0.0) as usize;
-                    if hi < 0.0 {
+                    if hi < 0.0 || grid.width == 0 {
                         continue;
                     }
-                    let last = (hi.floor() as usize).min(grid.width.saturating_sub(1));
-                    for col in first..=last.min(grid.width.saturating_sub(1)) {
-                        if (col as f64) >= lo && (col as f64) <= hi {
-                            cells[row * grid.width + col] = true;
-                        }
+                    let first = lo.ceil().max(0.0) as usize;
+                    let last = (hi.floor() as usize).min(grid.width - 1);
+                    for col in first..=last {
+                        cells[row * grid.width + col] = true;
                     }
                 }
             }

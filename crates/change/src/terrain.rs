@@ -27,8 +27,12 @@ impl Gradient {
     }
 }
 
-/// Horn gradients for every cell; `None` on the border and where any of the 3 × 3 cells is nodata.
-pub fn horn_gradients(dem: &Dem) -> Vec<Option<Gradient>> {
+/// Gradients of the interior cells from a stencil `(dem, col, row, dx, dy) → (∂z/∂east, ∂z/∂row)`
+/// on metric cell sizes; `None` on the border and where the stencil meets nodata.
+fn interior_gradients(
+    dem: &Dem,
+    stencil: impl Fn(usize, usize, f64, f64) -> (f64, f64) + Sync,
+) -> Vec<Option<Gradient>> {
     let (w, h) = (dem.grid.width, dem.grid.height);
     let mut out = vec![None; w * h];
     if w < 3 || h < 3 {
@@ -41,25 +45,33 @@ pub fn horn_gradients(dem: &Dem) -> Vec<Option<Gradient>> {
         .for_each(|(row, line)| {
             let (dx, dy) = dem.grid.metric_cell_size_at_row(row);
             for col in 1..w - 1 {
-                let z = |dc: isize, dr: isize| {
-                    dem.get((col as isize + dc) as usize, (row as isize + dr) as usize) as f64
-                };
-                let (a, b, c) = (z(-1, -1), z(0, -1), z(1, -1));
-                let (d, f) = (z(-1, 0), z(1, 0));
-                let (g, hh, i) = (z(-1, 1), z(0, 1), z(1, 1));
-                let dz_dcol = ((c + 2.0 * f + i) - (a + 2.0 * d + g)) / (8.0 * dx);
+                let (east, dz_drow) = stencil(col, row, dx, dy);
                 // Rows grow southwards: ∂z/∂north = −∂z/∂row.
-                let dz_drow = ((g + 2.0 * hh + i) - (a + 2.0 * b + c)) / (8.0 * dy);
-                let grad = Gradient {
-                    east: dz_dcol,
-                    north: -dz_drow,
-                };
-                if grad.east.is_finite() && grad.north.is_finite() {
-                    line[col] = Some(grad);
+                if east.is_finite() && dz_drow.is_finite() {
+                    line[col] = Some(Gradient {
+                        east,
+                        north: -dz_drow,
+                    });
                 }
             }
         });
     out
+}
+
+/// Horn gradients for every cell; `None` on the border and where any of the 3 × 3 cells is nodata.
+pub fn horn_gradients(dem: &Dem) -> Vec<Option<Gradient>> {
+    interior_gradients(dem, |col, row, dx, dy| {
+        let z = |dc: isize, dr: isize| {
+            dem.get((col as isize + dc) as usize, (row as isize + dr) as usize) as f64
+        };
+        let (a, b, c) = (z(-1, -1), z(0, -1), z(1, -1));
+        let (d, f) = (z(-1, 0), z(1, 0));
+        let (g, hh, i) = (z(-1, 1), z(0, 1), z(1, 1));
+        (
+            ((c + 2.0 * f + i) - (a + 2.0 * d + g)) / (8.0 * dx),
+            ((g + 2.0 * hh + i) - (a + 2.0 * b + c)) / (8.0 * dy),
+        )
+    })
 }
 
 /// How surface gradients are computed.
@@ -83,31 +95,12 @@ pub fn gradients(dem: &Dem, method: GradientMethod) -> Vec<Option<Gradient>> {
 
 /// Central-difference gradients; `None` on the border and where a neighbour is nodata.
 pub fn central_gradients(dem: &Dem) -> Vec<Option<Gradient>> {
-    let (w, h) = (dem.grid.width, dem.grid.height);
-    let mut out = vec![None; w * h];
-    if w < 3 || h < 3 {
-        return out;
-    }
-    out.par_chunks_mut(w)
-        .enumerate()
-        .skip(1)
-        .take(h - 2)
-        .for_each(|(row, line)| {
-            let (dx, dy) = dem.grid.metric_cell_size_at_row(row);
-            for col in 1..w - 1 {
-                let east =
-                    (dem.get(col + 1, row) as f64 - dem.get(col - 1, row) as f64) / (2.0 * dx);
-                let south =
-                    (dem.get(col, row + 1) as f64 - dem.get(col, row - 1) as f64) / (2.0 * dy);
-                if east.is_finite() && south.is_finite() {
-                    line[col] = Some(Gradient {
-                        east,
-                        north: -south,
-                    });
-                }
-            }
-        });
-    out
+    interior_gradients(dem, |col, row, dx, dy| {
+        (
+            (dem.get(col + 1, row) as f64 - dem.get(col - 1, row) as f64) / (2.0 * dx),
+            (dem.get(col, row + 1) as f64 - dem.get(col, row - 1) as f64) / (2.0 * dy),
+        )
+    })
 }
 
 #[cfg(test)]
