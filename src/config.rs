@@ -86,6 +86,8 @@ pub struct InputsConfig {
     pub gnss: Option<String>,
     /// Stable-area polygons (WKT). Default `stable.csv`.
     pub stable: Option<String>,
+    /// Scale bars between named targets (`a,b,distance[,sd]`). Default `scalebars.csv`.
+    pub scalebars: Option<String>,
 }
 
 /// `[gnss]`: camera-centre priors.

@@ -105,6 +105,8 @@ pub struct InputsInfo {
     pub gnss: usize,
     /// Stable areas.
     pub stable_areas: usize,
+    /// Scale bars.
+    pub scale_bars: usize,
 }
 
 /// Gathers the report of a loaded project (reads EXIF and image headers).
@@ -209,6 +211,7 @@ pub fn info(project: &Project) -> Result<InfoReport, ProjectError> {
             markers: project.markers.len(),
             gnss: project.gnss.len(),
             stable_areas: project.stable_areas.len(),
+            scale_bars: project.scale_bars.len(),
         },
         outputs,
     })
@@ -277,8 +280,9 @@ impl InfoReport {
         let n = &self.inputs;
         let _ = writeln!(
             s,
-            "\ninputs    {} GCPs, {} check points, {} markers, {} GNSS priors, {} stable areas",
-            n.gcps, n.checkpoints, n.markers, n.gnss, n.stable_areas
+            "\ninputs    {} GCPs, {} check points, {} markers, {} GNSS priors, {} stable areas, \
+             {} scale bars",
+            n.gcps, n.checkpoints, n.markers, n.gnss, n.stable_areas, n.scale_bars
         );
         if self.outputs.is_empty() {
             let _ = writeln!(s, "outputs   none yet");

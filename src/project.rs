@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::Vector3;
 use timesift_core::{EpochId, ImageId};
 use timesift_io::coords::{Crs, Projector};
-use timesift_io::csv_inputs::{self, ControlPoint, GnssPrior, Marker, StableArea};
+use timesift_io::csv_inputs::{self, ControlPoint, GnssPrior, Marker, ScaleBarInput, StableArea};
 use timesift_io::exif;
 
 use crate::ProjectError;
@@ -86,6 +86,8 @@ pub struct Project {
     pub gnss: Vec<GnssPrior>,
     /// Stable areas.
     pub stable_areas: Vec<StableArea>,
+    /// Scale bars between marked targets.
+    pub scale_bars: Vec<ScaleBarInput>,
 }
 
 fn is_image_file(path: &Path) -> bool {
@@ -287,6 +289,10 @@ impl Project {
             .map(|(i, im)| (im.name.as_str(), i))
             .collect();
         let mut markers = Vec::new();
+        let scale_bars = match input("scalebars", &inputs.scalebars, "scalebars.csv")? {
+            Some(p) => csv_inputs::read_scale_bars(&p)?,
+            None => Vec::new(),
+        };
         if let Some(p) = input("markers", &inputs.markers, "markers.csv")? {
             markers = csv_inputs::read_markers(&p)?;
             for m in &mut markers {
@@ -298,13 +304,14 @@ impl Project {
                         message: format!("unknown image \"{}\" (not in any epoch)", m.image),
                     });
                 }
-                let known = gcps.iter().chain(&checkpoints).any(|g| g.name == m.name);
+                let known = gcps.iter().chain(&checkpoints).any(|g| g.name == m.name)
+                    || scale_bars.iter().any(|b| b.a == m.name || b.b == m.name);
                 if !known {
                     return Err(ProjectError::Reference {
                         path: p.clone(),
                         line: m.line,
                         message: format!(
-                            "unknown point \"{}\" (not in the GCP or check-point file)",
+                            "unknown point \"{}\" (not in the GCP, check-point or scale-bar file)",
                             m.name
                         ),
                     });
@@ -356,6 +363,7 @@ impl Project {
             markers,
             gnss,
             stable_areas,
+            scale_bars,
         })
     }
 

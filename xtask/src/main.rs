@@ -6,7 +6,10 @@
 //! - `bench bundle`: the BAL problems through timesift's bundle adjuster.
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
 //!
-//! The `synth` and `bench-methods` tasks of DESIGN.md arrive with their issues.
+//! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
+//!   with its ground truth (`timesift-synth`).
+//!
+//! The `bench-methods` task of DESIGN.md arrives with its issue.
 
 mod bench_bundle;
 mod bench_change;
@@ -28,6 +31,23 @@ struct Cli {
 enum Task {
     /// Check that ../shared/data holds the data sets the tests and benches read.
     Data,
+    /// Write a synthetic multi-epoch scene: a project directory plus truth/.
+    Synth {
+        /// Scene: archival, glacier, orchard, soil-pit, shore, campus or landslide.
+        scene: String,
+        /// Output directory (created).
+        #[arg(long)]
+        out: PathBuf,
+        /// Seed of every random choice.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// small (tests: ≤ ~60 images of ≤ 0.5 MP) or full (hundreds of images of several MP).
+        #[arg(long, default_value = "small")]
+        scale: String,
+        /// Write the geometry and truth only, not the images.
+        #[arg(long)]
+        no_images: bool,
+    },
     /// Stage benchmarks against peers, printing time ratios.
     Bench {
         #[command(subcommand)]
@@ -87,6 +107,38 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,
+        Task::Synth {
+            scene,
+            out,
+            seed,
+            scale,
+            no_images,
+        } => {
+            let scale: timesift_synth::scenes::Scale = scale
+                .parse()
+                .map_err(|e: String| anyhow::anyhow!("--scale: {e}"))?;
+            let spec = timesift_synth::scenes::build(&scene, scale, seed)?;
+            let start = std::time::Instant::now();
+            let written = timesift_synth::writer::write_scene(
+                &spec,
+                &out,
+                &timesift_synth::writer::WriteOptions { images: !no_images },
+            )?;
+            let seconds = start.elapsed().as_secs_f64();
+            println!(
+                "{scene}: {} epochs, {} images ({:.1} MP rendered), {} markers -> {} in {seconds:.1} s{}",
+                spec.epochs.len(),
+                written.images,
+                written.megapixels,
+                written.markers,
+                out.display(),
+                if written.megapixels > 0.0 {
+                    format!(" ({:.2} s/MP)", seconds / written.megapixels)
+                } else {
+                    String::new()
+                }
+            );
+        }
         Task::Data => {
             let root = shared_data();
             let mut missing = Vec::new();

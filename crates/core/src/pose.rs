@@ -78,7 +78,8 @@ impl Pose {
     /// vertical or `center == target`, where the roll is undefined by this rule.
     pub fn look_at(center: &Vector3<f64>, target: &Vector3<f64>) -> Option<Self> {
         let z = (target - center).try_normalize(1e-12)?;
-        let x = Vector3::new(0.0, 0.0, 1.0).cross(&z).try_normalize(1e-12)?;
+        // x = z × up points right when z is horizontal, so y = z × x points down.
+        let x = z.cross(&Vector3::new(0.0, 0.0, 1.0)).try_normalize(1e-12)?;
         let y = z.cross(&x);
         // The rows of `cam_from_world` are the camera axes in world coordinates.
         let r = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
@@ -180,6 +181,13 @@ mod tests {
         assert_relative_eq!(target_cam.x, 0.0, epsilon = 1e-12);
         assert_relative_eq!(target_cam.y, 0.0, epsilon = 1e-12);
         assert!(target_cam.z > 0.0);
+        // Upright: a point above the target is imaged above it (negative y), and one to the
+        // right of the view (looking from c towards the origin) at positive x.
+        let above = p.transform_point(&Vector3::new(0.0, 0.0, 1.0));
+        assert!(above.y < 0.0, "{above}");
+        let forward = -c;
+        let right = forward.cross(&Vector3::z());
+        assert!(p.transform_point(&right).x > 0.0);
         assert!(Pose::look_at(&c, &c).is_none());
     }
 

@@ -1,5 +1,6 @@
 //! The CSV inputs of a project (DESIGN.md): `gcps.csv`, `checkpoints.csv`, `markers.csv`,
-//! `gnss.csv` and `stable.csv`.
+//! `gnss.csv`, `stable.csv`, and `scalebars.csv` (an addition to DESIGN.md's list: scale bars
+//! between named targets, as close-range projects like `soil-pit` need).
 //!
 //! Rules common to all: comma-separated, `#` starts a comment line, blank lines are skipped, and an
 //! optional first line naming the columns is recognised and skipped. Every record keeps its line
@@ -58,6 +59,21 @@ pub struct StableArea {
     pub name: Option<String>,
     /// The polygons.
     pub polygons: Vec<Polygon>,
+    /// Line in the file.
+    pub line: usize,
+}
+
+/// A scale bar: two named targets (observed in markers.csv) a known distance apart.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScaleBarInput {
+    /// Name of the first target.
+    pub a: String,
+    /// Name of the second target.
+    pub b: String,
+    /// Distance between their centres, metres.
+    pub distance: f64,
+    /// Standard deviation of the distance, metres, when given.
+    pub sigma: Option<f64>,
     /// Line in the file.
     pub line: usize,
 }
@@ -246,6 +262,57 @@ pub fn read_markers(path: &Path) -> Result<Vec<Marker>, IoError> {
     Ok(markers)
 }
 
+/// Reads `scalebars.csv`: `a,b,distance[,sd]` (target names, metres).
+pub fn read_scale_bars(path: &Path) -> Result<Vec<ScaleBarInput>, IoError> {
+    let rows = read_rows(
+        path,
+        &[&["a", "b", "distance"], &["a", "b", "distance", "sd"]],
+        &[3, 4],
+        "3 fields (a,b,distance) or 4 (a,b,distance,sd)",
+    )?;
+    let mut bars = Vec::with_capacity(rows.len());
+    for row in &rows {
+        let (a, b) = (non_empty(path, row, 0, "a")?, non_empty(path, row, 1, "b")?);
+        if a == b {
+            return Err(IoError::line(
+                path,
+                row.line,
+                format!("a scale bar needs two different targets, found \"{a}\" twice"),
+            ));
+        }
+        let distance = number(path, row, 2, "distance")?;
+        if distance <= 0.0 {
+            return Err(IoError::line(
+                path,
+                row.line,
+                "column `distance` must be positive",
+            ));
+        }
+        let sigma = match row.fields.len() {
+            4 => {
+                let sd = number(path, row, 3, "sd")?;
+                if sd <= 0.0 {
+                    return Err(IoError::line(
+                        path,
+                        row.line,
+                        "column `sd` must be positive",
+                    ));
+                }
+                Some(sd)
+            }
+            _ => None,
+        };
+        bars.push(ScaleBarInput {
+            a,
+            b,
+            distance,
+            sigma,
+            line: row.line,
+        });
+    }
+    Ok(bars)
+}
+
 /// Reads `gnss.csv`: `image,x,y,z[,sxy,sz]`.
 pub fn read_gnss(path: &Path) -> Result<Vec<GnssPrior>, IoError> {
     let rows = read_rows(
@@ -403,6 +470,25 @@ mod tests {
         assert!(read_gcps(&p).unwrap_err().to_string().contains("line 2"));
         let p = write(dir.path(), "gnss.csv", "a.jpg,1,2,3,0,1\n");
         assert!(read_gnss(&p).unwrap_err().to_string().contains("positive"));
+    }
+
+    #[test]
+    fn scale_bars_with_and_without_sd() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(
+            dir.path(),
+            "scalebars.csv",
+            "a,b,distance,sd\nSB1a,SB1b,0.6,0.0002\nSB2a,SB2b,0.5\n",
+        );
+        let bars = read_scale_bars(&p).unwrap();
+        assert_eq!(bars.len(), 2);
+        assert_eq!((bars[0].a.as_str(), bars[0].distance), ("SB1a", 0.6));
+        assert_eq!((bars[0].sigma, bars[1].sigma), (Some(0.0002), None));
+        for bad in ["A,A,1\n", "A,B,-1\n", "A,B,1,0\n", "A,B\n"] {
+            let p = write(dir.path(), "scalebars.csv", bad);
+            let e = read_scale_bars(&p).unwrap_err().to_string();
+            assert!(e.contains("scalebars.csv: line 1"), "{e}");
+        }
     }
 
     #[test]

@@ -15,14 +15,15 @@ impl Polygon {
     pub fn contains(&self, x: f64, y: f64) -> bool {
         std::iter::once(&self.exterior)
             .chain(&self.holes)
-            .filter(|ring| ring_crosses(ring, x, y))
+            .filter(|ring| ring_contains(ring, x, y))
             .count()
             % 2
             == 1
     }
 }
 
-fn ring_crosses(ring: &[[f64; 2]], x: f64, y: f64) -> bool {
+/// Whether a point is inside one ring (even–odd crossing rule; the ring may be closed or not).
+pub fn ring_contains(ring: &[[f64; 2]], x: f64, y: f64) -> bool {
     let mut inside = false;
     let n = ring.len();
     for i in 0..n {

@@ -4,7 +4,26 @@
 
 use timesift_core::SeededRng;
 
-use crate::render::GreyImage;
+use crate::render::RgbImage;
+
+/// What the sensor records.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Channels {
+    /// Red, green and blue (digital cameras).
+    Rgb,
+    /// Luminance only (panchromatic film).
+    Grey,
+}
+
+impl Channels {
+    /// Values per pixel.
+    pub fn count(self) -> usize {
+        match self {
+            Channels::Rgb => 3,
+            Channels::Grey => 1,
+        }
+    }
+}
 
 /// Effects of one image.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -23,6 +42,8 @@ pub struct Effects {
     pub scratches: u32,
     /// Seed of every random draw.
     pub seed: u64,
+    /// What is recorded.
+    pub channels: Channels,
 }
 
 impl Default for Effects {
@@ -35,13 +56,15 @@ impl Default for Effects {
             dust_per_mp: 0.0,
             scratches: 0,
             seed: 0,
+            channels: Channels::Rgb,
         }
     }
 }
 
-/// The 8-bit image the effects give.
-pub fn apply(img: &GreyImage, effects: &Effects) -> Vec<u8> {
+/// The 8-bit image the effects give, channels interleaved (`effects.channels`).
+pub fn apply(img: &RgbImage, effects: &Effects) -> Vec<u8> {
     let (w, h) = (img.width, img.height);
+    let nc = effects.channels.count();
     let mut rng = SeededRng::new(effects.seed);
     let (cx, cy) = (0.5 * w as f64, 0.5 * h as f64);
     let r_max2 = cx * cx + cy * cy;
@@ -49,18 +72,23 @@ pub fn apply(img: &GreyImage, effects: &Effects) -> Vec<u8> {
     let grain: Vec<f64> = (0..grains_x * h.div_ceil(2))
         .map(|_| 1.0 + effects.grain * rng.normal())
         .collect();
-    let mut out: Vec<f64> = (0..w * h)
-        .map(|k| {
-            let (i, j) = (k % w, k / w);
-            let (dx, dy) = (i as f64 + 0.5 - cx, j as f64 + 0.5 - cy);
-            let falloff = 1.0 - effects.vignetting * (dx * dx + dy * dy) / r_max2;
-            255.0
-                * img.data[k] as f64
-                * effects.exposure
-                * falloff
-                * grain[(j / 2) * grains_x + i / 2]
-        })
-        .collect();
+    let mut out = vec![0.0f64; w * h * nc];
+    for (k, px) in img.data.iter().enumerate() {
+        let (i, j) = (k % w, k / w);
+        let (dx, dy) = (i as f64 + 0.5 - cx, j as f64 + 0.5 - cy);
+        let falloff = 1.0 - effects.vignetting * (dx * dx + dy * dy) / r_max2;
+        let gain = 255.0 * effects.exposure * falloff * grain[(j / 2) * grains_x + i / 2];
+        match effects.channels {
+            Channels::Rgb => {
+                for c in 0..3 {
+                    out[3 * k + c] = gain * px[c] as f64;
+                }
+            }
+            Channels::Grey => {
+                out[k] = gain * (0.299 * px[0] as f64 + 0.587 * px[1] as f64 + 0.114 * px[2] as f64)
+            }
+        }
+    }
     if effects.noise_sigma > 0.0 {
         for v in &mut out {
             *v += effects.noise_sigma * rng.normal();
@@ -74,14 +102,14 @@ pub fn apply(img: &GreyImage, effects: &Effects) -> Vec<u8> {
         );
         let radius = rng.uniform_range(0.5, 2.5);
         let value = if rng.uniform() < 0.5 { 20.0 } else { 235.0 };
-        stamp_disc(&mut out, w, h, x, y, radius, value);
+        stamp_disc(&mut out, w, h, nc, x, y, radius, value);
     }
     for _ in 0..effects.scratches {
         let (mut x, mut y) = (rng.uniform_range(0.0, w as f64), 0.0);
         let slope = rng.uniform_range(-0.15, 0.15);
         let value = if rng.uniform() < 0.7 { 230.0 } else { 30.0 };
         while y < h as f64 {
-            stamp_disc(&mut out, w, h, x, y, 0.6, value);
+            stamp_disc(&mut out, w, h, nc, x, y, 0.6, value);
             x += slope;
             y += 0.5;
         }
@@ -91,7 +119,17 @@ pub fn apply(img: &GreyImage, effects: &Effects) -> Vec<u8> {
         .collect()
 }
 
-fn stamp_disc(out: &mut [f64], w: usize, h: usize, x: f64, y: f64, radius: f64, value: f64) {
+#[allow(clippy::too_many_arguments)]
+fn stamp_disc(
+    out: &mut [f64],
+    w: usize,
+    h: usize,
+    nc: usize,
+    x: f64,
+    y: f64,
+    radius: f64,
+    value: f64,
+) {
     let r = radius.ceil() as i64;
     for j in (y as i64 - r)..=(y as i64 + r) {
         for i in (x as i64 - r)..=(x as i64 + r) {
@@ -100,7 +138,8 @@ fn stamp_disc(out: &mut [f64], w: usize, h: usize, x: f64, y: f64, radius: f64, 
             }
             let (dx, dy) = (i as f64 + 0.5 - x, j as f64 + 0.5 - y);
             if dx * dx + dy * dy <= radius * radius {
-                out[j as usize * w + i as usize] = value;
+                let k = j as usize * w + i as usize;
+                out[nc * k..nc * (k + 1)].fill(value);
             }
         }
     }
@@ -112,13 +151,13 @@ mod tests {
 
     #[test]
     fn effects_are_seeded_and_do_what_they_say() {
-        let img = GreyImage {
+        let img = RgbImage {
             width: 200,
             height: 100,
-            data: vec![0.5; 20_000],
+            data: vec![[0.5; 3]; 20_000],
         };
         let plain = apply(&img, &Effects::default());
-        assert!(plain.iter().all(|&v| v == 128));
+        assert!(plain.len() == 60_000 && plain.iter().all(|&v| v == 128));
         let dark = apply(
             &img,
             &Effects {
@@ -134,7 +173,7 @@ mod tests {
                 ..Default::default()
             },
         );
-        assert!(vignette[0] < vignette[50 * 200 + 100] && vignette[0] >= 75);
+        assert!(vignette[0] < vignette[3 * (50 * 200 + 100)] && vignette[0] >= 75);
         let noisy = Effects {
             noise_sigma: 4.0,
             seed: 3,
@@ -156,9 +195,11 @@ mod tests {
                 dust_per_mp: 5000.0,
                 scratches: 2,
                 seed: 9,
+                channels: Channels::Grey,
                 ..Default::default()
             },
         );
+        assert_eq!(scan.len(), 20_000);
         assert!(
             scan.iter()
                 .filter(|&&v| v == 235 || v == 20 || v == 230 || v == 30)

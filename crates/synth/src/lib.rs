@@ -11,9 +11,14 @@
 //! consumed exactly like user data; every random choice comes from a seed.
 
 pub mod effects;
+pub mod flight;
 pub mod noise;
 pub mod render;
+pub mod scene;
+pub mod scenes;
+pub mod shapes;
 pub mod terrain;
+pub mod writer;
 
 use thiserror::Error;
 
@@ -23,4 +28,7 @@ pub enum SynthError {
     /// The scene description is inconsistent.
     #[error("invalid scene: {0}")]
     InvalidScene(String),
+    /// A file of the project could not be written.
+    #[error("cannot write the scene: {0}")]
+    Write(String),
 }

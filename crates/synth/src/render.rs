@@ -1,26 +1,38 @@
 //! Ray-cast rendering of textured triangle meshes through any `CameraModel`: every sample's ray
 //! comes from the model's own `unproject`, so lens distortion is exact (no resampling of an
 //! undistorted image), and a sample grid per pixel box-filters edges (supersampled anti-aliasing).
-//! Rays are cast against a BVH of the mesh (parry3d); shading is Lambertian under a sun direction
-//! plus ambient light; materials are procedural functions of the hit position, so texture detail
-//! exists at every scale without texture images.
+//! The first hit along a ray is the visible surface (a depth test by construction). Rays are cast
+//! against a BVH of the mesh (parry3d); shading is Lambertian under a sun direction plus ambient
+//! light, with optional cast shadows; materials are procedural functions of the hit position, so
+//! texture detail exists at every scale without texture images.
+
+use std::sync::Arc;
 
 use nalgebra::{Vector2, Vector3};
 use parry3d_f64::math::Vector as PVector;
 use parry3d_f64::query::{Ray, RayCast};
-use parry3d_f64::shape::{FeatureId, TriMesh};
+use parry3d_f64::shape::TriMesh;
 use rayon::prelude::*;
 use timesift_core::{CameraModel, Pose};
 
 use crate::SynthError;
+use crate::noise::Noise;
+use crate::terrain::{FieldTracer, Heightfield};
 
 /// Longest ray (in units of the ray direction): finite, since BVH traversal does arithmetic on it.
 const MAX_RAY_LENGTH: f64 = 1e9;
 
-/// What a surface looks like: albedo (0–1) as a function of the world position.
+/// Amplitude ratio between successive octaves of land-cover textures: a flat spectrum keeps
+/// contrast at the pixel scale, where features are detected.
+const COVER_GAIN: f64 = 0.8;
+
+/// Linear RGB reflectance or radiance, each channel 0–1.
+pub type Rgb = Vector3<f64>;
+
+/// What a surface looks like: albedo as a function of the (texture) position.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Material {
-    /// Constant albedo.
+    /// Constant grey albedo.
     Flat(f64),
     /// A checkerboard of squares of side `size` on the plane through `origin` spanned by the unit
     /// vectors `u` and `v`; albedo `dark` and `light`.
@@ -38,10 +50,10 @@ pub enum Material {
         /// Albedo of light squares.
         light: f64,
     },
-    /// Fractal noise texture: `mean + amplitude · fBm(position / scale)`, clamped to [0, 1].
+    /// Grey fractal noise texture: `mean + amplitude · fBm(position / scale)`, clamped to [0, 1].
     Noise {
         /// The noise (its seed).
-        noise: Box<crate::noise::Noise>,
+        noise: Box<Noise>,
         /// Mean albedo.
         mean: f64,
         /// Amplitude of the variation.
@@ -51,13 +63,47 @@ pub enum Material {
         /// Octaves (each halves the wavelength).
         octaves: u32,
     },
+    /// A land cover: colours mixed between `dark` and `light` by fractal noise with wavelengths
+    /// from `scale` down to `scale / 2^(octaves−1)`, so that texture exists from the size of a
+    /// field down to the ground sampling distance.
+    Cover {
+        /// The noise (its seed).
+        noise: Box<Noise>,
+        /// Colour where the noise is low.
+        dark: Rgb,
+        /// Colour where the noise is high.
+        light: Rgb,
+        /// Longest wavelength, metres.
+        scale: f64,
+        /// Octaves.
+        octaves: u32,
+        /// Contrast: how far the noise spreads the mix around its middle (about 1).
+        contrast: f64,
+    },
 }
 
 impl Material {
-    /// Albedo at a world position.
-    pub fn albedo(&self, x: &Vector3<f64>) -> f64 {
+    /// Albedo at a texture position.
+    pub fn albedo(&self, x: &Vector3<f64>) -> Rgb {
+        self.shade(x, |n, scale, octaves, gain| {
+            n.fbm(x.x, x.y, x.z, scale, octaves, gain)
+        })
+    }
+
+    /// Albedo of a texture mapped onto a plane, at plane coordinates (x, y): the same patterns
+    /// with 2-D noise (half the work), for heightfields, seen from their normal side so that no
+    /// stretching shows.
+    pub fn albedo_planar(&self, x: f64, y: f64) -> Rgb {
+        self.shade(&Vector3::new(x, y, 0.0), |n, scale, octaves, gain| {
+            n.fbm2(x, y, scale, octaves, gain)
+        })
+    }
+
+    /// The albedo with `fbm(noise, scale, octaves, gain)` as the fractal noise at the point.
+    fn shade(&self, x: &Vector3<f64>, fbm: impl Fn(&Noise, f64, u32, f64) -> f64) -> Rgb {
+        let grey = |a: f64| Rgb::new(a, a, a);
         match self {
-            Material::Flat(a) => *a,
+            Material::Flat(a) => grey(*a),
             Material::Checker {
                 origin,
                 u,
@@ -71,11 +117,11 @@ impl Material {
                     (d.dot(u) / size).floor() as i64,
                     (d.dot(v) / size).floor() as i64,
                 );
-                if (i + j).rem_euclid(2) == 0 {
+                grey(if (i + j).rem_euclid(2) == 0 {
                     *dark
                 } else {
                     *light
-                }
+                })
             }
             Material::Noise {
                 noise,
@@ -83,23 +129,191 @@ impl Material {
                 amplitude,
                 scale,
                 octaves,
-            } => (mean + amplitude * noise.fbm(x.x, x.y, x.z, *scale, *octaves, 0.55))
-                .clamp(0.0, 1.0),
+            } => grey((mean + amplitude * fbm(noise, *scale, *octaves, 0.55)).clamp(0.0, 1.0)),
+            Material::Cover {
+                noise,
+                dark,
+                light,
+                scale,
+                octaves,
+                contrast,
+            } => {
+                let t = (0.5 + contrast * fbm(noise, *scale, *octaves, COVER_GAIN)).clamp(0.0, 1.0);
+                dark + (light - dark) * t
+            }
         }
     }
 }
 
-/// A scene: one triangle mesh with a material per triangle, and the light.
+/// A surveying target painted on a surface: a disc of four quadrants, black and white
+/// alternately, whose centre (the quadrants' common corner) is the marked point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Target {
+    /// Centre, world coordinates (on the surface).
+    pub centre: Vector3<f64>,
+    /// First in-plane axis (unit).
+    pub u: Vector3<f64>,
+    /// Second in-plane axis (unit).
+    pub v: Vector3<f64>,
+    /// Radius, metres.
+    pub radius: f64,
+}
+
+/// Maps a world position to the position at which materials are evaluated, so texture can move
+/// with the ground (a landslide block carries its texture downhill).
+pub type TextureWarp = Arc<dyn Fn(&Vector3<f64>) -> Vector3<f64> + Send + Sync>;
+
+/// The material index of a world position (land cover evaluated where a ray lands, so cover
+/// boundaries are sharp whatever the mesh resolution).
+pub type CoverAt = Arc<dyn Fn(&Vector3<f64>) -> usize + Send + Sync>;
+
+/// How the triangles of a heightfield layer get their material.
+#[derive(Clone)]
+pub enum FieldMaterial {
+    /// One material for all.
+    Uniform(usize),
+    /// The scene's cover function at the hit point.
+    Cover,
+}
+
+/// A heightfield in the scene, in a frame that may swap y and z (a vertical wall).
+struct FieldLayer {
+    tracer: FieldTracer,
+    swap_yz: bool,
+    material: FieldMaterial,
+}
+
+fn swap(v: &Vector3<f64>, swap_yz: bool) -> Vector3<f64> {
+    if swap_yz {
+        Vector3::new(v.x, v.z, v.y)
+    } else {
+        *v
+    }
+}
+
+/// Accumulates meshes, heightfields and their materials into one [`Scene`].
+#[derive(Default)]
+pub struct SceneBuilder {
+    vertices: Vec<Vector3<f64>>,
+    triangles: Vec<[u32; 3]>,
+    triangle_material: Vec<usize>,
+    materials: Vec<Material>,
+    fields: Vec<FieldLayer>,
+    cover: Option<CoverAt>,
+    targets: Vec<Target>,
+    warp: Option<TextureWarp>,
+}
+
+impl SceneBuilder {
+    /// An empty scene.
+    pub fn new() -> SceneBuilder {
+        SceneBuilder::default()
+    }
+
+    /// Adds a material; returns its index.
+    pub fn material(&mut self, material: Material) -> usize {
+        self.materials.push(material);
+        self.materials.len() - 1
+    }
+
+    /// Adds a mesh whose triangle `k` has material `material_of(k)`.
+    pub fn add_mesh(
+        &mut self,
+        vertices: &[Vector3<f64>],
+        triangles: &[[u32; 3]],
+        material_of: impl Fn(usize) -> usize,
+    ) {
+        let base = self.vertices.len() as u32;
+        self.vertices.extend_from_slice(vertices);
+        for (k, t) in triangles.iter().enumerate() {
+            self.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
+            self.triangle_material.push(material_of(k));
+        }
+    }
+
+    /// Adds a heightfield; with `swap_yz` its (x, y, height) is the world's (x, z, y).
+    pub fn add_field(&mut self, field: Heightfield, swap_yz: bool, material: FieldMaterial) {
+        self.fields.push(FieldLayer {
+            tracer: FieldTracer::new(field),
+            swap_yz,
+            material,
+        });
+    }
+
+    /// Sets the cover function used by [`FieldMaterial::Cover`] layers.
+    pub fn cover(&mut self, cover: CoverAt) {
+        self.cover = Some(cover);
+    }
+
+    /// Adds a painted target.
+    pub fn target(&mut self, target: Target) {
+        self.targets.push(target);
+    }
+
+    /// Sets the texture warp.
+    pub fn warp(&mut self, warp: TextureWarp) {
+        self.warp = Some(warp);
+    }
+
+    /// The scene.
+    pub fn build(self) -> Result<Scene, SynthError> {
+        if let Some(m) = self.fields.iter().find_map(|f| match f.material {
+            FieldMaterial::Uniform(m) if m >= self.materials.len() => Some(m),
+            _ => None,
+        }) {
+            return Err(SynthError::InvalidScene(format!(
+                "material {m} of {}",
+                self.materials.len()
+            )));
+        }
+        if self.cover.is_none()
+            && self
+                .fields
+                .iter()
+                .any(|f| matches!(f.material, FieldMaterial::Cover))
+        {
+            return Err(SynthError::InvalidScene(
+                "a heightfield takes its cover from a function that was not given".into(),
+            ));
+        }
+        let mut scene = Scene::new(
+            &self.vertices,
+            &self.triangles,
+            self.triangle_material,
+            self.materials,
+        )?;
+        scene.fields = self.fields;
+        scene.cover = self.cover;
+        scene.targets = self.targets;
+        scene.warp = self.warp;
+        Ok(scene)
+    }
+}
+
+/// What a ray hit: distance, unit normal, material.
+struct Hit {
+    t: f64,
+    normal: Vector3<f64>,
+    material: usize,
+    /// For heightfield hits, whether the layer swaps y and z (its texture is planar).
+    planar: Option<bool>,
+}
+
+/// A scene: triangle meshes and heightfields with materials, painted targets, and the light.
 pub struct Scene {
-    mesh: TriMesh,
+    mesh: Option<TriMesh>,
     materials: Vec<Material>,
     triangle_material: Vec<usize>,
+    fields: Vec<FieldLayer>,
+    cover: Option<CoverAt>,
+    targets: Vec<Target>,
+    warp: Option<TextureWarp>,
     /// Unit vector towards the sun.
     pub sun: Vector3<f64>,
     /// Ambient fraction of the light (0–1).
     pub ambient: f64,
-    /// Value of rays that hit nothing.
-    pub background: f64,
+    /// Radiance of rays that hit nothing.
+    pub background: Rgb,
 }
 
 impl Scene {
@@ -123,59 +337,150 @@ impl Scene {
                 materials.len()
             )));
         }
-        let mesh = TriMesh::new(
-            vertices
-                .iter()
-                .map(|v| PVector::new(v.x, v.y, v.z))
-                .collect(),
-            triangles.to_vec(),
-        )
-        .map_err(|e| SynthError::InvalidScene(format!("triangle mesh: {e:?}")))?;
+        let mesh = if triangles.is_empty() {
+            None
+        } else {
+            Some(
+                TriMesh::new(
+                    vertices
+                        .iter()
+                        .map(|v| PVector::new(v.x, v.y, v.z))
+                        .collect(),
+                    triangles.to_vec(),
+                )
+                .map_err(|e| SynthError::InvalidScene(format!("triangle mesh: {e:?}")))?,
+            )
+        };
         Ok(Scene {
             mesh,
             materials,
             triangle_material,
+            fields: Vec::new(),
+            cover: None,
+            targets: Vec::new(),
+            warp: None,
             sun: Vector3::new(0.3, 0.2, 1.0).normalize(),
             ambient: 0.35,
-            background: 0.0,
+            background: Rgb::zeros(),
         })
+    }
+
+    fn ray(origin: &Vector3<f64>, dir: &Vector3<f64>) -> Ray {
+        Ray::new(
+            PVector::new(origin.x, origin.y, origin.z),
+            PVector::new(dir.x, dir.y, dir.z),
+        )
+    }
+
+    /// The nearest hit along a ray within `t_max`.
+    fn nearest(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, t_max: f64) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        if let Some(mesh) = &self.mesh {
+            if let Some(hit) =
+                mesh.cast_local_ray_and_get_normal(&Self::ray(origin, dir), t_max, false)
+            {
+                // The triangle hit, in the order given to `new` (parry's sub-shape id).
+                let tri = (hit.subshape as usize).min(self.triangle_material.len() - 1);
+                best = Some(Hit {
+                    t: hit.time_of_impact,
+                    normal: Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z),
+                    material: self.triangle_material[tri],
+                    planar: None,
+                });
+            }
+        }
+        for layer in &self.fields {
+            let limit = best.as_ref().map_or(t_max, |b| b.t);
+            let (o, d) = (swap(origin, layer.swap_yz), swap(dir, layer.swap_yz));
+            if let Some(hit) = layer.tracer.cast(&o, &d, limit) {
+                if best.as_ref().is_none_or(|b| hit.t < b.t) {
+                    let material = match &layer.material {
+                        FieldMaterial::Uniform(m) => *m,
+                        FieldMaterial::Cover => match &self.cover {
+                            Some(cover) => cover(&(origin + dir * hit.t)),
+                            None => 0,
+                        },
+                    };
+                    best = Some(Hit {
+                        t: hit.t,
+                        normal: swap(&hit.normal, layer.swap_yz),
+                        material,
+                        planar: Some(layer.swap_yz),
+                    });
+                }
+            }
+        }
+        best
     }
 
     /// The first surface point along a world ray, if any.
     pub fn hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<Vector3<f64>> {
-        let ray = Ray::new(
-            PVector::new(origin.x, origin.y, origin.z),
-            PVector::new(dir.x, dir.y, dir.z),
-        );
-        self.mesh
-            .cast_local_ray(&ray, MAX_RAY_LENGTH, false)
-            .map(|t| origin + dir * t)
+        self.nearest(origin, dir, MAX_RAY_LENGTH)
+            .map(|h| origin + dir * h.t)
     }
 
-    /// Radiance along a world ray (origin, direction): albedo × (ambient + (1 − ambient)·cos θ).
-    pub fn trace(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> f64 {
-        let ray = Ray::new(
-            PVector::new(origin.x, origin.y, origin.z),
-            PVector::new(dir.x, dir.y, dir.z),
-        );
-        let Some(hit) = self
-            .mesh
-            .cast_local_ray_and_get_normal(&ray, MAX_RAY_LENGTH, false)
-        else {
+    /// Whether the segment from `a` to `b` is free of surfaces (ends excluded by `tolerance`
+    /// metres): the line of sight of a camera to a point.
+    pub fn sees(&self, a: &Vector3<f64>, b: &Vector3<f64>, tolerance: f64) -> bool {
+        let d = b - a;
+        let length = d.norm();
+        if length <= tolerance {
+            return true;
+        }
+        let dir = d / length;
+        self.nearest(a, &dir, length - tolerance).is_none()
+    }
+
+    fn target_albedo(&self, x: &Vector3<f64>) -> Option<Rgb> {
+        self.targets.iter().find_map(|t| {
+            let d = x - t.centre;
+            (d.norm_squared() <= t.radius * t.radius).then(|| {
+                let a = if d.dot(&t.u) * d.dot(&t.v) >= 0.0 {
+                    0.92
+                } else {
+                    0.04
+                };
+                Rgb::new(a, a, a)
+            })
+        })
+    }
+
+    /// Radiance along a world ray: albedo × (ambient + (1 − ambient)·cos θ), the direct part
+    /// dropped where another surface shadows the point (when `shadows`).
+    pub fn trace(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, shadows: bool) -> Rgb {
+        let Some(hit) = self.nearest(origin, dir, MAX_RAY_LENGTH) else {
             return self.background;
         };
-        let n_tri = self.triangle_material.len() as u32;
-        let tri = match hit.feature {
-            FeatureId::Face(f) => (f % n_tri) as usize,
-            _ => 0,
-        };
-        let x = origin + dir * hit.time_of_impact;
-        let mut normal = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
+        let x = origin + dir * hit.t;
+        let mut normal = hit.normal;
         if normal.dot(dir) > 0.0 {
             normal = -normal;
         }
-        let albedo = self.materials[self.triangle_material[tri]].albedo(&x);
-        albedo * (self.ambient + (1.0 - self.ambient) * normal.dot(&self.sun).max(0.0))
+        let albedo = match self.target_albedo(&x) {
+            Some(a) => a,
+            None => {
+                let texture_x = match &self.warp {
+                    Some(w) => w(&x),
+                    None => x,
+                };
+                let material = &self.materials[hit.material];
+                match hit.planar {
+                    Some(swap_yz) => {
+                        let g = swap(&texture_x, swap_yz);
+                        material.albedo_planar(g.x, g.y)
+                    }
+                    None => material.albedo(&texture_x),
+                }
+            }
+        };
+        let mut direct = normal.dot(&self.sun).max(0.0);
+        if shadows && direct > 0.0 {
+            let lifted = x + normal * 1e-6 * (1.0 + hit.t);
+            if self.nearest(&lifted, &self.sun, MAX_RAY_LENGTH).is_some() {
+                direct = 0.0;
+            }
+        }
+        albedo * (self.ambient + (1.0 - self.ambient) * direct)
     }
 }
 
@@ -184,15 +489,51 @@ impl Scene {
 pub struct RenderOptions {
     /// Samples per pixel along each axis (n × n per pixel, box filter).
     pub supersampling: u32,
+    /// Whether surfaces cast shadows (one more ray per sample).
+    pub shadows: bool,
 }
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        RenderOptions { supersampling: 3 }
+        RenderOptions {
+            supersampling: 2,
+            shadows: false,
+        }
     }
 }
 
-/// A grey image, row-major, values 0–1 (before exposure and noise).
+/// A linear RGB image, row-major, values 0–1 (before exposure and noise).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RgbImage {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Pixels.
+    pub data: Vec<[f32; 3]>,
+}
+
+impl RgbImage {
+    /// Pixel at (col, row).
+    pub fn get(&self, col: usize, row: usize) -> [f32; 3] {
+        self.data[row * self.width + col]
+    }
+
+    /// The luminance image (Rec. 601 weights): what panchromatic film records.
+    pub fn to_grey(&self) -> GreyImage {
+        GreyImage {
+            width: self.width,
+            height: self.height,
+            data: self
+                .data
+                .iter()
+                .map(|p| 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2])
+                .collect(),
+        }
+    }
+}
+
+/// A grey image, row-major, values 0–1.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GreyImage {
     /// Columns.
@@ -210,8 +551,86 @@ impl GreyImage {
     }
 }
 
-/// Renders `scene` as seen by `camera` at `pose` (`cam_from_world`). Pixel (i, j) covers
-/// [i, i+1) × [j, j+1) (DESIGN.md); its samples sit at the centres of an n × n grid inside it.
+/// The camera-frame ray of every sample of every pixel, computed once per camera (undistortion
+/// is iterative, and every image of an epoch shares the camera). Stored as f32 unit-z rays:
+/// 1e-7 rad, far below a pixel.
+pub struct RayTable {
+    width: usize,
+    height: usize,
+    samples: usize,
+    rays: Vec<Option<[f32; 2]>>,
+}
+
+impl RayTable {
+    /// The rays of `camera` for images of `width` × `height` with n × n samples per pixel.
+    pub fn new<C: CameraModel + Sync>(
+        camera: &C,
+        width: usize,
+        height: usize,
+        supersampling: u32,
+    ) -> RayTable {
+        let n = supersampling.max(1) as usize;
+        let mut rays = vec![None; width * height * n * n];
+        rays.par_chunks_mut((width * n * n).max(1))
+            .enumerate()
+            .for_each(|(row, line)| {
+                for (k, out) in line.iter_mut().enumerate() {
+                    let (col, s) = (k / (n * n), k % (n * n));
+                    let pixel = Vector2::new(
+                        col as f64 + ((s % n) as f64 + 0.5) / n as f64,
+                        row as f64 + ((s / n) as f64 + 0.5) / n as f64,
+                    );
+                    *out = camera
+                        .unproject(&pixel)
+                        .ok()
+                        .map(|r| [(r.x / r.z) as f32, (r.y / r.z) as f32]);
+                }
+            });
+        RayTable {
+            width,
+            height,
+            samples: n,
+            rays,
+        }
+    }
+}
+
+/// Renders `scene` from `pose` (`cam_from_world`) with the rays of a [`RayTable`]. Pixel (i, j)
+/// covers [i, i+1) × [j, j+1) (DESIGN.md); its samples sit at the centres of an n × n grid inside
+/// it and are averaged (box filter).
+pub fn render_rays(scene: &Scene, rays: &RayTable, pose: &Pose, shadows: bool) -> RgbImage {
+    let (width, n2) = (rays.width, rays.samples * rays.samples);
+    let world_from_cam = pose.rotation.inverse();
+    let centre = pose.center();
+    let mut data = vec![[0.0f32; 3]; width * rays.height];
+    data.par_chunks_mut(width.max(1))
+        .enumerate()
+        .for_each(|(row, line)| {
+            for (col, out) in line.iter_mut().enumerate() {
+                let first = (row * width + col) * n2;
+                let mut sum = Rgb::zeros();
+                for ray in &rays.rays[first..first + n2] {
+                    sum += match ray {
+                        Some([x, y]) => {
+                            let dir = world_from_cam * Vector3::new(*x as f64, *y as f64, 1.0);
+                            scene.trace(&centre, &dir, shadows)
+                        }
+                        None => scene.background,
+                    };
+                }
+                let mean = sum / n2 as f64;
+                *out = [mean.x as f32, mean.y as f32, mean.z as f32];
+            }
+        });
+    RgbImage {
+        width,
+        height: rays.height,
+        data,
+    }
+}
+
+/// Renders `scene` as seen by `camera` at `pose` (`cam_from_world`): [`render_rays`] with the
+/// camera's [`RayTable`].
 pub fn render<C: CameraModel + Sync>(
     scene: &Scene,
     camera: &C,
@@ -219,34 +638,12 @@ pub fn render<C: CameraModel + Sync>(
     height: usize,
     pose: &Pose,
     options: &RenderOptions,
-) -> Result<GreyImage, SynthError> {
-    let n = options.supersampling.max(1) as usize;
-    let world_from_cam = pose.rotation.inverse();
-    let centre = pose.center();
-    let mut data = vec![0.0f32; width * height];
-    data.par_chunks_mut(width.max(1))
-        .enumerate()
-        .for_each(|(row, line)| {
-            for (col, out) in line.iter_mut().enumerate() {
-                let mut sum = 0.0;
-                for sy in 0..n {
-                    for sx in 0..n {
-                        let pixel = Vector2::new(
-                            col as f64 + (sx as f64 + 0.5) / n as f64,
-                            row as f64 + (sy as f64 + 0.5) / n as f64,
-                        );
-                        sum += match camera.unproject(&pixel) {
-                            Ok(ray_cam) => scene.trace(&centre, &(world_from_cam * ray_cam)),
-                            Err(_) => scene.background,
-                        };
-                    }
-                }
-                *out = (sum / (n * n) as f64) as f32;
-            }
-        });
-    Ok(GreyImage {
-        width,
-        height,
-        data,
-    })
+) -> Result<RgbImage, SynthError> {
+    if width == 0 || height == 0 {
+        return Err(SynthError::InvalidScene(format!(
+            "image of {width} × {height} pixels"
+        )));
+    }
+    let rays = RayTable::new(camera, width, height, options.supersampling);
+    Ok(render_rays(scene, &rays, pose, options.shadows))
 }

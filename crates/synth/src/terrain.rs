@@ -95,3 +95,257 @@ impl Heightfield {
         (vertices, triangles)
     }
 }
+
+/// Level of the maximum pyramid whose blocks (8 × 8 cells) the ray walk visits first.
+const TILE_LEVEL: usize = 3;
+
+/// Ray casting against a [`Heightfield`]'s triangulated surface, exact on the same triangles as
+/// [`Heightfield::mesh`]: a grid walk (Amanatides–Woo) over tiles of 8 × 8 cells skips those the
+/// ray passes above (their highest node is below it), then walks the cells of the others the same
+/// way, testing the two triangles of each cell the ray may touch as planes. Incremental walks
+/// beat both a general BVH and a full maximum-pyramid descent on the million-triangle grids of
+/// the scenes (measured).
+#[derive(Debug, Clone)]
+pub struct FieldTracer {
+    field: Heightfield,
+    /// `levels[k]`: (columns, rows, highest node per block of 2ᵏ × 2ᵏ cells), up to the tiles.
+    levels: Vec<(usize, usize, Vec<f64>)>,
+    z_min: f64,
+    z_max: f64,
+}
+
+/// Where a ray meets a surface.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FieldHit {
+    /// Ray parameter (in units of the direction's length).
+    pub t: f64,
+    /// Unit normal of the triangle hit, pointing up (+z).
+    pub normal: Vector3<f64>,
+    /// Index of the triangle hit, in [`Heightfield::mesh`] order.
+    pub triangle: usize,
+}
+
+/// Steps of a 2-D grid walk along a ray: the cell entered and the ray parameter there.
+struct GridWalk {
+    cell: (i64, i64),
+    step: (i64, i64),
+    t_next: (f64, f64),
+    t_delta: (f64, f64),
+}
+
+impl GridWalk {
+    /// The walk over cells of size `size` (grid origin at 0) of the ray `o + t d` from `t0`.
+    fn new(o: (f64, f64), d: (f64, f64), t0: f64, size: f64) -> GridWalk {
+        let p = (o.0 + t0 * d.0, o.1 + t0 * d.1);
+        let cell = ((p.0 / size).floor() as i64, (p.1 / size).floor() as i64);
+        let axis = |p: f64, d: f64, c: i64| -> (i64, f64, f64) {
+            if d > 0.0 {
+                (1, t0 + ((c + 1) as f64 * size - p) / d, size / d)
+            } else if d < 0.0 {
+                (-1, t0 + (c as f64 * size - p) / d, -size / d)
+            } else {
+                (0, f64::INFINITY, f64::INFINITY)
+            }
+        };
+        let (sx, nx, dx) = axis(p.0, d.0, cell.0);
+        let (sy, ny, dy) = axis(p.1, d.1, cell.1);
+        GridWalk {
+            cell,
+            step: (sx, sy),
+            t_next: (nx, ny),
+            t_delta: (dx, dy),
+        }
+    }
+
+    /// The parameter where the current cell is left; moves to the next cell.
+    fn advance(&mut self) -> f64 {
+        if self.t_next.0 < self.t_next.1 {
+            let t = self.t_next.0;
+            self.cell.0 += self.step.0;
+            self.t_next.0 += self.t_delta.0;
+            t
+        } else {
+            let t = self.t_next.1;
+            self.cell.1 += self.step.1;
+            self.t_next.1 += self.t_delta.1;
+            t
+        }
+    }
+}
+
+impl FieldTracer {
+    /// The tracer of a heightfield (at least 2 × 2 nodes).
+    pub fn new(field: Heightfield) -> FieldTracer {
+        let (cx, cy) = (field.nx - 1, field.ny - 1);
+        let cells: Vec<f64> = (0..cx * cy)
+            .map(|k| {
+                let (i, j) = (k % cx, k / cx);
+                field
+                    .node(i, j)
+                    .max(field.node(i + 1, j))
+                    .max(field.node(i, j + 1))
+                    .max(field.node(i + 1, j + 1))
+            })
+            .collect();
+        let mut levels = vec![(cx, cy, cells)];
+        while let Some((w, h, below)) = levels
+            .last()
+            .filter(|l| levels.len() <= TILE_LEVEL && (l.0 > 1 || l.1 > 1))
+        {
+            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+            let mut up = vec![f64::NEG_INFINITY; nw * nh];
+            for j in 0..*h {
+                for i in 0..*w {
+                    let m = &mut up[(j / 2) * nw + i / 2];
+                    *m = m.max(below[j * w + i]);
+                }
+            }
+            levels.push((nw, nh, up));
+        }
+        let z_min = field.z.iter().copied().fold(f64::INFINITY, f64::min);
+        let z_max = field.z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        FieldTracer {
+            field,
+            levels,
+            z_min,
+            z_max,
+        }
+    }
+
+    /// The heightfield.
+    pub fn field(&self) -> &Heightfield {
+        &self.field
+    }
+
+    /// The first hit of the ray `origin + t · dir`, t in (0, t_max].
+    pub fn cast(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, t_max: f64) -> Option<FieldHit> {
+        let f = &self.field;
+        // Grid-relative origin so that cell (i, j) spans [i, i+1) × [j, j+1) cells.
+        let o = Vector3::new(origin.x - f.origin.0, origin.y - f.origin.1, origin.z);
+        let (w, h) = ((f.nx - 1) as f64 * f.cell, (f.ny - 1) as f64 * f.cell);
+        // Clip to the grid's box.
+        let (mut t0, mut t1) = (0.0f64, t_max);
+        for (o, d, lo, hi) in [
+            (o.x, dir.x, 0.0, w),
+            (o.y, dir.y, 0.0, h),
+            (o.z, dir.z, self.z_min, self.z_max),
+        ] {
+            if d.abs() < 1e-300 {
+                if o < lo || o > hi {
+                    return None;
+                }
+            } else {
+                let (a, b) = ((lo - o) / d, (hi - o) / d);
+                t0 = t0.max(a.min(b));
+                t1 = t1.min(a.max(b));
+            }
+        }
+        if t0 > t1 {
+            return None;
+        }
+        // Walk the tiles of level TILE_LEVEL in ray order, skipping those the ray passes above;
+        // walk the cells of the others, skipping those too, and test the rest.
+        let (tw, th, tile_max) = &self.levels[TILE_LEVEL.min(self.levels.len() - 1)];
+        let tile_size = f.cell * (1u64 << TILE_LEVEL.min(self.levels.len() - 1)) as f64;
+        let mut tiles = GridWalk::new((o.x, o.y), (dir.x, dir.y), t0, tile_size);
+        let mut ta = t0;
+        loop {
+            let (ti, tj) = tiles.cell;
+            let tb = tiles.advance().min(t1);
+            if ti >= 0 && tj >= 0 && (ti as usize) < *tw && (tj as usize) < *th {
+                let lowest = (o.z + ta * dir.z).min(o.z + tb * dir.z);
+                if lowest <= tile_max[tj as usize * tw + ti as usize] + 1e-9 {
+                    if let Some(hit) = self.walk_cells(&o, dir, ta, tb) {
+                        return Some(hit);
+                    }
+                }
+            }
+            if tb >= t1 {
+                return None;
+            }
+            ta = tb;
+        }
+    }
+
+    /// The first hit among the cells the ray crosses for parameters in [t0, t1].
+    fn walk_cells(
+        &self,
+        o: &Vector3<f64>,
+        dir: &Vector3<f64>,
+        t0: f64,
+        t1: f64,
+    ) -> Option<FieldHit> {
+        let (w, h, cell_max) = &self.levels[0];
+        let mut cells = GridWalk::new((o.x, o.y), (dir.x, dir.y), t0, self.field.cell);
+        let mut ta = t0;
+        loop {
+            let (i, j) = cells.cell;
+            let tb = cells.advance().min(t1);
+            if i >= 0 && j >= 0 && (i as usize) < *w && (j as usize) < *h {
+                let lowest = (o.z + ta * dir.z).min(o.z + tb * dir.z);
+                if lowest <= cell_max[j as usize * w + i as usize] + 1e-9 {
+                    if let Some(hit) = self.cell_hit(o, dir, i as usize, j as usize, ta, tb) {
+                        return Some(hit);
+                    }
+                }
+            }
+            if tb >= t1 {
+                return None;
+            }
+            ta = tb;
+        }
+    }
+
+    /// The ray (grid-relative origin `o`) against the two triangles of cell (i, j), parameter
+    /// within [ta, tb]: each triangle is the plane z = z00 + u·A + v·B over its half of the cell
+    /// (u, v the cell coordinates), so a hit is one division and two comparisons.
+    fn cell_hit(
+        &self,
+        o: &Vector3<f64>,
+        dir: &Vector3<f64>,
+        i: usize,
+        j: usize,
+        ta: f64,
+        tb: f64,
+    ) -> Option<FieldHit> {
+        let f = &self.field;
+        let (z00, z10, z01, z11) = (
+            f.node(i, j),
+            f.node(i + 1, j),
+            f.node(i, j + 1),
+            f.node(i + 1, j + 1),
+        );
+        let inv = 1.0 / f.cell;
+        let (u0, v0) = (o.x * inv - i as f64, o.y * inv - j as f64);
+        let (du, dv) = (dir.x * inv, dir.y * inv);
+        let eps_t = 1e-9 * (1.0 + tb.abs());
+        const EPS: f64 = 1e-9;
+        let mut best: Option<(f64, usize, f64, f64)> = None;
+        // Triangle 0 (u ≥ v): slopes A = z10 − z00 along u, B = z11 − z10 along v.
+        // Triangle 1 (v ≥ u): A = z11 − z01, B = z01 − z00.
+        for (k, a, b) in [(0, z10 - z00, z11 - z10), (1, z11 - z01, z01 - z00)] {
+            let den = dir.z - du * a - dv * b;
+            if den.abs() < 1e-300 {
+                continue;
+            }
+            let t = (z00 + u0 * a + v0 * b - o.z) / den;
+            if t < ta - eps_t || t > tb + eps_t || t <= 0.0 {
+                continue;
+            }
+            let (u, v) = (u0 + t * du, v0 + t * dv);
+            let inside = u >= -EPS
+                && v >= -EPS
+                && u <= 1.0 + EPS
+                && v <= 1.0 + EPS
+                && if k == 0 { u >= v - EPS } else { v >= u - EPS };
+            if inside && best.is_none_or(|(bt, ..)| t < bt) {
+                best = Some((t, k, a, b));
+            }
+        }
+        best.map(|(t, k, a, b)| FieldHit {
+            t,
+            normal: Vector3::new(-a * inv, -b * inv, 1.0).normalize(),
+            triangle: 2 * (j * (f.nx - 1) + i) + k,
+        })
+    }
+}

@@ -92,9 +92,13 @@ fn rendered_corners_match_the_camera_model() {
         640,
         480,
         &pose,
-        &RenderOptions { supersampling: 6 },
+        &RenderOptions {
+            supersampling: 6,
+            shadows: false,
+        },
     )
-    .expect("render");
+    .expect("render")
+    .to_grey();
     let mut errors = Vec::new();
     for i in 1..16 {
         for j in 1..12 {
@@ -125,4 +129,37 @@ fn mismatched_materials_are_errors() {
     let v = [Vector3::zeros(), Vector3::x(), Vector3::y()];
     assert!(Scene::new(&v, &[[0, 1, 2]], vec![], vec![Material::Flat(0.5)]).is_err());
     assert!(Scene::new(&v, &[[0, 1, 2]], vec![3], vec![Material::Flat(0.5)]).is_err());
+}
+
+/// Each triangle shows its own material: two squares side by side, dark west and light east.
+#[test]
+fn triangles_show_their_own_materials() {
+    let v = [
+        Vector3::new(-1.0, -1.0, 0.0),
+        Vector3::new(0.0, -1.0, 0.0),
+        Vector3::new(0.0, 1.0, 0.0),
+        Vector3::new(-1.0, 1.0, 0.0),
+        Vector3::new(1.0, -1.0, 0.0),
+        Vector3::new(1.0, 1.0, 0.0),
+    ];
+    let mut scene = Scene::new(
+        &v,
+        &[[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]],
+        vec![0, 0, 1, 1],
+        vec![Material::Flat(0.2), Material::Flat(0.8)],
+    )
+    .expect("scene");
+    scene.sun = Vector3::z();
+    scene.ambient = 1.0;
+    let camera = BrownCamera::new(40, 40, 40.0).expect("camera");
+    // Nadir, image x towards east.
+    let pose = Pose::from_rotation_and_center(
+        timesift_synth::flight::nadir_rotation(0.0),
+        &Vector3::new(0.0, 0.0, 1.5),
+    );
+    let img = render(&scene, &camera, 40, 40, &pose, &RenderOptions::default())
+        .expect("render")
+        .to_grey();
+    assert!((img.get(5, 20) - 0.2).abs() < 1e-6, "{}", img.get(5, 20));
+    assert!((img.get(34, 20) - 0.8).abs() < 1e-6, "{}", img.get(34, 20));
 }

@@ -76,7 +76,9 @@ fn textured_terrain_renders_with_detail() {
         &Vector3::new(1030.0, 2025.1, 50.0),
     )
     .expect("pose");
-    let img = render(&scene, &camera, 200, 150, &pose, &RenderOptions::default()).expect("render");
+    let img = render(&scene, &camera, 200, 150, &pose, &RenderOptions::default())
+        .expect("render")
+        .to_grey();
     assert!(
         img.data.iter().all(|&v| v > 0.0),
         "every pixel sees the terrain"
@@ -88,4 +90,72 @@ fn textured_terrain_renders_with_detail() {
         .filter(|w| (w[0] - w[1]).abs() > 0.005)
         .count();
     assert!(diffs > img.data.len() / 4, "{diffs}");
+}
+
+/// The heightfield ray walk finds the same first hit as a general BVH over the same triangles
+/// (parry3d), for rays from above, oblique and grazing, from inside and outside the grid.
+#[test]
+fn field_tracer_agrees_with_a_bvh_on_the_same_triangles() {
+    use parry3d_f64::math::Vector as PVector;
+    use parry3d_f64::query::{Ray, RayCast};
+    use parry3d_f64::shape::TriMesh;
+    use timesift_synth::terrain::FieldTracer;
+    let field = terrain();
+    let (vertices, triangles) = field.mesh();
+    let mesh = TriMesh::new(
+        vertices
+            .iter()
+            .map(|v| PVector::new(v.x, v.y, v.z))
+            .collect(),
+        triangles.clone(),
+    )
+    .expect("mesh");
+    let tracer = FieldTracer::new(field.clone());
+    let mut rng = SeededRng::new(11);
+    let (mut hits, mut misses) = (0, 0);
+    for k in 0..20_000 {
+        let origin = Vector3::new(
+            rng.uniform_range(990.0, 1070.0),
+            rng.uniform_range(1990.0, 2060.0),
+            rng.uniform_range(50.0, 75.0),
+        );
+        let dir = Vector3::new(
+            rng.uniform_range(-1.0, 1.0),
+            rng.uniform_range(-1.0, 1.0),
+            if k % 3 == 0 {
+                rng.uniform_range(-0.2, 0.05)
+            } else {
+                rng.uniform_range(-1.0, -0.1)
+            },
+        );
+        let ray = Ray::new(
+            PVector::new(origin.x, origin.y, origin.z),
+            PVector::new(dir.x, dir.y, dir.z),
+        );
+        let expected = mesh.cast_local_ray_and_get_normal(&ray, 1e6, false);
+        let got = tracer.cast(&origin, &dir, 1e6);
+        match (expected, got) {
+            (Some(e), Some(g)) => {
+                hits += 1;
+                assert!(
+                    (e.time_of_impact - g.t).abs() < 1e-7 * (1.0 + g.t),
+                    "ray {k}: t {} vs {}",
+                    e.time_of_impact,
+                    g.t
+                );
+                let n = Vector3::new(e.normal.x, e.normal.y, e.normal.z);
+                assert!(
+                    n.dot(&g.normal).abs() > 1.0 - 1e-9
+                        || (e.subshape as usize / 2 != g.triangle / 2)
+                );
+            }
+            (None, None) => misses += 1,
+            (e, g) => panic!(
+                "ray {k}: BVH {:?}, walk {:?}",
+                e.map(|h| h.time_of_impact),
+                g.map(|h| h.t)
+            ),
+        }
+    }
+    assert!(hits > 5_000 && misses > 500, "{hits} hits, {misses} misses");
 }

@@ -1,0 +1,341 @@
+//! `archival`: four panchromatic aerial surveys decades apart over farmland with a village and a
+//! river (after La Peyne and Mount Rainier): film cameras of different focal lengths flown at
+//! different scales, scanned with grain, dust and scratches. New buildings and a road embankment
+//! appear, a wood grows; there is no GNSS.
+
+use std::sync::Arc;
+
+use nalgebra::Vector3;
+use timesift_core::{BrownCamera, SeededRng};
+
+use super::*;
+use crate::SynthError;
+use crate::effects::{Channels, Effects};
+use crate::flight::NadirBlock;
+use crate::noise::Noise;
+use crate::scene::{
+    ChangeRegion, EpochSpec, Feature, Frame, ImageFormat, ImageSpec, PlacedBlock, SceneSpec, Shape,
+};
+use crate::shapes::{Block, Bump, Ridge};
+
+const CELL: f64 = 2.0;
+const RIVER: [(f64, f64); 6] = [
+    (-10.0, 300.0),
+    (400.0, 380.0),
+    (800.0, 330.0),
+    (1200.0, 420.0),
+    (1600.0, 360.0),
+    (2010.0, 430.0),
+];
+const ROAD: [(f64, f64); 4] = [
+    (-10.0, 900.0),
+    (700.0, 820.0),
+    (1300.0, 880.0),
+    (2010.0, 760.0),
+];
+const VILLAGE: ((f64, f64), (f64, f64)) = ((1180.0, 980.0), (1520.0, 1220.0));
+const WOOD: Bump = Bump {
+    centre: (520.0, 560.0),
+    a: 130.0,
+    b: 70.0,
+    yaw: 0.3,
+    height: 1.0,
+    power: 2.0,
+};
+const EMBANKMENT: Ridge = Ridge {
+    start: (250.0, 1080.0),
+    end: (900.0, 1200.0),
+    height: 5.0,
+    top_width: 12.0,
+    base_width: 32.0,
+    ramp: 80.0,
+};
+
+/// South-west and north-east corners.
+type Footprint = ((f64, f64), (f64, f64));
+
+/// Cell boundary nearest to `x` (grid nodes at multiples of the cell, boundaries half-way).
+fn snap(x: f64) -> f64 {
+    ((x / CELL - 0.5).round() + 0.5) * CELL
+}
+
+pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
+    let mut rng = SeededRng::new(seed);
+    let noise = Noise::new(seed ^ 71);
+    // Building plots: levelled in every epoch, built on from some epoch on.
+    // (footprint, first epoch with the building, building height)
+    let mut plots: Vec<(Footprint, usize, f64)> = Vec::new();
+    for _ in 0..200 {
+        if plots.len() == 10 {
+            break;
+        }
+        let (w, d) = (rng.uniform_range(12.0, 30.0), rng.uniform_range(10.0, 20.0));
+        let x = rng.uniform_range(VILLAGE.0.0 + 10.0, VILLAGE.1.0 - 10.0 - w);
+        let y = rng.uniform_range(VILLAGE.0.1 + 10.0, VILLAGE.1.1 - 10.0 - d);
+        let new = ((snap(x), snap(y)), (snap(x + w), snap(y + d)));
+        let apart = plots.iter().all(|(p, _, _)| {
+            new.0.0 > p.1.0 + 12.0
+                || new.1.0 < p.0.0 - 12.0
+                || new.0.1 > p.1.1 + 12.0
+                || new.1.1 < p.0.1 - 12.0
+        });
+        if apart {
+            plots.push((new, 1 + plots.len() % 3, rng.uniform_range(6.0, 12.0)));
+        }
+    }
+    let natural = {
+        let noise = noise.clone();
+        move |x: f64, y: f64| {
+            let valley = -14.0 * (-(distance_to_polyline(&RIVER, x, y) / 90.0).powi(2)).exp();
+            120.0
+                + 0.01 * y
+                + 35.0 * noise.fbm(x, y, 0.0, 900.0, 3, 0.5)
+                + 4.0 * noise.fbm(x, y, 3.0, 90.0, 3, 0.5)
+                + valley
+        }
+    };
+    let levels: Vec<f64> = plots
+        .iter()
+        .map(|(p, _, _)| natural(0.5 * (p.0.0 + p.1.0), 0.5 * (p.0.1 + p.1.1)))
+        .collect();
+    let plot_rects: Vec<_> = plots.iter().map(|(p, _, _)| *p).collect();
+    let levels_for_base = levels.clone();
+    let base = move |x: f64, y: f64| {
+        let mut z = natural(x, y);
+        for (p, level) in plot_rects.iter().zip(&levels_for_base) {
+            let w = pad_weight(
+                (p.0.0 - 4.0, p.0.1 - 4.0),
+                (p.1.0 + 4.0, p.1.1 + 4.0),
+                10.0,
+                x,
+                y,
+            );
+            z += w * (level - z);
+        }
+        z
+    };
+    let blocks: Vec<PlacedBlock> = plots
+        .iter()
+        .zip(&levels)
+        .map(|((p, first, height), level)| PlacedBlock {
+            block: Block {
+                min: p.0,
+                max: p.1,
+                base: *level,
+                top: level + height,
+            },
+            epochs: (*first..4).collect(),
+            material: 5,
+        })
+        .collect();
+    let mut features = Vec::new();
+    // The wood: canopy 6 m high in 1971, growing 4 m a decade.
+    for e in 0..4 {
+        features.push(Feature {
+            shape: Shape::Bump(Bump {
+                height: 6.0 + 4.0 * e as f64,
+                ..WOOD
+            }),
+            epochs: vec![e],
+        });
+    }
+    features.push(Feature {
+        shape: Shape::Ridge(EMBANKMENT),
+        epochs: vec![2, 3],
+    });
+    let regions = vec![
+        ChangeRegion {
+            name: "wood".into(),
+            description: "woodland growing".into(),
+            polygon: WOOD.footprint(5.0),
+            features: vec![0, 1, 2, 3],
+            blocks: vec![],
+        },
+        ChangeRegion {
+            name: "embankment".into(),
+            description: "road embankment built".into(),
+            polygon: EMBANKMENT.footprint(5.0),
+            features: vec![4],
+            blocks: vec![],
+        },
+        ChangeRegion {
+            name: "village".into(),
+            description: "new buildings".into(),
+            polygon: rect(VILLAGE.0, VILLAGE.1),
+            features: vec![],
+            blocks: (0..blocks.len()).collect(),
+        },
+    ];
+    let (w, _) = image_size(scale, (512, 512), (3000, 3000));
+    let fin = 0.5 * 1000.0 / w as f64;
+    let materials = vec![
+        cover(seed ^ 1, [0.30, 0.30, 0.22], [0.55, 0.52, 0.40], 60.0, fin),
+        cover(seed ^ 2, [0.05, 0.10, 0.04], [0.16, 0.24, 0.10], 20.0, fin),
+        cover(seed ^ 3, [0.06, 0.08, 0.10], [0.12, 0.14, 0.16], 50.0, fin),
+        cover(seed ^ 4, [0.40, 0.40, 0.40], [0.55, 0.55, 0.55], 10.0, fin),
+        cover(seed ^ 5, [0.50, 0.48, 0.44], [0.70, 0.68, 0.64], 20.0, fin),
+        cover(seed ^ 6, [0.45, 0.30, 0.25], [0.70, 0.52, 0.45], 8.0, fin),
+        cover(seed ^ 7, [0.55, 0.48, 0.30], [0.80, 0.74, 0.50], 40.0, fin),
+        cover(seed ^ 8, [0.20, 0.28, 0.10], [0.40, 0.48, 0.22], 40.0, fin),
+    ];
+    let (sin, cos) = 0.35f64.sin_cos();
+    let cover_fn = move |e: usize, x: f64, y: f64| -> usize {
+        if distance_to_polyline(&RIVER, x, y) < 9.0 {
+            return 2;
+        }
+        if distance_to_polyline(&ROAD, x, y) < 5.0 {
+            return 3;
+        }
+        if e >= 2 && EMBANKMENT.value(x, y) > 0.0 {
+            return 4;
+        }
+        if WOOD.value(x, y) > 0.0 {
+            return 1;
+        }
+        if x > VILLAGE.0.0 && x < VILLAGE.1.0 && y > VILLAGE.0.1 && y < VILLAGE.1.1 {
+            return 4;
+        }
+        // Fields: parcels of a rotated grid, each with its own crop in each epoch.
+        let (u, v) = (cos * x + sin * y, -sin * x + cos * y);
+        let (i, j) = ((u / 140.0).floor() as i64, (v / 90.0).floor() as i64);
+        let r = hash01(i, j, e as u64 * 7 + seed);
+        if r < 0.4 {
+            0
+        } else if r < 0.7 {
+            6
+        } else {
+            7
+        }
+    };
+    // Film cameras: (focal length mm, scale number, scan shrinks/affinity) per epoch.
+    let cameras = [
+        (152.0, 5500.0),
+        (210.0, 5000.0),
+        (152.0, 4200.0),
+        (153.0, 4600.0),
+    ];
+    let names = ["1971-06-14", "1981-07-02", "1996-08-21", "2010-06-30"];
+    let mut epochs = Vec::new();
+    for (e, (f_mm, scale_number)) in cameras.iter().enumerate() {
+        let f = w as f64 * f_mm / 230.0;
+        let mut camera =
+            BrownCamera::new(w, w, f).map_err(|err| SynthError::InvalidScene(err.to_string()))?;
+        camera.cx = 0.002 * w as f64 * rng.normal();
+        camera.cy = 0.002 * w as f64 * rng.normal();
+        camera.b1 = 0.0004 * f * rng.normal();
+        camera.b2 = 0.0004 * f * rng.normal();
+        camera.k1 = 0.004 * rng.normal();
+        let altitude = 125.0 + f_mm / 1000.0 * scale_number;
+        let flight = match scale {
+            Scale::Small => NadirBlock {
+                min: (500.0, 450.0),
+                max: (1500.0, 950.0),
+                altitude,
+                ground: 125.0,
+                forward: 0.6,
+                side: 0.3,
+                tilt_sigma: 0.03,
+                position_sigma: 10.0,
+            },
+            Scale::Full => NadirBlock {
+                min: (250.0, 250.0),
+                max: (1750.0, 1150.0),
+                altitude,
+                ground: 125.0,
+                forward: 0.8,
+                side: 0.6,
+                tilt_sigma: 0.03,
+                position_sigma: 10.0,
+            },
+        };
+        let images = flight
+            .poses(&camera, &mut rng)
+            .into_iter()
+            .map(|pose| ImageSpec {
+                pose,
+                effects: Effects {
+                    exposure: 1.3 + 0.12 * rng.normal(),
+                    vignetting: 0.3,
+                    noise_sigma: 2.0,
+                    grain: 0.05 + 0.02 * (3 - e) as f64,
+                    dust_per_mp: 40.0,
+                    scratches: rng.below(3) as u32,
+                    seed: rng.next_u64(),
+                    channels: Channels::Grey,
+                },
+            })
+            .collect();
+        epochs.push(EpochSpec {
+            name: names[e].into(),
+            camera,
+            images,
+            sun: sun(
+                (120.0 + 15.0 * e as f64).to_radians(),
+                (50.0 + 5.0 * (e % 2) as f64).to_radians(),
+            ),
+            ambient: 0.35,
+            shadows: true,
+            supersampling: 2,
+            format: ImageFormat::Tiff,
+        });
+    }
+    let mut unstable = vec![
+        WOOD.footprint(20.0),
+        EMBANKMENT.footprint(15.0),
+        rect(
+            (VILLAGE.0.0 - 5.0, VILLAGE.0.1 - 5.0),
+            (VILLAGE.1.0 + 5.0, VILLAGE.1.1 + 5.0),
+        ),
+    ];
+    unstable.push(buffer(&RIVER, 20.0));
+    let mut spec = SceneSpec {
+        name: "archival".into(),
+        crs: "EPSG:2154".into(),
+        origin: Vector3::new(731_500.0, 6_271_200.0, 0.0),
+        frame: Frame::Ground,
+        grid: (0.0, 0.0, CELL, 1001, 701),
+        base: Arc::new(base),
+        apron: 1200.0,
+        features,
+        blocks,
+        materials,
+        cover: Arc::new(cover_fn),
+        warp: None,
+        epochs,
+        gcps: vec![],
+        checkpoints: vec![],
+        scale_targets: vec![],
+        scale_bars: vec![],
+        target_radius: 3.0,
+        regions,
+        unstable,
+        gnss: None,
+        marker_sigma: 0.3,
+        survey_sigma: (0.05, 0.08),
+        seed,
+    };
+    spec.gcps = place_points(
+        &spec,
+        &mut rng,
+        8,
+        "GCP",
+        (250.0, 200.0),
+        (1750.0, 1200.0),
+        25.0,
+        250.0,
+        &[],
+    );
+    let taken: Vec<_> = spec.gcps.iter().map(|p| p.at).collect();
+    spec.checkpoints = place_points(
+        &spec,
+        &mut rng,
+        5,
+        "CHK",
+        (250.0, 200.0),
+        (1750.0, 1200.0),
+        25.0,
+        150.0,
+        &taken,
+    );
+    Ok(spec)
+}

@@ -1,0 +1,613 @@
+//! Writes a [`SceneSpec`] as a project directory of DESIGN.md plus `truth/`:
+//!
+//! ```text
+//! project.toml, images/<epoch>/IMG_nnnn.*, gcps.csv, checkpoints.csv, markers.csv,
+//! gnss.csv (when the scene has GNSS), stable.csv (ground scenes), scalebars.csv (when any)
+//! truth/cameras.json     true cameras and poses (world frame)
+//! truth/points.csv       exact world positions of every GCP, check point and scale-bar target
+//! truth/dem_<epoch>.tif  true surface per epoch on the scene grid (wall scenes: wall frame)
+//! truth/surface_<epoch>.ply  the rendered surface mesh (wall scenes)
+//! truth/stable.tif       1 where the surface and its cover never change, 0 elsewhere
+//! truth/change.json      regions with their true volumes between every pair of epochs
+//! ```
+//!
+//! Images are rendered one at a time (each with every core) and written as they come, so memory
+//! holds one epoch's scene and one image, whatever the block size.
+
+use std::fmt::Write as _;
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Vector2, Vector3};
+use serde_json::json;
+use timesift_core::{Camera, CameraModel, Pose, SeededRng, project_world};
+use timesift_io::cameras_json::{OrientedImage, Reconstruction, write_cameras_json};
+use timesift_io::coords::Crs;
+use timesift_io::fsutil::write_bytes_atomically;
+use timesift_io::geotiff::{GeoRaster, GeoReference, GeoTransform, write_f32};
+
+use crate::SynthError;
+use crate::effects::{self, Channels};
+use crate::render::{RayTable, Scene, render_rays};
+use crate::scene::{Frame, ImageFormat, NamedPoint, SceneSpec};
+use crate::terrain::Heightfield;
+
+/// What to write.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WriteOptions {
+    /// Render and write the images (everything else is cheap; tests of geometry skip this).
+    pub images: bool,
+}
+
+impl Default for WriteOptions {
+    fn default() -> Self {
+        WriteOptions { images: true }
+    }
+}
+
+/// What was written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Written {
+    /// Images (written or, without `images`, described in truth/cameras.json).
+    pub images: usize,
+    /// Marker observations.
+    pub markers: usize,
+    /// Megapixels rendered.
+    pub megapixels: f64,
+}
+
+fn io_err(path: &Path, e: impl std::fmt::Display) -> SynthError {
+    SynthError::Write(format!("{}: {e}", path.display()))
+}
+
+fn write_text(path: &Path, text: &str) -> Result<(), SynthError> {
+    write_bytes_atomically(path, text.as_bytes()).map_err(|e| SynthError::Write(e.to_string()))
+}
+
+/// Image path of image `k` of `epoch`, relative to the project.
+pub fn image_name(spec: &SceneSpec, epoch: usize, k: usize) -> String {
+    let e = &spec.epochs[epoch];
+    format!(
+        "images/{}/IMG_{:04}.{}",
+        e.name,
+        k + 1,
+        e.format.extension()
+    )
+}
+
+/// `cam_from_world` of a `cam_from_local` pose, world = local + origin.
+fn world_pose(pose: &Pose, origin: &Vector3<f64>) -> Pose {
+    Pose::new(pose.rotation, pose.translation - pose.rotation * origin)
+}
+
+/// Surface normal of the heightfield at a grid position, in the local frame.
+fn normal(spec: &SceneSpec, field: &Heightfield, at: (f64, f64)) -> Vector3<f64> {
+    let h = field.cell;
+    let z = |x: f64, y: f64| field.height_at(x, y).unwrap_or(0.0);
+    let dx = (z(at.0 + h, at.1) - z(at.0 - h, at.1)) / (2.0 * h);
+    let dy = (z(at.0, at.1 + h) - z(at.0, at.1 - h)) / (2.0 * h);
+    let n = Vector3::new(-dx, -dy, 1.0).normalize();
+    spec.frame.to_local(n.x, n.y, n.z)
+}
+
+/// Writes the scene into `dir` (created; existing files are replaced).
+pub fn write_scene(
+    spec: &SceneSpec,
+    dir: &Path,
+    options: &WriteOptions,
+) -> Result<Written, SynthError> {
+    validate(spec)?;
+    std::fs::create_dir_all(dir.join("truth")).map_err(|e| io_err(dir, e))?;
+    let mut rng = SeededRng::new(spec.seed ^ 0x5EED_0F7A_7750);
+    let origin = spec.origin;
+    let crs: Crs = spec
+        .crs
+        .parse()
+        .map_err(|e: String| SynthError::InvalidScene(e))?;
+    let mut markers = String::from("image,name,u,v\n");
+    let mut gnss = String::from("image,x,y,z,sxy,sz\n");
+    let mut truth_images = Vec::new();
+    let mut written = Written {
+        images: 0,
+        markers: 0,
+        megapixels: 0.0,
+    };
+    let mut points_local: Vec<(String, &'static str, Vector3<f64>)> = Vec::new();
+    for (e, epoch) in spec.epochs.iter().enumerate() {
+        let field = spec.heightfield(e);
+        if e == 0 {
+            for (list, kind) in [
+                (&spec.gcps, "gcp"),
+                (&spec.checkpoints, "checkpoint"),
+                (&spec.scale_targets, "scalebar"),
+            ] {
+                for p in list {
+                    points_local.push((p.name.clone(), kind, spec.point_local(&field, p)?));
+                }
+            }
+        }
+        let scene = spec.scene(&field, e)?;
+        write_dem(
+            spec,
+            &field,
+            e,
+            crs,
+            &dir.join(format!("truth/dem_{}.tif", epoch.name)),
+        )?;
+        if spec.frame == Frame::Wall {
+            write_ply(
+                spec,
+                &field,
+                &dir.join(format!("truth/surface_{}.ply", epoch.name)),
+            )?;
+        }
+        let bias = Vector3::new(rng.normal(), rng.normal(), rng.normal());
+        let rays = if options.images {
+            RayTable::new(
+                &epoch.camera,
+                epoch.camera.width as usize,
+                epoch.camera.height as usize,
+                epoch.supersampling,
+            )
+        } else {
+            RayTable::new(&epoch.camera, 0, 0, 1)
+        };
+        for (k, image) in epoch.images.iter().enumerate() {
+            let name = image_name(spec, e, k);
+            for p in spec.named_points() {
+                if let Some(px) = observe(spec, &field, &scene, &epoch.camera, &image.pose, p)? {
+                    let noisy = px
+                        + Vector2::new(truncated_normal(&mut rng), truncated_normal(&mut rng))
+                            * spec.marker_sigma;
+                    writeln!(markers, "{name},{},{:.3},{:.3}", p.name, noisy.x, noisy.y)
+                        .map_err(|e| SynthError::Write(e.to_string()))?;
+                    written.markers += 1;
+                }
+            }
+            if let Some(g) = &spec.gnss {
+                let c = image.pose.center() + origin;
+                let x = c.x + g.bias_h * bias.x + g.noise_h * rng.normal();
+                let y = c.y + g.bias_h * bias.y + g.noise_h * rng.normal();
+                let z = c.z + g.bias_v * bias.z + g.noise_v * rng.normal();
+                let (sxy, sz) = (g.bias_h.hypot(g.noise_h), g.bias_v.hypot(g.noise_v));
+                writeln!(gnss, "{name},{x:.3},{y:.3},{z:.3},{sxy:.2},{sz:.2}")
+                    .map_err(|e| SynthError::Write(e.to_string()))?;
+            }
+            if options.images {
+                let path = dir.join(&name);
+                let rendered = render_rays(&scene, &rays, &image.pose, epoch.shadows);
+                let pixels = effects::apply(&rendered, &image.effects);
+                let bytes = encode(
+                    &pixels,
+                    epoch.camera.width,
+                    epoch.camera.height,
+                    image.effects.channels,
+                    epoch.format,
+                )
+                .map_err(|e| io_err(&path, e))?;
+                write_bytes_atomically(&path, &bytes)
+                    .map_err(|e| SynthError::Write(e.to_string()))?;
+                written.megapixels += (epoch.camera.width * epoch.camera.height) as f64 / 1e6;
+            }
+            truth_images.push(OrientedImage {
+                name,
+                epoch: epoch.name.clone(),
+                camera: epoch.name.clone(),
+                pose: Some(world_pose(&image.pose, &origin)),
+            });
+            written.images += 1;
+        }
+    }
+    write_text(&dir.join("markers.csv"), &markers)?;
+    if spec.gnss.is_some() {
+        write_text(&dir.join("gnss.csv"), &gnss)?;
+    }
+    write_points(spec, dir, &points_local, &mut rng)?;
+    write_cameras_json(
+        &dir.join("truth/cameras.json"),
+        &Reconstruction {
+            crs: spec.crs.clone(),
+            cameras: spec
+                .epochs
+                .iter()
+                .map(|e| (e.name.clone(), Camera::Brown(e.camera)))
+                .collect(),
+            images: truth_images,
+        },
+    )
+    .map_err(|e| SynthError::Write(e.to_string()))?;
+    write_stable(spec, dir, crs)?;
+    write_change(spec, dir)?;
+    write_project(spec, dir)?;
+    Ok(written)
+}
+
+/// A standard normal draw truncated at ±3.5: marker measurement noise; a larger error would be a
+/// blunder, which scenes do not model.
+fn truncated_normal(rng: &mut SeededRng) -> f64 {
+    loop {
+        let z = rng.normal();
+        if z.abs() <= 3.5 {
+            return z;
+        }
+    }
+}
+
+/// Whether the scene is consistent: names unique, control on stable ground, regions inside the
+/// grid.
+fn validate(spec: &SceneSpec) -> Result<(), SynthError> {
+    let bad = |m: String| Err(SynthError::InvalidScene(format!("{}: {m}", spec.name)));
+    if spec.epochs.is_empty() {
+        return bad("no epochs".into());
+    }
+    let mut names = std::collections::BTreeSet::new();
+    for p in spec.named_points() {
+        if !names.insert(p.name.as_str()) {
+            return bad(format!("point name {} used twice", p.name));
+        }
+        if !spec.is_stable(p.at.0, p.at.1) {
+            return bad(format!("point {} is not on stable ground", p.name));
+        }
+    }
+    for e in &spec.epochs {
+        e.camera
+            .validate()
+            .map_err(|err| SynthError::InvalidScene(format!("camera of {}: {err}", e.name)))?;
+    }
+    Ok(())
+}
+
+/// The pixel where `p` is seen in an image, when it is in the frame, in front, facing the camera
+/// and not hidden.
+fn observe(
+    spec: &SceneSpec,
+    field: &Heightfield,
+    scene: &Scene,
+    camera: &timesift_core::BrownCamera,
+    pose: &Pose,
+    p: &NamedPoint,
+) -> Result<Option<Vector2<f64>>, SynthError> {
+    let x = spec.point_local(field, p)?;
+    let Ok(px) = project_world(camera, pose, &x) else {
+        return Ok(None);
+    };
+    let margin = 4.0;
+    if px.x < margin
+        || px.y < margin
+        || px.x > camera.width as f64 - margin
+        || px.y > camera.height as f64 - margin
+    {
+        return Ok(None);
+    }
+    // A projection can also come from a point behind the camera with wild distortion: check
+    // that the ray through the pixel points at the point.
+    let c = pose.center();
+    let to_point = (x - c).normalize();
+    let Ok(ray) = camera.unproject(&px) else {
+        return Ok(None);
+    };
+    let ray_world = (pose.rotation.inverse() * ray).normalize();
+    if ray_world.dot(&to_point) < 1.0 - 1e-9 {
+        return Ok(None);
+    }
+    if normal(spec, field, p.at).dot(&(c - x)).abs() < 0.25 * (c - x).norm() {
+        return Ok(None); // grazing view: the target would be unmeasurable
+    }
+    let distance = (x - c).norm();
+    Ok(scene.sees(&c, &x, 1e-6 * distance + 1e-4).then_some(px))
+}
+
+fn encode(
+    pixels: &[u8],
+    width: u32,
+    height: u32,
+    channels: Channels,
+    format: ImageFormat,
+) -> Result<Vec<u8>, image::ImageError> {
+    use image::ImageEncoder;
+    let colour = match channels {
+        Channels::Rgb => image::ExtendedColorType::Rgb8,
+        Channels::Grey => image::ExtendedColorType::L8,
+    };
+    let mut out = Cursor::new(Vec::new());
+    match format {
+        ImageFormat::Jpeg(q) => image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, q)
+            .write_image(pixels, width, height, colour)?,
+        ImageFormat::Png => image::codecs::png::PngEncoder::new(&mut out)
+            .write_image(pixels, width, height, colour)?,
+        ImageFormat::Tiff => image::codecs::tiff::TiffEncoder::new(&mut out)
+            .write_image(pixels, width, height, colour)?,
+    }
+    Ok(out.into_inner())
+}
+
+/// North-up raster of the grid: pixel centres on the grid nodes.
+fn grid_georef(spec: &SceneSpec, crs: Crs) -> (usize, usize, GeoReference) {
+    let (x0, y0, cell, nx, ny) = spec.grid;
+    let (ox, oy, crs) = match spec.frame {
+        Frame::Ground => (spec.origin.x, spec.origin.y, crs),
+        Frame::Wall => (0.0, 0.0, Crs::Local),
+    };
+    (
+        nx,
+        ny,
+        GeoReference {
+            transform: GeoTransform {
+                origin_x: ox + x0 - 0.5 * cell,
+                origin_y: oy + y0 + (ny as f64 - 0.5) * cell,
+                pixel_width: cell,
+                pixel_height: -cell,
+            },
+            crs,
+            nodata: None,
+            pixel_is_point: false,
+        },
+    )
+}
+
+fn grid_position(spec: &SceneSpec, col: usize, row: usize) -> (f64, f64) {
+    let (x0, y0, cell, _, ny) = spec.grid;
+    (x0 + col as f64 * cell, y0 + (ny - 1 - row) as f64 * cell)
+}
+
+fn write_dem(
+    spec: &SceneSpec,
+    field: &Heightfield,
+    epoch: usize,
+    crs: Crs,
+    path: &Path,
+) -> Result<(), SynthError> {
+    let offset = match spec.frame {
+        Frame::Ground => spec.origin.z,
+        Frame::Wall => 0.0,
+    };
+    write_grid(spec, crs, Some(-32767.0), path, |x, y| {
+        spec.surface(field, epoch, x, y).unwrap_or(f64::NAN) + offset
+    })
+}
+
+/// Writes a float32 GeoTIFF on the scene grid (pixel centres on the grid nodes) of `value` at
+/// each node.
+fn write_grid(
+    spec: &SceneSpec,
+    crs: Crs,
+    nodata: Option<f64>,
+    path: &Path,
+    value: impl Fn(f64, f64) -> f64,
+) -> Result<(), SynthError> {
+    let (nx, ny, mut georef) = grid_georef(spec, crs);
+    georef.nodata = nodata;
+    let mut data = Vec::with_capacity(nx * ny);
+    for row in 0..ny {
+        for col in 0..nx {
+            let (x, y) = grid_position(spec, col, row);
+            data.push(value(x, y) as f32);
+        }
+    }
+    write_f32(
+        path,
+        &GeoRaster {
+            width: nx,
+            height: ny,
+            bands: 1,
+            data,
+            georef,
+        },
+    )
+    .map_err(|e| SynthError::Write(e.to_string()))
+}
+
+/// The surface mesh in world coordinates, binary little-endian PLY.
+fn write_ply(spec: &SceneSpec, field: &Heightfield, path: &Path) -> Result<(), SynthError> {
+    let (vertices, triangles) = field.mesh();
+    let mut bytes = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment timesift synth: true surface\n\
+         element vertex {}\nproperty double x\nproperty double y\nproperty double z\n\
+         element face {}\nproperty list uchar uint vertex_indices\nend_header\n",
+        vertices.len(),
+        triangles.len()
+    )
+    .into_bytes();
+    for v in &vertices {
+        let w = spec.frame.to_local(v.x, v.y, v.z) + spec.origin;
+        for c in [w.x, w.y, w.z] {
+            bytes.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for t in &triangles {
+        bytes.push(3);
+        for i in t {
+            bytes.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+    write_bytes_atomically(path, &bytes).map_err(|e| SynthError::Write(e.to_string()))
+}
+
+fn write_points(
+    spec: &SceneSpec,
+    dir: &Path,
+    points: &[(String, &'static str, Vector3<f64>)],
+    rng: &mut SeededRng,
+) -> Result<(), SynthError> {
+    let mut truth = String::from("name,kind,x,y,z\n");
+    let (sh, sv) = spec.survey_sigma;
+    let mut gcps = String::from("name,x,y,z,sxy,sz\n");
+    let mut checks = String::from("name,x,y,z\n");
+    for (name, kind, local) in points {
+        let w = local + spec.origin;
+        let _ = writeln!(truth, "{name},{kind},{:.6},{:.6},{:.6}", w.x, w.y, w.z);
+        let surveyed = w + Vector3::new(sh * rng.normal(), sh * rng.normal(), sv * rng.normal());
+        match *kind {
+            "gcp" => {
+                let _ = writeln!(
+                    gcps,
+                    "{name},{:.4},{:.4},{:.4},{sh},{sv}",
+                    surveyed.x, surveyed.y, surveyed.z
+                );
+            }
+            "checkpoint" => {
+                let _ = writeln!(
+                    checks,
+                    "{name},{:.4},{:.4},{:.4}",
+                    surveyed.x, surveyed.y, surveyed.z
+                );
+            }
+            _ => {}
+        }
+    }
+    write_text(&dir.join("truth/points.csv"), &truth)?;
+    write_text(&dir.join("gcps.csv"), &gcps)?;
+    write_text(&dir.join("checkpoints.csv"), &checks)?;
+    if !spec.scale_bars.is_empty() {
+        let position = |n: &str| points.iter().find(|p| p.0 == n).map(|p| p.2);
+        let mut bars = String::from("a,b,distance,sd\n");
+        for bar in &spec.scale_bars {
+            let (Some(a), Some(b)) = (position(&bar.a), position(&bar.b)) else {
+                return Err(SynthError::InvalidScene(format!(
+                    "scale bar {}–{} names an unknown target",
+                    bar.a, bar.b
+                )));
+            };
+            let _ = writeln!(bars, "{},{},{:.5},0.0002", bar.a, bar.b, (a - b).norm());
+        }
+        write_text(&dir.join("scalebars.csv"), &bars)?;
+    }
+    Ok(())
+}
+
+fn ring_wkt(ring: &[[f64; 2]], offset: (f64, f64)) -> String {
+    let mut s = String::from("(");
+    for (k, p) in ring.iter().chain(ring.first()).enumerate() {
+        if k > 0 {
+            s.push_str(", ");
+        }
+        let _ = write!(s, "{:.3} {:.3}", p[0] + offset.0, p[1] + offset.1);
+    }
+    s.push(')');
+    s
+}
+
+/// The frame offset of the grid in written files: world for ground scenes, none for walls.
+fn grid_offset(spec: &SceneSpec) -> (f64, f64) {
+    match spec.frame {
+        Frame::Ground => (spec.origin.x, spec.origin.y),
+        Frame::Wall => (0.0, 0.0),
+    }
+}
+
+/// The stable area as one polygon: the grid's extent with every unstable polygon as a hole.
+pub fn stable_wkt(spec: &SceneSpec) -> String {
+    let (x0, y0, cell, nx, ny) = spec.grid;
+    let (x1, y1) = (x0 + (nx - 1) as f64 * cell, y0 + (ny - 1) as f64 * cell);
+    let offset = grid_offset(spec);
+    let mut s = String::from("POLYGON (");
+    s.push_str(&ring_wkt(&[[x0, y0], [x1, y0], [x1, y1], [x0, y1]], offset));
+    for hole in &spec.unstable {
+        s.push_str(", ");
+        s.push_str(&ring_wkt(hole, offset));
+    }
+    s.push(')');
+    s
+}
+
+fn write_stable(spec: &SceneSpec, dir: &Path, crs: Crs) -> Result<(), SynthError> {
+    // Holes must not overlap, or the even–odd rule would flip them back to stable.
+    for (i, a) in spec.unstable.iter().enumerate() {
+        for b in &spec.unstable[i + 1..] {
+            if a.iter()
+                .any(|p| crate::shapes::polygon_contains(b, p[0], p[1]))
+                || b.iter()
+                    .any(|p| crate::shapes::polygon_contains(a, p[0], p[1]))
+            {
+                return Err(SynthError::InvalidScene(format!(
+                    "{}: unstable polygons overlap",
+                    spec.name
+                )));
+            }
+        }
+    }
+    if spec.frame == Frame::Ground {
+        write_text(
+            &dir.join("stable.csv"),
+            &format!("name,wkt\nstable,\"{}\"\n", stable_wkt(spec)),
+        )?;
+    }
+    write_grid(spec, crs, None, &dir.join("truth/stable.tif"), |x, y| {
+        if spec.is_stable(x, y) { 1.0 } else { 0.0 }
+    })
+}
+
+fn write_change(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
+    let offset = grid_offset(spec);
+    let regions: Vec<_> = spec
+        .regions
+        .iter()
+        .map(|r| {
+            let mut volumes = Vec::new();
+            for a in 0..spec.epochs.len() {
+                for b in a + 1..spec.epochs.len() {
+                    volumes.push(json!({
+                        "from": spec.epochs[a].name,
+                        "to": spec.epochs[b].name,
+                        "volume_m3": spec.true_volume(r, a, b),
+                    }));
+                }
+            }
+            json!({
+                "name": r.name,
+                "description": r.description,
+                "polygon_wkt": format!("POLYGON ({})", ring_wkt(&r.polygon, offset)),
+                "volumes": volumes,
+            })
+        })
+        .collect();
+    let (x0, y0, cell, nx, ny) = spec.grid;
+    let frame = match spec.frame {
+        Frame::Ground => "ground: DEMs and polygons in world coordinates (E, N), heights H",
+        Frame::Wall => {
+            "wall: DEMs and polygons in wall coordinates (x = world E − origin E along the wall, \
+             y = world H − origin H up the wall), values = world N − origin N out of the wall"
+        }
+    };
+    let doc = json!({
+        "scene": spec.name,
+        "crs": spec.crs,
+        "origin": [spec.origin.x, spec.origin.y, spec.origin.z],
+        "frame": frame,
+        "grid": { "origin": [x0 + offset.0, y0 + offset.1], "cell": cell, "nx": nx, "ny": ny },
+        "epochs": spec.epochs.iter().map(|e| e.name.clone()).collect::<Vec<_>>(),
+        "stable_mask": "truth/stable.tif",
+        "stable_wkt": stable_wkt(spec),
+        "regions": regions,
+    });
+    let text = serde_json::to_string_pretty(&doc).map_err(|e| SynthError::Write(e.to_string()))?;
+    write_text(&dir.join("truth/change.json"), &(text + "\n"))
+}
+
+fn write_project(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
+    let mut s = format!(
+        "# Synthetic scene `{}` written by `cargo xtask synth`; the truth is in truth/.\n\
+         crs = \"{}\"\n",
+        spec.name, spec.crs
+    );
+    for e in &spec.epochs {
+        let _ = write!(
+            s,
+            "\n[[epoch]]\nname = \"{}\"\nimages = \"images/{}/*.{}\"\n",
+            e.name,
+            e.name,
+            e.format.extension()
+        );
+    }
+    let _ = write!(
+        s,
+        "\n[align]\nmethod = \"timesift\"\nreference_epoch = \"{}\"\n",
+        spec.epochs[0].name
+    );
+    write_text(&dir.join("project.toml"), &s)
+}
+
+/// Where a written scene keeps a file.
+pub fn truth_path(dir: &Path, name: &str) -> PathBuf {
+    dir.join("truth").join(name)
+}
