@@ -1,14 +1,16 @@
 //! Ground-truth multi-epoch scene generator: renders textured scenes through the `brown` camera
-//! model and writes complete project directories plus `truth/` (issue "Ground-truth multi-epoch
-//! scene generator").
+//! model and writes complete project directories plus `truth/`, so that every accuracy figure
+//! timesift claims can be measured against a known answer.
 //!
-//! Built so far: the renderer (`render`): ray casting of triangle meshes through any camera model,
-//! exact lens distortion, supersampling, sun and ambient shading, procedural materials. Still to
-//! come (see the issue): terrain and object generators, textures by land cover, image effects,
-//! the seven study-case scenes and the project writer.
+//! - `render`, `terrain`, `noise`, `effects`: ray casting through any camera model (exact lens
+//!   distortion), heightfield ray walk, procedural land covers, camera and film-scan effects.
+//! - `shapes`, `scene`, `flight`: what a scene is made of (changes with closed-form volumes,
+//!   epochs, cameras placed as surveys are flown).
+//! - `scenes`: the seven study cases at `small` and `full` scale; `writer`: the project + truth.
 //!
-//! Invariants: only ever writes the project format of DESIGN.md, so that what it makes is
-//! consumed exactly like user data; every random choice comes from a seed.
+//! Invariants: only ever writes the project format of DESIGN.md (plus `scalebars.csv`), so that
+//! what it makes is consumed exactly like user data; every random choice comes from a seed; the
+//! truth describes exactly what was rendered.
 
 pub mod effects;
 pub mod flight;
