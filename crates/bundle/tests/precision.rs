@@ -2,14 +2,15 @@
 //! of camera centres and self-calibrated intrinsics agree with their spread over 50 seeded noise
 //! realisations, gross errors are flagged, and a free network is refused.
 
+mod common;
+
 use nalgebra::{Vector2, Vector3};
 use timesift_bundle::precision::{CovarianceScale, precision, residual_statistics};
 use timesift_bundle::problem::{BundleImage, BundlePoint};
 use timesift_bundle::{
-    BundleError, BundleOptions, BundleProblem, CameraGroup, CenterPrior, Loss, Observation,
-    PointPrior, solve,
+    BundleError, BundleOptions, BundleProblem, CameraGroup, CenterPrior, Loss, Observation, solve,
 };
-use timesift_core::{BrownCamera, Camera, CameraModel, Pose, SeededRng, project_world};
+use timesift_core::{BrownCamera, Camera, Pose, SeededRng, project_world};
 
 const SIGMA_PX: f64 = 0.5;
 const F: usize = 0;
@@ -93,17 +94,7 @@ fn realisation(t: &Truth, seed: u64) -> BundleProblem {
         })
         .collect();
     let point_priors = (0..10)
-        .map(|j| PointPrior {
-            point: j,
-            position: t.points[j]
-                + Vector3::new(
-                    rng.normal() * 0.01,
-                    rng.normal() * 0.01,
-                    rng.normal() * 0.02,
-                ),
-            sigma_xy: 0.01,
-            sigma_z: 0.02,
-        })
+        .map(|j| common::surveyed(j, &t.points[j], 0.01, 0.02, &mut rng))
         .collect();
     let mut start = t.camera;
     start.f *= 1.005;
@@ -144,13 +135,6 @@ fn options() -> BundleOptions {
     }
 }
 
-fn intrinsic(p: &BundleProblem, k: usize) -> f64 {
-    let mut params = [0.0; 11];
-    let n = p.groups[0].camera.num_params();
-    p.groups[0].camera.params(&mut params[..n]);
-    params[k]
-}
-
 #[test]
 fn reported_standard_deviations_match_the_spread_over_50_runs() {
     let t = truth();
@@ -174,22 +158,18 @@ fn reported_standard_deviations_match_the_spread_over_50_runs() {
             pred_centre_var +=
                 s.iter().map(|v| v * v).sum::<f64>() / (runs as f64 * 3.0 * t.poses.len() as f64);
         }
-        f.push(intrinsic(&p, F));
-        k1.push(intrinsic(&p, K1));
+        f.push(common::intrinsic(&p, F));
+        k1.push(common::intrinsic(&p, K1));
         centres.push(p.images.iter().map(|im| im.pose.center()).collect());
     }
-    let spread = |v: &[f64]| {
-        let m = v.iter().sum::<f64>() / v.len() as f64;
-        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
-    };
-    let ratio_f = spread(&f) / pred_f.sqrt();
-    let ratio_k1 = spread(&k1) / pred_k1.sqrt();
+    let ratio_f = common::spread(&f) / pred_f.sqrt();
+    let ratio_k1 = common::spread(&k1) / pred_k1.sqrt();
     // Camera centres: empirical variance pooled over all images and axes.
     let mut pooled = 0.0;
     for i in 0..t.poses.len() {
         for c in 0..3 {
             let v: Vec<f64> = centres.iter().map(|run| run[i][c]).collect();
-            pooled += spread(&v).powi(2) / (3.0 * t.poses.len() as f64);
+            pooled += common::spread(&v).powi(2) / (3.0 * t.poses.len() as f64);
         }
     }
     let ratio_centres = (pooled / pred_centre_var).sqrt();

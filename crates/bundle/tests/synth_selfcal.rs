@@ -6,6 +6,8 @@
 //! within 5 %, and the standard deviations it reports for f and k1 agree with their spread over 50
 //! seeded noise realisations within 20 %.
 
+mod common;
+
 use nalgebra::{Vector2, Vector3, Vector6};
 use timesift_bundle::precision::{CovarianceScale, precision};
 use timesift_bundle::problem::{BundleImage, BundlePoint};
@@ -126,17 +128,7 @@ fn realisation(b: &Block, seed: u64) -> BundleProblem {
     let point_priors: Vec<PointPrior> = b
         .gcps
         .iter()
-        .map(|&j| PointPrior {
-            point: j,
-            position: b.points[j]
-                + Vector3::new(
-                    rng.normal() * 0.01,
-                    rng.normal() * 0.01,
-                    rng.normal() * 0.015,
-                ),
-            sigma_xy: 0.01,
-            sigma_z: 0.015,
-        })
+        .map(|&j| common::surveyed(j, &b.points[j], 0.01, 0.015, &mut rng))
         .collect();
     let start =
         BrownCamera::new(b.camera.width, b.camera.height, b.camera.f * 1.02).expect("camera");
@@ -219,13 +211,6 @@ fn realisation(b: &Block, seed: u64) -> BundleProblem {
     }
 }
 
-fn intrinsic(p: &BundleProblem, k: usize) -> f64 {
-    let mut params = [0.0; 11];
-    let n = p.groups[0].camera.num_params();
-    p.groups[0].camera.params(&mut params[..n]);
-    params[k]
-}
-
 #[test]
 fn self_calibration_recovers_synth_cameras_with_honest_standard_deviations() {
     let b = block();
@@ -242,7 +227,7 @@ fn self_calibration_recovers_synth_cameras_with_honest_standard_deviations() {
     for run in 0..runs {
         let mut p = realisation(&b, 500 + run);
         let report = solve(&mut p, &options).expect("solve");
-        let (fe, k1e) = (intrinsic(&p, F), intrinsic(&p, K1));
+        let (fe, k1e) = (common::intrinsic(&p, F), common::intrinsic(&p, K1));
         if run < 3 || (fe / b.camera.f - 1.0).abs() > 1e-3 {
             println!(
                 "run {run}: f {fe:.3} (true {:.3}), k1 {k1e:.5} (true {:.5}), {report:?}",
@@ -257,11 +242,10 @@ fn self_calibration_recovers_synth_cameras_with_honest_standard_deviations() {
         f.push(fe);
         k1.push(k1e);
     }
-    let spread = |v: &[f64]| {
-        let m = v.iter().sum::<f64>() / v.len() as f64;
-        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
-    };
-    let (ratio_f, ratio_k1) = (spread(&f) / var_f.sqrt(), spread(&k1) / var_k1.sqrt());
+    let (ratio_f, ratio_k1) = (
+        common::spread(&f) / var_f.sqrt(),
+        common::spread(&k1) / var_k1.sqrt(),
+    );
     println!(
         "{} images, {} observations: worst |Δf|/f {:.5} %, worst |Δk1|/k1 {:.3} %; \
          spread / reported σ over {runs} runs: f {ratio_f:.3} (σ {:.3} px), k1 {ratio_k1:.3} (σ {:.2e})",
