@@ -83,6 +83,11 @@ pub enum Material {
 }
 
 impl Material {
+    /// Whether the albedo varies smoothly at the scale of a pixel (a checkerboard does not).
+    pub fn is_smooth(&self) -> bool {
+        !matches!(self, Material::Checker { .. })
+    }
+
     /// Albedo at a texture position.
     pub fn albedo(&self, x: &Vector3<f64>) -> Rgb {
         self.shade(x, |n, scale, octaves, gain| {
@@ -448,20 +453,24 @@ impl Scene {
     /// Radiance along a world ray: albedo × (ambient + (1 − ambient)·cos θ), the direct part
     /// dropped where another surface shadows the point (when `shadows`).
     pub fn trace(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, shadows: bool) -> Rgb {
-        let Some(hit) = self.nearest(origin, dir, MAX_RAY_LENGTH) else {
-            return self.background;
-        };
-        let x = origin + dir * hit.t;
+        match self.nearest(origin, dir, MAX_RAY_LENGTH) {
+            Some(hit) => self.shade(&(origin + dir * hit.t), &hit, dir, shadows),
+            None => self.background,
+        }
+    }
+
+    /// The radiance of surface point `x` hit along `dir`.
+    fn shade(&self, x: &Vector3<f64>, hit: &Hit, dir: &Vector3<f64>, shadows: bool) -> Rgb {
         let mut normal = hit.normal;
         if normal.dot(dir) > 0.0 {
             normal = -normal;
         }
-        let albedo = match self.target_albedo(&x) {
+        let albedo = match self.target_albedo(x) {
             Some(a) => a,
             None => {
                 let texture_x = match &self.warp {
-                    Some(w) => w(&x),
-                    None => x,
+                    Some(w) => w(x),
+                    None => *x,
                 };
                 let material = &self.materials[hit.material];
                 match hit.planar {
@@ -482,12 +491,106 @@ impl Scene {
         }
         albedo * (self.ambient + (1.0 - self.ambient) * direct)
     }
+
+    /// Radiance of one pixel from the rays of its samples. Geometry is always sampled n × n
+    /// times; when every sample lands on the same smooth material (band-limited texture, no
+    /// painted target) at nearly the same depth, shading — texture and shadow — is done once at
+    /// their mean point, since it would differ by less than the texture's finest detail. Edges of
+    /// objects, of land covers and of targets keep every sample.
+    fn pixel(&self, centre: &Vector3<f64>, dirs: &[Vector3<f64>], shadows: bool) -> Rgb {
+        let mut hits: [Option<Hit>; MAX_SAMPLES] = std::array::from_fn(|_| None);
+        let n = dirs.len().min(MAX_SAMPLES);
+        for (slot, dir) in hits.iter_mut().zip(dirs) {
+            *slot = self.nearest(centre, dir, MAX_RAY_LENGTH);
+        }
+        let first = &hits[0];
+        let uniform = n > 1
+            && first.as_ref().is_some_and(|f| {
+                self.materials[f.material].is_smooth()
+                    && hits[1..n].iter().all(|h| {
+                        h.as_ref().is_some_and(|h| {
+                            h.material == f.material
+                                && h.planar == f.planar
+                                && (h.t - f.t).abs() < 1e-3 * f.t
+                        })
+                    })
+            });
+        if uniform {
+            let mut x = Vector3::zeros();
+            let mut dir = Vector3::zeros();
+            for (h, d) in hits[..n].iter().zip(dirs) {
+                if let Some(h) = h {
+                    x += centre + d * h.t;
+                    dir += d;
+                }
+            }
+            x /= n as f64;
+            if self.target_albedo(&x).is_none()
+                && hits[..n].iter().zip(dirs).all(|(h, d)| {
+                    h.as_ref()
+                        .is_some_and(|h| self.target_albedo(&(centre + d * h.t)).is_none())
+                })
+            {
+                let mut hit = hits[0].take().unwrap_or(Hit {
+                    t: 0.0,
+                    normal: Vector3::z(),
+                    material: 0,
+                    planar: None,
+                });
+                hit.normal = hits[1..n]
+                    .iter()
+                    .flatten()
+                    .fold(hit.normal, |s, h| s + h.normal)
+                    .normalize();
+                // Texture at the samples' mean point (the pixel centre's footprint); shadows
+                // from each sample's own surface point, since the mean point may lie a hair
+                // inside a curved surface and would shadow itself.
+                let albedo_light = self.shade(&x, &hit, &dir, false);
+                if !shadows {
+                    return albedo_light;
+                }
+                let mut normal = hit.normal;
+                if normal.dot(&dir) > 0.0 {
+                    normal = -normal;
+                }
+                let cos = normal.dot(&self.sun).max(0.0);
+                let full = self.ambient + (1.0 - self.ambient) * cos;
+                if cos == 0.0 || full <= 0.0 {
+                    return albedo_light;
+                }
+                let lit = hits[1..n]
+                    .iter()
+                    .flatten()
+                    .chain(std::iter::once(&hit))
+                    .zip(dirs[1..n].iter().chain(std::iter::once(&dirs[0])))
+                    .filter(|(h, d)| {
+                        let p = centre + *d * h.t + normal * 1e-6 * (1.0 + h.t);
+                        self.nearest(&p, &self.sun, MAX_RAY_LENGTH).is_none()
+                    })
+                    .count();
+                let fraction = lit as f64 / n as f64;
+                let shaded = self.ambient + (1.0 - self.ambient) * cos * fraction;
+                return albedo_light * (shaded / full);
+            }
+        }
+        let mut sum = Rgb::zeros();
+        for (h, d) in hits[..n].iter().zip(dirs) {
+            sum += match h {
+                Some(h) => self.shade(&(centre + d * h.t), h, d, shadows),
+                None => self.background,
+            };
+        }
+        sum / n as f64
+    }
 }
+
+/// Most samples per pixel the renderer takes (8 × 8).
+const MAX_SAMPLES: usize = 64;
 
 /// Rendering options.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderOptions {
-    /// Samples per pixel along each axis (n × n per pixel, box filter).
+    /// Samples per pixel along each axis (n × n per pixel, box filter; at most 8).
     pub supersampling: u32,
     /// Whether surfaces cast shadows (one more ray per sample).
     pub shadows: bool,
@@ -569,7 +672,7 @@ impl RayTable {
         height: usize,
         supersampling: u32,
     ) -> RayTable {
-        let n = supersampling.max(1) as usize;
+        let n = supersampling.clamp(1, 8) as usize;
         let mut rays = vec![None; width * height * n * n];
         rays.par_chunks_mut((width * n * n).max(1))
             .enumerate()
@@ -608,17 +711,24 @@ pub fn render_rays(scene: &Scene, rays: &RayTable, pose: &Pose, shadows: bool) -
         .for_each(|(row, line)| {
             for (col, out) in line.iter_mut().enumerate() {
                 let first = (row * width + col) * n2;
-                let mut sum = Rgb::zeros();
+                let mut dirs = [Vector3::zeros(); MAX_SAMPLES];
+                let mut count = 0;
+                let mut missed = 0;
                 for ray in &rays.rays[first..first + n2] {
-                    sum += match ray {
-                        Some([x, y]) => {
-                            let dir = world_from_cam * Vector3::new(*x as f64, *y as f64, 1.0);
-                            scene.trace(&centre, &dir, shadows)
+                    match ray {
+                        Some([x, y]) if count < MAX_SAMPLES => {
+                            dirs[count] = world_from_cam * Vector3::new(*x as f64, *y as f64, 1.0);
+                            count += 1;
                         }
-                        None => scene.background,
-                    };
+                        _ => missed += 1,
+                    }
                 }
-                let mean = sum / n2 as f64;
+                let lit = if count > 0 {
+                    scene.pixel(&centre, &dirs[..count], shadows) * count as f64
+                } else {
+                    Rgb::zeros()
+                };
+                let mean = (lit + scene.background * missed as f64) / n2 as f64;
                 *out = [mean.x as f32, mean.y as f32, mean.z as f32];
             }
         });

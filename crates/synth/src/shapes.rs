@@ -39,8 +39,13 @@ impl Bump {
 
     fn rho2(&self, x: f64, y: f64) -> f64 {
         let (dx, dy) = (x - self.centre.0, y - self.centre.1);
-        let (s, c) = self.yaw.sin_cos();
-        let (u, v) = (c * dx + s * dy, -s * dx + c * dy);
+        // Evaluated for every ray sample in cover functions: skip the rotation when there is none.
+        let (u, v) = if self.yaw == 0.0 {
+            (dx, dy)
+        } else {
+            let (s, c) = self.yaw.sin_cos();
+            (c * dx + s * dy, -s * dx + c * dy)
+        };
         (u / self.a).powi(2) + (v / self.b).powi(2)
     }
 

@@ -48,8 +48,9 @@ impl Heightfield {
         self.z[j * self.nx + i]
     }
 
-    /// Height of the triangulated surface at (x, y); `None` outside the grid.
-    pub fn height_at(&self, x: f64, y: f64) -> Option<f64> {
+    /// The cell containing (x, y) and the position inside it (0–1 along x and y); `None` outside
+    /// the grid.
+    fn cell_of(&self, x: f64, y: f64) -> Option<(usize, usize, f64, f64)> {
         let fx = (x - self.origin.0) / self.cell;
         let fy = (y - self.origin.1) / self.cell;
         if !(fx >= 0.0 && fy >= 0.0 && fx <= (self.nx - 1) as f64 && fy <= (self.ny - 1) as f64) {
@@ -57,7 +58,12 @@ impl Heightfield {
         }
         let i = (fx.floor() as usize).min(self.nx - 2);
         let j = (fy.floor() as usize).min(self.ny - 2);
-        let (u, v) = (fx - i as f64, fy - j as f64);
+        Some((i, j, fx - i as f64, fy - j as f64))
+    }
+
+    /// Height of the triangulated surface at (x, y); `None` outside the grid.
+    pub fn height_at(&self, x: f64, y: f64) -> Option<f64> {
+        let (i, j, u, v) = self.cell_of(x, y)?;
         let (z00, z10, z01, z11) = (
             self.node(i, j),
             self.node(i + 1, j),
@@ -70,6 +76,14 @@ impl Heightfield {
         } else {
             z00 + v * (z01 - z00) + u * (z11 - z01)
         })
+    }
+
+    /// Bilinear interpolation of the node values at (x, y); `None` outside the grid.
+    pub fn bilinear(&self, x: f64, y: f64) -> Option<f64> {
+        let (i, j, u, v) = self.cell_of(x, y)?;
+        let bottom = self.node(i, j) * (1.0 - u) + self.node(i + 1, j) * u;
+        let top = self.node(i, j + 1) * (1.0 - u) + self.node(i + 1, j + 1) * u;
+        Some(bottom * (1.0 - v) + top * v)
     }
 
     /// The triangle mesh: vertices and triangles (two per cell, split as in [`Self::height_at`]).

@@ -129,7 +129,7 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         })
         .collect();
     let cover_fn = move |e: usize, x: f64, y: f64| -> usize {
-        let edge_y = FOREST_Y + 6.0 * edge.fbm(x, 0.0, 0.0, 30.0, 3, 0.5) - 4.0 * e as f64;
+        let edge_y = FOREST_Y + 6.0 * edge.fbm2(x, 0.0, 30.0, 3, 0.5) - 4.0 * e as f64;
         if y > edge_y {
             return 3 + e; // forest canopy: summer green, late summer, autumn
         }

@@ -11,7 +11,8 @@ use super::*;
 use crate::SynthError;
 use crate::noise::Noise;
 use crate::scene::{ChangeRegion, Feature, SceneSpec, Shape};
-use crate::shapes::{Bump, polygon_contains};
+use crate::shapes::Bump;
+use crate::terrain::Heightfield;
 
 const EPOCHS: usize = 4;
 
@@ -108,6 +109,9 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         cover(seed ^ 4, [0.15, 0.22, 0.08], [0.30, 0.38, 0.14], 2.0, fin),
     ];
     let sand = placed.clone();
+    // The rock relief tabulated on a 0.25 m lattice (bilinear between nodes): the cover function
+    // runs for every ray sample, the relief's seven noise octaves would dominate rendering.
+    let relief = Heightfield::from_fn((-70.0, -70.0), 0.25, 1161, 961, &rock);
     let cover_fn = move |e: usize, x: f64, y: f64| -> usize {
         let sea_edge = 8.0 + 2.5 * ((e * 7) % 3) as f64;
         if x < sea_edge {
@@ -119,14 +123,14 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
                 return if p.value(x, y) > 1.0 - level { 2 } else { 3 };
             }
         }
-        if e > 0
-            && sand
-                .iter()
-                .any(|b| b.value(x, y) > 0.25 && polygon_contains(&b.footprint(0.0), x, y))
-        {
+        if e > 0 && sand.iter().any(|b| b.value(x, y) > 0.25) {
             return 1;
         }
-        if rock(x, y) < 0.02 { 3 } else { 0 } // algae in the low gullies
+        if relief.bilinear(x, y).unwrap_or(1.0) < 0.02 {
+            3
+        } else {
+            0
+        } // algae in the low gullies
     };
     let camera_seed = rng.next_u64();
     let flight = match scale {
