@@ -16,8 +16,9 @@ use timesift_core::{BrownCamera, Pose};
 use crate::SynthError;
 use crate::effects::Effects;
 use crate::render::{FieldMaterial, Material, Scene, SceneBuilder, Target};
-use crate::shapes::{Block, Bump, Ridge, polygon_contains};
+use crate::shapes::{Block, Bump, Ridge};
 use crate::terrain::Heightfield;
+use timesift_io::wkt::ring_contains;
 
 /// How the grid frame sits in the local frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -77,13 +78,6 @@ impl Shape {
         match self {
             Shape::Bump(b) => b.footprint(margin),
             Shape::Ridge(r) => r.footprint(margin),
-        }
-    }
-
-    fn covers(&self, x: f64, y: f64, margin: f64) -> bool {
-        match self {
-            Shape::Bump(b) => b.covers(x, y, margin),
-            Shape::Ridge(r) => r.covers(x, y, margin),
         }
     }
 }
@@ -281,12 +275,8 @@ impl SceneSpec {
             .map(|f| &f.shape)
             .collect();
         Heightfield::from_fn((x0, y0), cell, nx, ny, |x, y| {
-            (self.base)(x, y)
-                + active
-                    .iter()
-                    .filter(|s| s.covers(x, y, 0.0))
-                    .map(|s| s.value(x, y))
-                    .sum::<f64>()
+            // Shapes are zero outside their footprints.
+            (self.base)(x, y) + active.iter().map(|s| s.value(x, y)).sum::<f64>()
         })
     }
 
@@ -316,17 +306,19 @@ impl SceneSpec {
         Ok(self.frame.to_local(p.at.0, p.at.1, h))
     }
 
-    /// Every named point: GCPs, check points, scale-bar targets.
-    pub fn named_points(&self) -> impl Iterator<Item = &NamedPoint> {
+    /// Every named point with its kind (`"gcp"`, `"checkpoint"`, `"scalebar"`), in that order.
+    pub fn named_points(&self) -> impl Iterator<Item = (&'static str, &NamedPoint)> {
+        let tag = |kind: &'static str| move |p| (kind, p);
         self.gcps
             .iter()
-            .chain(&self.checkpoints)
-            .chain(&self.scale_targets)
+            .map(tag("gcp"))
+            .chain(self.checkpoints.iter().map(tag("checkpoint")))
+            .chain(self.scale_targets.iter().map(tag("scalebar")))
     }
 
     /// Whether a grid position is stable (outside every unstable polygon).
     pub fn is_stable(&self, x: f64, y: f64) -> bool {
-        !self.unstable.iter().any(|p| polygon_contains(p, x, y))
+        !self.unstable.iter().any(|p| ring_contains(p, x, y))
     }
 
     /// The renderable scene of `epoch`.
@@ -370,7 +362,7 @@ impl SceneSpec {
             builder.add_mesh(&v, &t, |_| b.material);
         }
         let (u, v) = self.frame.axes();
-        for p in self.named_points() {
+        for (_, p) in self.named_points() {
             builder.target(Target {
                 centre: self.point_local(field, p)?,
                 u,

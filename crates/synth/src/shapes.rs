@@ -246,11 +246,6 @@ impl Block {
     }
 }
 
-/// Whether a point is inside a polygon (even–odd rule).
-pub fn polygon_contains(ring: &[[f64; 2]], x: f64, y: f64) -> bool {
-    timesift_io::wkt::ring_contains(ring, x, y)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -292,9 +287,13 @@ mod tests {
         assert!((q / ridge.volume() - 1.0).abs() < 1e-4, "{q}");
         for (x, y) in [(15.0, 5.0), (1.0, 0.5), (29.0, 9.0)] {
             assert!(ridge.covers(x, y, 0.0));
-            assert!(polygon_contains(&ridge.footprint(0.0), x, y));
+            assert!(timesift_io::wkt::ring_contains(&ridge.footprint(0.0), x, y));
         }
         assert!(bump.covers(3.0, -2.0, 0.0) && !bump.covers(3.0, 2.0, 0.0));
-        assert!(polygon_contains(&bump.footprint(0.0), 3.0, -2.0));
+        assert!(timesift_io::wkt::ring_contains(
+            &bump.footprint(0.0),
+            3.0,
+            -2.0
+        ));
     }
 }

@@ -110,8 +110,8 @@ impl Heightfield {
     }
 }
 
-/// Level of the maximum pyramid whose blocks (8 × 8 cells) the ray walk visits first.
-const TILE_LEVEL: usize = 3;
+/// Cells per side of the tiles the ray walk visits first.
+const TILE: usize = 8;
 
 /// Ray casting against a [`Heightfield`]'s triangulated surface, exact on the same triangles as
 /// [`Heightfield::mesh`]: a grid walk (Amanatides–Woo) over tiles of 8 × 8 cells skips those the
@@ -122,10 +122,22 @@ const TILE_LEVEL: usize = 3;
 #[derive(Debug, Clone)]
 pub struct FieldTracer {
     field: Heightfield,
-    /// `levels[k]`: (columns, rows, highest node per block of 2ᵏ × 2ᵏ cells), up to the tiles.
-    levels: Vec<(usize, usize, Vec<f64>)>,
+    /// Highest node of each cell.
+    cells: MaxGrid,
+    /// Highest node of each tile of TILE × TILE cells.
+    tiles: MaxGrid,
     z_min: f64,
     z_max: f64,
+}
+
+/// The highest node height of each block of a regular partition of the grid.
+#[derive(Debug, Clone)]
+struct MaxGrid {
+    width: usize,
+    height: usize,
+    /// Block side, metres.
+    size: f64,
+    max: Vec<f64>,
 }
 
 /// Where a ray meets a surface.
@@ -201,34 +213,35 @@ impl FieldTracer {
                     .max(field.node(i + 1, j + 1))
             })
             .collect();
-        let mut levels = vec![(cx, cy, cells)];
-        while let Some((w, h, below)) = levels
-            .last()
-            .filter(|l| levels.len() <= TILE_LEVEL && (l.0 > 1 || l.1 > 1))
-        {
-            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
-            let mut up = vec![f64::NEG_INFINITY; nw * nh];
-            for j in 0..*h {
-                for i in 0..*w {
-                    let m = &mut up[(j / 2) * nw + i / 2];
-                    *m = m.max(below[j * w + i]);
-                }
+        let (tw, th) = (cx.div_ceil(TILE), cy.div_ceil(TILE));
+        let mut tile_max = vec![f64::NEG_INFINITY; tw * th];
+        for j in 0..cy {
+            for i in 0..cx {
+                let m = &mut tile_max[(j / TILE) * tw + i / TILE];
+                *m = m.max(cells[j * cx + i]);
             }
-            levels.push((nw, nh, up));
         }
+        let cells = MaxGrid {
+            width: cx,
+            height: cy,
+            size: field.cell,
+            max: cells,
+        };
+        let tiles = MaxGrid {
+            width: tw,
+            height: th,
+            size: field.cell * TILE as f64,
+            max: tile_max,
+        };
         let z_min = field.z.iter().copied().fold(f64::INFINITY, f64::min);
         let z_max = field.z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         FieldTracer {
             field,
-            levels,
+            cells,
+            tiles,
             z_min,
             z_max,
         }
-    }
-
-    /// The heightfield.
-    pub fn field(&self) -> &Heightfield {
-        &self.field
     }
 
     /// The first hit of the ray `origin + t · dir`, t in (0, t_max].
@@ -257,48 +270,36 @@ impl FieldTracer {
         if t0 > t1 {
             return None;
         }
-        // Walk the tiles of level TILE_LEVEL in ray order, skipping those the ray passes above;
-        // walk the cells of the others, skipping those too, and test the rest.
-        let (tw, th, tile_max) = &self.levels[TILE_LEVEL.min(self.levels.len() - 1)];
-        let tile_size = f.cell * (1u64 << TILE_LEVEL.min(self.levels.len() - 1)) as f64;
-        let mut tiles = GridWalk::new((o.x, o.y), (dir.x, dir.y), t0, tile_size);
-        let mut ta = t0;
-        loop {
-            let (ti, tj) = tiles.cell;
-            let tb = tiles.advance().min(t1);
-            if ti >= 0 && tj >= 0 && (ti as usize) < *tw && (tj as usize) < *th {
-                let lowest = (o.z + ta * dir.z).min(o.z + tb * dir.z);
-                if lowest <= tile_max[tj as usize * tw + ti as usize] + 1e-9 {
-                    if let Some(hit) = self.walk_cells(&o, dir, ta, tb) {
-                        return Some(hit);
-                    }
-                }
-            }
-            if tb >= t1 {
-                return None;
-            }
-            ta = tb;
-        }
+        // Walk the tiles in ray order, skipping those the ray passes above; walk the cells of
+        // the others the same way, and test the triangles of the cells left.
+        Self::walk(&o, dir, t0, t1, &self.tiles, |_, _, ta, tb| {
+            Self::walk(&o, dir, ta, tb, &self.cells, |i, j, ta, tb| {
+                self.cell_hit(&o, dir, i, j, ta, tb)
+            })
+        })
     }
 
-    /// The first hit among the cells the ray crosses for parameters in [t0, t1].
-    fn walk_cells(
-        &self,
+    /// Walks the blocks of `grid` crossed by the ray (grid-relative origin `o`) for parameters
+    /// in [t0, t1], in ray order, and returns the first hit `visit(i, j, ta, tb)` finds in a
+    /// block the ray does not pass above.
+    fn walk(
         o: &Vector3<f64>,
         dir: &Vector3<f64>,
         t0: f64,
         t1: f64,
+        grid: &MaxGrid,
+        mut visit: impl FnMut(usize, usize, f64, f64) -> Option<FieldHit>,
     ) -> Option<FieldHit> {
-        let (w, h, cell_max) = &self.levels[0];
-        let mut cells = GridWalk::new((o.x, o.y), (dir.x, dir.y), t0, self.field.cell);
+        let mut blocks = GridWalk::new((o.x, o.y), (dir.x, dir.y), t0, grid.size);
         let mut ta = t0;
         loop {
-            let (i, j) = cells.cell;
-            let tb = cells.advance().min(t1);
-            if i >= 0 && j >= 0 && (i as usize) < *w && (j as usize) < *h {
+            let (i, j) = blocks.cell;
+            let tb = blocks.advance().min(t1);
+            if i >= 0 && j >= 0 && (i as usize) < grid.width && (j as usize) < grid.height {
+                let (i, j) = (i as usize, j as usize);
                 let lowest = (o.z + ta * dir.z).min(o.z + tb * dir.z);
-                if lowest <= cell_max[j as usize * w + i as usize] + 1e-9 {
-                    if let Some(hit) = self.cell_hit(o, dir, i as usize, j as usize, ta, tb) {
+                if lowest <= grid.max[j * grid.width + i] + 1e-9 {
+                    if let Some(hit) = visit(i, j, ta, tb) {
                         return Some(hit);
                     }
                 }

@@ -16,7 +16,7 @@
 
 use std::fmt::Write as _;
 use std::io::Cursor;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nalgebra::{Vector2, Vector3};
 use serde_json::json;
@@ -25,11 +25,12 @@ use timesift_io::cameras_json::{OrientedImage, Reconstruction, write_cameras_jso
 use timesift_io::coords::Crs;
 use timesift_io::fsutil::write_bytes_atomically;
 use timesift_io::geotiff::{GeoRaster, GeoReference, GeoTransform, write_f32};
+use timesift_io::wkt::ring_contains;
 
 use crate::SynthError;
 use crate::effects::{self, Channels};
 use crate::render::{RayTable, Scene, render_rays};
-use crate::scene::{Frame, ImageFormat, NamedPoint, SceneSpec};
+use crate::scene::{Frame, ImageFormat, SceneSpec};
 use crate::terrain::Heightfield;
 
 /// What to write.
@@ -115,16 +116,20 @@ pub fn write_scene(
     let mut points_local: Vec<(String, &'static str, Vector3<f64>)> = Vec::new();
     for (e, epoch) in spec.epochs.iter().enumerate() {
         let field = spec.heightfield(e);
+        // Every named point with its position and surface normal, once per epoch.
+        let targets = spec
+            .named_points()
+            .map(|(kind, p)| {
+                let x = spec.point_local(&field, p)?;
+                Ok((kind, p, x, normal(spec, &field, p.at)))
+            })
+            .collect::<Result<Vec<_>, SynthError>>()?;
         if e == 0 {
-            for (list, kind) in [
-                (&spec.gcps, "gcp"),
-                (&spec.checkpoints, "checkpoint"),
-                (&spec.scale_targets, "scalebar"),
-            ] {
-                for p in list {
-                    points_local.push((p.name.clone(), kind, spec.point_local(&field, p)?));
-                }
-            }
+            points_local.extend(
+                targets
+                    .iter()
+                    .map(|(kind, p, x, _)| (p.name.clone(), *kind, *x)),
+            );
         }
         let scene = spec.scene(&field, e)?;
         write_dem(
@@ -154,8 +159,8 @@ pub fn write_scene(
         };
         for (k, image) in epoch.images.iter().enumerate() {
             let name = image_name(spec, e, k);
-            for p in spec.named_points() {
-                if let Some(px) = observe(spec, &field, &scene, &epoch.camera, &image.pose, p)? {
+            for (_, p, x, n) in &targets {
+                if let Some(px) = observe(&scene, &epoch.camera, &image.pose, x, n) {
                     let noisy = px
                         + Vector2::new(truncated_normal(&mut rng), truncated_normal(&mut rng))
                             * spec.marker_sigma;
@@ -241,7 +246,7 @@ fn validate(spec: &SceneSpec) -> Result<(), SynthError> {
         return bad("no epochs".into());
     }
     let mut names = std::collections::BTreeSet::new();
-    for p in spec.named_points() {
+    for (_, p) in spec.named_points() {
         if !names.insert(p.name.as_str()) {
             return bad(format!("point name {} used twice", p.name));
         }
@@ -260,41 +265,35 @@ fn validate(spec: &SceneSpec) -> Result<(), SynthError> {
 /// The pixel where `p` is seen in an image, when it is in the frame, in front, facing the camera
 /// and not hidden.
 fn observe(
-    spec: &SceneSpec,
-    field: &Heightfield,
     scene: &Scene,
     camera: &timesift_core::BrownCamera,
     pose: &Pose,
-    p: &NamedPoint,
-) -> Result<Option<Vector2<f64>>, SynthError> {
-    let x = spec.point_local(field, p)?;
-    let Ok(px) = project_world(camera, pose, &x) else {
-        return Ok(None);
-    };
+    x: &Vector3<f64>,
+    normal: &Vector3<f64>,
+) -> Option<Vector2<f64>> {
+    let px = project_world(camera, pose, x).ok()?;
     let margin = 4.0;
     if px.x < margin
         || px.y < margin
         || px.x > camera.width as f64 - margin
         || px.y > camera.height as f64 - margin
     {
-        return Ok(None);
+        return None;
     }
     // A projection can also come from a point behind the camera with wild distortion: check
     // that the ray through the pixel points at the point.
     let c = pose.center();
     let to_point = (x - c).normalize();
-    let Ok(ray) = camera.unproject(&px) else {
-        return Ok(None);
-    };
+    let ray = camera.unproject(&px).ok()?;
     let ray_world = (pose.rotation.inverse() * ray).normalize();
     if ray_world.dot(&to_point) < 1.0 - 1e-9 {
-        return Ok(None);
+        return None;
     }
-    if normal(spec, field, p.at).dot(&(c - x)).abs() < 0.25 * (c - x).norm() {
-        return Ok(None); // grazing view: the target would be unmeasurable
+    if normal.dot(&(c - x)).abs() < 0.25 * (c - x).norm() {
+        return None; // grazing view: the target would be unmeasurable
     }
     let distance = (x - c).norm();
-    Ok(scene.sees(&c, &x, 1e-6 * distance + 1e-4).then_some(px))
+    scene.sees(&c, x, 1e-6 * distance + 1e-4).then_some(px)
 }
 
 fn encode(
@@ -514,10 +513,8 @@ fn write_stable(spec: &SceneSpec, dir: &Path, crs: Crs) -> Result<(), SynthError
     // Holes must not overlap, or the even–odd rule would flip them back to stable.
     for (i, a) in spec.unstable.iter().enumerate() {
         for b in &spec.unstable[i + 1..] {
-            if a.iter()
-                .any(|p| crate::shapes::polygon_contains(b, p[0], p[1]))
-                || b.iter()
-                    .any(|p| crate::shapes::polygon_contains(a, p[0], p[1]))
+            if a.iter().any(|p| ring_contains(b, p[0], p[1]))
+                || b.iter().any(|p| ring_contains(a, p[0], p[1]))
             {
                 return Err(SynthError::InvalidScene(format!(
                     "{}: unstable polygons overlap",
@@ -605,9 +602,4 @@ fn write_project(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
         spec.epochs[0].name
     );
     write_text(&dir.join("project.toml"), &s)
-}
-
-/// Where a written scene keeps a file.
-pub fn truth_path(dir: &Path, name: &str) -> PathBuf {
-    dir.join("truth").join(name)
 }

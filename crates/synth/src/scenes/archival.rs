@@ -54,13 +54,9 @@ const EMBANKMENT: Ridge = Ridge {
 /// South-west and north-east corners.
 type Footprint = ((f64, f64), (f64, f64));
 
-/// Cell boundary nearest to `x` (grid nodes at multiples of the cell, boundaries half-way).
-fn snap(x: f64) -> f64 {
-    ((x / CELL - 0.5).round() + 0.5) * CELL
-}
-
 pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
     let mut rng = SeededRng::new(seed);
+    let snap = |x: f64| snap_to_cell_boundary(x, CELL);
     let noise = Noise::new(seed ^ 71);
     // Building plots: levelled in every epoch, built on from some epoch on.
     // (footprint, first epoch with the building, building height)
@@ -226,27 +222,14 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         camera.b2 = 0.0004 * f * rng.normal();
         camera.k1 = 0.004 * rng.normal();
         let altitude = 125.0 + f_mm / 1000.0 * scale_number;
-        let flight = match scale {
-            Scale::Small => NadirBlock {
-                min: (500.0, 450.0),
-                max: (1500.0, 950.0),
-                altitude,
-                ground: 125.0,
-                forward: 0.6,
-                side: 0.3,
-                tilt_sigma: 0.03,
-                position_sigma: 10.0,
-            },
-            Scale::Full => NadirBlock {
-                min: (250.0, 250.0),
-                max: (1750.0, 1150.0),
-                altitude,
-                ground: 125.0,
-                forward: 0.8,
-                side: 0.6,
-                tilt_sigma: 0.03,
-                position_sigma: 10.0,
-            },
+        // Film-era flights: more attitude and position scatter than a drone.
+        let (min, max, overlap) = match scale {
+            Scale::Small => ((500.0, 450.0), (1500.0, 950.0), (0.6, 0.3)),
+            Scale::Full => ((250.0, 250.0), (1750.0, 1150.0), (0.8, 0.6)),
+        };
+        let flight = NadirBlock {
+            tilt_sigma: 0.03,
+            ..nadir(min, max, altitude, 125.0, overlap, 10.0)
         };
         let images = flight
             .poses(&camera, &mut rng)
@@ -288,54 +271,35 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         ),
     ];
     unstable.push(buffer(&RIVER, 20.0));
-    let mut spec = SceneSpec {
-        name: "archival".into(),
-        crs: "EPSG:2154".into(),
-        origin: Vector3::new(731_500.0, 6_271_200.0, 0.0),
-        frame: Frame::Ground,
-        grid: (0.0, 0.0, CELL, 1001, 701),
-        base: Arc::new(base),
-        apron: 1200.0,
-        features,
-        blocks,
+    let mut spec = new_scene(
+        "archival",
+        "EPSG:2154",
+        Vector3::new(731_500.0, 6_271_200.0, 0.0),
+        Frame::Ground,
+        (0.0, 0.0, CELL, 1001, 701),
+        Arc::new(base),
         materials,
-        cover: Arc::new(cover_fn),
-        warp: None,
+        Arc::new(cover_fn),
         epochs,
-        gcps: vec![],
-        checkpoints: vec![],
-        scale_targets: vec![],
-        scale_bars: vec![],
-        target_radius: 3.0,
-        regions,
-        unstable,
-        gnss: None,
-        marker_sigma: 0.3,
-        survey_sigma: (0.05, 0.08),
         seed,
-    };
-    spec.gcps = place_points(
-        &spec,
+    );
+    spec.apron = 1200.0;
+    spec.features = features;
+    spec.blocks = blocks;
+    spec.target_radius = 3.0;
+    spec.regions = regions;
+    spec.unstable = unstable;
+    spec.gnss = None;
+    spec.survey_sigma = (0.05, 0.08);
+    place_control(
+        &mut spec,
         &mut rng,
-        8,
-        "GCP",
+        (8, 5),
         (250.0, 200.0),
         (1750.0, 1200.0),
         25.0,
         250.0,
         &[],
-    );
-    let taken: Vec<_> = spec.gcps.iter().map(|p| p.at).collect();
-    spec.checkpoints = place_points(
-        &spec,
-        &mut rng,
-        5,
-        "CHK",
-        (250.0, 200.0),
-        (1750.0, 1200.0),
-        25.0,
-        150.0,
-        &taken,
     );
     Ok(spec)
 }

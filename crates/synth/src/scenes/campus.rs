@@ -17,13 +17,9 @@ const CELL: f64 = 0.25;
 const LOT_MIN: (f64, f64) = (120.0, 20.0);
 const LOT_MAX: (f64, f64) = (185.0, 75.0);
 
-/// Cell boundary nearest to `x` (grid nodes at multiples of the cell, boundaries half-way).
-fn snap(x: f64) -> f64 {
-    ((x / CELL - 0.5).round() + 0.5) * CELL
-}
-
 pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
     let mut rng = SeededRng::new(seed);
+    let snap = |x: f64| snap_to_cell_boundary(x, CELL);
     let noise = Noise::new(seed ^ 11);
     let buildings = [
         ((20.0, 95.0), (62.0, 125.0), 14.0),
@@ -167,10 +163,11 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             epoch
         })
         .collect();
-    let mut spec = ground_scene(
+    let mut spec = new_scene(
         "campus",
         "EPSG:32633",
         Vector3::new(592_300.0, 5_763_800.0, 34.0),
+        Frame::Ground,
         (0.0, 0.0, CELL, 801, 601),
         Arc::new(base),
         materials,

@@ -83,10 +83,11 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             epoch
         })
         .collect();
-    let mut spec = ground_scene(
+    let mut spec = new_scene(
         "glacier",
         "EPSG:32632",
         Vector3::new(621_400.0, 5_140_200.0, 2450.0),
+        Frame::Ground,
         (0.0, 0.0, 1.0, 801, 601),
         Arc::new(base),
         materials,

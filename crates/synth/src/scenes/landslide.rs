@@ -165,10 +165,11 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             drone_epoch(names[e], camera, poses, light, &mut rng)
         })
         .collect();
-    let mut spec = ground_scene(
+    let mut spec = new_scene(
         "landslide",
         "EPSG:32632",
         Vector3::new(358_200.0, 5_080_400.0, 880.0),
+        Frame::Ground,
         (0.0, 0.0, 0.3, 1001, 801),
         Arc::new(base),
         materials,

@@ -200,13 +200,14 @@ pub(crate) fn drone_epoch(
     }
 }
 
-/// A ground scene with nothing in it yet but its surface, cover and epochs: consumer GNSS,
-/// 0.3 px markers, RTK-surveyed control (1 cm, 1.5 cm), 0.5 m targets.
+/// A scene with nothing in it yet but its surface, cover and epochs: consumer GNSS, 0.3 px
+/// markers, RTK-surveyed control (1 cm, 1.5 cm), 0.5 m targets.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn ground_scene(
+pub(crate) fn new_scene(
     name: &str,
     crs: &str,
     origin: Vector3<f64>,
+    frame: Frame,
     grid: (f64, f64, f64, usize, usize),
     base: BaseFn,
     materials: Vec<Material>,
@@ -218,7 +219,7 @@ pub(crate) fn ground_scene(
         name: name.into(),
         crs: crs.into(),
         origin,
-        frame: Frame::Ground,
+        frame,
         grid,
         base,
         apron: 0.0,
@@ -387,6 +388,12 @@ pub(crate) fn rect(min: (f64, f64), max: (f64, f64)) -> Vec<[f64; 2]> {
         [max.0, max.1],
         [min.0, max.1],
     ]
+}
+
+/// The cell boundary nearest to `x` on a grid of nodes at multiples of `cell` (boundaries lie
+/// half-way between nodes): box edges placed there make DEM cells either fully in or out.
+pub(crate) fn snap_to_cell_boundary(x: f64, cell: f64) -> f64 {
+    ((x / cell - 0.5).round() + 0.5) * cell
 }
 
 /// A deterministic number in [0, 1) from integers.

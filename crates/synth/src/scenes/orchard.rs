@@ -127,10 +127,11 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             drone_epoch(names[e], camera, poses, light, &mut rng)
         })
         .collect();
-    let mut spec = ground_scene(
+    let mut spec = new_scene(
         "orchard",
         "EPSG:32632",
         Vector3::new(611_200.0, 4_059_300.0, 12.0),
+        Frame::Ground,
         (0.0, 0.0, 0.15, 801, 601),
         Arc::new(base),
         materials,

@@ -149,10 +149,11 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             drone_epoch(names[e], camera, poses, light, &mut rng)
         })
         .collect();
-    let mut spec = ground_scene(
+    let mut spec = new_scene(
         "shore",
         "EPSG:32755",
         Vector3::new(520_400.0, 5_251_800.0, 0.0),
+        Frame::Ground,
         (0.0, 0.0, 0.15, 1001, 667),
         Arc::new(base),
         materials,

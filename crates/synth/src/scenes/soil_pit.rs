@@ -117,37 +117,31 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             }
         })
         .collect();
-    let mut spec = SceneSpec {
-        name: "soil-pit".into(),
-        crs: "EPSG:32631".into(),
-        origin: Vector3::new(561_240.0, 4_838_710.0, 118.0),
-        frame: Frame::Wall,
-        grid: (0.0, 0.0, 0.0025, 641, 481),
-        base: Arc::new(base),
-        apron: 1.0,
-        features,
-        blocks: vec![],
+    let mut spec = new_scene(
+        "soil-pit",
+        "EPSG:32631",
+        Vector3::new(561_240.0, 4_838_710.0, 118.0),
+        Frame::Wall,
+        (0.0, 0.0, 0.0025, 641, 481),
+        Arc::new(base),
         materials,
-        cover: Arc::new(cover_fn),
-        warp: None,
+        Arc::new(cover_fn),
         epochs,
-        gcps: vec![],
-        checkpoints: vec![],
-        scale_targets: vec![],
-        scale_bars: vec![],
-        target_radius: 0.008,
-        regions,
-        unstable,
-        gnss: Some(GnssSpec {
-            bias_h: 3.0,
-            bias_v: 5.0,
-            noise_h: 1.0,
-            noise_v: 2.0,
-        }),
-        marker_sigma: 0.3,
-        survey_sigma: (0.001, 0.001),
         seed,
-    };
+    );
+    spec.apron = 1.0;
+    spec.features = features;
+    spec.target_radius = 0.008;
+    spec.regions = regions;
+    spec.unstable = unstable;
+    // A phone's GNSS: worse than a drone's.
+    spec.gnss = Some(GnssSpec {
+        bias_h: 3.0,
+        bias_v: 5.0,
+        noise_h: 1.0,
+        noise_v: 2.0,
+    });
+    spec.survey_sigma = (0.001, 0.001);
     let bars = [
         ((0.08, 0.08), (0.68, 0.08)),
         ((0.92, 0.08), (1.52, 0.08)),
