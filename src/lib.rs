@@ -11,6 +11,7 @@
 pub mod compare;
 pub mod config;
 mod error;
+pub mod features;
 pub mod info;
 pub mod init;
 pub mod project;

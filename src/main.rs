@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 use timesift::config::Coregistration;
 use timesift::init::InitOptions;
 use timesift::stages::Stage;
-use timesift::{Project, compare, info, init, stages};
+use timesift::{Project, compare, features, info, init, stages};
 use timesift_change::icp::IcpModel;
 use timesift_change::m3c2::{Aggregation, M3c2Params};
 
@@ -53,6 +53,29 @@ enum Command {
         /// Last stage to run.
         #[arg(long, value_enum)]
         to: Option<Stage>,
+    },
+    /// Keypoints and descriptors of one image, written in the text format of DESIGN.md.
+    Features {
+        /// The image (JPEG, PNG or TIFF; colour is converted to grey).
+        image: PathBuf,
+        /// Descriptor.
+        #[arg(long, value_enum, default_value = "sift")]
+        method: features::Method,
+        /// Keep at most this many keypoints, strongest first, spread over the image.
+        #[arg(long)]
+        max: Option<usize>,
+        /// Grey image of the same size; keypoints only where it is non-zero.
+        #[arg(long)]
+        mask: Option<PathBuf>,
+        /// Orientation 0 for every keypoint (images that share their rotation).
+        #[arg(long)]
+        upright: bool,
+        /// Whether the first octave doubles the image (default: images up to 30 MP).
+        #[arg(long)]
+        upsample: Option<bool>,
+        /// Output text file.
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Compare two DEMs (GeoTIFF: DoD, co-registration, statistics, LoD, volumes) or two point
     /// clouds (LAS/LAZ: ICP, M3C2), made by timesift or any other software.
@@ -171,6 +194,32 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Run { dir, from, to } => {
             let project = Project::load(&dir)?;
             stages::run(&project, from, to)?;
+        }
+        Command::Features {
+            image,
+            method,
+            max,
+            mask,
+            upright,
+            upsample,
+            out,
+        } => {
+            let start = std::time::Instant::now();
+            let result = features::features(&features::FeaturesRequest {
+                image,
+                method,
+                max,
+                mask,
+                upright,
+                upsample,
+                out: out.clone(),
+            })?;
+            println!(
+                "{} keypoints -> {} in {:.2} s",
+                result.keypoints.len(),
+                out.display(),
+                start.elapsed().as_secs_f64()
+            );
         }
         Command::Compare(args) => compare(*args)?,
     }

@@ -1,0 +1,261 @@
+//! Extrema of the difference of Gaussians in one band: 3×3×3 neighbourhood test, sub-pixel and
+//! sub-scale refinement by a quadratic fit (Lowe 2004, §4), contrast and edge rejection (§4.1).
+
+use rayon::prelude::*;
+
+use crate::image::Plane;
+use crate::pyramid::{BORDER, Band, BandStack};
+
+/// A refined extremum in octave coordinates (pixel centres at integer indices).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Extremum {
+    /// Integer layer of the Gaussian image to describe from.
+    pub layer: usize,
+    /// Refined column and row, octave pixels (global rows).
+    pub x: f64,
+    pub y: f64,
+    /// Refined layer (fractional).
+    pub s: f64,
+    /// |DoG| at the refined extremum: the keypoint's response.
+    pub contrast: f64,
+    /// Octave row of the sample the refinement settled on.
+    pub row: usize,
+}
+
+/// Thresholds of the extremum tests, in the units of the DoG.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ExtremumTests {
+    pub layers: usize,
+    /// Pre-test on the raw sample: half the contrast threshold (OpenCV).
+    pub prefilter: f32,
+    pub contrast: f64,
+    pub edge_ratio: f64,
+}
+
+/// Refinement moves at most one sample per step, so a keypoint lies within this many samples of
+/// the extremum it started from.
+pub(crate) const MAX_REFINE_STEPS: usize = 5;
+
+/// All refined extrema whose final sample lies in the band's core rows. Starting samples are
+/// sought up to `MAX_REFINE_STEPS` rows beyond the core, so that each keypoint is found by exactly
+/// the band that owns it, as if the octave were whole.
+pub(crate) fn find_extrema(
+    stack: &BandStack,
+    band: &Band,
+    octave_height: usize,
+    tests: &ExtremumTests,
+) -> Vec<Extremum> {
+    let width = stack.dog[0].width;
+    if width <= 2 * BORDER {
+        return Vec::new();
+    }
+    let first = band
+        .core
+        .start
+        .saturating_sub(MAX_REFINE_STEPS)
+        .max(band.rows.start + 1);
+    let last = (band.core.end + MAX_REFINE_STEPS).min(band.rows.end - 1);
+    let rows: Vec<usize> = (first..last)
+        .filter(|&y| y >= BORDER && y + BORDER < octave_height)
+        .collect();
+    rows.par_iter()
+        .flat_map_iter(|&y| {
+            let mut found = Vec::new();
+            let ly = y - stack.row0;
+            for s in 1..=tests.layers {
+                let (below, here, above) = (&stack.dog[s - 1], &stack.dog[s], &stack.dog[s + 1]);
+                let row = here.row(ly);
+                for x in BORDER..width - BORDER {
+                    let v = row[x];
+                    if v.abs() <= tests.prefilter || !is_extremum(below, here, above, x, ly, v) {
+                        continue;
+                    }
+                    if let Some(e) = refine(stack, x, ly, s, octave_height, tests)
+                        && band.core.contains(&e.row)
+                    {
+                        found.push(e);
+                    }
+                }
+            }
+            found
+        })
+        .collect()
+}
+
+/// Whether `v` at (x, y) of `here` is ≥ (or ≤) all 26 neighbours in space and scale.
+#[inline]
+fn is_extremum(below: &Plane, here: &Plane, above: &Plane, x: usize, y: usize, v: f32) -> bool {
+    let w = here.width;
+    let check = |plane: &Plane, skip_centre: bool| {
+        (y - 1..=y + 1).all(|yy| {
+            let row = &plane.data[yy * w + x - 1..yy * w + x + 2];
+            row.iter().enumerate().all(|(i, &n)| {
+                (skip_centre && yy == y && i == 1) || if v > 0.0 { v >= n } else { v <= n }
+            })
+        })
+    };
+    check(here, true) && check(below, false) && check(above, false)
+}
+
+/// Quadratic refinement of the extremum at (x, y, s) (band-local row), moving to the neighbouring
+/// sample while the offset exceeds half a sample; `None` when it leaves the valid domain, does not
+/// settle, has too little contrast or lies on an edge.
+fn refine(
+    stack: &BandStack,
+    x0: usize,
+    y0: usize,
+    s0: usize,
+    octave_height: usize,
+    tests: &ExtremumTests,
+) -> Option<Extremum> {
+    let width = stack.dog[0].width;
+    let local_rows = stack.dog[0].height;
+    let (mut x, mut y, mut s) = (x0 as isize, y0 as isize, s0 as isize);
+    let mut previous = None;
+    for _ in 0..MAX_REFINE_STEPS {
+        let d = |ds: isize, dy: isize, dx: isize| -> f64 {
+            stack.dog[(s + ds) as usize].at((x + dx) as usize, (y + dy) as usize) as f64
+        };
+        let v2 = 2.0 * d(0, 0, 0);
+        let g = [
+            0.5 * (d(0, 0, 1) - d(0, 0, -1)),
+            0.5 * (d(0, 1, 0) - d(0, -1, 0)),
+            0.5 * (d(1, 0, 0) - d(-1, 0, 0)),
+        ];
+        let dxx = d(0, 0, 1) + d(0, 0, -1) - v2;
+        let dyy = d(0, 1, 0) + d(0, -1, 0) - v2;
+        let dss = d(1, 0, 0) + d(-1, 0, 0) - v2;
+        let dxy = 0.25 * (d(0, 1, 1) - d(0, 1, -1) - d(0, -1, 1) + d(0, -1, -1));
+        let dxs = 0.25 * (d(1, 0, 1) - d(1, 0, -1) - d(-1, 0, 1) + d(-1, 0, -1));
+        let dys = 0.25 * (d(1, 1, 0) - d(1, -1, 0) - d(-1, 1, 0) + d(-1, -1, 0));
+        let h = [[dxx, dxy, dxs], [dxy, dyy, dys], [dxs, dys, dss]];
+        let mut offset = solve3(&h, &g)?.map(|v| -v);
+        // One sample at most per step: the reach of refinement stays within MAX_REFINE_STEPS
+        // samples, which bands of rows rely on.
+        let step = offset.map(|o| (o.round() as isize).clamp(-1, 1));
+        // An extremum half-way between two samples can send the fit back and forth between them:
+        // it is then found, between the two.
+        let returning = previous == Some((x + step[0], y + step[1], s + step[2]));
+        if returning {
+            offset = offset.map(|o| o.clamp(-0.5, 0.5));
+        }
+        if returning || offset.iter().all(|o| o.abs() < 0.5) {
+            let contrast =
+                d(0, 0, 0) + 0.5 * (g[0] * offset[0] + g[1] * offset[1] + g[2] * offset[2]);
+            if contrast.abs() * (tests.layers as f64) < tests.contrast {
+                return None;
+            }
+            let trace = dxx + dyy;
+            let det = dxx * dyy - dxy * dxy;
+            let r = tests.edge_ratio;
+            if det <= 0.0 || trace * trace * r >= (r + 1.0) * (r + 1.0) * det {
+                return None;
+            }
+            // The parabola through three samples of a peak is biased towards the nearest sample,
+            // by up to 0.05 sample at coarse octaves (0.2 px at octave 2). A parabola through the
+            // logarithms is exact for a Gaussian profile, which the DoG of a blob nearly is.
+            let dx = log_parabola_peak(d(0, 0, -1), d(0, 0, 0), d(0, 0, 1)).unwrap_or(offset[0]);
+            let dy = log_parabola_peak(d(0, -1, 0), d(0, 0, 0), d(0, 1, 0)).unwrap_or(offset[1]);
+            return Some(Extremum {
+                layer: s as usize,
+                x: x as f64 + dx,
+                y: (y as usize + stack.row0) as f64 + dy,
+                s: s as f64 + offset[2],
+                contrast: contrast.abs(),
+                row: y as usize + stack.row0,
+            });
+        }
+        if offset.iter().any(|o| o.abs() > 1e6) {
+            return None;
+        }
+        previous = Some((x, y, s));
+        x += step[0];
+        y += step[1];
+        s += step[2];
+        let global_y = y + stack.row0 as isize;
+        if s < 1
+            || s > tests.layers as isize
+            || x < BORDER as isize
+            || x >= (width - BORDER) as isize
+            || global_y < BORDER as isize
+            || global_y >= (octave_height - BORDER) as isize
+            || y < 1
+            || y >= local_rows as isize - 1
+        {
+            return None;
+        }
+    }
+    None
+}
+
+/// Offset of the peak of the Gaussian through three equally spaced samples of one sign around an
+/// extremum at the middle one; `None` when the samples do not describe such a peak.
+fn log_parabola_peak(before: f64, at: f64, after: f64) -> Option<f64> {
+    let sign = at.signum();
+    let (b, a, c) = (before * sign, at * sign, after * sign);
+    if !(b > 0.0 && c > 0.0 && a >= b && a >= c) {
+        return None;
+    }
+    let (lb, la, lc) = (b.ln(), a.ln(), c.ln());
+    let curvature = lb - 2.0 * la + lc;
+    if !(curvature < 0.0) {
+        return None;
+    }
+    let offset = 0.5 * (lb - lc) / curvature;
+    (offset.abs() <= 0.5).then_some(offset)
+}
+
+/// Solves the 3×3 system `h x = g` by Cramer's rule; `None` when `h` is singular.
+fn solve3(h: &[[f64; 3]; 3], g: &[f64; 3]) -> Option<[f64; 3]> {
+    let det3 = |m: &[[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let det = det3(h);
+    let scale = h.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
+    if !(det.abs() > 1e-12 * scale.powi(3)) {
+        return None;
+    }
+    let mut out = [0.0; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        let mut m = *h;
+        for r in 0..3 {
+            m[r][c] = g[r];
+        }
+        *o = det3(&m) / det;
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn log_parabola_is_exact_on_a_gaussian() {
+        for &centre in &[-0.49, -0.3, 0.0, 0.17, 0.45] {
+            let g = |x: f64| -2.0 * (-(x - centre).powi(2) / (2.0 * 1.3f64.powi(2))).exp();
+            let got = log_parabola_peak(g(-1.0), g(0.0), g(1.0)).unwrap();
+            assert!((got - centre).abs() < 1e-12, "{got} vs {centre}");
+        }
+        assert!(log_parabola_peak(-1.0, 2.0, 1.0).is_none());
+        assert!(log_parabola_peak(1.0, 1.0, 1.0).is_none());
+    }
+
+    #[test]
+    fn solve3_recovers_a_solution_and_rejects_singular_systems() {
+        let h = [[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]];
+        let x = [0.3, -0.7, 1.1];
+        let g: Vec<f64> = (0..3)
+            .map(|r| (0..3).map(|c| h[r][c] * x[c]).sum())
+            .collect();
+        let got = solve3(&h, &[g[0], g[1], g[2]]).unwrap();
+        for i in 0..3 {
+            assert!((got[i] - x[i]).abs() < 1e-12);
+        }
+        let singular = [[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 1.0, 1.0]];
+        assert!(solve3(&singular, &[1.0, 2.0, 3.0]).is_none());
+        assert!(solve3(&[[0.0; 3]; 3], &[0.0; 3]).is_none());
+    }
+}

@@ -1,0 +1,91 @@
+//! The keypoint budget: keep the strongest responses, spread over the image.
+//!
+//! The image is cut into about `cells` square cells. Keypoints are ranked by response inside their
+//! cell, and taken in rounds: round r holds each cell's keypoints of rank `r·q .. (r+1)·q` (q = the
+//! budget shared by the occupied cells), strongest first within the round. A cell with little
+//! texture gives up its share to the others instead of wasting it; a cell with a lot cannot take
+//! more than its share before every cell has had its turn.
+
+/// Indices of the kept items, strongest first. `points` are (x, y, response) in pixels of an image
+/// of `width × height`; ties are broken by index so the choice is reproducible.
+pub fn select_spread(
+    points: &[(f64, f64, f32)],
+    width: usize,
+    height: usize,
+    max: usize,
+    cells: usize,
+) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    let by_response =
+        |a: &usize, b: &usize| points[*b].2.total_cmp(&points[*a].2).then_with(|| a.cmp(b));
+    order.sort_by(by_response);
+    if points.len() <= max || cells <= 1 {
+        order.truncate(max);
+        return order;
+    }
+    let side = ((width * height) as f64 / cells as f64).sqrt().max(1.0);
+    let columns = ((width as f64 / side).ceil() as usize).max(1);
+    let rows = ((height as f64 / side).ceil() as usize).max(1);
+    let cell_of = |i: usize| {
+        let (x, y, _) = points[i];
+        let c = ((x / side).max(0.0) as usize).min(columns - 1);
+        let r = ((y / side).max(0.0) as usize).min(rows - 1);
+        r * columns + c
+    };
+    let mut taken_in_cell = vec![0usize; columns * rows];
+    let mut rank = vec![0usize; points.len()];
+    for &i in &order {
+        let cell = cell_of(i);
+        rank[i] = taken_in_cell[cell];
+        taken_in_cell[cell] += 1;
+    }
+    let occupied = taken_in_cell.iter().filter(|&&n| n > 0).count().max(1);
+    let share = max.div_ceil(occupied).max(1);
+    // `order` is by response, so a stable sort by round keeps response order within a round.
+    order.sort_by_key(|&i| rank[i] / share);
+    order.truncate(max);
+    order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn a_textured_corner_does_not_take_the_whole_budget() {
+        // 100 strong points in the top-left corner, 10 weak ones spread elsewhere.
+        let mut points: Vec<(f64, f64, f32)> = (0..100)
+            .map(|i| (1.0 + (i % 10) as f64, 1.0 + (i / 10) as f64, 1.0 + i as f32))
+            .collect();
+        points.extend((0..10).map(|i| (50.0 + 40.0 * i as f64, 380.0, 0.01)));
+        let kept = select_spread(&points, 400, 400, 20, 16);
+        assert_eq!(kept.len(), 20);
+        assert!(kept.iter().filter(|&&i| i >= 100).count() == 10);
+        // The corner's share went to its strongest points.
+        assert!(kept.iter().filter(|&&i| i < 100).all(|&i| i >= 90));
+        // One cell: the strongest overall.
+        let kept = select_spread(&points, 400, 400, 20, 1);
+        assert!(kept.iter().all(|i| (80..100).contains(i)));
+    }
+
+    proptest! {
+        #[test]
+        fn keeps_min_of_budget_and_count_without_repeats(
+            pts in proptest::collection::vec((0.0f64..640.0, 0.0f64..480.0, 0.0f32..1.0), 0..300),
+            max in 0usize..400,
+            cells in 1usize..64,
+        ) {
+            let kept = select_spread(&pts, 640, 480, max, cells);
+            prop_assert_eq!(kept.len(), max.min(pts.len()));
+            let mut sorted = kept.clone();
+            sorted.sort_unstable();
+            sorted.dedup();
+            prop_assert_eq!(sorted.len(), kept.len());
+            // The single strongest point is always kept when anything is.
+            if let Some(best) = (0..pts.len()).max_by(|&a, &b| pts[a].2.total_cmp(&pts[b].2).then(b.cmp(&a))) {
+                if max > 0 { prop_assert!(kept.contains(&best)); }
+            }
+        }
+    }
+}

@@ -1,0 +1,211 @@
+//! The Gaussian scale space, octave by octave, in horizontal bands.
+//!
+//! An octave's base (its first Gaussian layer) is held whole; the other layers and the differences
+//! of Gaussians exist only for one band of rows at a time, computed from the base rows of the band
+//! plus a margin. The margin covers the blur kernels' reach and the descriptor's support, so every
+//! value read for a keypoint whose row lies in the band's core is the value a whole-image scale
+//! space would hold: banding changes memory, never results.
+
+use std::ops::Range;
+
+use crate::blur::{Kernel, blur, upsample2};
+use crate::detect::MAX_REFINE_STEPS;
+use crate::image::{GreyImage, Plane};
+use crate::options::{DetectorOptions, Upsample};
+
+/// Keypoints closer than this to the image border (in octave pixels) are not sought, as in Lowe's
+/// and OpenCV's SIFT.
+pub(crate) const BORDER: usize = 5;
+
+/// Octaves stop when the smaller side of the octave falls below this.
+const MIN_OCTAVE_SIDE: usize = 2 * BORDER + 6;
+
+/// One octave: its index (−1 for the doubled image, then 0, 1, …) and its base layer.
+#[derive(Debug)]
+pub(crate) struct Octave {
+    pub index: i32,
+    pub base: Plane,
+}
+
+impl Octave {
+    /// Full-resolution pixels per octave pixel.
+    pub fn step(&self) -> f64 {
+        2f64.powi(self.index)
+    }
+}
+
+/// Rows of an octave handled together: `core` rows own their keypoints, `rows` adds the margin.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Band {
+    pub core: Range<usize>,
+    pub rows: Range<usize>,
+}
+
+/// The Gaussian layers (and, for detection, the differences of Gaussians) of one band.
+#[derive(Debug)]
+pub(crate) struct BandStack {
+    /// Octave row of local row 0.
+    pub row0: usize,
+    pub gauss: Vec<Plane>,
+    pub dog: Vec<Plane>,
+}
+
+/// The blur plan shared by every octave.
+#[derive(Debug)]
+pub(crate) struct ScaleSpace {
+    pub layers: usize,
+    pub sigma: f64,
+    /// Kernels taking layer s−1 to layer s, s = 1 ..= layers + 2.
+    pub increments: Vec<Kernel>,
+    /// Rows of margin around a band's core.
+    pub margin: usize,
+    pub memory_budget: usize,
+}
+
+impl ScaleSpace {
+    /// `support` is the descriptor's reach in units of the keypoint's σ.
+    pub fn new(options: &DetectorOptions, support: f64) -> Self {
+        let layers = options.layers_per_octave;
+        let k = 2f64.powf(1.0 / layers as f64);
+        let increments: Vec<Kernel> = (1..layers + 3)
+            .map(|s| {
+                let previous = options.sigma * k.powi(s as i32 - 1);
+                Kernel::gaussian(previous * (k * k - 1.0).sqrt())
+            })
+            .collect();
+        let blur_reach: usize = increments.iter().map(Kernel::radius).sum();
+        let max_sigma = options.sigma * 2f64.powf((layers as f64 + 0.5) / layers as f64);
+        let descriptor_reach = (support.max(4.5) * max_sigma).ceil() as usize;
+        Self {
+            layers,
+            sigma: options.sigma,
+            increments,
+            margin: blur_reach + descriptor_reach + MAX_REFINE_STEPS + 2,
+            memory_budget: options.memory_budget,
+        }
+    }
+
+    /// σ of layer `s` (fractional) in octave pixels.
+    pub fn layer_sigma(&self, s: f64) -> f64 {
+        self.sigma * 2f64.powf(s / self.layers as f64)
+    }
+
+    /// Bytes of a detection stack (all Gaussian layers and differences) per octave row.
+    fn stack_bytes_per_row(&self, width: usize) -> usize {
+        (2 * self.layers + 5) * width * std::mem::size_of::<f32>()
+    }
+
+    /// Splits an octave's rows into bands whose detection stacks fit the memory budget when one
+    /// band per thread runs at once.
+    pub fn bands(&self, width: usize, height: usize) -> Vec<Band> {
+        let per_row = self.stack_bytes_per_row(width);
+        if per_row * height <= self.memory_budget {
+            return vec![Band {
+                core: 0..height,
+                rows: 0..height,
+            }];
+        }
+        let threads = rayon::current_num_threads().max(1);
+        let rows_fit = self.memory_budget / (threads * per_row);
+        let core = rows_fit.saturating_sub(2 * self.margin).max(64);
+        (0..height)
+            .step_by(core)
+            .map(|start| {
+                let end = (start + core).min(height);
+                Band {
+                    core: start..end,
+                    rows: start.saturating_sub(self.margin)..(end + self.margin).min(height),
+                }
+            })
+            .collect()
+    }
+
+    /// The Gaussian layers 0 ..= `top` of `band` (and their differences when `with_dog`).
+    pub fn stack(&self, base: &Plane, band: &Band, top: usize, with_dog: bool) -> BandStack {
+        let w = base.width;
+        let first = Plane {
+            width: w,
+            height: band.rows.len(),
+            data: base.data[band.rows.start * w..band.rows.end * w].to_vec(),
+        };
+        let mut gauss = Vec::with_capacity(top + 1);
+        gauss.push(first);
+        let mut scratch = Plane::default();
+        for (s, kernel) in self.increments[..top].iter().enumerate() {
+            let mut next = Plane::default();
+            blur(&gauss[s], kernel, &mut next, &mut scratch);
+            gauss.push(next);
+        }
+        let dog = if with_dog {
+            gauss
+                .windows(2)
+                .map(|pair| Plane {
+                    width: w,
+                    height: pair[0].height,
+                    data: pair[1]
+                        .data
+                        .iter()
+                        .zip(&pair[0].data)
+                        .map(|(b, a)| b - a)
+                        .collect(),
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        BandStack {
+            row0: band.rows.start,
+            gauss,
+            dog,
+        }
+    }
+
+    /// The next octave's base: layer `layers` (twice the base σ) of the band's core rows,
+    /// decimated by 2; rows are those of the next octave that come from this band.
+    pub fn decimate_core(&self, stack: &BandStack, band: &Band, next_height: usize) -> Vec<f32> {
+        let layer = &stack.gauss[self.layers];
+        let next_width = layer.width / 2;
+        let mut out = Vec::new();
+        for y in band
+            .core
+            .clone()
+            .filter(|y| y % 2 == 0 && y / 2 < next_height)
+        {
+            let row = layer.row(y - stack.row0);
+            out.extend((0..next_width).map(|x| row[2 * x]));
+        }
+        out
+    }
+}
+
+/// The first octave's base: the image (doubled or not) blurred from its assumed blur to σ.
+pub(crate) fn first_octave(image: &GreyImage, options: &DetectorOptions) -> Octave {
+    let plane = Plane {
+        width: image.width(),
+        height: image.height(),
+        data: image.data().to_vec(),
+    };
+    let pixels = (image.width() * image.height()) as u64;
+    let double = match options.upsample {
+        Upsample::Never => false,
+        Upsample::Always => true,
+        Upsample::UpToPixels(max) => pixels <= max,
+    };
+    let (index, plane, present) = if double {
+        (-1, upsample2(&plane), 2.0 * options.assumed_blur)
+    } else {
+        (0, plane, options.assumed_blur)
+    };
+    let missing = (options.sigma * options.sigma - present * present)
+        .max(0.01)
+        .sqrt();
+    let mut base = Plane::default();
+    let mut scratch = Plane::default();
+    blur(&plane, &Kernel::gaussian(missing), &mut base, &mut scratch);
+    Octave { index, base }
+}
+
+/// Whether an octave of this size still holds keypoints.
+pub(crate) fn octave_is_usable(width: usize, height: usize) -> bool {
+    width.min(height) >= MIN_OCTAVE_SIDE
+}

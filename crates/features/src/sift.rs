@@ -1,0 +1,182 @@
+//! The SIFT descriptor (Lowe 2004, §6): a 4×4 grid of 8-bin gradient-orientation histograms over
+//! the oriented patch, with trilinear interpolation and a Gaussian window; normalised, clamped at
+//! 0.2 and normalised again. RootSIFT (Arandjelović & Zisserman 2012) then takes the square root
+//! of the L1-normalised vector, so that Euclidean distance compares like the Hellinger kernel.
+
+use std::f32::consts::{SQRT_2, TAU};
+
+use crate::extract::{Describer, LocalKeypoint};
+use crate::fastmath::atan2_positive;
+use crate::image::Plane;
+
+/// Spatial cells per side.
+const CELLS: usize = 4;
+/// Orientation bins per cell.
+const BINS: usize = 8;
+/// Width of a cell, in units of the keypoint's σ.
+const CELL_WIDTH: f32 = 3.0;
+/// Values per descriptor.
+pub const SIFT_DIM: usize = CELLS * CELLS * BINS;
+/// Clamp of normalised values (Lowe: 0.2), against non-linear illumination changes.
+const CLAMP: f32 = 0.2;
+/// Largest sampling radius, pixels of the layer (reached only by scales beyond the octave).
+const MAX_RADIUS: usize = 96;
+
+/// How the descriptor is normalised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SiftNormalization {
+    /// Unit L2 norm after the 0.2 clamp (Lowe).
+    L2,
+    /// RootSIFT: square root of the L1-normalised descriptor (unit L2 norm too).
+    Root,
+}
+
+pub(crate) struct SiftDescriber {
+    pub normalization: SiftNormalization,
+}
+
+impl Describer for SiftDescriber {
+    type Elem = f32;
+
+    fn width(&self) -> usize {
+        SIFT_DIM
+    }
+
+    fn support(&self) -> f64 {
+        (CELL_WIDTH * SQRT_2 * (CELLS as f32 + 1.0) * 0.5) as f64
+    }
+
+    fn describe(&self, layer: &Plane, kp: &LocalKeypoint, out: &mut [f32]) {
+        const SIDE: usize = CELLS + 2;
+        const LEN: usize = SIDE * SIDE * (BINS + 2);
+        let cell = CELL_WIDTH * kp.sigma;
+        let radius =
+            ((cell * SQRT_2 * (CELLS as f32 + 1.0) * 0.5).round() as usize).min(MAX_RADIUS);
+        let r = radius as isize;
+        let (cx, cy) = (kp.x.round() as isize, kp.y.round() as isize);
+        // Offsets of the sampled grid from the true (sub-pixel) keypoint.
+        let (fx, fy) = ((cx as f64 - kp.x) as f32, (cy as f64 - kp.y) as f32);
+        let (cos_t, sin_t) = (kp.angle.cos() / cell, kp.angle.sin() / cell);
+        // Gaussian weight with σ = half the descriptor width; separable in x and y.
+        let exp_scale = -1.0 / (0.5 * (CELLS * CELLS) as f32) / (cell * cell);
+        let mut wx = [0.0f32; 2 * MAX_RADIUS + 1];
+        let mut wy = [0.0f32; 2 * MAX_RADIUS + 1];
+        for k in 0..=2 * radius {
+            let d = k as f32 - radius as f32;
+            wx[k] = ((d + fx) * (d + fx) * exp_scale).exp();
+            wy[k] = ((d + fy) * (d + fy) * exp_scale).exp();
+        }
+        let mut hist = [0.0f32; LEN];
+        let half = CELLS as f32 / 2.0 - 0.5;
+        let bins_per_radian = BINS as f32 / TAU;
+        let (w, h) = (layer.width as isize, layer.height as isize);
+        for i in -r..=r {
+            let py = cy + i;
+            if py <= 0 || py >= h - 1 {
+                continue;
+            }
+            let dy = i as f32 + fy;
+            let row = layer.row(py as usize);
+            let (above, below) = (layer.row(py as usize - 1), layer.row(py as usize + 1));
+            let weight_y = wy[(i + r) as usize];
+            for j in -r..=r {
+                let px = cx + j;
+                if px <= 0 || px >= w - 1 {
+                    continue;
+                }
+                let dx = j as f32 + fx;
+                let c_rot = dx * cos_t + dy * sin_t;
+                let r_rot = -dx * sin_t + dy * cos_t;
+                let rbin = r_rot + half;
+                let cbin = c_rot + half;
+                if !(rbin > -1.0 && rbin < CELLS as f32 && cbin > -1.0 && cbin < CELLS as f32) {
+                    continue;
+                }
+                let p = px as usize;
+                let gx = row[p + 1] - row[p - 1];
+                let gy = below[p] - above[p];
+                let magnitude = (gx * gx + gy * gy).sqrt() * weight_y * wx[(j + r) as usize];
+                let mut obin = (atan2_positive(gy, gx) - kp.angle) * bins_per_radian;
+                obin = obin.rem_euclid(BINS as f32);
+                let (r0, c0, o0) = (rbin.floor(), cbin.floor(), obin.floor());
+                let (fr, fc, fo) = (rbin - r0, cbin - c0, obin - o0);
+                let o0 = (o0 as usize).min(BINS - 1);
+                let index = (((r0 as isize + 1) as usize * SIDE + (c0 as isize + 1) as usize)
+                    * (BINS + 2))
+                    + o0;
+                let v_r1 = magnitude * fr;
+                let v_r0 = magnitude - v_r1;
+                let v_rc11 = v_r1 * fc;
+                let v_rc10 = v_r1 - v_rc11;
+                let v_rc01 = v_r0 * fc;
+                let v_rc00 = v_r0 - v_rc01;
+                let row_step = SIDE * (BINS + 2);
+                let col_step = BINS + 2;
+                for (offset, v) in [
+                    (0, v_rc00),
+                    (col_step, v_rc01),
+                    (row_step, v_rc10),
+                    (row_step + col_step, v_rc11),
+                ] {
+                    let v1 = v * fo;
+                    hist[index + offset] += v - v1;
+                    hist[index + offset + 1] += v1;
+                }
+            }
+        }
+        for i in 0..CELLS {
+            for j in 0..CELLS {
+                let index = ((i + 1) * SIDE + j + 1) * (BINS + 2);
+                hist[index] += hist[index + BINS];
+                hist[index + 1] += hist[index + BINS + 1];
+                let dst = &mut out[(i * CELLS + j) * BINS..(i * CELLS + j + 1) * BINS];
+                dst.copy_from_slice(&hist[index..index + BINS]);
+            }
+        }
+        normalise(out, self.normalization);
+    }
+}
+
+/// Unit L2 norm, clamp, unit L2 norm again; then the RootSIFT mapping if asked for. A descriptor
+/// of a flat patch stays zero.
+fn normalise(d: &mut [f32], normalization: SiftNormalization) {
+    let norm = d.iter().map(|v| v * v).sum::<f32>().sqrt();
+    if norm <= f32::MIN_POSITIVE {
+        d.fill(0.0);
+        return;
+    }
+    let limit = CLAMP * norm;
+    d.iter_mut().for_each(|v| *v = v.min(limit));
+    let norm = d.iter().map(|v| v * v).sum::<f32>().sqrt();
+    d.iter_mut().for_each(|v| *v /= norm);
+    if normalization == SiftNormalization::Root {
+        let l1: f32 = d.iter().sum();
+        d.iter_mut().for_each(|v| *v = (*v / l1).sqrt());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normalised_descriptors_have_unit_norm_and_bounded_values() {
+        let mut d: Vec<f32> = (0..SIFT_DIM).map(|i| ((i * 37) % 11) as f32).collect();
+        d[5] = 100.0;
+        let mut root = d.clone();
+        let norm0: f32 = d.iter().map(|v| v * v).sum::<f32>().sqrt();
+        let ten = (0..SIFT_DIM).find(|&i| d[i] == 10.0).unwrap();
+        normalise(&mut d, SiftNormalization::L2);
+        let norm: f32 = d.iter().map(|v| v * v).sum::<f32>().sqrt();
+        assert!((norm - 1.0).abs() < 1e-5);
+        // The peak was clamped to 0.2 of the first norm; unclamped values keep their ratios.
+        let ratio = d[5] / d[ten];
+        assert!((ratio - 0.2 * norm0 / 10.0).abs() < 1e-4, "{ratio}");
+        normalise(&mut root, SiftNormalization::Root);
+        let norm: f32 = root.iter().map(|v| v * v).sum::<f32>().sqrt();
+        assert!((norm - 1.0).abs() < 1e-5);
+        let mut flat = vec![0.0f32; SIFT_DIM];
+        normalise(&mut flat, SiftNormalization::Root);
+        assert!(flat.iter().all(|v| *v == 0.0));
+    }
+}

@@ -1,0 +1,182 @@
+//! The feature text format of DESIGN.md, for inspecting and comparing features outside timesift:
+//! a first line `N D` (count; descriptor length: values for float, bytes for binary), then one line
+//! per keypoint, `x y scale orientation` followed by the D descriptor values (floats, or bytes
+//! 0–255). Pixel convention of DESIGN.md; scale is σ in pixels, orientation in radians.
+//!
+//! The format does not say whether descriptors are binary, so the reader is told what to expect.
+//! Keypoint response and octave are not stored: they read back as 0.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use timesift_core::{Descriptors, Keypoint};
+
+use crate::{FeatureError, Features};
+
+/// Writes `features` to `path` atomically (temporary file, then rename).
+pub fn write(path: &Path, features: &Features) -> Result<(), FeatureError> {
+    let n = features.keypoints.len();
+    if features.descriptors.len() != n {
+        return Err(FeatureError::Format {
+            path: path.to_path_buf(),
+            line: 0,
+            message: format!(
+                "{} keypoints but {} descriptors",
+                n,
+                features.descriptors.len()
+            ),
+        });
+    }
+    let d = features.descriptors.width();
+    let mut text = String::with_capacity(n * (40 + 4 * d));
+    let _ = writeln!(text, "{n} {d}");
+    for (i, k) in features.keypoints.iter().enumerate() {
+        let _ = write!(text, "{} {} {} {}", k.x, k.y, k.scale, k.orientation);
+        match &features.descriptors {
+            Descriptors::Float { dim, data } => {
+                for v in &data[i * dim..(i + 1) * dim] {
+                    let _ = write!(text, " {v}");
+                }
+            }
+            Descriptors::Binary { bytes, data } => {
+                for v in &data[i * bytes..(i + 1) * bytes] {
+                    let _ = write!(text, " {v}");
+                }
+            }
+        }
+        text.push('\n');
+    }
+    let tmp = path.with_extension("tmp-write");
+    std::fs::write(&tmp, text).map_err(|source| FeatureError::Io {
+        path: tmp.clone(),
+        source,
+    })?;
+    std::fs::rename(&tmp, path).map_err(|source| FeatureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// What kind of descriptor a feature file holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DescriptorKind {
+    Float,
+    Binary,
+}
+
+/// Reads a feature text file; errors name the file and line.
+pub fn read(path: &Path, kind: DescriptorKind) -> Result<Features, FeatureError> {
+    let text = std::fs::read_to_string(path).map_err(|source| FeatureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let error = |line: usize, message: String| FeatureError::Format {
+        path: path.to_path_buf(),
+        line,
+        message,
+    };
+    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l));
+    let (_, header) = lines
+        .next()
+        .ok_or_else(|| error(1, "empty file, expected the header `N D`".into()))?;
+    let fields: Vec<&str> = header.split_whitespace().collect();
+    let parse_count = |s: &str| s.parse::<usize>().ok();
+    let (n, d) = match fields.as_slice() {
+        [n, d] => match (parse_count(n), parse_count(d)) {
+            (Some(n), Some(d)) => (n, d),
+            _ => {
+                return Err(error(
+                    1,
+                    format!("header `{header}` is not two counts `N D`"),
+                ));
+            }
+        },
+        _ => {
+            return Err(error(
+                1,
+                format!("header `{header}` is not two counts `N D`"),
+            ));
+        }
+    };
+    let mut keypoints = Vec::with_capacity(n.min(1 << 24));
+    let mut floats = Vec::new();
+    let mut bytes = Vec::new();
+    for (number, line) in lines.by_ref().take(n) {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        if fields.len() != 4 + d {
+            return Err(error(
+                number,
+                format!(
+                    "expected {} values (x y scale orientation + {d}), found {}",
+                    4 + d,
+                    fields.len()
+                ),
+            ));
+        }
+        let mut geometry = [0.0f64; 4];
+        for (g, f) in geometry.iter_mut().zip(&fields[..4]) {
+            *g = f
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| error(number, format!("`{f}` is not a finite number")))?;
+        }
+        keypoints.push(Keypoint {
+            x: geometry[0],
+            y: geometry[1],
+            scale: geometry[2],
+            orientation: geometry[3],
+            response: 0.0,
+            octave: 0,
+        });
+        for f in &fields[4..] {
+            match kind {
+                DescriptorKind::Float => {
+                    floats.push(f.parse::<f32>().ok().filter(|v| v.is_finite()).ok_or_else(
+                        || {
+                            error(
+                                number,
+                                format!("descriptor value `{f}` is not a finite number"),
+                            )
+                        },
+                    )?)
+                }
+                DescriptorKind::Binary => bytes.push(f.parse::<u8>().map_err(|_| {
+                    error(number, format!("descriptor byte `{f}` is not in 0–255"))
+                })?),
+            }
+        }
+    }
+    if keypoints.len() != n {
+        return Err(error(
+            keypoints.len() + 2,
+            format!(
+                "file ends after {} keypoints, header announced {n}",
+                keypoints.len()
+            ),
+        ));
+    }
+    if let Some((number, line)) = lines.find(|(_, l)| !l.trim().is_empty()) {
+        return Err(error(
+            number,
+            format!(
+                "unexpected content after {n} keypoints: `{}`",
+                line.chars().take(40).collect::<String>()
+            ),
+        ));
+    }
+    let descriptors = match kind {
+        DescriptorKind::Float => Descriptors::Float {
+            dim: d,
+            data: floats,
+        },
+        DescriptorKind::Binary => Descriptors::Binary {
+            bytes: d,
+            data: bytes,
+        },
+    };
+    Ok(Features {
+        keypoints,
+        descriptors,
+    })
+}
