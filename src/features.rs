@@ -35,9 +35,6 @@ pub struct FeaturesRequest {
     pub out: PathBuf,
 }
 
-/// Grid cells the budget is spread over, per keypoint kept: about 8 keypoints per cell.
-const KEYPOINTS_PER_CELL: usize = 8;
-
 /// Runs the extraction and writes the text file; returns the features.
 pub fn features(request: &FeaturesRequest) -> anyhow::Result<Features> {
     let image = timesift_io::image::read_grey(&request.image)?;
@@ -63,10 +60,7 @@ pub fn features(request: &FeaturesRequest) -> anyhow::Result<Features> {
             Some(false) => Upsample::Never,
             None => DetectorOptions::default().upsample,
         },
-        limit: request.max.map(|max| KeypointLimit {
-            max,
-            cells: (max / KEYPOINTS_PER_CELL).max(1),
-        }),
+        limit: request.max.map(KeypointLimit::spread),
         ..DetectorOptions::default()
     };
     let extractor: Box<dyn FeatureExtractor> = match request.method {

@@ -4,6 +4,8 @@
 //!   (`../shared/data`) is present.
 //! - `bench geometry`: timesift's RANSAC against OpenCV's on the same correspondences.
 //! - `bench bundle`: the BAL problems through timesift's bundle adjuster.
+//! - `bench features`: SIFT and LDB against OpenCV SIFT and COLMAP's CPU SIFT (quality on the
+//!   sandpyper `mar` orthophotos, seconds per image on `lund`).
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
 //!
 //! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
@@ -13,6 +15,7 @@
 
 mod bench_bundle;
 mod bench_change;
+mod bench_features;
 mod bench_geometry;
 
 use std::path::PathBuf;
@@ -72,6 +75,19 @@ enum BenchStage {
         #[arg(long)]
         json: bool,
     },
+    /// SIFT and LDB against OpenCV SIFT and COLMAP's CPU SIFT: correct matches between the
+    /// sandpyper `mar` orthophotos of every pair of dates, and seconds per image.
+    Features {
+        /// Keypoint budget of the quality comparison, the same for every method.
+        #[arg(long, default_value_t = 300)]
+        budget: usize,
+        /// Only the quality comparison.
+        #[arg(long, conflicts_with = "speed_only")]
+        quality_only: bool,
+        /// Only the speed comparison.
+        #[arg(long)]
+        speed_only: bool,
+    },
     /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
     Change {
         /// Core-point spacing for M3C2, metres.
@@ -104,6 +120,18 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Bundle { problem, json },
         } => bench_bundle::run(problem, json)?,
+        Task::Bench {
+            stage:
+                BenchStage::Features {
+                    budget,
+                    quality_only,
+                    speed_only,
+                },
+        } => bench_features::run(&bench_features::FeaturesBench {
+            budget,
+            quality: !speed_only,
+            speed: !quality_only,
+        })?,
         Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,

@@ -64,7 +64,7 @@ pub(crate) fn blur(src: &Plane, kernel: &Kernel, dst: &mut Plane, scratch: &mut 
     dst.height = h;
     dst.data.resize(w * h, 0.0);
     let taps = &kernel.taps;
-    let radius = kernel.radius() as isize;
+    let radius = kernel.radius();
     let chunk = rows_per_job(w);
     // Vertical pass: each output row is a weighted sum of whole input rows.
     scratch
@@ -73,23 +73,11 @@ pub(crate) fn blur(src: &Plane, kernel: &Kernel, dst: &mut Plane, scratch: &mut 
         .enumerate()
         .for_each(|(job, out_rows)| {
             for (k, out) in out_rows.chunks_mut(w).enumerate() {
-                let y = (job * chunk + k) as isize;
-                let centre = src.row(y as usize);
-                for (o, &c) in out.iter_mut().zip(centre) {
-                    *o = taps[0] * c;
-                }
-                for d in 1..=radius {
-                    let up = src.row(reflect(y - d, h));
-                    let down = src.row(reflect(y + d, h));
-                    let t = taps[d as usize];
-                    for ((o, &a), &b) in out.iter_mut().zip(up).zip(down) {
-                        *o += t * (a + b);
-                    }
-                }
+                vertical_row(out, src, job * chunk + k, taps);
             }
         });
     // Horizontal pass over a reflected copy of each row.
-    let pad = radius as usize;
+    let pad = radius;
     dst.data
         .par_chunks_mut(w * chunk)
         .enumerate()
@@ -98,24 +86,80 @@ pub(crate) fn blur(src: &Plane, kernel: &Kernel, dst: &mut Plane, scratch: &mut 
             |padded, (job, out_rows)| {
                 for (k, out) in out_rows.chunks_mut(w).enumerate() {
                     let row = scratch.row(job * chunk + k);
-                    for (i, p) in padded.iter_mut().enumerate() {
-                        *p = row[reflect(i as isize - pad as isize, w)];
+                    padded[pad..pad + w].copy_from_slice(row);
+                    for i in 0..pad {
+                        padded[i] = row[reflect(i as isize - pad as isize, w)];
+                        padded[pad + w + i] = row[reflect((w + i) as isize, w)];
                     }
-                    let centre = &padded[pad..pad + w];
-                    for (o, &c) in out.iter_mut().zip(centre) {
-                        *o = taps[0] * c;
-                    }
-                    for d in 1..=pad {
-                        let left = &padded[pad - d..pad - d + w];
-                        let right = &padded[pad + d..pad + d + w];
-                        let t = taps[d];
-                        for ((o, &a), &b) in out.iter_mut().zip(left).zip(right) {
-                            *o += t * (a + b);
-                        }
-                    }
+                    horizontal_row(out, padded, taps);
                 }
             },
         );
+}
+
+/// Row `y` of `src` blurred vertically into `out`.
+fn vertical_row(out: &mut [f32], src: &Plane, y: usize, taps: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { vertical_row_avx2(out, src, y, taps) };
+    }
+    vertical_row_portable(out, src, y, taps)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn vertical_row_avx2(out: &mut [f32], src: &Plane, y: usize, taps: &[f32]) {
+    vertical_row_portable(out, src, y, taps)
+}
+
+#[inline(always)]
+fn vertical_row_portable(out: &mut [f32], src: &Plane, y: usize, taps: &[f32]) {
+    let h = src.height;
+    let centre = src.row(y);
+    for (o, &c) in out.iter_mut().zip(centre) {
+        *o = taps[0] * c;
+    }
+    for (d, &t) in taps.iter().enumerate().skip(1) {
+        let up = src.row(reflect(y as isize - d as isize, h));
+        let down = src.row(reflect((y + d) as isize, h));
+        for ((o, &a), &b) in out.iter_mut().zip(up).zip(down) {
+            *o += t * (a + b);
+        }
+    }
+}
+
+/// A row padded by the kernel radius on both sides, blurred horizontally into `out`.
+fn horizontal_row(out: &mut [f32], padded: &[f32], taps: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { horizontal_row_avx2(out, padded, taps) };
+    }
+    horizontal_row_portable(out, padded, taps)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn horizontal_row_avx2(out: &mut [f32], padded: &[f32], taps: &[f32]) {
+    horizontal_row_portable(out, padded, taps)
+}
+
+#[inline(always)]
+fn horizontal_row_portable(out: &mut [f32], padded: &[f32], taps: &[f32]) {
+    let w = out.len();
+    let pad = taps.len() - 1;
+    let centre = &padded[pad..pad + w];
+    for (o, &c) in out.iter_mut().zip(centre) {
+        *o = taps[0] * c;
+    }
+    for (d, &t) in taps.iter().enumerate().skip(1) {
+        let left = &padded[pad - d..pad - d + w];
+        let right = &padded[pad + d..pad + d + w];
+        for ((o, &a), &b) in out.iter_mut().zip(left).zip(right) {
+            *o += t * (a + b);
+        }
+    }
 }
 
 /// The image at twice the resolution, such that pixel index `j` of the result sits at index `j/2`

@@ -82,19 +82,34 @@ pub(crate) fn find_extrema(
         .collect()
 }
 
-/// Whether `v` at (x, y) of `here` is ≥ (or ≤) all 26 neighbours in space and scale.
+/// Whether `v` at (x, y) of `here` is ≥ (or ≤) all 26 neighbours in space and scale. The same
+/// layer is tested first: most samples fail there.
 #[inline]
 fn is_extremum(below: &Plane, here: &Plane, above: &Plane, x: usize, y: usize, v: f32) -> bool {
     let w = here.width;
-    let check = |plane: &Plane, skip_centre: bool| {
-        (y - 1..=y + 1).all(|yy| {
-            let row = &plane.data[yy * w + x - 1..yy * w + x + 2];
-            row.iter().enumerate().all(|(i, &n)| {
-                (skip_centre && yy == y && i == 1) || if v > 0.0 { v >= n } else { v <= n }
-            })
-        })
-    };
-    check(here, true) && check(below, false) && check(above, false)
+    let centre = y * w + x;
+    let ring = [
+        centre - w - 1,
+        centre - w,
+        centre - w + 1,
+        centre - 1,
+        centre + 1,
+        centre + w - 1,
+        centre + w,
+        centre + w + 1,
+    ];
+    let (h, b, a) = (&here.data, &below.data, &above.data);
+    if v > 0.0 {
+        ring.iter().all(|&i| v >= h[i])
+            && v >= b[centre]
+            && v >= a[centre]
+            && ring.iter().all(|&i| v >= b[i] && v >= a[i])
+    } else {
+        ring.iter().all(|&i| v <= h[i])
+            && v <= b[centre]
+            && v <= a[centre]
+            && ring.iter().all(|&i| v <= b[i] && v <= a[i])
+    }
 }
 
 /// Quadratic refinement of the extremum at (x, y, s) (band-local row), moving to the neighbouring

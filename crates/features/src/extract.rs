@@ -216,7 +216,7 @@ pub(crate) fn extract<D: Describer>(
                 .iter()
                 .map(|c| (c.keypoint.x, c.keypoint.y, c.keypoint.response))
                 .collect();
-            select_spread(&points, width, height, limit.max, limit.cells)
+            select_spread(&points, width, height, limit.max, limit.cells, limit.spread)
         }
         None => (0..candidates.len()).collect(),
     };

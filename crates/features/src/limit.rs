@@ -1,10 +1,11 @@
 //! The keypoint budget: keep the strongest responses, spread over the image.
 //!
-//! The image is cut into about `cells` square cells. Keypoints are ranked by response inside their
-//! cell, and taken in rounds: round r holds each cell's keypoints of rank `r·q .. (r+1)·q` (q = the
-//! budget shared by the occupied cells), strongest first within the round. A cell with little
-//! texture gives up its share to the others instead of wasting it; a cell with a lot cannot take
-//! more than its share before every cell has had its turn.
+//! The image is cut into about `cells` square cells. A share `spread` of the budget is dealt out
+//! first: each occupied cell keeps up to its part of that share (its strongest keypoints); the
+//! rest of the budget goes to the strongest remaining keypoints wherever they are. A cell with
+//! little texture cannot waste more than its part; a textured corner cannot take the whole budget
+//! before every cell has had its turn. `spread = 0` keeps the strongest overall (OpenCV's
+//! `nfeatures`), `spread = 1` spreads the whole budget.
 
 /// Indices of the kept items, strongest first. `points` are (x, y, response) in pixels of an image
 /// of `width × height`; ties are broken by index so the choice is reproducible.
@@ -14,12 +15,13 @@ pub fn select_spread(
     height: usize,
     max: usize,
     cells: usize,
+    spread: f64,
 ) -> Vec<usize> {
     let mut order: Vec<usize> = (0..points.len()).collect();
     let by_response =
         |a: &usize, b: &usize| points[*b].2.total_cmp(&points[*a].2).then_with(|| a.cmp(b));
     order.sort_by(by_response);
-    if points.len() <= max || cells <= 1 {
+    if points.len() <= max || cells <= 1 || !(spread > 0.0) {
         order.truncate(max);
         return order;
     }
@@ -40,9 +42,11 @@ pub fn select_spread(
         taken_in_cell[cell] += 1;
     }
     let occupied = taken_in_cell.iter().filter(|&&n| n > 0).count().max(1);
-    let share = max.div_ceil(occupied).max(1);
-    // `order` is by response, so a stable sort by round keeps response order within a round.
-    order.sort_by_key(|&i| rank[i] / share);
+    let dealt = (spread.min(1.0) * max as f64).round() as usize;
+    let part = dealt.div_ceil(occupied).max(1);
+    // `order` is by response, so a stable sort on "within the cell's part" keeps response order
+    // inside both groups.
+    order.sort_by_key(|&i| rank[i] >= part);
     order.truncate(max);
     order
 }
@@ -54,18 +58,35 @@ mod tests {
 
     #[test]
     fn a_textured_corner_does_not_take_the_whole_budget() {
-        // 100 strong points in the top-left corner, 10 weak ones spread elsewhere.
+        // 100 strong points in the top-left corner, 10 weak ones alone in 10 other cells of the
+        // 4 × 4 grid (100 px cells).
         let mut points: Vec<(f64, f64, f32)> = (0..100)
             .map(|i| (1.0 + (i % 10) as f64, 1.0 + (i / 10) as f64, 1.0 + i as f32))
             .collect();
-        points.extend((0..10).map(|i| (50.0 + 40.0 * i as f64, 380.0, 0.01)));
-        let kept = select_spread(&points, 400, 400, 20, 16);
+        points.extend((1..11).map(|c| {
+            (
+                50.0 + 100.0 * (c % 4) as f64,
+                50.0 + 100.0 * (c / 4) as f64,
+                0.01,
+            )
+        }));
+        let kept = select_spread(&points, 400, 400, 20, 16, 1.0);
         assert_eq!(kept.len(), 20);
         assert!(kept.iter().filter(|&&i| i >= 100).count() == 10);
         // The corner's share went to its strongest points.
         assert!(kept.iter().filter(|&&i| i < 100).all(|&i| i >= 90));
-        // One cell: the strongest overall.
-        let kept = select_spread(&points, 400, 400, 20, 1);
+        // Half the budget spread: each of the 11 occupied cells may keep 1 (10 / 11 rounded up),
+        // the other half goes to the strongest.
+        let kept = select_spread(&points, 400, 400, 20, 16, 0.5);
+        assert_eq!(kept.iter().filter(|&&i| i >= 100).count(), 10);
+        let kept = select_spread(&points, 400, 400, 30, 16, 0.2);
+        // 6 dealt over 11 cells: 1 each, so every weak point once, then the 20 strongest.
+        assert_eq!(kept.iter().filter(|&&i| i >= 100).count(), 10);
+        assert!(kept.iter().filter(|&&i| i < 100).all(|&i| i >= 80));
+        // One cell, or nothing spread: the strongest overall.
+        let kept = select_spread(&points, 400, 400, 20, 16, 0.0);
+        assert!(kept.iter().all(|i| (80..100).contains(i)));
+        let kept = select_spread(&points, 400, 400, 20, 1, 1.0);
         assert!(kept.iter().all(|i| (80..100).contains(i)));
     }
 
@@ -75,8 +96,9 @@ mod tests {
             pts in proptest::collection::vec((0.0f64..640.0, 0.0f64..480.0, 0.0f32..1.0), 0..300),
             max in 0usize..400,
             cells in 1usize..64,
+            spread in 0.0f64..1.0,
         ) {
-            let kept = select_spread(&pts, 640, 480, max, cells);
+            let kept = select_spread(&pts, 640, 480, max, cells, spread);
             prop_assert_eq!(kept.len(), max.min(pts.len()));
             let mut sorted = kept.clone();
             sorted.sort_unstable();

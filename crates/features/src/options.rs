@@ -27,15 +27,30 @@ pub enum Orientation {
     Upright,
 }
 
-/// How many keypoints to keep and how to choose them.
+/// How many keypoints to keep and how to choose them (see [`crate::limit`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct KeypointLimit {
     /// Keep at most this many keypoints (each orientation of a location counts).
     pub max: usize,
-    /// Spread the kept keypoints over about this many grid cells of the image: each cell keeps its
-    /// strongest first, in turns, so a textured corner cannot take the whole budget. 1 keeps the
-    /// strongest responses of the whole image, as OpenCV's `nfeatures` does.
+    /// The image is cut into about this many square cells.
     pub cells: usize,
+    /// Share of the budget dealt out cell by cell before the rest goes to the strongest anywhere:
+    /// 0 keeps the strongest responses of the whole image (OpenCV's `nfeatures`), 1 spreads the
+    /// whole budget.
+    pub spread: f64,
+}
+
+impl KeypointLimit {
+    /// `max` keypoints, half of them dealt over an 8 × 8 grid: a textured corner cannot take the
+    /// whole budget, yet the strongest keypoints (the ones that survive years between epochs)
+    /// are rarely dropped for weak ones in featureless cells.
+    pub fn spread(max: usize) -> Self {
+        Self {
+            max,
+            cells: 64,
+            spread: 0.5,
+        }
+    }
 }
 
 /// Options of the scale-space detector (defaults: Lowe 2004 as implemented by OpenCV).
@@ -118,10 +133,13 @@ impl DetectorOptions {
         {
             return invalid("peak_ratio", peak_ratio, "in (0, 1]");
         }
-        if let Some(limit) = self.limit
-            && limit.cells == 0
-        {
-            return invalid("limit.cells", 0.0, "at least 1");
+        if let Some(limit) = self.limit {
+            if limit.cells == 0 {
+                return invalid("limit.cells", 0.0, "at least 1");
+            }
+            if !(0.0..=1.0).contains(&limit.spread) {
+                return invalid("limit.spread", limit.spread, "in [0, 1]");
+            }
         }
         if self.memory_budget < 1 << 20 {
             return invalid("memory_budget", self.memory_budget as f64, "at least 1 MiB");

@@ -47,6 +47,28 @@ impl Describer for SiftDescriber {
     }
 
     fn describe(&self, layer: &Plane, kp: &LocalKeypoint, out: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            unsafe { describe_avx2(layer, kp, out) };
+            normalise(out, self.normalization);
+            return;
+        }
+        describe_portable(layer, kp, out);
+        normalise(out, self.normalization);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn describe_avx2(layer: &Plane, kp: &LocalKeypoint, out: &mut [f32]) {
+    describe_portable(layer, kp, out)
+}
+
+/// The raw (unnormalised) histogram descriptor.
+#[inline(always)]
+fn describe_portable(layer: &Plane, kp: &LocalKeypoint, out: &mut [f32]) {
+    {
         const SIDE: usize = CELLS + 2;
         const LEN: usize = SIDE * SIDE * (BINS + 2);
         let cell = CELL_WIDTH * kp.sigma;
@@ -70,48 +92,82 @@ impl Describer for SiftDescriber {
         let half = CELLS as f32 / 2.0 - 0.5;
         let bins_per_radian = BINS as f32 / TAU;
         let (w, h) = (layer.width as isize, layer.height as isize);
+        let row_step = SIDE * (BINS + 2);
+        let col_step = BINS + 2;
+        // Per-row scratch: the samples of one row, computed in a loop that vectorises, then
+        // spread into the histogram.
+        let mut rbins = [0.0f32; 2 * MAX_RADIUS + 1];
+        let mut cbins = [0.0f32; 2 * MAX_RADIUS + 1];
+        let mut obins = [0.0f32; 2 * MAX_RADIUS + 1];
+        let mut magnitudes = [0.0f32; 2 * MAX_RADIUS + 1];
+        let limit = CELLS as f32;
         for i in -r..=r {
             let py = cy + i;
             if py <= 0 || py >= h - 1 {
                 continue;
             }
             let dy = i as f32 + fy;
+            // Columns whose rotated position falls inside the (CELLS + 2)² bins: the rotated
+            // square is about half of the sampling square.
+            let (c_lo, c_hi) = open_interval(cos_t, dy * sin_t + half, -1.0, limit);
+            let (r_lo, r_hi) = open_interval(-sin_t, dy * cos_t + half, -1.0, limit);
+            let lo = c_lo.max(r_lo).max(-(r as f32) - 1.0).max(-(cx as f32));
+            let hi = c_hi.min(r_hi).min(r as f32 + 1.0).min((w - 1 - cx) as f32);
+            if !(lo < hi) {
+                continue;
+            }
+            let j_first = lo.floor() as isize + 1;
+            let j_last = hi.ceil() as isize - 1;
+            if j_last < j_first {
+                continue;
+            }
             let row = layer.row(py as usize);
             let (above, below) = (layer.row(py as usize - 1), layer.row(py as usize + 1));
             let weight_y = wy[(i + r) as usize];
-            for j in -r..=r {
-                let px = cx + j;
-                if px <= 0 || px >= w - 1 {
-                    continue;
-                }
+            let n = (j_last - j_first + 1) as usize;
+            let first_px = (cx + j_first) as usize;
+            for k in 0..n {
+                let p = first_px + k;
+                let j = j_first + k as isize;
                 let dx = j as f32 + fx;
-                let c_rot = dx * cos_t + dy * sin_t;
-                let r_rot = -dx * sin_t + dy * cos_t;
-                let rbin = r_rot + half;
-                let cbin = c_rot + half;
-                if !(rbin > -1.0 && rbin < CELLS as f32 && cbin > -1.0 && cbin < CELLS as f32) {
-                    continue;
-                }
-                let p = px as usize;
                 let gx = row[p + 1] - row[p - 1];
                 let gy = below[p] - above[p];
-                let magnitude = (gx * gx + gy * gy).sqrt() * weight_y * wx[(j + r) as usize];
+                cbins[k] = dx * cos_t + dy * sin_t + half;
+                rbins[k] = -dx * sin_t + dy * cos_t + half;
+                magnitudes[k] = (gx * gx + gy * gy).sqrt() * weight_y * wx[(j + r) as usize];
                 let mut obin = (atan2_positive(gy, gx) - kp.angle) * bins_per_radian;
-                obin = obin.rem_euclid(BINS as f32);
-                let (r0, c0, o0) = (rbin.floor(), cbin.floor(), obin.floor());
-                let (fr, fc, fo) = (rbin - r0, cbin - c0, obin - o0);
-                let o0 = (o0 as usize).min(BINS - 1);
-                let index = (((r0 as isize + 1) as usize * SIDE + (c0 as isize + 1) as usize)
-                    * (BINS + 2))
-                    + o0;
+                if obin < 0.0 {
+                    obin += BINS as f32;
+                }
+                if obin >= BINS as f32 {
+                    obin -= BINS as f32;
+                }
+                obins[k] = obin;
+            }
+            for k in 0..n {
+                let (rbin, cbin, obin) = (rbins[k], cbins[k], obins[k]);
+                // Guard against rounding at the interval ends.
+                if !(rbin > -1.0 && rbin < limit && cbin > -1.0 && cbin < limit) {
+                    continue;
+                }
+                // Both bins exceed −1, so truncation after +1 is a floor (capped: just below
+                // CELLS, the sum can round up to CELLS + 1).
+                let r0 = ((rbin + 1.0) as usize).min(CELLS);
+                let c0 = ((cbin + 1.0) as usize).min(CELLS);
+                let o0 = (obin as usize).min(BINS - 1);
+                let (fr, fc, fo) = (
+                    rbin + 1.0 - r0 as f32,
+                    cbin + 1.0 - c0 as f32,
+                    obin - o0 as f32,
+                );
+                let index = (r0 * SIDE + c0) * (BINS + 2) + o0;
+                let magnitude = magnitudes[k];
                 let v_r1 = magnitude * fr;
                 let v_r0 = magnitude - v_r1;
                 let v_rc11 = v_r1 * fc;
                 let v_rc10 = v_r1 - v_rc11;
                 let v_rc01 = v_r0 * fc;
                 let v_rc00 = v_r0 - v_rc01;
-                let row_step = SIDE * (BINS + 2);
-                let col_step = BINS + 2;
                 for (offset, v) in [
                     (0, v_rc00),
                     (col_step, v_rc01),
@@ -133,8 +189,20 @@ impl Describer for SiftDescriber {
                 dst.copy_from_slice(&hist[index..index + BINS]);
             }
         }
-        normalise(out, self.normalization);
     }
+}
+
+/// The values of t for which `lo < a·t + b < hi`, as an open interval (empty when lo ≥ hi).
+fn open_interval(a: f32, b: f32, lo: f32, hi: f32) -> (f32, f32) {
+    if a.abs() < 1e-12 {
+        return if lo < b && b < hi {
+            (f32::NEG_INFINITY, f32::INFINITY)
+        } else {
+            (1.0, 0.0)
+        };
+    }
+    let (t1, t2) = ((lo - b) / a, (hi - b) / a);
+    (t1.min(t2), t1.max(t2))
 }
 
 /// Unit L2 norm, clamp, unit L2 norm again; then the RootSIFT mapping if asked for. A descriptor

@@ -93,8 +93,8 @@ fn the_budget_keeps_strong_keypoints_spread_over_the_image() {
     let limited = SiftExtractor {
         detector: DetectorOptions {
             limit: Some(KeypointLimit {
-                max: 500,
-                cells: 64,
+                spread: 1.0,
+                ..KeypointLimit::spread(500)
             }),
             ..DetectorOptions::default()
         },

@@ -388,7 +388,45 @@ pub fn read_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
             format!("{:?}; a single-band raster was expected", d.colortype),
         ));
     }
-    let data: Vec<f32> = match d.samples {
+    let data = samples_f32(path, d.samples)?;
+    Ok(GeoRaster {
+        width: d.width,
+        height: d.height,
+        bands: 1,
+        data,
+        georef: d.georef,
+    })
+}
+
+/// Reads a GeoTIFF with any number of bands (RGB, RGBA, multiband, even 16-bit "RGB" stored as
+/// integers, as some orthophoto exports do) of any common numeric sample type as f32, values
+/// unscaled.
+pub fn read_bands_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
+    let d = read_georeferenced(path)?;
+    let data = samples_f32(path, d.samples)?;
+    let pixels = d.width * d.height;
+    if pixels == 0 || data.len() % pixels != 0 {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{} samples for {} × {} pixels",
+                data.len(),
+                d.width,
+                d.height
+            ),
+        ));
+    }
+    Ok(GeoRaster {
+        width: d.width,
+        height: d.height,
+        bands: data.len() / pixels,
+        data,
+        georef: d.georef,
+    })
+}
+
+fn samples_f32(path: &Path, samples: DecodingResult) -> Result<Vec<f32>, IoError> {
+    Ok(match samples {
         DecodingResult::F32(v) => v,
         DecodingResult::F64(v) => v.into_iter().map(|x| x as f32).collect(),
         DecodingResult::U8(v) => v.into_iter().map(f32::from).collect(),
@@ -404,13 +442,6 @@ pub fn read_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
                 "only 8/16/32-bit integers and 32/64-bit floats are read",
             ));
         }
-    };
-    Ok(GeoRaster {
-        width: d.width,
-        height: d.height,
-        bands: 1,
-        data,
-        georef: d.georef,
     })
 }
 
