@@ -3,7 +3,6 @@
 
 use rayon::prelude::*;
 
-use crate::image::Plane;
 use crate::pyramid::{BORDER, Band, BandStack};
 
 /// A refined extremum in octave coordinates (pixel centres at integer indices).
@@ -45,7 +44,7 @@ pub(crate) fn find_extrema(
     octave_height: usize,
     tests: &ExtremumTests,
 ) -> Vec<Extremum> {
-    let width = stack.dog[0].width;
+    let width = stack.width();
     if width <= 2 * BORDER {
         return Vec::new();
     }
@@ -58,57 +57,112 @@ pub(crate) fn find_extrema(
     let rows: Vec<usize> = (first..last)
         .filter(|&y| y >= BORDER && y + BORDER < octave_height)
         .collect();
+    let differences = tests.layers + 2;
     rows.par_iter()
-        .flat_map_iter(|&y| {
-            let mut found = Vec::new();
-            let ly = y - stack.row0;
-            for s in 1..=tests.layers {
-                let (below, here, above) = (&stack.dog[s - 1], &stack.dog[s], &stack.dog[s + 1]);
-                let row = here.row(ly);
-                for x in BORDER..width - BORDER {
-                    let v = row[x];
-                    if v.abs() <= tests.prefilter || !is_extremum(below, here, above, x, ly, v) {
-                        continue;
-                    }
-                    if let Some(e) = refine(stack, x, ly, s, octave_height, tests)
-                        && band.core.contains(&e.row)
-                    {
-                        found.push(e);
+        .map_init(
+            // Per job: the three rows around y of every difference of Gaussians, and flags.
+            || (vec![0.0f32; differences * 3 * width], vec![false; width]),
+            |(dog_rows, flags), &y| {
+                let mut found = Vec::new();
+                let ly = y - stack.row0;
+                for (i, out) in dog_rows.chunks_mut(width).enumerate() {
+                    let (s, dy) = (i / 3, i % 3);
+                    let (upper, lower) = (
+                        stack.gauss[s + 1].row(ly + dy - 1),
+                        stack.gauss[s].row(ly + dy - 1),
+                    );
+                    for ((o, a), b) in out.iter_mut().zip(upper).zip(lower) {
+                        *o = a - b;
                     }
                 }
-            }
-            found
-        })
+                let rows_of = |s: usize| -> [&[f32]; 3] {
+                    let at = |dy: usize| &dog_rows[(s * 3 + dy) * width..(s * 3 + dy + 1) * width];
+                    [at(0), at(1), at(2)]
+                };
+                for s in 1..=tests.layers {
+                    let (below, here, above) = (rows_of(s - 1), rows_of(s), rows_of(s + 1));
+                    planar_extrema(here, tests.prefilter, flags);
+                    for x in BORDER..width - BORDER {
+                        if !flags[x] || !is_extremum(&below, &here, &above, x) {
+                            continue;
+                        }
+                        if let Some(e) = refine(stack, x, ly, s, octave_height, tests)
+                            && band.core.contains(&e.row)
+                        {
+                            found.push(e);
+                        }
+                    }
+                }
+                found
+            },
+        )
+        .flatten_iter()
         .collect()
 }
 
-/// Whether `v` at (x, y) of `here` is ≥ (or ≤) all 26 neighbours in space and scale. The same
-/// layer is tested first: most samples fail there.
+/// Flags the samples of the middle row of `rows` above `threshold` in magnitude that are ≥ (or ≤) their
+/// 8 neighbours in the plane: the cheap, vectorised first cut of the extremum test. The first and
+/// last sample are never flagged.
+fn planar_extrema(rows: [&[f32]; 3], threshold: f32, flags: &mut [bool]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { planar_extrema_avx2(rows, threshold, flags) };
+    }
+    planar_extrema_portable(rows, threshold, flags)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn planar_extrema_avx2(rows: [&[f32]; 3], threshold: f32, flags: &mut [bool]) {
+    planar_extrema_portable(rows, threshold, flags)
+}
+
+#[inline(always)]
+fn planar_extrema_portable(rows: [&[f32]; 3], threshold: f32, flags: &mut [bool]) {
+    let [up, row, down] = rows;
+    let w = row.len();
+    let n = w - 2;
+    let centre = &row[1..n + 1];
+    let (a, b, c) = (&up[..n], &up[1..n + 1], &up[2..n + 2]);
+    let (d, e) = (&row[..n], &row[2..n + 2]);
+    let (f, g, h) = (&down[..n], &down[1..n + 1], &down[2..n + 2]);
+    let out = &mut flags[1..n + 1];
+    // Plain comparisons (not f32::max, whose NaN rules block vectorisation).
+    let hi = |p: f32, q: f32| if p > q { p } else { q };
+    let lo = |p: f32, q: f32| if p < q { p } else { q };
+    for i in 0..n {
+        let v = centre[i];
+        let max = hi(
+            hi(hi(a[i], b[i]), hi(c[i], d[i])),
+            hi(hi(e[i], f[i]), hi(g[i], h[i])),
+        );
+        let min = lo(
+            lo(lo(a[i], b[i]), lo(c[i], d[i])),
+            lo(lo(e[i], f[i]), lo(g[i], h[i])),
+        );
+        out[i] = (v > threshold && v >= max) || (v < -threshold && v <= min);
+    }
+    flags[0] = false;
+    flags[w - 1] = false;
+}
+
+/// Whether the middle sample at column x of `here` is ≥ (or ≤) all 26 neighbours in space and
+/// scale; each argument holds the three rows around it of one difference of Gaussians. The same
+/// layer is known to pass (`planar_extrema`); the layers below and above are tested here.
 #[inline]
-fn is_extremum(below: &Plane, here: &Plane, above: &Plane, x: usize, y: usize, v: f32) -> bool {
-    let w = here.width;
-    let centre = y * w + x;
-    let ring = [
-        centre - w - 1,
-        centre - w,
-        centre - w + 1,
-        centre - 1,
-        centre + 1,
-        centre + w - 1,
-        centre + w,
-        centre + w + 1,
-    ];
-    let (h, b, a) = (&here.data, &below.data, &above.data);
+fn is_extremum(below: &[&[f32]; 3], here: &[&[f32]; 3], above: &[&[f32]; 3], x: usize) -> bool {
+    let v = here[1][x];
+    let mut neighbours = [0.0f32; 18];
+    for (k, rows) in [below, above].into_iter().enumerate() {
+        for (r, row) in rows.iter().enumerate() {
+            neighbours[k * 9 + r * 3..k * 9 + r * 3 + 3].copy_from_slice(&row[x - 1..=x + 1]);
+        }
+    }
     if v > 0.0 {
-        ring.iter().all(|&i| v >= h[i])
-            && v >= b[centre]
-            && v >= a[centre]
-            && ring.iter().all(|&i| v >= b[i] && v >= a[i])
+        neighbours.iter().all(|&n| v >= n)
     } else {
-        ring.iter().all(|&i| v <= h[i])
-            && v <= b[centre]
-            && v <= a[centre]
-            && ring.iter().all(|&i| v <= b[i] && v <= a[i])
+        neighbours.iter().all(|&n| v <= n)
     }
 }
 
@@ -123,13 +177,13 @@ fn refine(
     octave_height: usize,
     tests: &ExtremumTests,
 ) -> Option<Extremum> {
-    let width = stack.dog[0].width;
-    let local_rows = stack.dog[0].height;
+    let width = stack.width();
+    let local_rows = stack.rows();
     let (mut x, mut y, mut s) = (x0 as isize, y0 as isize, s0 as isize);
     let mut previous = None;
     for _ in 0..MAX_REFINE_STEPS {
         let d = |ds: isize, dy: isize, dx: isize| -> f64 {
-            stack.dog[(s + ds) as usize].at((x + dx) as usize, (y + dy) as usize) as f64
+            stack.dog((s + ds) as usize, (x + dx) as usize, (y + dy) as usize) as f64
         };
         let v2 = 2.0 * d(0, 0, 0);
         let g = [

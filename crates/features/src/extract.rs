@@ -16,7 +16,7 @@ use crate::image::{GreyImage, Mask, Plane};
 use crate::limit::select_spread;
 use crate::options::{DetectorOptions, Orientation};
 use crate::orientation::orientations;
-use crate::pyramid::{Band, Octave, ScaleSpace, first_octave, octave_is_usable};
+use crate::pyramid::{Band, Octave, PlanePool, ScaleSpace, first_octave, octave_is_usable};
 
 /// Images need at least this many pixels on each side.
 pub const MIN_IMAGE_SIDE: usize = 16;
@@ -106,6 +106,7 @@ pub(crate) fn extract<D: Describer>(
     let mut keep_budget = options.memory_budget / 2;
     let mut records: Vec<OctaveRecord> = Vec::new();
     let mut candidates: Vec<Candidate> = Vec::new();
+    let pool = PlanePool::default();
     let mut octave = first_octave(image, options);
     while octave_is_usable(octave.base.width, octave.base.height) {
         let (w, h) = (octave.base.width, octave.base.height);
@@ -128,7 +129,7 @@ pub(crate) fn extract<D: Describer>(
             .enumerate()
             .map(|(b, band)| {
                 let space = &space;
-                let mut stack = space.stack(&octave.base, band, layers + 2, true);
+                let mut stack = space.stack(&octave.base, band, layers + 2, &pool);
                 let found: Vec<Candidate> = find_extrema(&stack, band, h, &tests)
                     .into_par_iter()
                     .flat_map_iter(|e| {
@@ -170,6 +171,7 @@ pub(crate) fn extract<D: Describer>(
                     .collect();
                 let next = space.decimate_core(&stack, band, next_h);
                 let kept = keep[b].then(|| stack.gauss.drain(1..=layers).collect());
+                stack.recycle(&pool);
                 BandResult {
                     found,
                     next_rows: next,
@@ -244,8 +246,9 @@ pub(crate) fn extract<D: Describer>(
             let layer_planes: &[Plane] = match &record.kept[*b] {
                 Some(planes) => planes,
                 None => {
-                    let mut stack = space.stack(&record.octave.base, band, layers, false);
+                    let mut stack = space.stack(&record.octave.base, band, layers, &pool);
                     recomputed = stack.gauss.drain(1..).collect::<Vec<_>>();
+                    stack.recycle(&pool);
                     &recomputed
                 }
             };

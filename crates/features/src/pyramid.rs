@@ -41,13 +41,80 @@ pub(crate) struct Band {
     pub rows: Range<usize>,
 }
 
-/// The Gaussian layers (and, for detection, the differences of Gaussians) of one band.
+/// The Gaussian layers of one band. Differences of Gaussians are not stored: they are formed
+/// where they are read, which saves as many planes as there are layers.
 #[derive(Debug)]
 pub(crate) struct BandStack {
     /// Octave row of local row 0.
     pub row0: usize,
     pub gauss: Vec<Plane>,
-    pub dog: Vec<Plane>,
+}
+
+impl BandStack {
+    /// The difference of Gaussians `s` (layer s+1 minus layer s) at (x, y), band-local.
+    #[inline]
+    pub fn dog(&self, s: usize, x: usize, y: usize) -> f32 {
+        self.gauss[s + 1].at(x, y) - self.gauss[s].at(x, y)
+    }
+
+    /// Width of the planes.
+    pub fn width(&self) -> usize {
+        self.gauss[0].width
+    }
+
+    /// Rows of the planes.
+    pub fn rows(&self) -> usize {
+        self.gauss[0].height
+    }
+
+    /// Returns every plane to `pool`.
+    pub fn recycle(self, pool: &PlanePool) {
+        for plane in self.gauss {
+            pool.give(plane.data);
+        }
+    }
+}
+
+/// Buffers of planes freed by one band and reused by the next (or by the next, smaller,
+/// octave): the scale space of a large image otherwise spends much of its time having the kernel
+/// zero fresh pages.
+#[derive(Debug, Default)]
+pub(crate) struct PlanePool {
+    free: std::sync::Mutex<Vec<Vec<f32>>>,
+}
+
+impl PlanePool {
+    /// A buffer of `len` values (contents unspecified), reused when one is large enough.
+    pub fn take(&self, len: usize) -> Vec<f32> {
+        let reused = {
+            let mut free = self.free.lock().unwrap_or_else(|p| p.into_inner());
+            let best = free
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| v.capacity() >= len)
+                .min_by_key(|(_, v)| v.capacity())
+                .map(|(i, _)| i);
+            best.map(|i| free.swap_remove(i))
+        };
+        match reused {
+            Some(mut v) => {
+                // Shrinking or growing within capacity: no new pages.
+                v.resize(len, 0.0);
+                v
+            }
+            None => vec![0.0; len],
+        }
+    }
+
+    /// Hands a buffer back for reuse.
+    pub fn give(&self, buffer: Vec<f32>) {
+        if buffer.capacity() > 0 {
+            self.free
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .push(buffer);
+        }
+    }
 }
 
 /// The blur plan shared by every octave.
@@ -90,9 +157,9 @@ impl ScaleSpace {
         self.sigma * 2f64.powf(s / self.layers as f64)
     }
 
-    /// Bytes of a detection stack (all Gaussian layers and differences) per octave row.
+    /// Bytes of a detection stack (all Gaussian layers and the blur scratch) per octave row.
     fn stack_bytes_per_row(&self, width: usize) -> usize {
-        (2 * self.layers + 5) * width * std::mem::size_of::<f32>()
+        (self.layers + 4) * width * std::mem::size_of::<f32>()
     }
 
     /// Splits an octave's rows into bands whose detection stacks fit the memory budget when one
@@ -120,43 +187,36 @@ impl ScaleSpace {
             .collect()
     }
 
-    /// The Gaussian layers 0 ..= `top` of `band` (and their differences when `with_dog`).
-    pub fn stack(&self, base: &Plane, band: &Band, top: usize, with_dog: bool) -> BandStack {
+    /// The Gaussian layers 0 ..= `top` of `band`, in buffers from `pool`.
+    pub fn stack(&self, base: &Plane, band: &Band, top: usize, pool: &PlanePool) -> BandStack {
         let w = base.width;
-        let first = Plane {
-            width: w,
-            height: band.rows.len(),
-            data: base.data[band.rows.start * w..band.rows.end * w].to_vec(),
-        };
+        let rows = band.rows.len();
+        let mut first = pool.take(w * rows);
+        first.copy_from_slice(&base.data[band.rows.start * w..band.rows.end * w]);
         let mut gauss = Vec::with_capacity(top + 1);
-        gauss.push(first);
-        let mut scratch = Plane::default();
+        gauss.push(Plane {
+            width: w,
+            height: rows,
+            data: first,
+        });
+        let mut scratch = Plane {
+            width: w,
+            height: rows,
+            data: pool.take(w * rows),
+        };
         for (s, kernel) in self.increments[..top].iter().enumerate() {
-            let mut next = Plane::default();
+            let mut next = Plane {
+                width: w,
+                height: rows,
+                data: pool.take(w * rows),
+            };
             blur(&gauss[s], kernel, &mut next, &mut scratch);
             gauss.push(next);
         }
-        let dog = if with_dog {
-            gauss
-                .windows(2)
-                .map(|pair| Plane {
-                    width: w,
-                    height: pair[0].height,
-                    data: pair[1]
-                        .data
-                        .iter()
-                        .zip(&pair[0].data)
-                        .map(|(b, a)| b - a)
-                        .collect(),
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
+        pool.give(scratch.data);
         BandStack {
             row0: band.rows.start,
             gauss,
-            dog,
         }
     }
 
