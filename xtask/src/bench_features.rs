@@ -59,6 +59,8 @@ pub struct FeaturesBench {
     pub budget: usize,
     pub quality: bool,
     pub speed: bool,
+    /// Also time a 100 MP image and report the process's peak memory.
+    pub large: bool,
 }
 
 pub fn run(options: &FeaturesBench) -> anyhow::Result<()> {
@@ -71,6 +73,9 @@ pub fn run(options: &FeaturesBench) -> anyhow::Result<()> {
     }
     if options.speed {
         speed(&dir, &script)?;
+    }
+    if options.large {
+        large(&dir)?;
     }
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
@@ -493,6 +498,79 @@ fn speed(dir: &Path, script: &Path) -> anyhow::Result<()> {
                 "  {label:<22} {threads:>7} {ours:>14.3} {ours_ldb:>14.3} {opencv_text:>16} {colmap_text:>16} {kp_ours:>10.0} {kp_opencv:>10}"
             );
         }
+    }
+    Ok(())
+}
+
+/// Peak resident memory of this process so far, MiB (Linux `VmHWM`).
+fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// Extracts SIFT from one image in this (fresh) process and prints seconds, keypoints and peak
+/// memory as JSON: the child side of the 100 MP run.
+pub fn measure_one(path: &Path, budget: usize, memory_mib: usize) -> anyhow::Result<()> {
+    let before = peak_rss_mib();
+    let start = Instant::now();
+    let image = timesift_io::image::read_grey(path)?;
+    let decoded = start.elapsed().as_secs_f64();
+    let grey = GreyImage::from_io(&image)?;
+    let features = SiftExtractor {
+        detector: DetectorOptions {
+            memory_budget: memory_mib << 20,
+            ..detector(budget)
+        },
+        normalization: SiftNormalization::L2,
+    }
+    .extract(&grey, None)?;
+    println!(
+        "{}",
+        serde_json::json!({
+            "width": image.width, "height": image.height,
+            "seconds": start.elapsed().as_secs_f64(), "decode_seconds": decoded,
+            "keypoints": features.keypoints.len(),
+            "peak_rss_mib": peak_rss_mib(), "rss_before_mib": before,
+            "grey_image_mib": (image.data.len() * 4) as f64 / (1024.0 * 1024.0),
+        })
+    );
+    Ok(())
+}
+
+/// A 100 MP image (a lund photo upsampled to 11548 × 8660), extracted in a fresh process per
+/// thread count and scale-space budget: time and peak memory.
+fn large(dir: &Path) -> anyhow::Result<()> {
+    let lund = crate::shared_data().join("opensfm/lund/images/01.jpg");
+    println!();
+    let path = dir.join("100mp.png");
+    let big = image::open(&lund)?.resize_exact(11548, 8660, image::imageops::FilterType::Triangle);
+    big.to_luma8().save(&path)?;
+    drop(big);
+    for (threads, memory_mib) in [(1, 512), (2, 512), (2, 256), (2, 1024)] {
+        let output = Command::new(std::env::current_exe()?)
+            .args(["bench", "features", "--measure-one"])
+            .arg(&path)
+            .args(["--memory-mib", &memory_mib.to_string()])
+            .env("RAYON_NUM_THREADS", threads.to_string())
+            .output()?;
+        if !output.status.success() {
+            bail!("{}", String::from_utf8_lossy(&output.stderr));
+        }
+        let report: serde_json::Value = serde_json::from_slice(&output.stdout)?;
+        println!(
+            "100 MP ({} x {}), {threads} thread(s), scale-space budget {memory_mib} MiB: {:.1} s \
+             ({:.1} s decoding), {} keypoints, peak memory {:.0} MiB (the decoded grey image alone: \
+             {:.0} MiB)",
+            report["width"],
+            report["height"],
+            report["seconds"].as_f64().unwrap_or(f64::NAN),
+            report["decode_seconds"].as_f64().unwrap_or(f64::NAN),
+            report["keypoints"],
+            report["peak_rss_mib"].as_f64().unwrap_or(f64::NAN),
+            report["grey_image_mib"].as_f64().unwrap_or(f64::NAN),
+        );
     }
     Ok(())
 }

@@ -87,6 +87,15 @@ enum BenchStage {
         /// Only the speed comparison.
         #[arg(long)]
         speed_only: bool,
+        /// Also a 100 MP image: seconds and peak memory, in a fresh process.
+        #[arg(long)]
+        large: bool,
+        /// Internal: extract one image and print seconds and peak memory as JSON.
+        #[arg(long, hide = true)]
+        measure_one: Option<PathBuf>,
+        /// Internal: scale-space memory budget of `--measure-one`, MiB.
+        #[arg(long, hide = true, default_value_t = 512)]
+        memory_mib: usize,
     },
     /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
     Change {
@@ -126,12 +135,19 @@ fn main() -> anyhow::Result<()> {
                     budget,
                     quality_only,
                     speed_only,
+                    large,
+                    measure_one,
+                    memory_mib,
                 },
-        } => bench_features::run(&bench_features::FeaturesBench {
-            budget,
-            quality: !speed_only,
-            speed: !quality_only,
-        })?,
+        } => match measure_one {
+            Some(path) => bench_features::measure_one(&path, 8192, memory_mib)?,
+            None => bench_features::run(&bench_features::FeaturesBench {
+                budget,
+                quality: !speed_only,
+                speed: !quality_only,
+                large,
+            })?,
+        },
         Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,

@@ -53,31 +53,18 @@ fn rows_per_job(width: usize) -> usize {
     (16_384 / width.max(1)).clamp(1, 64)
 }
 
-/// Blurs `src` into `dst` (same size) with `kernel` in both directions; `scratch` is resized as
-/// needed and holds the vertical pass.
-pub(crate) fn blur(src: &Plane, kernel: &Kernel, dst: &mut Plane, scratch: &mut Plane) {
-    let (w, h) = (src.width, src.height);
-    scratch.width = w;
-    scratch.height = h;
-    scratch.data.resize(w * h, 0.0);
+/// Blurs `src` (`width` values per row) into `dst` with `kernel` in both directions: the vertical
+/// pass writes `dst`, the horizontal pass then works in place, row by row, so no second plane is
+/// needed. `dst` is resized as needed.
+pub(crate) fn blur(src: &[f32], width: usize, kernel: &Kernel, dst: &mut Plane) {
+    let w = width;
+    let h = src.len() / w;
     dst.width = w;
     dst.height = h;
     dst.data.resize(w * h, 0.0);
     let taps = &kernel.taps;
-    let radius = kernel.radius();
+    let pad = kernel.radius();
     let chunk = rows_per_job(w);
-    // Vertical pass: each output row is a weighted sum of whole input rows.
-    scratch
-        .data
-        .par_chunks_mut(w * chunk)
-        .enumerate()
-        .for_each(|(job, out_rows)| {
-            for (k, out) in out_rows.chunks_mut(w).enumerate() {
-                vertical_row(out, src, job * chunk + k, taps);
-            }
-        });
-    // Horizontal pass over a reflected copy of each row.
-    let pad = radius;
     dst.data
         .par_chunks_mut(w * chunk)
         .enumerate()
@@ -85,11 +72,14 @@ pub(crate) fn blur(src: &Plane, kernel: &Kernel, dst: &mut Plane, scratch: &mut 
             || vec![0.0f32; w + 2 * pad],
             |padded, (job, out_rows)| {
                 for (k, out) in out_rows.chunks_mut(w).enumerate() {
-                    let row = scratch.row(job * chunk + k);
-                    padded[pad..pad + w].copy_from_slice(row);
+                    // Vertical: each output row is a weighted sum of whole input rows.
+                    vertical_row(&mut padded[pad..pad + w], src, w, job * chunk + k, taps);
+                    // Horizontal, from a reflected copy of the row.
+                    let (left, rest) = padded.split_at_mut(pad);
+                    let (row, right) = rest.split_at_mut(w);
                     for i in 0..pad {
-                        padded[i] = row[reflect(i as isize - pad as isize, w)];
-                        padded[pad + w + i] = row[reflect((w + i) as isize, w)];
+                        left[i] = row[reflect(i as isize - pad as isize, w)];
+                        right[i] = row[reflect((w + i) as isize, w)];
                     }
                     horizontal_row(out, padded, taps);
                 }
@@ -97,32 +87,33 @@ pub(crate) fn blur(src: &Plane, kernel: &Kernel, dst: &mut Plane, scratch: &mut 
         );
 }
 
-/// Row `y` of `src` blurred vertically into `out`.
-fn vertical_row(out: &mut [f32], src: &Plane, y: usize, taps: &[f32]) {
+/// Row `y` of `src` (`w` values per row) blurred vertically into `out`.
+fn vertical_row(out: &mut [f32], src: &[f32], w: usize, y: usize, taps: &[f32]) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
-        return unsafe { vertical_row_avx2(out, src, y, taps) };
+        return unsafe { vertical_row_avx2(out, src, w, y, taps) };
     }
-    vertical_row_portable(out, src, y, taps)
+    vertical_row_portable(out, src, w, y, taps)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn vertical_row_avx2(out: &mut [f32], src: &Plane, y: usize, taps: &[f32]) {
-    vertical_row_portable(out, src, y, taps)
+unsafe fn vertical_row_avx2(out: &mut [f32], src: &[f32], w: usize, y: usize, taps: &[f32]) {
+    vertical_row_portable(out, src, w, y, taps)
 }
 
 #[inline(always)]
-fn vertical_row_portable(out: &mut [f32], src: &Plane, y: usize, taps: &[f32]) {
-    let h = src.height;
-    let centre = src.row(y);
+fn vertical_row_portable(out: &mut [f32], src: &[f32], w: usize, y: usize, taps: &[f32]) {
+    let h = src.len() / w;
+    let row = |r: usize| &src[r * w..(r + 1) * w];
+    let centre = row(y);
     for (o, &c) in out.iter_mut().zip(centre) {
         *o = taps[0] * c;
     }
     for (d, &t) in taps.iter().enumerate().skip(1) {
-        let up = src.row(reflect(y as isize - d as isize, h));
-        let down = src.row(reflect((y + d) as isize, h));
+        let up = row(reflect(y as isize - d as isize, h));
+        let down = row(reflect((y + d) as isize, h));
         for ((o, &a), &b) in out.iter_mut().zip(up).zip(down) {
             *o += t * (a + b);
         }
@@ -165,8 +156,9 @@ fn horizontal_row_portable(out: &mut [f32], padded: &[f32], taps: &[f32]) {
 /// The image at twice the resolution, such that pixel index `j` of the result sits at index `j/2`
 /// of the source: even pixels copy the source, odd ones interpolate linearly. (Index-exact, so
 /// keypoint coordinates map back by a factor of 2 with no half-pixel shift.)
-pub(crate) fn upsample2(src: &Plane) -> Plane {
-    let (w, h) = (src.width, src.height);
+pub(crate) fn upsample2(src: &[f32], w: usize) -> Plane {
+    let h = src.len() / w;
+    let row = |r: usize| &src[r * w..(r + 1) * w];
     let (w2, h2) = (2 * w, 2 * h);
     let mut out = Plane::zeros(w2, h2);
     out.data
@@ -176,7 +168,7 @@ pub(crate) fn upsample2(src: &Plane) -> Plane {
             let y0 = y2 / 2;
             let y1 = (y0 + 1).min(h - 1);
             let fy = if y2 % 2 == 1 { 0.5 } else { 0.0 };
-            let (r0, r1) = (src.row(y0), src.row(y1));
+            let (r0, r1) = (row(y0), row(y1));
             for (x2, o) in out_row.iter_mut().enumerate() {
                 let x0 = x2 / 2;
                 let x1 = (x0 + 1).min(w - 1);
@@ -212,13 +204,13 @@ mod tests {
     fn blur_preserves_a_constant_and_the_mean_of_an_impulse() {
         let mut p = Plane::zeros(31, 17);
         p.data.iter_mut().for_each(|v| *v = 0.25);
-        let (mut out, mut scratch) = (Plane::default(), Plane::default());
-        blur(&p, &Kernel::gaussian(2.0), &mut out, &mut scratch);
+        let mut out = Plane::default();
+        blur(&p.data, p.width, &Kernel::gaussian(2.0), &mut out);
         assert!(out.data.iter().all(|v| (v - 0.25).abs() < 1e-6));
         // An impulse far from the borders: the blur is a sampled Gaussian of the right variance.
         let mut p = Plane::zeros(41, 41);
         p.data[20 * 41 + 20] = 1.0;
-        blur(&p, &Kernel::gaussian(2.0), &mut out, &mut scratch);
+        blur(&p.data, p.width, &Kernel::gaussian(2.0), &mut out);
         let sum: f32 = out.data.iter().sum();
         let var: f32 = (0..41)
             .map(|x| (x as f32 - 20.0).powi(2) * out.at(x, 20))
@@ -234,7 +226,7 @@ mod tests {
         for (i, v) in p.data.iter_mut().enumerate() {
             *v = i as f32;
         }
-        let up = upsample2(&p);
+        let up = upsample2(&p.data, p.width);
         assert_eq!((up.width, up.height), (8, 6));
         assert_eq!(up.at(2, 2), p.at(1, 1));
         assert_eq!(up.at(3, 2), 0.5 * (p.at(1, 1) + p.at(2, 1)));

@@ -2,7 +2,7 @@
 //! octaves, apply the keypoint budget, then describe only the keypoints kept.
 //!
 //! Describing needs the Gaussian layers of the detection pass. They are kept between the passes
-//! while they fit in half the memory budget, and recomputed band by band otherwise: small images
+//! while they fit in a quarter of the memory budget, and recomputed band by band otherwise: small images
 //! pay nothing, 100 MP scans stay within the budget.
 
 use std::collections::{BTreeMap, HashSet};
@@ -103,7 +103,9 @@ pub(crate) fn extract<D: Describer>(
         edge_ratio: options.edge_ratio,
     };
     let keep_layers = describer.width() > 0;
-    let mut keep_budget = options.memory_budget / 2;
+    // A quarter of the budget keeps finished bands' layers; detection bands get half (see
+    // `ScaleSpace::bands`); the rest is headroom for the recomputation in the description pass.
+    let mut keep_budget = options.memory_budget / 4;
     let mut records: Vec<OctaveRecord> = Vec::new();
     let mut candidates: Vec<Candidate> = Vec::new();
     let pool = PlanePool::default();

@@ -157,23 +157,25 @@ impl ScaleSpace {
         self.sigma * 2f64.powf(s / self.layers as f64)
     }
 
-    /// Bytes of a detection stack (all Gaussian layers and the blur scratch) per octave row.
+    /// Bytes of a detection stack (all Gaussian layers) per octave row.
     fn stack_bytes_per_row(&self, width: usize) -> usize {
-        (self.layers + 4) * width * std::mem::size_of::<f32>()
+        (self.layers + 3) * width * std::mem::size_of::<f32>()
     }
 
-    /// Splits an octave's rows into bands whose detection stacks fit the memory budget when one
-    /// band per thread runs at once.
+    /// Splits an octave's rows into bands whose detection stacks fit half the memory budget when
+    /// one band per thread runs at once.
     pub fn bands(&self, width: usize, height: usize) -> Vec<Band> {
         let per_row = self.stack_bytes_per_row(width);
-        if per_row * height <= self.memory_budget {
+        // Half the budget for the bands in flight, one per thread.
+        let budget = self.memory_budget / 2;
+        if per_row * height <= budget {
             return vec![Band {
                 core: 0..height,
                 rows: 0..height,
             }];
         }
         let threads = rayon::current_num_threads().max(1);
-        let rows_fit = self.memory_budget / (threads * per_row);
+        let rows_fit = budget / (threads * per_row);
         let core = rows_fit.saturating_sub(2 * self.margin).max(64);
         (0..height)
             .step_by(core)
@@ -199,21 +201,15 @@ impl ScaleSpace {
             height: rows,
             data: first,
         });
-        let mut scratch = Plane {
-            width: w,
-            height: rows,
-            data: pool.take(w * rows),
-        };
         for (s, kernel) in self.increments[..top].iter().enumerate() {
             let mut next = Plane {
                 width: w,
                 height: rows,
                 data: pool.take(w * rows),
             };
-            blur(&gauss[s], kernel, &mut next, &mut scratch);
+            blur(&gauss[s].data, w, kernel, &mut next);
             gauss.push(next);
         }
-        pool.give(scratch.data);
         BandStack {
             row0: band.rows.start,
             gauss,
@@ -240,29 +236,31 @@ impl ScaleSpace {
 
 /// The first octave's base: the image (doubled or not) blurred from its assumed blur to σ.
 pub(crate) fn first_octave(image: &GreyImage, options: &DetectorOptions) -> Octave {
-    let plane = Plane {
-        width: image.width(),
-        height: image.height(),
-        data: image.data().to_vec(),
-    };
     let pixels = (image.width() * image.height()) as u64;
     let double = match options.upsample {
         Upsample::Never => false,
         Upsample::Always => true,
         Upsample::UpToPixels(max) => pixels <= max,
     };
-    let (index, plane, present) = if double {
-        (-1, upsample2(&plane), 2.0 * options.assumed_blur)
+    let present = if double {
+        2.0 * options.assumed_blur
     } else {
-        (0, plane, options.assumed_blur)
+        options.assumed_blur
     };
     let missing = (options.sigma * options.sigma - present * present)
         .max(0.01)
         .sqrt();
+    let kernel = Kernel::gaussian(missing);
     let mut base = Plane::default();
-    let mut scratch = Plane::default();
-    blur(&plane, &Kernel::gaussian(missing), &mut base, &mut scratch);
-    Octave { index, base }
+    if double {
+        let up = upsample2(image.data(), image.width());
+        blur(&up.data, up.width, &kernel, &mut base);
+        Octave { index: -1, base }
+    } else {
+        // Straight from the caller's pixels: no copy of a 100 MP image.
+        blur(image.data(), image.width(), &kernel, &mut base);
+        Octave { index: 0, base }
+    }
 }
 
 /// Whether an octave of this size still holds keypoints.
