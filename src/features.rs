@@ -39,14 +39,24 @@ pub struct FeaturesRequest {
 pub fn features(request: &FeaturesRequest) -> anyhow::Result<Features> {
     let image = timesift_io::image::read_grey(&request.image)?;
     let grey = GreyImage::from_io(&image).with_context(|| request.image.display().to_string())?;
-    let mask_pixels = request.mask.as_deref().map(read_mask).transpose()?;
+    let mask_pixels = match request.mask.as_deref() {
+        Some(path) => {
+            let (w, h, data) = read_mask(path)?;
+            if (w, h) != (grey.width(), grey.height()) {
+                anyhow::bail!(
+                    "mask {} is {w} × {h} px but the image {} is {} × {} px",
+                    path.display(),
+                    request.image.display(),
+                    grey.width(),
+                    grey.height()
+                );
+            }
+            Some((w, h, data))
+        }
+        None => None,
+    };
     let mask = match &mask_pixels {
-        Some((w, h, data)) => Some(Mask::new(*w, *h, data).with_context(|| {
-            format!(
-                "mask {}",
-                request.mask.as_deref().unwrap_or(Path::new("")).display()
-            )
-        })?),
+        Some((w, h, data)) => Some(Mask::new(*w, *h, data)?),
         None => None,
     };
     let detector = DetectorOptions {

@@ -35,13 +35,26 @@ pub(crate) struct ExtremumTests {
 /// the extremum it started from.
 pub(crate) const MAX_REFINE_STEPS: usize = 5;
 
+/// How far (in layers) beyond the half-way point to the next octave an octave still keeps an
+/// extremum. Fits of the same blob in two octaves disagree by a few hundredths of a layer; the
+/// overlap makes sure one of them keeps it, and `extract` removes the duplicates.
+pub(crate) const SCALE_SLACK: f64 = 0.25;
+
 /// All refined extrema whose final sample lies in the band's core rows. Starting samples are
 /// sought up to `MAX_REFINE_STEPS` rows beyond the core, so that each keypoint is found by exactly
 /// the band that owns it, as if the octave were whole.
+///
+/// Scales are shared out the same way: extrema are sought in layers 1 ..= L + 1, and an octave
+/// keeps refined scales below L + 0.5 + `SCALE_SLACK` (the last octave keeps all); refinement
+/// may settle up to 0.5 + `SCALE_SLACK` layers beyond the searched layers. Searching L layers only,
+/// as Lowe and OpenCV do, loses blobs whose scale falls half-way between two octaves: the
+/// discrete maximum is then in layer L + 1 of one octave and layer 0 of the next, and neither is
+/// searched.
 pub(crate) fn find_extrema(
     stack: &BandStack,
     band: &Band,
     octave_height: usize,
+    last_octave: bool,
     tests: &ExtremumTests,
 ) -> Vec<Extremum> {
     let width = stack.width();
@@ -57,7 +70,7 @@ pub(crate) fn find_extrema(
     let rows: Vec<usize> = (first..last)
         .filter(|&y| y >= BORDER && y + BORDER < octave_height)
         .collect();
-    let differences = tests.layers + 2;
+    let differences = tests.layers + 3;
     rows.par_iter()
         .map_init(
             // Per job: the three rows around y of every difference of Gaussians, and flags.
@@ -79,7 +92,7 @@ pub(crate) fn find_extrema(
                     let at = |dy: usize| &dog_rows[(s * 3 + dy) * width..(s * 3 + dy + 1) * width];
                     [at(0), at(1), at(2)]
                 };
-                for s in 1..=tests.layers {
+                for s in 1..=tests.layers + 1 {
                     let (below, here, above) = (rows_of(s - 1), rows_of(s), rows_of(s + 1));
                     planar_extrema(here, tests.prefilter, flags);
                     for x in BORDER..width - BORDER {
@@ -88,6 +101,7 @@ pub(crate) fn find_extrema(
                         }
                         if let Some(e) = refine(stack, x, ly, s, octave_height, tests)
                             && band.core.contains(&e.row)
+                            && (e.s < tests.layers as f64 + 0.5 + SCALE_SLACK || last_octave)
                         {
                             found.push(e);
                         }
@@ -180,8 +194,9 @@ fn refine(
     let width = stack.width();
     let local_rows = stack.rows();
     let (mut x, mut y, mut s) = (x0 as isize, y0 as isize, s0 as isize);
-    let mut previous = None;
-    for _ in 0..MAX_REFINE_STEPS {
+    let mut visited = [(0isize, 0isize, 0isize); MAX_REFINE_STEPS];
+    for step_count in 0..MAX_REFINE_STEPS {
+        visited[step_count] = (x, y, s);
         let d = |ds: isize, dy: isize, dx: isize| -> f64 {
             stack.dog((s + ds) as usize, (x + dx) as usize, (y + dy) as usize) as f64
         };
@@ -201,14 +216,23 @@ fn refine(
         let mut offset = solve3(&h, &g)?.map(|v| -v);
         // One sample at most per step: the reach of refinement stays within MAX_REFINE_STEPS
         // samples, which bands of rows rely on.
-        let step = offset.map(|o| (o.round() as isize).clamp(-1, 1));
-        // An extremum half-way between two samples can send the fit back and forth between them:
-        // it is then found, between the two.
-        let returning = previous == Some((x + step[0], y + step[1], s + step[2]));
-        if returning {
-            offset = offset.map(|o| o.clamp(-0.5, 0.5));
+        let mut step = offset.map(|o| (o.round() as isize).clamp(-1, 1));
+        // Beyond the searched layers, the fit may still settle a little past the half-way point
+        // (the neighbouring octave has its own, slightly different, fit of the same blob).
+        let next_layer = s + step[2];
+        if (next_layer < 1 || next_layer > tests.layers as isize + 1)
+            && offset[2].abs() < 0.5 + SCALE_SLACK
+        {
+            step[2] = 0;
         }
-        if returning || offset.iter().all(|o| o.abs() < 0.5) {
+        // An extremum half-way between samples can send the fit round a cycle of them (back and
+        // forth, or round a square in space and scale): it is then found, between them.
+        let returning = step != [0, 0, 0]
+            && visited[..step_count].contains(&(x + step[0], y + step[1], s + step[2]));
+        if returning {
+            offset = offset.map(|o| o.clamp(-0.5 - SCALE_SLACK, 0.5 + SCALE_SLACK));
+        }
+        if returning || step == [0, 0, 0] {
             let contrast =
                 d(0, 0, 0) + 0.5 * (g[0] * offset[0] + g[1] * offset[1] + g[2] * offset[2]);
             if contrast.abs() * (tests.layers as f64) < tests.contrast {
@@ -237,13 +261,12 @@ fn refine(
         if offset.iter().any(|o| o.abs() > 1e6) {
             return None;
         }
-        previous = Some((x, y, s));
         x += step[0];
         y += step[1];
         s += step[2];
         let global_y = y + stack.row0 as isize;
         if s < 1
-            || s > tests.layers as isize
+            || s > tests.layers as isize + 1
             || x < BORDER as isize
             || x >= (width - BORDER) as isize
             || global_y < BORDER as isize
@@ -257,12 +280,14 @@ fn refine(
     None
 }
 
-/// Offset of the peak of the Gaussian through three equally spaced samples of one sign around an
-/// extremum at the middle one; `None` when the samples do not describe such a peak.
+/// Offset of the peak of the Gaussian through three equally spaced samples of one sign around
+/// the middle one; `None` when the samples are not log-concave or the peak lies beyond them. The
+/// middle sample need not be the largest: an extremum half-way between two samples is placed
+/// right too.
 fn log_parabola_peak(before: f64, at: f64, after: f64) -> Option<f64> {
     let sign = at.signum();
     let (b, a, c) = (before * sign, at * sign, after * sign);
-    if !(b > 0.0 && c > 0.0 && a >= b && a >= c) {
+    if !(b > 0.0 && c > 0.0 && a > 0.0) {
         return None;
     }
     let (lb, la, lc) = (b.ln(), a.ln(), c.ln());
@@ -271,7 +296,7 @@ fn log_parabola_peak(before: f64, at: f64, after: f64) -> Option<f64> {
         return None;
     }
     let offset = 0.5 * (lb - lc) / curvature;
-    (offset.abs() <= 0.5).then_some(offset)
+    (offset.abs() <= 1.0).then_some(offset)
 }
 
 /// Solves the 3×3 system `h x = g` by Cramer's rule; `None` when `h` is singular.
@@ -303,7 +328,7 @@ mod tests {
 
     #[test]
     fn log_parabola_is_exact_on_a_gaussian() {
-        for &centre in &[-0.49, -0.3, 0.0, 0.17, 0.45] {
+        for &centre in &[-0.49, -0.3, 0.0, 0.17, 0.45, 0.8, -0.95] {
             let g = |x: f64| -2.0 * (-(x - centre).powi(2) / (2.0 * 1.3f64.powi(2))).exp();
             let got = log_parabola_peak(g(-1.0), g(0.0), g(1.0)).unwrap();
             assert!((got - centre).abs() < 1e-12, "{got} vs {centre}");

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use timesift_core::Keypoint;
 
 use crate::FeatureError;
-use crate::detect::{ExtremumTests, find_extrema};
+use crate::detect::{ExtremumTests, SCALE_SLACK, find_extrema};
 use crate::image::{GreyImage, Mask, Plane};
 use crate::limit::select_spread;
 use crate::options::{DetectorOptions, Orientation};
@@ -48,6 +48,8 @@ pub(crate) trait Describer: Sync {
 struct Candidate {
     keypoint: Keypoint,
     octave: usize,
+    /// Refined layer (fractional) in its octave.
+    s: f64,
     band: usize,
     layer: usize,
     x: f64,
@@ -60,7 +62,7 @@ struct BandResult {
     found: Vec<Candidate>,
     /// The band's rows of the next octave's base.
     next_rows: Vec<f32>,
-    /// Gaussian layers 1 ..= L, when kept for description.
+    /// Gaussian layers 1 ..= L + 1, when kept for description.
     kept: Option<Vec<Plane>>,
 }
 
@@ -71,7 +73,7 @@ type BandMembers = ((usize, usize), Vec<(usize, usize)>);
 struct OctaveRecord {
     octave: Octave,
     bands: Vec<Band>,
-    /// Gaussian layers 1 ..= L of each band, when kept.
+    /// Gaussian layers 1 ..= L + 1 of each band, when kept.
     kept: Vec<Option<Vec<Plane>>>,
 }
 
@@ -116,7 +118,7 @@ pub(crate) fn extract<D: Describer>(
         let keep: Vec<bool> = bands
             .iter()
             .map(|band| {
-                let bytes = layers * w * band.rows.len() * std::mem::size_of::<f32>();
+                let bytes = (layers + 1) * w * band.rows.len() * std::mem::size_of::<f32>();
                 let fits = keep_layers && bytes <= keep_budget;
                 if fits {
                     keep_budget -= bytes;
@@ -131,8 +133,9 @@ pub(crate) fn extract<D: Describer>(
             .enumerate()
             .map(|(b, band)| {
                 let space = &space;
-                let mut stack = space.stack(&octave.base, band, layers + 2, &pool);
-                let found: Vec<Candidate> = find_extrema(&stack, band, h, &tests)
+                let mut stack = space.stack(&octave.base, band, layers + 3, &pool);
+                let last = !octave_is_usable(next_w, next_h);
+                let found: Vec<Candidate> = find_extrema(&stack, band, h, last, &tests)
                     .into_par_iter()
                     .flat_map_iter(|e| {
                         let space = &space;
@@ -163,6 +166,7 @@ pub(crate) fn extract<D: Describer>(
                                 octave: octave.index as i16,
                             },
                             octave: slot,
+                            s: e.s,
                             band: b,
                             layer: e.layer,
                             x: e.x,
@@ -172,7 +176,7 @@ pub(crate) fn extract<D: Describer>(
                     })
                     .collect();
                 let next = space.decimate_core(&stack, band, next_h);
-                let kept = keep[b].then(|| stack.gauss.drain(1..=layers).collect());
+                let kept = keep[b].then(|| stack.gauss.drain(1..=layers + 1).collect());
                 stack.recycle(&pool);
                 BandResult {
                     found,
@@ -214,6 +218,7 @@ pub(crate) fn extract<D: Describer>(
             k.orientation.to_bits(),
         ))
     });
+    drop_octave_duplicates(&mut candidates, &records, layers);
     let selected: Vec<usize> = match options.limit {
         Some(limit) => {
             let points: Vec<(f64, f64, f32)> = candidates
@@ -248,7 +253,7 @@ pub(crate) fn extract<D: Describer>(
             let layer_planes: &[Plane] = match &record.kept[*b] {
                 Some(planes) => planes,
                 None => {
-                    let mut stack = space.stack(&record.octave.base, band, layers, &pool);
+                    let mut stack = space.stack(&record.octave.base, band, layers + 1, &pool);
                     recomputed = stack.gauss.drain(1..).collect::<Vec<_>>();
                     stack.recycle(&pool);
                     &recomputed
@@ -278,6 +283,56 @@ pub(crate) fn extract<D: Describer>(
         }
     }
     Ok((keypoints, descriptors))
+}
+
+/// Removes keypoints found twice, by the top layers of one octave and the bottom layers of the
+/// next (see `SCALE_SLACK`): the octave whose range holds the finer octave's fit keeps it.
+fn drop_octave_duplicates(
+    candidates: &mut Vec<Candidate>,
+    records: &[OctaveRecord],
+    layers: usize,
+) {
+    let top = layers as f64 + 0.5;
+    let mut drop = vec![false; candidates.len()];
+    for o in 0..records.len().saturating_sub(1) {
+        let step = records[o + 1].octave.step();
+        let mut lower: Vec<usize> = (0..candidates.len())
+            .filter(|&i| candidates[i].octave == o + 1 && candidates[i].s < 0.5 + SCALE_SLACK)
+            .collect();
+        lower.sort_by(|&a, &b| {
+            candidates[a]
+                .keypoint
+                .x
+                .total_cmp(&candidates[b].keypoint.x)
+        });
+        let reach = 0.75 * step;
+        for i in (0..candidates.len())
+            .filter(|&i| candidates[i].octave == o && candidates[i].s >= top - SCALE_SLACK)
+        {
+            let a = candidates[i];
+            let first = lower.partition_point(|&j| candidates[j].keypoint.x < a.keypoint.x - reach);
+            for &j in &lower[first..] {
+                let b = candidates[j];
+                if b.keypoint.x > a.keypoint.x + reach {
+                    break;
+                }
+                let same_place = (b.keypoint.y - a.keypoint.y).abs() <= reach;
+                let same_scale = (a.s - (b.s + layers as f64)).abs() < 0.5;
+                if same_place && same_scale {
+                    if a.s < top {
+                        drop[j] = true;
+                    } else {
+                        drop[i] = true;
+                    }
+                }
+            }
+        }
+    }
+    let mut index = 0;
+    candidates.retain(|_| {
+        index += 1;
+        !drop[index - 1]
+    });
 }
 
 /// Detection only: no descriptor.

@@ -122,7 +122,7 @@ impl PlanePool {
 pub(crate) struct ScaleSpace {
     pub layers: usize,
     pub sigma: f64,
-    /// Kernels taking layer s−1 to layer s, s = 1 ..= layers + 2.
+    /// Kernels taking layer s−1 to layer s, s = 1 ..= layers + 3.
     pub increments: Vec<Kernel>,
     /// Rows of margin around a band's core.
     pub margin: usize,
@@ -134,14 +134,15 @@ impl ScaleSpace {
     pub fn new(options: &DetectorOptions, support: f64) -> Self {
         let layers = options.layers_per_octave;
         let k = 2f64.powf(1.0 / layers as f64);
-        let increments: Vec<Kernel> = (1..layers + 3)
+        let increments: Vec<Kernel> = (1..layers + 4)
             .map(|s| {
                 let previous = options.sigma * k.powi(s as i32 - 1);
                 Kernel::gaussian(previous * (k * k - 1.0).sqrt())
             })
             .collect();
         let blur_reach: usize = increments.iter().map(Kernel::radius).sum();
-        let max_sigma = options.sigma * 2f64.powf((layers as f64 + 0.5) / layers as f64);
+        // The last octave keeps keypoints up to layer L + 1.5.
+        let max_sigma = options.sigma * 2f64.powf((layers as f64 + 1.5) / layers as f64);
         let descriptor_reach = (support.max(4.5) * max_sigma).ceil() as usize;
         Self {
             layers,
@@ -159,7 +160,7 @@ impl ScaleSpace {
 
     /// Bytes of a detection stack (all Gaussian layers) per octave row.
     fn stack_bytes_per_row(&self, width: usize) -> usize {
-        (self.layers + 3) * width * std::mem::size_of::<f32>()
+        (self.layers + 4) * width * std::mem::size_of::<f32>()
     }
 
     /// Splits an octave's rows into bands whose detection stacks fit half the memory budget when

@@ -3,7 +3,13 @@
 
 use timesift_features::{DetectorOptions, GreyImage, detect};
 
-/// A dark background with bright and dark Gaussian blobs, point-sampled at pixel centres.
+/// Blur of the camera (optics and pixel integration) the detector assumes, pixels.
+const CAMERA_BLUR: f64 = 0.5;
+
+/// A grey background with bright and dark Gaussian blobs of the given σ in the scene, imaged as a
+/// camera would: through a Gaussian blur of `CAMERA_BLUR` (the detector's assumption about its
+/// input), then sampled at pixel centres. Without it the smallest blobs would look sharper than
+/// any photo shows them, and σ = 2 px would be under-estimated by 3 % for that reason alone.
 fn blob_image(width: usize, height: usize, blobs: &[(f64, f64, f64, f64)]) -> Vec<f32> {
     let mut data = vec![0.5f32; width * height];
     for (row, line) in data.chunks_mut(width).enumerate() {
@@ -11,7 +17,8 @@ fn blob_image(width: usize, height: usize, blobs: &[(f64, f64, f64, f64)]) -> Ve
             let (x, y) = (col as f64 + 0.5, row as f64 + 0.5);
             for &(cx, cy, sigma, amplitude) in blobs {
                 let d2 = (x - cx).powi(2) + (y - cy).powi(2);
-                *v += (amplitude * (-d2 / (2.0 * sigma * sigma)).exp()) as f32;
+                let variance = sigma * sigma + CAMERA_BLUR * CAMERA_BLUR;
+                *v += (amplitude * (-d2 / (2.0 * variance)).exp()) as f32;
             }
         }
     }
@@ -69,4 +76,33 @@ fn blobs_are_found_at_their_centre_and_scale() {
         "scale error {:.2} %",
         100.0 * worst_scale
     );
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+    /// Any single blob, at any sub-pixel position, σ from 2 to 12 px, bright or dark: found at its
+    /// centre and scale. The image leaves 8σ on each side: closer to the border, the reflected
+    /// image of the blob shifts the coarse octaves' extremum (0.18 px at 5σ for σ = 8.6).
+    #[test]
+    fn any_blob_is_recovered(
+        fx in 0.0f64..1.0,
+        fy in 0.0f64..1.0,
+        sigma in 2.0f64..12.0,
+        bright in proptest::bool::ANY,
+    ) {
+        let size = (16.0 * sigma).ceil() as usize + 20;
+        let (cx, cy) = (size as f64 / 2.0 + fx, size as f64 / 2.0 + fy);
+        let amplitude = if bright { 0.3 } else { -0.3 };
+        let data = blob_image(size, size, &[(cx, cy, sigma, amplitude)]);
+        let image = GreyImage::new(size, size, &data).unwrap();
+        let keypoints = detect(&image, None, &DetectorOptions::default()).unwrap();
+        let best = keypoints
+            .iter()
+            .map(|k| ((k.x - cx).hypot(k.y - cy), (k.scale / sigma - 1.0).abs()))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        proptest::prop_assert!(best.is_some(), "no keypoint for σ {sigma}");
+        let (position, scale) = best.unwrap();
+        proptest::prop_assert!(position < 0.1, "σ {sigma}: position error {position} px");
+        proptest::prop_assert!(scale < 0.05, "σ {sigma}: scale error {scale}");
+    }
 }

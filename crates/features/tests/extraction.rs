@@ -249,3 +249,30 @@ fn text_format_round_trips_and_reports_damage() {
     let err = read(&path, DescriptorKind::Float).unwrap_err().to_string();
     assert!(err.contains("bad.txt:1"), "{err}");
 }
+
+#[test]
+fn many_files_are_extracted_in_parallel_with_errors_per_image() {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/opensfm/lund/images");
+    let paths = vec![
+        dir.join("03.jpg"),
+        dir.join("missing.jpg"),
+        dir.join("04.jpg"),
+    ];
+    let results = std::sync::Mutex::new(Vec::new());
+    let extractor = LdbExtractor::default();
+    timesift_features::files::extract_files(&paths, &extractor, |i, path, result| {
+        results
+            .lock()
+            .unwrap()
+            .push((i, path.to_path_buf(), result.map(|f| f.keypoints.len())));
+    });
+    let mut results = results.into_inner().unwrap();
+    results.sort_by_key(|r| r.0);
+    assert_eq!(results.len(), 3);
+    let alone = timesift_features::files::extract_file(&paths[0], &extractor).unwrap();
+    assert_eq!(*results[0].2.as_ref().unwrap(), alone.keypoints.len());
+    let err = results[1].2.as_ref().unwrap_err().to_string();
+    assert!(err.contains("missing.jpg"), "{err}");
+    assert!(*results[2].2.as_ref().unwrap() > 1000);
+}
