@@ -1,6 +1,23 @@
-//! Descriptor matching, pair selection, geometric verification, track building and the
-//! inter-epoch stable-tie-point matcher (issue "Matching").
+//! Descriptor matching, pair selection, geometric verification and track building (issue
+//! "Matching").
 //!
-//! Invariants (once built): consumes keypoints and descriptors typed in `timesift-core`, uses
-//! `timesift-geometry` for verification, never reads images itself. Not implemented yet: this crate
-//! holds only its charter.
+//! Map: [`matcher`] (nearest neighbours of float descriptors by blocked matrix products, binary
+//! ones by popcount; ratio test, mutual check, maximum distance), [`verify`] (fundamental,
+//! essential and homography RANSAC from `timesift-geometry`, two-view type), [`pairs`] (which
+//! image pairs to match: exhaustive, sequential, spatial, epoch-aware), [`tracks`]
+//! (conflict-free union-find over verified matches, statistics per epoch pair), [`storage`]
+//! (versioned binary feature and match files with checksums).
+//!
+//! Invariants: consumes keypoints and descriptors typed in `timesift-core` and uses
+//! `timesift-geometry` for verification; never reads images; results do not depend on the
+//! thread count.
+
+mod error;
+pub mod matcher;
+pub mod pairs;
+pub mod storage;
+pub mod tracks;
+pub mod verify;
+
+pub use error::MatchingError;
+pub use matcher::{Match, MatchOptions, match_descriptors};
