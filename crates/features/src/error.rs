@@ -9,7 +9,7 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum FeatureError {
     /// The pixel buffer does not hold `width × height` values.
-    #[error("image buffer holds {got} values, expected {width} × {height} = {}", width * height)]
+    #[error("image buffer holds {got} values, expected {width} × {height}")]
     BufferSize {
         width: usize,
         height: usize,

@@ -50,6 +50,8 @@ struct Candidate {
     octave: usize,
     /// Refined layer (fractional) in its octave.
     s: f64,
+    /// Octave row of the sample refinement settled on.
+    row: usize,
     band: usize,
     layer: usize,
     x: f64,
@@ -77,7 +79,8 @@ struct OctaveRecord {
     kept: Vec<Option<Vec<Plane>>>,
 }
 
-/// Detects, limits and describes. Keypoints come strongest first when a limit is set.
+/// Detects, limits and describes. Without a limit, keypoints come by octave, then row; with one,
+/// in the order the budget took them (see [`crate::limit`]).
 pub(crate) fn extract<D: Describer>(
     image: &GreyImage,
     mask: Option<&Mask>,
@@ -143,6 +146,9 @@ pub(crate) fn extract<D: Describer>(
                         let x = e.x * step + 0.5;
                         let y = e.y * step + 0.5;
                         let allowed = mask.is_none_or(|m| m.allows(x, y));
+                        // Orientation and descriptor windows scale with the layer's σ (Lowe's
+                        // convention); `Keypoint::scale` reports the blob's σ, half a layer up
+                        // (the DoG between two layers peaks there).
                         let sigma = space.layer_sigma(e.s);
                         let layer = &stack.gauss[e.layer];
                         let angles = match (allowed, options.orientation) {
@@ -167,6 +173,7 @@ pub(crate) fn extract<D: Describer>(
                             },
                             octave: slot,
                             s: e.s,
+                            row: e.row,
                             band: b,
                             layer: e.layer,
                             x: e.x,
@@ -219,6 +226,16 @@ pub(crate) fn extract<D: Describer>(
         ))
     });
     drop_octave_duplicates(&mut candidates, &records, layers);
+    // One order whatever the bands: a band also lists extrema that started beyond its core, so
+    // the order of discovery depends on where bands begin.
+    candidates.sort_by(|a, b| {
+        (a.octave, a.row, a.layer)
+            .cmp(&(b.octave, b.row, b.layer))
+            .then(a.x.total_cmp(&b.x))
+            .then(a.y.total_cmp(&b.y))
+            .then(a.s.total_cmp(&b.s))
+            .then(a.keypoint.orientation.total_cmp(&b.keypoint.orientation))
+    });
     let selected: Vec<usize> = match options.limit {
         Some(limit) => {
             let points: Vec<(f64, f64, f32)> = candidates

@@ -16,7 +16,7 @@ impl<'a> GreyImage<'a> {
     /// Wraps `data` (`width × height` values, row-major). Non-finite values are an error, so that
     /// a NaN never spreads through the scale space into keypoints.
     pub fn new(width: usize, height: usize, data: &'a [f32]) -> Result<Self, FeatureError> {
-        if data.len() != width * height {
+        if width.checked_mul(height) != Some(data.len()) {
             return Err(FeatureError::BufferSize {
                 width,
                 height,
@@ -78,7 +78,7 @@ pub struct Mask<'a> {
 impl<'a> Mask<'a> {
     /// Wraps `data` (`width × height` bytes, row-major).
     pub fn new(width: usize, height: usize, data: &'a [u8]) -> Result<Self, FeatureError> {
-        if data.len() != width * height {
+        if width.checked_mul(height) != Some(data.len()) {
             return Err(FeatureError::BufferSize {
                 width,
                 height,

@@ -7,7 +7,8 @@
 //! before every cell has had its turn. `spread = 0` keeps the strongest overall (OpenCV's
 //! `nfeatures`), `spread = 1` spreads the whole budget.
 
-/// Indices of the kept items, strongest first. `points` are (x, y, response) in pixels of an image
+/// Indices of the kept items: the dealt share strongest first, then the rest strongest first.
+/// `points` are (x, y, response) in pixels of an image
 /// of `width × height`; ties are broken by index so the choice is reproducible.
 pub fn select_spread(
     points: &[(f64, f64, f32)],
@@ -44,11 +45,20 @@ pub fn select_spread(
     let occupied = taken_in_cell.iter().filter(|&&n| n > 0).count().max(1);
     let dealt = (spread.min(1.0) * max as f64).round() as usize;
     let part = dealt.div_ceil(occupied).max(1);
-    // `order` is by response, so a stable sort on "within the cell's part" keeps response order
-    // inside both groups.
-    order.sort_by_key(|&i| rank[i] >= part);
-    order.truncate(max);
-    order
+    // First the dealt share: each cell's strongest (up to its part), strongest first overall,
+    // no more than `dealt` of them; then the strongest of the rest.
+    let mut first = Vec::with_capacity(dealt);
+    let mut rest = Vec::with_capacity(order.len());
+    for &i in &order {
+        if rank[i] < part && first.len() < dealt {
+            first.push(i);
+        } else {
+            rest.push(i);
+        }
+    }
+    first.extend(rest);
+    first.truncate(max);
+    first
 }
 
 #[cfg(test)]
@@ -75,19 +85,42 @@ mod tests {
         assert!(kept.iter().filter(|&&i| i >= 100).count() == 10);
         // The corner's share went to its strongest points.
         assert!(kept.iter().filter(|&&i| i < 100).all(|&i| i >= 90));
-        // Half the budget spread: each of the 11 occupied cells may keep 1 (10 / 11 rounded up),
-        // the other half goes to the strongest.
+        // Half the budget spread: 10 dealt over 11 occupied cells, one each in response order
+        // (the corner's best, then 9 weak cells); the other 10 go to the strongest.
         let kept = select_spread(&points, 400, 400, 20, 16, 0.5);
-        assert_eq!(kept.iter().filter(|&&i| i >= 100).count(), 10);
+        assert_eq!(kept.iter().filter(|&&i| i >= 100).count(), 9);
+        // 6 dealt: the corner's best and 5 weak cells, then the 24 strongest of the rest.
         let kept = select_spread(&points, 400, 400, 30, 16, 0.2);
-        // 6 dealt over 11 cells: 1 each, so every weak point once, then the 20 strongest.
-        assert_eq!(kept.iter().filter(|&&i| i >= 100).count(), 10);
-        assert!(kept.iter().filter(|&&i| i < 100).all(|&i| i >= 80));
+        assert_eq!(kept.iter().filter(|&&i| i >= 100).count(), 5);
+        assert!(kept.iter().filter(|&&i| i < 100).all(|&i| i >= 75));
         // One cell, or nothing spread: the strongest overall.
         let kept = select_spread(&points, 400, 400, 20, 16, 0.0);
         assert!(kept.iter().all(|i| (80..100).contains(i)));
         let kept = select_spread(&points, 400, 400, 20, 1, 1.0);
         assert!(kept.iter().all(|i| (80..100).contains(i)));
+    }
+
+    #[test]
+    fn a_small_spread_deals_only_its_share() {
+        // 64 occupied cells of an 8 × 8 grid; cell 0 holds the 5 strongest points.
+        let mut points: Vec<(f64, f64, f32)> = (0..5)
+            .map(|i| (1.0 + i as f64, 1.0, 10.0 + i as f32))
+            .collect();
+        for c in 1..64 {
+            points.push((
+                50.0 * (c % 8) as f64 + 25.0,
+                50.0 * (c / 8) as f64 + 25.0,
+                1.0,
+            ));
+        }
+        let kept = select_spread(&points, 400, 400, 10, 64, 0.5);
+        // 5 dealt (one per cell, strongest cells first: cell 0's best, then 4 weak), then the
+        // strongest of the rest: cell 0's other 4, then a weak one.
+        assert_eq!(kept.iter().filter(|&&i| i < 5).count(), 5);
+        let kept = select_spread(&points, 400, 400, 10, 64, 0.0);
+        assert_eq!(kept.iter().filter(|&&i| i < 5).count(), 5);
+        let kept = select_spread(&points, 400, 400, 10, 64, 1.0);
+        assert_eq!(kept.iter().filter(|&&i| i < 5).count(), 1);
     }
 
     proptest! {

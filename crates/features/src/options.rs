@@ -116,8 +116,10 @@ impl DetectorOptions {
                 "between 1 and 8",
             );
         }
-        if !(self.sigma > 0.0 && self.sigma.is_finite()) {
-            return invalid("sigma", self.sigma, "a positive number");
+        // Windows are capped at 96 px of the layer: SIFT's reaches 32 σ at the top layer of the
+        // last octave, so σ up to 3 keeps every window whole.
+        if !(self.sigma > 0.0 && self.sigma <= 3.0) {
+            return invalid("sigma", self.sigma, "in (0, 3]");
         }
         if !(self.assumed_blur >= 0.0 && self.assumed_blur < self.sigma) {
             return invalid("assumed_blur", self.assumed_blur, "in [0, sigma)");

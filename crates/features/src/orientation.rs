@@ -13,7 +13,8 @@ const BINS: usize = 36;
 const WINDOW_SIGMA: f32 = 1.5;
 /// The window extends to this many window σ.
 const WINDOW_RADIUS: f32 = 3.0;
-/// Largest window radius, pixels of the layer (reached only by scales beyond the octave).
+/// Largest window radius, pixels of the layer (`DetectorOptions::validate` keeps σ small enough
+/// that no window reaches it).
 const MAX_RADIUS: usize = 96;
 
 /// Orientations (radians in [0, 2π)) of the keypoint at (x, y) (plane coordinates) with scale

@@ -9,7 +9,7 @@
 use std::ops::Range;
 
 use crate::blur::{Kernel, blur, upsample2};
-use crate::detect::MAX_REFINE_STEPS;
+use crate::detect::{MAX_REFINE_STEPS, SCALE_SLACK};
 use crate::image::{GreyImage, Plane};
 use crate::options::{DetectorOptions, Upsample};
 
@@ -141,8 +141,9 @@ impl ScaleSpace {
             })
             .collect();
         let blur_reach: usize = increments.iter().map(Kernel::radius).sum();
-        // The last octave keeps keypoints up to layer L + 1.5.
-        let max_sigma = options.sigma * 2f64.powf((layers as f64 + 1.5) / layers as f64);
+        // The last octave keeps keypoints up to layer L + 1 + 0.5 + SCALE_SLACK.
+        let max_sigma =
+            options.sigma * 2f64.powf((layers as f64 + 1.5 + SCALE_SLACK) / layers as f64);
         let descriptor_reach = (support.max(4.5) * max_sigma).ceil() as usize;
         Self {
             layers,

@@ -19,7 +19,8 @@ const CELL_WIDTH: f32 = 3.0;
 pub const SIFT_DIM: usize = CELLS * CELLS * BINS;
 /// Clamp of normalised values (Lowe: 0.2), against non-linear illumination changes.
 const CLAMP: f32 = 0.2;
-/// Largest sampling radius, pixels of the layer (reached only by scales beyond the octave).
+/// Largest sampling radius, pixels of the layer (`DetectorOptions::validate` keeps σ small
+/// enough that no window reaches it).
 const MAX_RADIUS: usize = 96;
 
 /// How the descriptor is normalised.

@@ -46,7 +46,9 @@ pub fn write(path: &Path, features: &Features) -> Result<(), FeatureError> {
         }
         text.push('\n');
     }
-    let tmp = path.with_extension("tmp-write");
+    let mut tmp_name = path.file_name().unwrap_or_default().to_os_string();
+    tmp_name.push(".tmp-write");
+    let tmp = path.with_file_name(tmp_name);
     std::fs::write(&tmp, text).map_err(|source| FeatureError::Io {
         path: tmp.clone(),
         source,
@@ -98,17 +100,26 @@ pub fn read(path: &Path, kind: DescriptorKind) -> Result<Features, FeatureError>
             ));
         }
     };
-    let mut keypoints = Vec::with_capacity(n.min(1 << 24));
+    if d == 0 {
+        return Err(error(
+            1,
+            "descriptor length D is 0; expected at least 1".into(),
+        ));
+    }
+    let Some(values_per_line) = d.checked_add(4) else {
+        return Err(error(1, format!("descriptor length {d} is not plausible")));
+    };
+    // Capacity from what the file can hold, not from what the header claims.
+    let mut keypoints = Vec::with_capacity(n.min(text.len() / 8 + 1));
     let mut floats = Vec::new();
     let mut bytes = Vec::new();
     for (number, line) in lines.by_ref().take(n) {
         let fields: Vec<&str> = line.split_whitespace().collect();
-        if fields.len() != 4 + d {
+        if fields.len() != values_per_line {
             return Err(error(
                 number,
                 format!(
-                    "expected {} values (x y scale orientation + {d}), found {}",
-                    4 + d,
+                    "expected {values_per_line} values (x y scale orientation + {d}), found {}",
                     fields.len()
                 ),
             ));

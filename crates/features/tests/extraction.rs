@@ -158,6 +158,46 @@ fn results_do_not_depend_on_memory_budget_or_threads() {
         .unwrap();
     let single = pool.install(|| LdbExtractor::default().extract(&image, None).unwrap());
     assert_same(&whole, &single, "one thread");
+    // Many more extrema (no contrast threshold) and odd layer counts: where a keypoint settles
+    // across a band boundary, the order must not follow the bands.
+    for layers in [1, 3] {
+        let options = DetectorOptions {
+            contrast_threshold: 0.0,
+            layers_per_octave: layers,
+            ..DetectorOptions::default()
+        };
+        let whole = LdbExtractor { detector: options }
+            .extract(&image, None)
+            .unwrap();
+        let banded = LdbExtractor {
+            detector: DetectorOptions {
+                memory_budget: 1 << 20,
+                ..options
+            },
+        }
+        .extract(&image, None)
+        .unwrap();
+        assert_same(&whole, &banded, &format!("{layers} layers, 1 MiB budget"));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        let three = pool.install(|| {
+            LdbExtractor {
+                detector: DetectorOptions {
+                    memory_budget: 4 << 20,
+                    ..options
+                },
+            }
+            .extract(&image, None)
+            .unwrap()
+        });
+        assert_same(
+            &whole,
+            &three,
+            &format!("{layers} layers, 3 threads, 4 MiB"),
+        );
+    }
 }
 
 /// Equality of two extractions, reported by the first difference rather than by two dumps.
@@ -245,6 +285,19 @@ fn text_format_round_trips_and_reports_damage() {
     std::fs::write(&path, "1 2\n1 2 3 4 5 300\n").unwrap();
     let err = read(&path, DescriptorKind::Binary).unwrap_err().to_string();
     assert!(err.contains("bad.txt:2") && err.contains("`300`"), "{err}");
+    // Crafted headers: an absurd descriptor length, a zero one, a huge count.
+    std::fs::write(&path, "1 18446744073709551615\n1 2 3\n").unwrap();
+    let err = read(&path, DescriptorKind::Float).unwrap_err().to_string();
+    assert!(
+        err.contains("bad.txt:1") && err.contains("not plausible"),
+        "{err}"
+    );
+    std::fs::write(&path, "2 0\n1 2 3 4\n5 6 7 8\n").unwrap();
+    let err = read(&path, DescriptorKind::Float).unwrap_err().to_string();
+    assert!(err.contains("D is 0"), "{err}");
+    std::fs::write(&path, "99999999999 1\n1 2 3 4 5\n").unwrap();
+    let err = read(&path, DescriptorKind::Float).unwrap_err().to_string();
+    assert!(err.contains("after 1 keypoints"), "{err}");
     std::fs::write(&path, "2 x\n").unwrap();
     let err = read(&path, DescriptorKind::Float).unwrap_err().to_string();
     assert!(err.contains("bad.txt:1"), "{err}");

@@ -20,4 +20,4 @@ pub mod tracks;
 pub mod verify;
 
 pub use error::MatchingError;
-pub use matcher::{Match, MatchOptions, match_descriptors};
+pub use matcher::{FloatDistance, Match, MatchOptions, match_descriptors};

@@ -36,8 +36,22 @@ pub struct MatchOptions {
     /// Keep a match only when each descriptor is the other's nearest neighbour, and the ratio
     /// test passes in both directions.
     pub mutual: bool,
-    /// Largest accepted distance (Euclidean for unit-norm float descriptors, bits for binary).
+    /// Largest accepted distance (in the units of `ratio_on`: radians for angles, bits for
+    /// binary descriptors).
     pub max_distance: Option<f32>,
+    /// What the ratio test and the maximum distance compare for float descriptors.
+    pub ratio_on: FloatDistance,
+}
+
+/// The distance between float descriptors that the tests use. Nearest neighbours are the same
+/// either way; the ratio differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FloatDistance {
+    /// Euclidean distance (Lowe 2004).
+    Euclidean,
+    /// Angle between unit-norm descriptors, radians (COLMAP): a looser ratio test for the same
+    /// value, since the chord grows slower than the angle.
+    Angle,
 }
 
 impl Default for MatchOptions {
@@ -46,6 +60,7 @@ impl Default for MatchOptions {
             ratio: 0.8,
             mutual: true,
             max_distance: None,
+            ratio_on: FloatDistance::Euclidean,
         }
     }
 }
@@ -76,6 +91,18 @@ impl Nearest {
         }
     }
 
+    /// Offers a (best, second, index) triple of another scan of disjoint candidates.
+    #[inline]
+    fn offer_pair(&mut self, best: f32, second: f32, index: u32) {
+        if best < self.best || (best == self.best && index < self.index) {
+            self.second = self.best.min(second);
+            self.best = best;
+            self.index = index;
+        } else {
+            self.second = self.second.min(best);
+        }
+    }
+
     fn merge(&mut self, other: &Nearest) {
         // Ties keep the earlier block's index: the lower query index, as one pass would.
         if other.best < self.best {
@@ -87,10 +114,17 @@ impl Nearest {
         }
     }
 
-    fn passes(&self, options: &MatchOptions) -> bool {
+    fn passes(&self, options: &MatchOptions, angles: bool) -> bool {
+        // Chord of unit vectors → angle.
+        let angle = |d: f32| 2.0 * (0.5 * d).min(1.0).asin();
+        let (best, second) = if angles {
+            (angle(self.best), angle(self.second))
+        } else {
+            (self.best, self.second)
+        };
         self.index != u32::MAX
-            && (options.ratio >= 1.0 || self.best < options.ratio * self.second)
-            && options.max_distance.is_none_or(|m| self.best <= m)
+            && (options.ratio >= 1.0 || best < options.ratio * second)
+            && options.max_distance.is_none_or(|m| best <= m)
     }
 }
 
@@ -120,34 +154,34 @@ pub fn match_descriptors(
             if da != db {
                 return Err(incompatible());
             }
-            let norms_b: Vec<f32> = xb.chunks(*db).map(squared_norm).collect();
-            let train = MatRef::from_column_major_slice(xb.as_slice(), *db, nb);
+            let d = *da;
+            let norms_b: Vec<f32> = xb.chunks(d).map(squared_norm).collect();
+            let train = MatRef::from_row_major_slice(xb.as_slice(), nb, d);
             (0..na.div_ceil(BLOCK))
                 .into_par_iter()
                 .map(|k| {
                     let rows = k * BLOCK..((k + 1) * BLOCK).min(na);
-                    let query = MatRef::from_row_major_slice(
-                        &xa[rows.start * da..rows.end * da],
-                        rows.len(),
-                        *da,
-                    );
-                    let mut products = faer::Mat::<f32>::zeros(rows.len(), nb);
+                    let block = &xa[rows.start * d..rows.end * d];
+                    // Column i of `products` (contiguous) holds query i's products with every
+                    // train descriptor.
+                    let queries = MatRef::from_column_major_slice(block, d, rows.len());
+                    let mut products = faer::Mat::<f32>::zeros(nb, rows.len());
                     faer::linalg::matmul::matmul(
                         products.as_mut(),
                         Accum::Replace,
-                        query,
                         train,
+                        queries,
                         1.0,
                         Par::Seq,
                     );
-                    let norms_a: Vec<f32> = xa[rows.start * da..rows.end * da]
-                        .chunks(*da)
-                        .map(squared_norm)
-                        .collect();
-                    scan_block(rows.start, rows.len(), nb, |i, j| {
-                        (norms_a[i] + norms_b[j] - 2.0 * products[(i, j)])
-                            .max(0.0)
-                            .sqrt()
+                    let norms_a: Vec<f32> = block.chunks(d).map(squared_norm).collect();
+                    scan_block(rows.start, rows.len(), nb, |i, out| {
+                        // Squared distance ‖a‖² + ‖b‖² − 2 a·b.
+                        let column = products.col(i);
+                        let na_i = norms_a[i];
+                        for ((o, nbj), j) in out.iter_mut().zip(&norms_b).zip(0..nb) {
+                            *o = na_i + nbj - 2.0 * column[j];
+                        }
                     })
                 })
                 .collect()
@@ -172,13 +206,14 @@ pub fn match_descriptors(
                 .into_par_iter()
                 .map(|k| {
                     let rows = k * BLOCK..((k + 1) * BLOCK).min(na);
-                    scan_block(rows.start, rows.len(), nb, |i, j| {
+                    scan_block(rows.start, rows.len(), nb, |i, out| {
                         let qa = &wa[(rows.start + i) * words..(rows.start + i + 1) * words];
-                        let qb = &wb[j * words..(j + 1) * words];
-                        qa.iter()
-                            .zip(qb)
-                            .map(|(x, y)| (x ^ y).count_ones())
-                            .sum::<u32>() as f32
+                        for (o, qb) in out.iter_mut().zip(wb.chunks(words)) {
+                            let bits: u32 =
+                                qa.iter().zip(qb).map(|(x, y)| (x ^ y).count_ones()).sum();
+                            // Squared, like the float distances, so one scan serves both.
+                            *o = (bits * bits) as f32;
+                        }
                     })
                 })
                 .collect()
@@ -191,13 +226,15 @@ pub fn match_descriptors(
             c.merge(n);
         }
     }
+    let angles = options.ratio_on == FloatDistance::Angle && matches!(a, Descriptors::Float { .. });
     let mut matches = Vec::new();
     for (i, row) in blocks.iter().flat_map(|(rows, _)| rows).enumerate() {
-        if !row.passes(options) {
+        if !row.passes(options, angles) {
             continue;
         }
         let j = row.index as usize;
-        if options.mutual && !(columns[j].index as usize == i && columns[j].passes(options)) {
+        if options.mutual && !(columns[j].index as usize == i && columns[j].passes(options, angles))
+        {
             continue;
         }
         matches.push(Match {
@@ -209,24 +246,135 @@ pub fn match_descriptors(
     Ok(matches)
 }
 
+/// Lanes of the row scan: independent running top-2s that vectorise, merged at the end.
+const LANES: usize = 16;
+
 /// Two nearest train descriptors of each row of a block, and two nearest rows of the block for
-/// each train descriptor (row indices offset by `first_row`).
+/// each train descriptor (row indices offset by `first_row`). `squared(i, out)` writes row i's
+/// squared distances to every train descriptor into `out`. Distances come back as Euclidean
+/// (square roots), for the ratio test.
 fn scan_block(
     first_row: usize,
     rows: usize,
     train: usize,
-    distance: impl Fn(usize, usize) -> f32,
+    mut squared: impl FnMut(usize, &mut [f32]),
 ) -> (Vec<Nearest>, Vec<Nearest>) {
     let mut by_row = vec![Nearest::EMPTY; rows];
-    let mut by_column = vec![Nearest::EMPTY; train];
+    let mut column_best = vec![f32::INFINITY; train];
+    let mut column_second = vec![f32::INFINITY; train];
+    let mut column_index = vec![u32::MAX; train];
+    let mut distances = vec![0.0f32; train];
     for (i, row) in by_row.iter_mut().enumerate() {
-        for (j, column) in by_column.iter_mut().enumerate() {
-            let d = distance(i, j);
-            row.offer(d, j as u32);
-            column.offer(d, (first_row + i) as u32);
+        squared(i, &mut distances);
+        *row = row_top2(&distances);
+        update_columns(
+            &distances,
+            (first_row + i) as u32,
+            &mut column_best,
+            &mut column_second,
+            &mut column_index,
+        );
+    }
+    let by_column = (0..train)
+        .map(|j| Nearest {
+            best: column_best[j].max(0.0).sqrt(),
+            second: column_second[j].max(0.0).sqrt(),
+            index: column_index[j],
+        })
+        .collect();
+    (by_row, by_column)
+}
+
+/// The two smallest values of `row` (as square roots) and the index of the smallest.
+fn row_top2(row: &[f32]) -> Nearest {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { row_top2_avx2(row) };
+    }
+    row_top2_portable(row)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn row_top2_avx2(row: &[f32]) -> Nearest {
+    row_top2_portable(row)
+}
+
+#[inline(always)]
+fn row_top2_portable(row: &[f32]) -> Nearest {
+    let mut best = [f32::INFINITY; LANES];
+    let mut second = [f32::INFINITY; LANES];
+    let mut index = [u32::MAX; LANES];
+    let chunks = row.len() / LANES;
+    for c in 0..chunks {
+        let values = &row[c * LANES..(c + 1) * LANES];
+        for l in 0..LANES {
+            let v = values[l];
+            let smaller = v < best[l];
+            second[l] = second[l].min(if v > best[l] { v } else { best[l] });
+            index[l] = if smaller {
+                (c * LANES + l) as u32
+            } else {
+                index[l]
+            };
+            best[l] = if smaller { v } else { best[l] };
         }
     }
-    (by_row, by_column)
+    let mut out = Nearest::EMPTY;
+    for l in 0..LANES {
+        // Lane bests in increasing index order within equal values: offer keeps the first.
+        out.offer_pair(best[l], second[l], index[l]);
+    }
+    for (j, &v) in row.iter().enumerate().skip(chunks * LANES) {
+        out.offer(v, j as u32);
+    }
+    Nearest {
+        best: out.best.max(0.0).sqrt(),
+        second: out.second.max(0.0).sqrt(),
+        index: out.index,
+    }
+}
+
+/// Offers row `i`'s squared distances to every column's running top-2.
+fn update_columns(row: &[f32], i: u32, best: &mut [f32], second: &mut [f32], index: &mut [u32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { update_columns_avx2(row, i, best, second, index) };
+    }
+    update_columns_portable(row, i, best, second, index)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn update_columns_avx2(
+    row: &[f32],
+    i: u32,
+    best: &mut [f32],
+    second: &mut [f32],
+    index: &mut [u32],
+) {
+    update_columns_portable(row, i, best, second, index)
+}
+
+#[inline(always)]
+fn update_columns_portable(
+    row: &[f32],
+    i: u32,
+    best: &mut [f32],
+    second: &mut [f32],
+    index: &mut [u32],
+) {
+    let n = row.len();
+    let (best, second, index) = (&mut best[..n], &mut second[..n], &mut index[..n]);
+    for j in 0..n {
+        let v = row[j];
+        let smaller = v < best[j];
+        second[j] = second[j].min(if v > best[j] { v } else { best[j] });
+        index[j] = if smaller { i } else { index[j] };
+        best[j] = if smaller { v } else { best[j] };
+    }
 }
 
 fn squared_norm(v: &[f32]) -> f32 {
@@ -284,7 +432,7 @@ mod tests {
         let plain = MatchOptions {
             ratio: 1.0,
             mutual: false,
-            max_distance: None,
+            ..MatchOptions::default()
         };
         let all = match_descriptors(&a, &b, &plain).unwrap();
         assert_eq!(all.len(), 4);
@@ -308,7 +456,7 @@ mod tests {
         let mutual = MatchOptions {
             ratio: 1.0,
             mutual: true,
-            max_distance: None,
+            ..MatchOptions::default()
         };
         let kept: Vec<_> = match_descriptors(&a, &b, &mutual)
             .unwrap()

@@ -51,6 +51,9 @@ pub enum EpipolarModel {
     Fundamental,
     /// Essential matrix (calibrated rays).
     Essential,
+    /// Only a homography: a planar scene or a rotation about the centre (COLMAP's "planar" or
+    /// "panoramic" pairs). Useful for tracks, not for initialisation.
+    Homography,
 }
 
 /// A verified pair.
@@ -123,13 +126,10 @@ pub fn verify_pair(
                 focal_px,
             };
             let mut flags = vec![false; matches.len()];
-            match ransac(&estimator, &ransac_options) {
-                Ok(result) => {
-                    for (k, &i) in keep.iter().enumerate() {
-                        flags[i] = result.inliers[k];
-                    }
+            if let Ok(result) = ransac(&estimator, &ransac_options) {
+                for (k, &i) in keep.iter().enumerate() {
+                    flags[i] = result.inliers[k];
                 }
-                Err(_) => return Ok(None),
             }
             (EpipolarModel::Essential, flags)
         }
@@ -137,27 +137,39 @@ pub fn verify_pair(
             let estimator = FundamentalEstimator { p1: &p1, p2: &p2 };
             match ransac(&estimator, &ransac_options) {
                 Ok(result) => (EpipolarModel::Fundamental, result.inliers),
-                Err(_) => return Ok(None),
+                Err(_) => (EpipolarModel::Fundamental, vec![false; matches.len()]),
             }
         }
     };
-    let inliers: Vec<Match> = matches
-        .iter()
-        .zip(&inlier_flags)
-        .filter(|(_, ok)| **ok)
-        .map(|(m, _)| *m)
-        .collect();
-    if inliers.len() < options.min_inliers {
-        return Ok(None);
+    let keep = |flags: &[bool]| -> Vec<Match> {
+        matches
+            .iter()
+            .zip(flags)
+            .filter(|(_, ok)| **ok)
+            .map(|(m, _)| *m)
+            .collect()
+    };
+    let inliers = keep(&inlier_flags);
+    let homography = ransac(&HomographyEstimator { p1: &p1, p2: &p2 }, &ransac_options).ok();
+    let homography_inliers = homography.as_ref().map_or(0, |r| r.num_inliers);
+    if inliers.len() >= options.min_inliers {
+        return Ok(Some(VerifiedPair {
+            model,
+            kind: classify_two_view(inliers.len(), homography_inliers, options.homography_ratio),
+            inliers,
+            homography_inliers,
+        }));
     }
-    let homography = HomographyEstimator { p1: &p1, p2: &p2 };
-    let homography_inliers = ransac(&homography, &ransac_options).map_or(0, |r| r.num_inliers);
-    Ok(Some(VerifiedPair {
-        model,
-        kind: classify_two_view(inliers.len(), homography_inliers, options.homography_ratio),
-        inliers,
-        homography_inliers,
-    }))
+    // No epipolar geometry, but a homography: planar or rotational.
+    match homography {
+        Some(h) if h.num_inliers >= options.min_inliers => Ok(Some(VerifiedPair {
+            model: EpipolarModel::Homography,
+            kind: TwoViewType::HomographyExplained,
+            inliers: keep(&h.inliers),
+            homography_inliers: h.num_inliers,
+        })),
+        _ => Ok(None),
+    }
 }
 
 /// The focal length in pixels of a camera: the distance on the image plane covered by a unit

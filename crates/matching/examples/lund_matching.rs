@@ -1,0 +1,112 @@
+//! Exhaustive matching of the 29 `lund` photos (RootSIFT, 8192 keypoints at most): seconds for
+//! extraction, descriptor matching and verification, verified pairs and median inliers.
+//! `RAYON_NUM_THREADS` sets the threads.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use timesift_core::{CameraModel, PinholeCamera};
+use timesift_features::{
+    DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
+};
+use timesift_matching::pairs::{PairPolicy, select};
+use timesift_matching::verify::{VerifyOptions, verify_pair};
+use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let dir =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/opensfm/lund/images");
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .collect();
+    paths.sort();
+    let extractor = SiftExtractor {
+        detector: DetectorOptions {
+            limit: Some(KeypointLimit::spread(8192)),
+            contrast_threshold: std::env::var("CONTRAST")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0.02),
+            ..DetectorOptions::default()
+        },
+        normalization: SiftNormalization::Root,
+    };
+    let start = Instant::now();
+    let features = paths
+        .par_iter()
+        .map(|p| timesift_features::files::extract_file(p, &extractor as &dyn FeatureExtractor))
+        .collect::<Result<Vec<_>, _>>()?;
+    let extraction = start.elapsed().as_secs_f64();
+    let n = features.len();
+    let pairs = select(
+        &(0..n).collect::<Vec<_>>(),
+        &vec![None; n],
+        PairPolicy::Exhaustive,
+    );
+    let start = Instant::now();
+    let matches = pairs
+        .par_iter()
+        .map(|&(a, b)| {
+            match_descriptors(
+                &features[a].descriptors,
+                &features[b].descriptors,
+                &MatchOptions {
+                    ratio_on: if std::env::var("EUCLIDEAN").is_ok() {
+                        FloatDistance::Euclidean
+                    } else {
+                        FloatDistance::Angle
+                    },
+                    ..MatchOptions::default()
+                },
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let matching = start.elapsed().as_secs_f64();
+    // Calibrated verification (essential matrix) with the EXIF focal length, as COLMAP does.
+    let cameras: Vec<Option<PinholeCamera>> = paths
+        .iter()
+        .map(|p| {
+            let exif = timesift_io::exif::read_exif(p).ok()?;
+            let f = exif.focal_length_px(1024, 768)?;
+            PinholeCamera::new(1024, 768, f).ok()
+        })
+        .collect();
+    let calibrated = std::env::var("UNCALIBRATED").is_err();
+    let start = Instant::now();
+    let verified = pairs
+        .par_iter()
+        .zip(&matches)
+        .map(|(&(a, b), m)| {
+            let pair_cameras = match (&cameras[a], &cameras[b]) {
+                (Some(ca), Some(cb)) if calibrated => {
+                    Some((ca as &dyn CameraModel, cb as &dyn CameraModel))
+                }
+                _ => None,
+            };
+            verify_pair(
+                &features[a].keypoints,
+                &features[b].keypoints,
+                m,
+                pair_cameras,
+                &VerifyOptions::default(),
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let verification = start.elapsed().as_secs_f64();
+    let mut inliers: Vec<usize> = verified.iter().flatten().map(|v| v.inliers.len()).collect();
+    inliers.sort_unstable();
+    println!(
+        "calibrated: {} of {n} images have an EXIF focal length",
+        cameras.iter().flatten().count()
+    );
+    println!(
+        "{n} images, {} keypoints mean; extraction {extraction:.1} s, matching {matching:.1} s, \
+         verification {verification:.1} s; {} of {} pairs verified, median {} inliers",
+        features.iter().map(|f| f.keypoints.len()).sum::<usize>() / n,
+        inliers.len(),
+        pairs.len(),
+        inliers.get(inliers.len() / 2).copied().unwrap_or(0)
+    );
+    Ok(())
+}
