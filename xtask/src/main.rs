@@ -6,6 +6,7 @@
 //! - `bench bundle`: the BAL problems through timesift's bundle adjuster.
 //! - `bench features`: SIFT and LDB against OpenCV SIFT and COLMAP's CPU SIFT (quality on the
 //!   sandpyper `mar` orthophotos, seconds per image on `lund`).
+//! - `bench matching`: exhaustive matching of `lund` against COLMAP's CPU exhaustive matcher.
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
 //!
 //! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
@@ -17,6 +18,7 @@ mod bench_bundle;
 mod bench_change;
 mod bench_features;
 mod bench_geometry;
+mod bench_matching;
 
 use std::path::PathBuf;
 
@@ -97,6 +99,8 @@ enum BenchStage {
         #[arg(long, hide = true, default_value_t = 512)]
         memory_mib: usize,
     },
+    /// Exhaustive matching of `lund` against COLMAP's CPU exhaustive matcher (2 threads).
+    Matching,
     /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
     Change {
         /// Core-point spacing for M3C2, metres.
@@ -148,6 +152,9 @@ fn main() -> anyhow::Result<()> {
                 large,
             })?,
         },
+        Task::Bench {
+            stage: BenchStage::Matching,
+        } => bench_matching::run()?,
         Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,

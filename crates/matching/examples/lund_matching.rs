@@ -89,7 +89,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 &features[b].keypoints,
                 m,
                 pair_cameras,
-                &VerifyOptions::default(),
+                &VerifyOptions {
+                    max_iterations: std::env::var("ITERATIONS")
+                        .ok()
+                        .and_then(|v| v.parse().ok())
+                        .unwrap_or(10_000),
+                    ..VerifyOptions::default()
+                },
             )
         })
         .collect::<Result<Vec<_>, _>>()?;

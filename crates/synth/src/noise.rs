@@ -155,6 +155,80 @@ fn grad(hash: u8, x: f64, y: f64, z: f64) -> f64 {
     (if h & 1 == 0 { u } else { -u }) + (if h & 2 == 0 { v } else { -v })
 }
 
+/// A deterministic number in [0, 1) from integers.
+pub(crate) fn hash01(a: i64, b: i64, c: u64) -> f64 {
+    let mut z = (a as u64)
+        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add((b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F))
+        .wrapping_add(c.wrapping_mul(0x1656_67B1_9E37_79F9));
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Sparse speckles on a plane: in each square cell of side `cell`, with probability 0.6, one
+/// Gaussian spot at a random place, of random radius (0.12–0.32 cell), sign and amplitude
+/// (0.5–1). Values roughly in [−1.5, 1.5]; deterministic in `seed`.
+pub(crate) fn speckles2(x: f64, y: f64, cell: f64, seed: u64) -> f64 {
+    let (ci, cj) = ((x / cell).floor() as i64, (y / cell).floor() as i64);
+    let mut sum = 0.0;
+    for i in ci - 1..=ci + 1 {
+        for j in cj - 1..=cj + 1 {
+            sum += spot(i, j, 0, cell, seed, |px, py, _| {
+                (x - px).powi(2) + (y - py).powi(2)
+            });
+        }
+    }
+    sum
+}
+
+/// [`speckles2`] in space (cubic cells), for textures on meshes.
+pub(crate) fn speckles3(x: f64, y: f64, z: f64, cell: f64, seed: u64) -> f64 {
+    let (ci, cj, ck) = (
+        (x / cell).floor() as i64,
+        (y / cell).floor() as i64,
+        (z / cell).floor() as i64,
+    );
+    let mut sum = 0.0;
+    for i in ci - 1..=ci + 1 {
+        for j in cj - 1..=cj + 1 {
+            for k in ck - 1..=ck + 1 {
+                sum += spot(i, j, k, cell, seed, |px, py, pz| {
+                    (x - px).powi(2) + (y - py).powi(2) + (z - pz).powi(2)
+                });
+            }
+        }
+    }
+    sum
+}
+
+/// The spot of cell (i, j, k) at squared distance `d2(centre)`.
+#[inline]
+fn spot(i: i64, j: i64, k: i64, cell: f64, seed: u64, d2: impl Fn(f64, f64, f64) -> f64) -> f64 {
+    let key = seed ^ (k as u64).wrapping_mul(0xA24B_AED4_963E_E407);
+    if hash01(i, j, key) >= 0.6 {
+        return 0.0;
+    }
+    let centre = (
+        (i as f64 + hash01(i, j, key ^ 1)) * cell,
+        (j as f64 + hash01(i, j, key ^ 2)) * cell,
+        (k as f64 + hash01(i, j, key ^ 3)) * cell,
+    );
+    let radius = cell * (0.12 + 0.2 * hash01(i, j, key ^ 4));
+    let distance2 = d2(centre.0, centre.1, centre.2);
+    if distance2 > 9.0 * radius * radius {
+        return 0.0;
+    }
+    let sign = if hash01(i, j, key ^ 5) < 0.5 {
+        -1.0
+    } else {
+        1.0
+    };
+    let amplitude = 0.5 + 0.5 * hash01(i, j, key ^ 6);
+    sign * amplitude * (-distance2 / (2.0 * radius * radius)).exp()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -19,6 +19,7 @@ use crate::SynthError;
 use crate::effects::{Channels, Effects};
 use crate::flight::NadirBlock;
 use crate::noise::Noise;
+pub(crate) use crate::noise::hash01;
 use crate::render::{Material, Rgb};
 use crate::scene::{
     BaseFn, CoverFn, EpochSpec, Frame, GnssSpec, ImageFormat, ImageSpec, NamedPoint, SceneSpec,
@@ -84,6 +85,11 @@ pub(crate) fn cover(
     cover_with_contrast(seed, dark, light, scale, finest, 1.3)
 }
 
+/// Strength of a cover's speckles per unit of contrast: stones, tufts and leaves a few pixels
+/// across, as real ground shows and as feature detectors need (fBm alone left the small scenes
+/// with almost no SIFT keypoints).
+const SPECKLE_PER_CONTRAST: f64 = 0.35;
+
 /// [`cover`] with a given contrast (low for snow and water).
 pub(crate) fn cover_with_contrast(
     seed: u64,
@@ -101,6 +107,8 @@ pub(crate) fn cover_with_contrast(
         scale,
         octaves,
         contrast,
+        speckle: SPECKLE_PER_CONTRAST * contrast,
+        speckle_seed: seed ^ 0x5bec_1e5,
     }
 }
 
@@ -394,16 +402,4 @@ pub(crate) fn rect(min: (f64, f64), max: (f64, f64)) -> Vec<[f64; 2]> {
 /// half-way between nodes): box edges placed there make DEM cells either fully in or out.
 pub(crate) fn snap_to_cell_boundary(x: f64, cell: f64) -> f64 {
     ((x / cell - 0.5).round() + 0.5) * cell
-}
-
-/// A deterministic number in [0, 1) from integers.
-pub(crate) fn hash01(a: i64, b: i64, c: u64) -> f64 {
-    let mut z = (a as u64)
-        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        .wrapping_add((b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F))
-        .wrapping_add(c.wrapping_mul(0x1656_67B1_9E37_79F9));
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 53) as f64
 }

@@ -1,0 +1,174 @@
+//! `cargo xtask bench matching`: exhaustive matching of the 29 `lund` photos by timesift and by
+//! COLMAP's CPU `exhaustive_matcher`, both with 2 threads, in one run: verified pairs, median
+//! inliers per verified pair, and the time of matching plus verification (features excluded
+//! on both sides; COLMAP's time is the wall time of its `exhaustive_matcher` process).
+//!
+//! timesift uses the settings of the `match` stage for SIFT: RootSIFT, contrast threshold 0.02
+//! (COLMAP's peak threshold), at most 8192 keypoints, ratio 0.8 on descriptor angles with a mutual
+//! check, fundamental-matrix verification at 4 px with 15 inliers at least.
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use rayon::prelude::*;
+use timesift_features::{
+    DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
+};
+use timesift_matching::pairs::{PairPolicy, select};
+use timesift_matching::verify::{VerifyOptions, verify_pair};
+use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
+
+const SCRIPT: &str = include_str!("../scripts/colmap_db_stats.py");
+const THREADS: usize = 2;
+
+pub fn run() -> anyhow::Result<()> {
+    let dir = crate::shared_data().join("opensfm/lund/images");
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| dir.display().to_string())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
+        .collect();
+    paths.sort();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(THREADS)
+        .build()?;
+    let extractor = SiftExtractor {
+        detector: DetectorOptions {
+            limit: Some(KeypointLimit::spread(8192)),
+            contrast_threshold: 0.02,
+            ..DetectorOptions::default()
+        },
+        normalization: SiftNormalization::Root,
+    };
+    let (ours, features_seconds) = pool.install(|| -> anyhow::Result<_> {
+        let start = Instant::now();
+        let features = paths
+            .par_iter()
+            .map(|p| timesift_features::files::extract_file(p, &extractor as &dyn FeatureExtractor))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok((features, start.elapsed().as_secs_f64()))
+    })?;
+    let n = ours.len();
+    let pairs = select(
+        &(0..n).collect::<Vec<_>>(),
+        &vec![None; n],
+        PairPolicy::Exhaustive,
+    );
+    let options = MatchOptions {
+        ratio_on: FloatDistance::Angle,
+        ..MatchOptions::default()
+    };
+    let (mut inliers, seconds) = pool.install(|| -> anyhow::Result<_> {
+        let start = Instant::now();
+        let verified = pairs
+            .par_iter()
+            .map(|&(a, b)| -> anyhow::Result<Option<usize>> {
+                let m = match_descriptors(&ours[a].descriptors, &ours[b].descriptors, &options)?;
+                Ok(verify_pair(
+                    &ours[a].keypoints,
+                    &ours[b].keypoints,
+                    &m,
+                    None,
+                    &VerifyOptions::default(),
+                )?
+                .map(|v| v.inliers.len()))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        Ok((
+            verified.into_iter().flatten().collect::<Vec<_>>(),
+            start.elapsed().as_secs_f64(),
+        ))
+    })?;
+    inliers.sort_unstable();
+    let keypoints = ours.iter().map(|f| f.keypoints.len()).sum::<usize>() as f64 / n as f64;
+    println!(
+        "lund, {n} images, {} pairs, exhaustive, {THREADS} threads (features excluded from times)",
+        pairs.len()
+    );
+    println!(
+        "  {:<10} {:>10} {:>15} {:>15} {:>12}",
+        "", "keypoints", "verified pairs", "median inliers", "seconds"
+    );
+    println!(
+        "  {:<10} {keypoints:>10.0} {:>15} {:>15} {seconds:>12.1}   (features: {features_seconds:.1} s)",
+        "timesift",
+        inliers.len(),
+        inliers.get(inliers.len() / 2).copied().unwrap_or(0),
+    );
+    match colmap(&dir) {
+        Ok((report, colmap_seconds)) => {
+            let number = |key: &str| report[key].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "  {:<10} {:>10.0} {:>15} {:>15} {colmap_seconds:>12.1}",
+                "COLMAP",
+                number("keypoints"),
+                number("verified_pairs"),
+                number("median_inliers"),
+            );
+            println!(
+                "  time ratio COLMAP / timesift: {:.2}",
+                colmap_seconds / seconds
+            );
+        }
+        Err(e) => println!("  COLMAP unavailable: {e}"),
+    }
+    Ok(())
+}
+
+/// COLMAP's CPU feature extraction then exhaustive matching; the stats of its database and the
+/// matcher's wall time.
+fn colmap(images: &std::path::Path) -> anyhow::Result<(serde_json::Value, f64)> {
+    let dir = std::env::temp_dir().join(format!("timesift-bench-matching-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let database = dir.join("colmap.db");
+    let threads = THREADS.to_string();
+    let status = Command::new("colmap")
+        .arg("feature_extractor")
+        .arg("--database_path")
+        .arg(&database)
+        .arg("--image_path")
+        .arg(images)
+        .args([
+            "--ImageReader.single_camera",
+            "1",
+            "--SiftExtraction.use_gpu",
+            "0",
+            "--SiftExtraction.num_threads",
+            &threads,
+        ])
+        .output()
+        .context("running colmap (apt-get install colmap)")?;
+    if !status.status.success() {
+        bail!("colmap feature_extractor failed");
+    }
+    let start = Instant::now();
+    let status = Command::new("colmap")
+        .arg("exhaustive_matcher")
+        .arg("--database_path")
+        .arg(&database)
+        .args([
+            "--SiftMatching.use_gpu",
+            "0",
+            "--SiftMatching.num_threads",
+            &threads,
+        ])
+        .output()?;
+    let seconds = start.elapsed().as_secs_f64();
+    if !status.status.success() {
+        bail!("colmap exhaustive_matcher failed");
+    }
+    let script = dir.join("colmap_db_stats.py");
+    std::fs::write(&script, SCRIPT)?;
+    let output = Command::new("python3")
+        .arg(&script)
+        .arg(&database)
+        .output()?;
+    if !output.status.success() {
+        bail!("{}", String::from_utf8_lossy(&output.stderr));
+    }
+    let report = serde_json::from_slice(&output.stdout)?;
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok((report, seconds))
+}
