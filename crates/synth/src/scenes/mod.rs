@@ -108,7 +108,7 @@ pub(crate) fn cover_with_contrast(
         octaves,
         contrast,
         speckle: SPECKLE_PER_CONTRAST * contrast,
-        speckle_seed: seed ^ 0x5bec_1e5,
+        speckle_seed: seed ^ 0x05be_c1e5,
     }
 }
 
