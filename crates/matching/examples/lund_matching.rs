@@ -1,6 +1,9 @@
 //! Exhaustive matching of the 29 `lund` photos (RootSIFT, 8192 keypoints at most): seconds for
-//! extraction, descriptor matching and verification, verified pairs and median inliers.
-//! `RAYON_NUM_THREADS` sets the threads.
+//! extraction, descriptor matching and verification, verified pairs and median inliers — the
+//! loop to profile and to try settings on. Environment: `RAYON_NUM_THREADS` (threads),
+//! `CONTRAST` (detector contrast threshold, default 0.02), `EUCLIDEAN` (ratio on distances
+//! instead of angles), `UNCALIBRATED` (fundamental instead of essential with EXIF focal),
+//! `ITERATIONS` (RANSAC cap).
 
 use std::path::PathBuf;
 use std::time::Instant;
