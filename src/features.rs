@@ -20,18 +20,28 @@ pub enum Method {
     Ldb,
 }
 
-/// What `timesift features` was asked for.
-#[derive(Debug, Clone)]
+/// What `timesift features` was asked for (also its command-line arguments).
+#[derive(Debug, Clone, clap::Args)]
 pub struct FeaturesRequest {
+    /// The image (JPEG, PNG or TIFF; colour is converted to grey).
     pub image: PathBuf,
+    /// Descriptor.
+    #[arg(long, value_enum, default_value = "sift")]
     pub method: Method,
-    /// Keypoint budget (spread over the image); `None` keeps all.
+    /// Keep at most this many keypoints, strongest first, spread over the image.
+    #[arg(long)]
     pub max: Option<usize>,
-    /// Grey image of the same size: keypoints only where it is non-zero.
+    /// Grey image of the same size; keypoints only where it is non-zero.
+    #[arg(long)]
     pub mask: Option<PathBuf>,
+    /// Orientation 0 for every keypoint (images that share their rotation).
+    #[arg(long)]
     pub upright: bool,
-    /// Whether the first octave is the doubled image (`None`: automatic, up to 30 MP).
+    /// Whether the first octave doubles the image (default: images up to 30 MP).
+    #[arg(long)]
     pub upsample: Option<bool>,
+    /// Output text file.
+    #[arg(long)]
     pub out: PathBuf,
 }
 

@@ -55,28 +55,7 @@ enum Command {
         to: Option<Stage>,
     },
     /// Keypoints and descriptors of one image, written in the text format of DESIGN.md.
-    Features {
-        /// The image (JPEG, PNG or TIFF; colour is converted to grey).
-        image: PathBuf,
-        /// Descriptor.
-        #[arg(long, value_enum, default_value = "sift")]
-        method: features::Method,
-        /// Keep at most this many keypoints, strongest first, spread over the image.
-        #[arg(long)]
-        max: Option<usize>,
-        /// Grey image of the same size; keypoints only where it is non-zero.
-        #[arg(long)]
-        mask: Option<PathBuf>,
-        /// Orientation 0 for every keypoint (images that share their rotation).
-        #[arg(long)]
-        upright: bool,
-        /// Whether the first octave doubles the image (default: images up to 30 MP).
-        #[arg(long)]
-        upsample: Option<bool>,
-        /// Output text file.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    Features(features::FeaturesRequest),
     /// Compare two DEMs (GeoTIFF: DoD, co-registration, statistics, LoD, volumes) or two point
     /// clouds (LAS/LAZ: ICP, M3C2), made by timesift or any other software.
     Compare(Box<CompareArgs>),
@@ -195,29 +174,13 @@ fn run(command: Command) -> anyhow::Result<()> {
             let project = Project::load(&dir)?;
             stages::run(&project, from, to)?;
         }
-        Command::Features {
-            image,
-            method,
-            max,
-            mask,
-            upright,
-            upsample,
-            out,
-        } => {
+        Command::Features(request) => {
             let start = std::time::Instant::now();
-            let result = features::features(&features::FeaturesRequest {
-                image,
-                method,
-                max,
-                mask,
-                upright,
-                upsample,
-                out: out.clone(),
-            })?;
+            let result = features::features(&request)?;
             println!(
                 "{} keypoints -> {} in {:.2} s",
                 result.keypoints.len(),
-                out.display(),
+                request.out.display(),
                 start.elapsed().as_secs_f64()
             );
         }

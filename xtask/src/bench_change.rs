@@ -12,7 +12,6 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -44,24 +43,6 @@ fn load(date: &str) -> anyhow::Result<Dem> {
     let path = dsm_path(date);
     let raster = read_f32(&path).with_context(|| path.display().to_string())?;
     Ok(Dem::from_raster(raster, Some(SANDPYPER_NODATA))?)
-}
-
-fn python(script: &Path, args: &[String]) -> anyhow::Result<serde_json::Value> {
-    let output = Command::new("python3")
-        .arg(script)
-        .args(args)
-        .output()
-        .context("running python3")?;
-    if !output.status.success() {
-        bail!(
-            "{}",
-            String::from_utf8_lossy(&output.stderr)
-                .lines()
-                .last()
-                .unwrap_or("python failed")
-        );
-    }
-    Ok(serde_json::from_slice(&output.stdout)?)
 }
 
 /// Runs the benchmark. `m3c2_spacing` is the core-point spacing (m).
@@ -186,7 +167,7 @@ fn nuth_kaab_pairs(dir: &Path, script: &Path, json: bool) -> anyhow::Result<serd
                 &NuthKaabOptions::xdem_like(),
             );
             let ours_time = t0.elapsed().as_secs_f64();
-            let peer = python(
+            let peer = crate::python_json(
                 script,
                 &[
                     dsm_path(a).display().to_string(),
@@ -330,7 +311,7 @@ fn m3c2_against_py4dgeo(
         write_npy(&dir.join(name), pts)?;
     }
     let out_bin = dir.join("py4dgeo.bin");
-    let peer = python(
+    let peer = crate::python_json(
         script,
         &[
             dir.join("e1.npy").display().to_string(),

@@ -134,25 +134,6 @@ fn load_dates(dir: &Path) -> anyhow::Result<Vec<Date>> {
         .collect()
 }
 
-fn python(args: &[String]) -> anyhow::Result<serde_json::Value> {
-    let output = Command::new("python3")
-        .args(args)
-        .output()
-        .context("running python3")?;
-    if !output.status.success() {
-        bail!(
-            "{}",
-            String::from_utf8_lossy(&output.stderr)
-                .lines()
-                .last()
-                .unwrap_or("python failed")
-        );
-    }
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    let line = stdout.lines().last().unwrap_or("{}");
-    Ok(serde_json::from_str(line)?)
-}
-
 /// Squared L2 or Hamming distance between descriptor `i` of `a` and `j` of `b`.
 fn distance(a: &Descriptors, i: usize, b: &Descriptors, j: usize) -> f64 {
     match (a, b) {
@@ -219,8 +200,7 @@ fn quality(dir: &Path, script: &Path, budget: usize) -> anyhow::Result<()> {
         dates.len()
     );
     let mut methods: Vec<(&str, Vec<Features>)> = Vec::new();
-    let mut args = vec![
-        script.display().to_string(),
+    let mut args: Vec<String> = vec![
         "quality".into(),
         "--budget".into(),
         budget.to_string(),
@@ -232,7 +212,7 @@ fn quality(dir: &Path, script: &Path, budget: usize) -> anyhow::Result<()> {
             .iter()
             .map(|d| format!("{}:{}", d.grey_png.display(), d.mask_png.display())),
     );
-    match python(&args) {
+    match crate::python_json(script, &args) {
         Ok(report) => {
             let features: anyhow::Result<Vec<Features>> = dates
                 .iter()
@@ -419,12 +399,7 @@ fn colmap_speed(dir: &Path, image_dir: &Path, count: usize, threads: usize) -> a
 
 fn speed(dir: &Path, script: &Path) -> anyhow::Result<()> {
     let lund_dir = crate::shared_data().join("opensfm/lund/images");
-    let mut lund: Vec<PathBuf> = std::fs::read_dir(&lund_dir)
-        .with_context(|| lund_dir.display().to_string())?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
-        .collect();
-    lund.sort();
+    let lund = crate::lund_images()?;
     // The 12 MP image: a lund photo upsampled to 4000 × 3000, three copies so that process start
     // is amortised for COLMAP.
     let big_dir = dir.join("12mp");
@@ -469,8 +444,7 @@ fn speed(dir: &Path, script: &Path) -> anyhow::Result<()> {
         for threads in [1, 2] {
             let (ours, kp_ours) = timesift_speed(paths, &sift, threads)?;
             let (ours_ldb, _) = timesift_speed(paths, &ldb, threads)?;
-            let mut args = vec![
-                script.display().to_string(),
+            let mut args: Vec<String> = vec![
                 "speed".into(),
                 "--budget".into(),
                 SPEED_BUDGET.to_string(),
@@ -478,7 +452,7 @@ fn speed(dir: &Path, script: &Path) -> anyhow::Result<()> {
                 threads.to_string(),
             ];
             args.extend(paths.iter().map(|p| p.display().to_string()));
-            let opencv = python(&args);
+            let opencv = crate::python_json(script, &args);
             let colmap = colmap_speed(dir, image_dir, paths.len(), threads);
             let (opencv_text, kp_opencv) = match &opencv {
                 Ok(r) => {

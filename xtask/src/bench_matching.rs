@@ -7,7 +7,6 @@
 //! (COLMAP's peak threshold), at most 8192 keypoints, ratio 0.8 on descriptor angles with a mutual
 //! check, fundamental-matrix verification at 4 px with 15 inliers at least.
 
-use std::path::PathBuf;
 use std::process::Command;
 use std::time::Instant;
 
@@ -25,12 +24,7 @@ const THREADS: usize = 2;
 
 pub fn run() -> anyhow::Result<()> {
     let dir = crate::shared_data().join("opensfm/lund/images");
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .with_context(|| dir.display().to_string())?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
-        .collect();
-    paths.sort();
+    let paths = crate::lund_images()?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(THREADS)
         .build()?;

@@ -125,6 +125,41 @@ fn shared_data() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
 }
 
+/// The 29 `lund` photos, sorted.
+fn lund_images() -> anyhow::Result<Vec<PathBuf>> {
+    let dir = shared_data().join("opensfm/lund/images");
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| dir.display().to_string())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
+        .collect();
+    paths.sort();
+    Ok(paths)
+}
+
+/// Runs a peer's Python script and parses its JSON report (the whole output, or else its last
+/// line, so that scripts may log before it). Errors carry the script's last line of stderr.
+fn python_json(script: &std::path::Path, args: &[String]) -> anyhow::Result<serde_json::Value> {
+    let output = std::process::Command::new("python3")
+        .arg(script)
+        .args(args)
+        .output()
+        .context("running python3")?;
+    if !output.status.success() {
+        bail!(
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+                .lines()
+                .last()
+                .unwrap_or("python failed")
+        );
+    }
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    serde_json::from_str(&stdout)
+        .or_else(|_| serde_json::from_str(stdout.lines().last().unwrap_or("{}")))
+        .context("the peer's report is not JSON")
+}
+
 fn main() -> anyhow::Result<()> {
     match Cli::parse().task {
         Task::Bench {
