@@ -14,6 +14,7 @@ mod error;
 pub mod features;
 pub mod info;
 pub mod init;
+pub mod matching_stages;
 pub mod project;
 pub mod stages;
 

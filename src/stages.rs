@@ -79,6 +79,15 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
 /// [`ProjectError::StageNotAvailable`], leaving earlier outputs untouched.
 pub fn run_stage(project: &Project, stage: Stage) -> Result<(), ProjectError> {
     match stage {
+        Stage::Features => {
+            crate::matching_stages::features_stage(project)?;
+            Ok(())
+        }
+        Stage::Match => {
+            let summary = crate::matching_stages::match_stage(project)?;
+            tracing::info!(%summary, "match stage done");
+            Ok(())
+        }
         Stage::Change => {
             for dir in crate::compare::change_stage(project)? {
                 tracing::info!(out = %dir.display(), "change products written");

@@ -1,0 +1,194 @@
+//! The `features` and `match` stages of `timesift run`: keypoints and descriptors per image, then
+//! epoch-aware pairs, matching, verification and tracks, written under `work/` of the project so
+//! that a run resumes where it stopped and memory holds one image's features per thread while
+//! extracting.
+//!
+//! Files: `work/features/<n>.feat` for image number n (its index in the project), `work/matches/
+//! <a>_<b>.match` with the verified matches of images a and b, and `work/matches/summary.json`
+//! (pairs, verified pairs per epoch pair, track lengths).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use rayon::prelude::*;
+use timesift_core::{EpochId, ImageId};
+use timesift_features::{
+    DetectorOptions, FeatureExtractor, KeypointLimit, LdbExtractor, SiftExtractor,
+    SiftNormalization,
+};
+use timesift_matching::pairs::{PairPolicy, epoch_aware};
+use timesift_matching::storage::{read_features, read_matches, write_features, write_matches};
+use timesift_matching::tracks::{PairMatches, build_tracks};
+use timesift_matching::verify::{VerifyOptions, verify_pair};
+use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
+
+use crate::config::FeatureMethod;
+use crate::{Project, ProjectError};
+
+/// Neighbours of each image within its epoch, by prior camera centre.
+const WITHIN_EPOCH_NEIGHBOURS: usize = 20;
+/// Nearest images of every other epoch matched with each image.
+const ACROSS_EPOCH_NEIGHBOURS: usize = 5;
+
+fn features_path(project: &Project, image: usize) -> PathBuf {
+    project
+        .dir
+        .join("work/features")
+        .join(format!("{image}.feat"))
+}
+
+fn matches_path(project: &Project, a: usize, b: usize) -> PathBuf {
+    project
+        .dir
+        .join("work/matches")
+        .join(format!("{a}_{b}.match"))
+}
+
+fn stage_error(stage: &str, message: String) -> ProjectError {
+    ProjectError::Path {
+        path: PathBuf::from(stage),
+        message,
+    }
+}
+
+/// Extracts the features of every image whose feature file is missing or unreadable.
+pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
+    let detector = DetectorOptions {
+        limit: Some(KeypointLimit::spread(project.config.align.max_keypoints)),
+        // COLMAP's peak threshold: more keypoints in weak texture, which epochs years apart need.
+        contrast_threshold: 0.02,
+        ..DetectorOptions::default()
+    };
+    let extractor: Box<dyn FeatureExtractor> = match project.config.align.features {
+        FeatureMethod::Sift => Box::new(SiftExtractor {
+            detector,
+            normalization: SiftNormalization::Root,
+        }),
+        FeatureMethod::Ldb => Box::new(LdbExtractor { detector }),
+    };
+    let todo: Vec<usize> = (0..project.images.len())
+        .filter(|&i| read_features(&features_path(project, i)).is_err())
+        .collect();
+    let failures: Vec<String> = todo
+        .par_iter()
+        .filter_map(|&i| {
+            let image = project.dir.join(&project.images[i].name);
+            let result = timesift_features::files::extract_file(&image, extractor.as_ref())
+                .map_err(|e| e.to_string())
+                .and_then(|f| {
+                    write_features(&features_path(project, i), &f.keypoints, &f.descriptors)
+                        .map_err(|e| e.to_string())
+                });
+            result.err()
+        })
+        .collect();
+    if let Some(first) = failures.first() {
+        return Err(stage_error(
+            "features",
+            format!(
+                "{} of {} images failed; first: {first}",
+                failures.len(),
+                todo.len()
+            ),
+        ));
+    }
+    tracing::info!(
+        extracted = todo.len(),
+        total = project.images.len(),
+        "features"
+    );
+    Ok(todo.len())
+}
+
+/// Matches and verifies the epoch-aware pairs whose match file is missing, then builds tracks
+/// over all verified pairs and writes the summary.
+pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError> {
+    let n = project.images.len();
+    let features = (0..n)
+        .into_par_iter()
+        .map(|i| read_features(&features_path(project, i)))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))?;
+    let priors = project.camera_priors()?;
+    let positions: Vec<Option<[f64; 3]>> = priors
+        .iter()
+        .map(|p| {
+            p.as_ref()
+                .map(|p| [p.position.x, p.position.y, p.position.z])
+        })
+        .collect();
+    let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
+    let within = if positions.iter().all(Option::is_some) {
+        PairPolicy::Spatial {
+            neighbours: WITHIN_EPOCH_NEIGHBOURS,
+            max_distance: None,
+        }
+    } else {
+        PairPolicy::Exhaustive
+    };
+    let pairs = epoch_aware(&epoch_of, &positions, within, ACROSS_EPOCH_NEIGHBOURS);
+    let options = MatchOptions {
+        ratio_on: FloatDistance::Angle,
+        ..MatchOptions::default()
+    };
+    let verify = VerifyOptions::default();
+    let results: Vec<Result<Vec<timesift_matching::Match>, String>> = pairs
+        .par_iter()
+        .map(|&(a, b)| {
+            let path = matches_path(project, a, b);
+            if let Ok(done) = read_matches(&path) {
+                return Ok(done);
+            }
+            let (ka, da) = &features[a];
+            let (kb, db) = &features[b];
+            let putative = match_descriptors(da, db, &options).map_err(|e| e.to_string())?;
+            let inliers = verify_pair(ka, kb, &putative, None, &verify)
+                .map_err(|e| e.to_string())?
+                .map(|v| v.inliers)
+                .unwrap_or_default();
+            write_matches(&path, &inliers).map_err(|e| e.to_string())?;
+            Ok(inliers)
+        })
+        .collect();
+    let mut verified = Vec::new();
+    for (&(a, b), result) in pairs.iter().zip(results) {
+        let matches = result.map_err(|e| stage_error("match", e))?;
+        if !matches.is_empty() {
+            verified.push(PairMatches {
+                a: ImageId::from(a),
+                b: ImageId::from(b),
+                matches,
+            });
+        }
+    }
+    let counts: Vec<usize> = features.iter().map(|f| f.0.len()).collect();
+    let tracks =
+        build_tracks(&counts, &verified).map_err(|e| stage_error("match", e.to_string()))?;
+    let mut per_epoch_pair: BTreeMap<String, usize> = BTreeMap::new();
+    for p in &verified {
+        let (ea, eb) = (epoch_of[p.a.index()], epoch_of[p.b.index()]);
+        let (ea, eb) = (ea.min(eb), ea.max(eb));
+        let key = format!(
+            "{}__{}",
+            project.epochs[ea.index()].name,
+            project.epochs[eb.index()].name
+        );
+        *per_epoch_pair.entry(key).or_insert(0) += 1;
+    }
+    let summary = serde_json::json!({
+        "pairs": pairs.len(),
+        "verified_pairs": verified.len(),
+        "verified_pairs_per_epoch_pair": per_epoch_pair,
+        "tracks": tracks.tracks.len(),
+        "conflicting_matches": tracks.conflicts,
+        "track_lengths": tracks.length_histogram(),
+    });
+    let path = project.dir.join("work/matches/summary.json");
+    let text = serde_json::to_string_pretty(&summary).unwrap_or_default();
+    timesift_io::fsutil::write_atomically(&path, |w| {
+        use std::io::Write;
+        w.write_all(text.as_bytes())
+            .map_err(|e| timesift_io::IoError::io(&path, e))
+    })?;
+    Ok(summary)
+}
