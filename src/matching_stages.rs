@@ -74,7 +74,7 @@ pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
         .filter_map(|&i| {
             let image = project.dir.join(&project.images[i].name);
             let result = timesift_features::files::extract_file(&image, extractor.as_ref())
-                .map_err(|e| e.to_string())
+                .map_err(|e| format!("{}: {e}", project.images[i].name))
                 .and_then(|f| {
                     write_features(&features_path(project, i), &f.keypoints, &f.descriptors)
                         .map_err(|e| e.to_string())

@@ -282,9 +282,18 @@ fn corrupt_jpeg_names_the_file() {
 fn run_reports_stages_not_built_yet_and_keeps_inputs() {
     let p = small_project();
     let before = std::fs::read(p.path().join("project.toml")).unwrap();
+    // The features stage runs, and refuses images too small for a scale space, naming one.
     let (ok, _, err) = timesift(&["run", p.path().to_str().unwrap()]);
     assert!(!ok);
-    assert!(err.contains("stage features is not available yet"), "{err}");
+    assert!(
+        err.contains("6 of 6 images failed")
+            && err.contains("images/2018/img0.png")
+            && err.contains("too small"),
+        "{err}"
+    );
+    let (ok, _, err) = timesift(&["run", p.path().to_str().unwrap(), "--from", "align"]);
+    assert!(!ok);
+    assert!(err.contains("stage align is not available yet"), "{err}");
     let (ok, _, err) = timesift(&[
         "run",
         p.path().to_str().unwrap(),
