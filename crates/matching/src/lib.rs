@@ -6,7 +6,8 @@
 //! essential and homography RANSAC from `timesift-geometry`, two-view type), [`pairs`] (which
 //! image pairs to match: exhaustive, sequential, spatial, epoch-aware), [`tracks`]
 //! (conflict-free union-find over verified matches, statistics per epoch pair), [`storage`]
-//! (versioned binary feature and match files with checksums).
+//! (versioned binary feature and match files with checksums), [`stp`] (stable tie points between
+//! two separately oriented epochs).
 //!
 //! Invariants: consumes keypoints and descriptors typed in `timesift-core` and uses
 //! `timesift-geometry` for verification; never reads images; results do not depend on the
@@ -16,6 +17,7 @@ mod error;
 pub mod matcher;
 pub mod pairs;
 pub mod storage;
+pub mod stp;
 pub mod tracks;
 pub mod verify;
 
