@@ -215,13 +215,15 @@ pub fn stable_tie_points(
             "pairs that agree on one similarity"
         },
     })?;
-    let (pairs, moved): (Vec<(StablePair, bool)>, Vec<(StablePair, bool)>) = candidates
-        .iter()
-        .copied()
-        .zip(result.inliers.iter().copied())
-        .partition(|(_, ok)| *ok);
-    let pairs: Vec<StablePair> = pairs.into_iter().map(|(p, _)| p).collect();
-    let moved: Vec<StablePair> = moved.into_iter().map(|(p, _)| p).collect();
+    let mut pairs = Vec::new();
+    let mut moved = Vec::new();
+    for (p, &inlier) in candidates.iter().zip(&result.inliers) {
+        if inlier {
+            pairs.push(*p);
+        } else {
+            moved.push(*p);
+        }
+    }
     // Back to absolute coordinates: ref = s R (other − o) + t + o.
     let local_fit = result.model;
     let reference_from_other = Similarity {
