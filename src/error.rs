@@ -41,6 +41,12 @@ pub enum ProjectError {
         context: String,
         source: timesift_change::ChangeError,
     },
+    /// A stage of `timesift run` failed.
+    #[error("{stage}: {message}")]
+    Stage {
+        stage: &'static str,
+        message: String,
+    },
     /// A stage of `timesift run` is not built yet.
     #[error("stage {0} is not available yet")]
     StageNotAvailable(&'static str),

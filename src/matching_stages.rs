@@ -44,11 +44,8 @@ fn matches_path(project: &Project, a: usize, b: usize) -> PathBuf {
         .join(format!("{a}_{b}.match"))
 }
 
-fn stage_error(stage: &str, message: String) -> ProjectError {
-    ProjectError::Path {
-        path: PathBuf::from(stage),
-        message,
-    }
+fn stage_error(stage: &'static str, message: String) -> ProjectError {
+    ProjectError::Stage { stage, message }
 }
 
 /// Extracts the features of every image whose feature file is missing or unreadable.

@@ -19,15 +19,14 @@ use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use timesift_core::Descriptors;
 use timesift_features::files::extract_files;
-use timesift_features::ldb::hamming;
 use timesift_features::text::{DescriptorKind, read};
 use timesift_features::{
     DetectorOptions, FeatureExtractor, Features, GreyImage, KeypointLimit, LdbExtractor, Mask,
     SiftExtractor, SiftNormalization,
 };
 use timesift_io::geotiff::{GeoTransform, read_bands_f32};
+use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
 
 const OPENCV_SCRIPT: &str = include_str!("../scripts/opencv_sift.py");
 
@@ -36,7 +35,7 @@ const DATES: [&str; 9] = [
     "20190516",
 ];
 /// Lowe's ratio for the quality comparison (fixed by the issue).
-const RATIO: f64 = 0.8;
+const RATIO: f32 = 0.8;
 /// A match is correct within this many pixels of the geotransform's prediction.
 const CORRECT_PX: f64 = 2.0;
 /// Keypoint budget of the speed runs (COLMAP's default `max_num_features`).
@@ -134,61 +133,35 @@ fn load_dates(dir: &Path) -> anyhow::Result<Vec<Date>> {
         .collect()
 }
 
-/// Squared L2 or Hamming distance between descriptor `i` of `a` and `j` of `b`.
-fn distance(a: &Descriptors, i: usize, b: &Descriptors, j: usize) -> f64 {
-    match (a, b) {
-        (Descriptors::Float { dim, data: x }, Descriptors::Float { data: y, .. }) => x
-            [i * dim..(i + 1) * dim]
-            .iter()
-            .zip(&y[j * dim..(j + 1) * dim])
-            .map(|(p, q)| ((p - q) * (p - q)) as f64)
-            .sum::<f64>()
-            .sqrt(),
-        (Descriptors::Binary { bytes, data: x }, Descriptors::Binary { data: y, .. }) => hamming(
-            &x[i * bytes..(i + 1) * bytes],
-            &y[j * bytes..(j + 1) * bytes],
-        )
-            as f64,
-        _ => f64::INFINITY,
-    }
-}
-
-/// Ratio-test matches a → b and how many of them the geotransforms confirm.
+/// Ratio-test matches a → b (nearest neighbour, no mutual check) and how many of them the
+/// geotransforms confirm.
 fn correct_matches(
     a: &Features,
     ta: &GeoTransform,
     b: &Features,
     tb: &GeoTransform,
-) -> (usize, usize) {
-    use rayon::prelude::*;
-    let results: Vec<(bool, bool)> = (0..a.keypoints.len())
-        .into_par_iter()
-        .map(|i| {
-            let (mut best, mut second, mut best_j) = (f64::INFINITY, f64::INFINITY, 0);
-            for j in 0..b.keypoints.len() {
-                let d = distance(&a.descriptors, i, &b.descriptors, j);
-                if d < best {
-                    second = best;
-                    best = d;
-                    best_j = j;
-                } else if d < second {
-                    second = d;
-                }
-            }
-            if !(best < RATIO * second) {
-                return (false, false);
-            }
-            let ka = &a.keypoints[i];
+) -> anyhow::Result<(usize, usize)> {
+    let matches = match_descriptors(
+        &a.descriptors,
+        &b.descriptors,
+        &MatchOptions {
+            ratio: RATIO,
+            mutual: false,
+            max_distance: None,
+            ratio_on: FloatDistance::Euclidean,
+        },
+    )?;
+    let correct = matches
+        .iter()
+        .filter(|m| {
+            let ka = &a.keypoints[m.query as usize];
+            let kb = &b.keypoints[m.train as usize];
             let (x, y) = ta.pixel_to_world(ka.x, ka.y);
             let (u, v) = tb.world_to_pixel(x, y);
-            let kb = &b.keypoints[best_j];
-            (true, (kb.x - u).hypot(kb.y - v) <= CORRECT_PX)
+            (kb.x - u).hypot(kb.y - v) <= CORRECT_PX
         })
-        .collect();
-    (
-        results.iter().filter(|r| r.0).count(),
-        results.iter().filter(|r| r.1).count(),
-    )
+        .count();
+    Ok((matches.len(), correct))
 }
 
 fn quality(dir: &Path, script: &Path, budget: usize) -> anyhow::Result<()> {
@@ -283,7 +256,7 @@ fn quality(dir: &Path, script: &Path, budget: usize) -> anyhow::Result<()> {
                     &dates[i].transform,
                     &features[j],
                     &dates[j].transform,
-                );
+                )?;
                 totals[m].0 += matched;
                 totals[m].1 += correct;
                 print!(" {:>17}", format!("{correct}/{matched}"));
@@ -362,38 +335,25 @@ fn timesift_speed(
 fn colmap_speed(dir: &Path, image_dir: &Path, count: usize, threads: usize) -> anyhow::Result<f64> {
     let database = dir.join(format!("colmap-{threads}.db"));
     let _ = std::fs::remove_file(&database);
-    let start = Instant::now();
-    let output = Command::new("colmap")
-        .arg("feature_extractor")
-        .arg("--database_path")
-        .arg(&database)
-        .arg("--image_path")
-        .arg(image_dir)
-        .args([
-            "--ImageReader.single_camera",
-            "1",
-            "--SiftExtraction.use_gpu",
-            "0",
-            "--SiftExtraction.num_threads",
-            &threads.to_string(),
-            "--SiftExtraction.max_image_size",
-            "6000",
-            "--SiftExtraction.max_num_features",
-            &SPEED_BUDGET.to_string(),
-        ])
-        .output()
-        .context("running colmap (apt-get install colmap)")?;
-    let seconds = start.elapsed().as_secs_f64();
+    let seconds = crate::colmap(&[
+        "feature_extractor".into(),
+        "--database_path".into(),
+        database.display().to_string(),
+        "--image_path".into(),
+        image_dir.display().to_string(),
+        "--ImageReader.single_camera".into(),
+        "1".into(),
+        "--SiftExtraction.use_gpu".into(),
+        "0".into(),
+        "--SiftExtraction.num_threads".into(),
+        threads.to_string(),
+        "--SiftExtraction.max_image_size".into(),
+        "6000".into(),
+        "--SiftExtraction.max_num_features".into(),
+        SPEED_BUDGET.to_string(),
+    ]);
     let _ = std::fs::remove_file(&database);
-    if !output.status.success() {
-        bail!(
-            "colmap failed: {}",
-            String::from_utf8_lossy(&output.stderr)
-                .lines()
-                .last()
-                .unwrap_or("")
-        );
-    }
+    let seconds = seconds?;
     Ok(seconds / count as f64)
 }
 

@@ -7,10 +7,8 @@
 //! (COLMAP's peak threshold), at most 8192 keypoints, ratio 0.8 on descriptor angles with a mutual
 //! check, fundamental-matrix verification at 4 px with 15 inliers at least.
 
-use std::process::Command;
 use std::time::Instant;
 
-use anyhow::{Context, bail};
 use rayon::prelude::*;
 use timesift_features::{
     DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
@@ -118,51 +116,31 @@ fn colmap(images: &std::path::Path) -> anyhow::Result<(serde_json::Value, f64)> 
     std::fs::create_dir_all(&dir)?;
     let database = dir.join("colmap.db");
     let threads = THREADS.to_string();
-    let status = Command::new("colmap")
-        .arg("feature_extractor")
-        .arg("--database_path")
-        .arg(&database)
-        .arg("--image_path")
-        .arg(images)
-        .args([
-            "--ImageReader.single_camera",
-            "1",
-            "--SiftExtraction.use_gpu",
-            "0",
-            "--SiftExtraction.num_threads",
-            &threads,
-        ])
-        .output()
-        .context("running colmap (apt-get install colmap)")?;
-    if !status.status.success() {
-        bail!("colmap feature_extractor failed");
-    }
-    let start = Instant::now();
-    let status = Command::new("colmap")
-        .arg("exhaustive_matcher")
-        .arg("--database_path")
-        .arg(&database)
-        .args([
-            "--SiftMatching.use_gpu",
-            "0",
-            "--SiftMatching.num_threads",
-            &threads,
-        ])
-        .output()?;
-    let seconds = start.elapsed().as_secs_f64();
-    if !status.status.success() {
-        bail!("colmap exhaustive_matcher failed");
-    }
+    crate::colmap(&[
+        "feature_extractor".into(),
+        "--database_path".into(),
+        database.display().to_string(),
+        "--image_path".into(),
+        images.display().to_string(),
+        "--ImageReader.single_camera".into(),
+        "1".into(),
+        "--SiftExtraction.use_gpu".into(),
+        "0".into(),
+        "--SiftExtraction.num_threads".into(),
+        threads.clone(),
+    ])?;
+    let seconds = crate::colmap(&[
+        "exhaustive_matcher".into(),
+        "--database_path".into(),
+        database.display().to_string(),
+        "--SiftMatching.use_gpu".into(),
+        "0".into(),
+        "--SiftMatching.num_threads".into(),
+        threads,
+    ])?;
     let script = dir.join("colmap_db_stats.py");
     std::fs::write(&script, SCRIPT)?;
-    let output = Command::new("python3")
-        .arg(&script)
-        .arg(&database)
-        .output()?;
-    if !output.status.success() {
-        bail!("{}", String::from_utf8_lossy(&output.stderr));
-    }
-    let report = serde_json::from_slice(&output.stdout)?;
+    let report = crate::python_json(&script, &[database.display().to_string()])?;
     let _ = std::fs::remove_dir_all(&dir);
     Ok((report, seconds))
 }

@@ -137,6 +137,27 @@ fn lund_images() -> anyhow::Result<Vec<PathBuf>> {
     Ok(paths)
 }
 
+/// Runs `colmap` with `args`; its wall time in seconds. Errors carry its last line of stderr.
+fn colmap(args: &[String]) -> anyhow::Result<f64> {
+    let start = std::time::Instant::now();
+    let output = std::process::Command::new("colmap")
+        .args(args)
+        .output()
+        .context("running colmap (apt-get install colmap)")?;
+    let seconds = start.elapsed().as_secs_f64();
+    if !output.status.success() {
+        bail!(
+            "colmap {} failed: {}",
+            args.first().map_or("", String::as_str),
+            String::from_utf8_lossy(&output.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        );
+    }
+    Ok(seconds)
+}
+
 /// Runs a peer's Python script and parses its JSON report (the whole output, or else its last
 /// line, so that scripts may log before it). Errors carry the script's last line of stderr.
 fn python_json(script: &std::path::Path, args: &[String]) -> anyhow::Result<serde_json::Value> {

@@ -7,13 +7,14 @@
 //! Keypoint response and octave are not stored: they read back as 0.
 
 use std::fmt::Write as _;
+use std::io::Write as _;
 use std::path::Path;
 
 use timesift_core::{Descriptors, Keypoint};
 
 use crate::{FeatureError, Features};
 
-/// Writes `features` to `path` atomically (temporary file, then rename).
+/// Writes `features` to `path` atomically (`timesift_io::fsutil::write_atomically`).
 pub fn write(path: &Path, features: &Features) -> Result<(), FeatureError> {
     let n = features.keypoints.len();
     if features.descriptors.len() != n {
@@ -46,17 +47,11 @@ pub fn write(path: &Path, features: &Features) -> Result<(), FeatureError> {
         }
         text.push('\n');
     }
-    let mut tmp_name = path.file_name().unwrap_or_default().to_os_string();
-    tmp_name.push(".tmp-write");
-    let tmp = path.with_file_name(tmp_name);
-    std::fs::write(&tmp, text).map_err(|source| FeatureError::Io {
-        path: tmp.clone(),
-        source,
+    timesift_io::fsutil::write_atomically(path, |w| {
+        w.write_all(text.as_bytes())
+            .map_err(|e| timesift_io::IoError::io(path, e))
     })?;
-    std::fs::rename(&tmp, path).map_err(|source| FeatureError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    Ok(())
 }
 
 /// What kind of descriptor a feature file holds.

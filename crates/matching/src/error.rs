@@ -20,7 +20,10 @@ pub enum MatchingError {
     /// A feature or match file is damaged or of another kind.
     #[error("{}: {message}", path.display())]
     Corrupt { path: PathBuf, message: String },
-    /// Reading or writing a file failed.
+    /// Writing a file failed (the message names it).
+    #[error(transparent)]
+    Write(#[from] timesift_io::IoError),
+    /// Reading a file failed.
     #[error("{}: {source}", path.display())]
     Io {
         path: PathBuf,

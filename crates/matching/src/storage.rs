@@ -28,16 +28,12 @@ fn fnv1a(data: &[u8]) -> u64 {
 fn write_atomic(path: &Path, mut bytes: Vec<u8>) -> Result<(), MatchingError> {
     let sum = fnv1a(&bytes);
     bytes.extend_from_slice(&sum.to_le_bytes());
-    let io = |source, p: &Path| MatchingError::Io {
-        path: p.to_path_buf(),
-        source,
-    };
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| io(e, dir))?;
-    }
-    let tmp = path.with_extension("tmp-write");
-    std::fs::write(&tmp, &bytes).map_err(|e| io(e, &tmp))?;
-    std::fs::rename(&tmp, path).map_err(|e| io(e, path))
+    timesift_io::fsutil::write_atomically(path, |w| {
+        use std::io::Write;
+        w.write_all(&bytes)
+            .map_err(|e| timesift_io::IoError::io(path, e))
+    })?;
+    Ok(())
 }
 
 /// Reads a whole file, checks magic, version and checksum; returns the payload after the header.

@@ -129,14 +129,10 @@ pub fn stable_tie_points(
         });
     }
     let tree: ImmutableKdTree<f64, 2> =
-        ImmutableKdTree::new_from_slice(&local).map_err(|e| MatchingError::InvalidOption {
+        ImmutableKdTree::new_from_slice(&local).map_err(|_| MatchingError::InvalidOption {
             name: "stable tie points",
             value: local.len() as f64,
-            expected: if format!("{e:?}").is_empty() {
-                ""
-            } else {
-                "positions a k-d tree accepts"
-            },
+            expected: "finite positions a k-d tree accepts",
         })?;
     // Best and second-best candidate of every reference point.
     let r2 = options.radius * options.radius;

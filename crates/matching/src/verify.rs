@@ -83,21 +83,18 @@ pub fn verify_pair(
     }
     let mut p1 = Vec::with_capacity(matches.len());
     let mut p2 = Vec::with_capacity(matches.len());
+    let pixel = |keypoints: &[Keypoint], index: u32| {
+        keypoints
+            .get(index as usize)
+            .map(|k| Vector2::new(k.x, k.y))
+            .ok_or(MatchingError::KeypointIndex {
+                index: index as usize,
+                count: keypoints.len(),
+            })
+    };
     for m in matches {
-        let ka = a
-            .get(m.query as usize)
-            .ok_or(MatchingError::KeypointIndex {
-                index: m.query as usize,
-                count: a.len(),
-            })?;
-        let kb = b
-            .get(m.train as usize)
-            .ok_or(MatchingError::KeypointIndex {
-                index: m.train as usize,
-                count: b.len(),
-            })?;
-        p1.push(Vector2::new(ka.x, ka.y));
-        p2.push(Vector2::new(kb.x, kb.y));
+        p1.push(pixel(a, m.query)?);
+        p2.push(pixel(b, m.train)?);
     }
     let ransac_options = RansacOptions {
         max_error: options.max_error_px,

@@ -1,13 +1,13 @@
 //! The 29 `lund` photos, exhaustively matched and verified: the verified pair graph connects
 //! every image, and every track is consistent.
 
+mod common;
+
 use std::collections::BTreeSet;
 use std::path::PathBuf;
 
 use timesift_core::ImageId;
-use timesift_features::{
-    DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
-};
+use timesift_features::FeatureExtractor;
 use timesift_matching::pairs::{PairPolicy, select};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
@@ -22,13 +22,7 @@ fn lund_pair_graph_is_connected() {
         .filter_map(|e| e.ok().map(|e| e.path()))
         .collect();
     paths.sort();
-    let extractor = SiftExtractor {
-        detector: DetectorOptions {
-            limit: Some(KeypointLimit::spread(2000)),
-            ..DetectorOptions::default()
-        },
-        normalization: SiftNormalization::Root,
-    };
+    let extractor = common::rootsift(2000);
     let features: Vec<_> = paths
         .iter()
         .map(|p| {

@@ -5,12 +5,12 @@
 //! epochs), and the similarity fitted on them undoes the known one within a ground sampling
 //! distance over the scene.
 
+mod common;
+
 use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_core::{CameraModel, Descriptors, ImageId, project_world};
-use timesift_features::{
-    DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
-};
+use timesift_features::FeatureExtractor;
 use timesift_geometry::similarity::Similarity;
 use timesift_geometry::triangulation::triangulate_two_view_midpoint;
 use timesift_matching::pairs::{PairPolicy, select};
@@ -18,17 +18,10 @@ use timesift_matching::stp::{StpOptions, TiePoint, stable_tie_points};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
-use timesift_synth::scenes::{Scale, build};
-use timesift_synth::writer::{WriteOptions, write_scene};
 
 #[test]
 fn stable_tie_points_avoid_the_slide_and_recover_the_frame() {
-    let dir = tempfile::tempdir().unwrap();
-    let spec = build("landslide", Scale::Small, 1).unwrap();
-    write_scene(&spec, dir.path(), &WriteOptions::default()).unwrap();
-    let truth =
-        timesift_io::cameras_json::read_cameras_json(&dir.path().join("truth/cameras.json"))
-            .unwrap();
+    let common::Rendered { dir, truth, epochs } = common::landslide();
     let stable =
         timesift_io::csv_inputs::read_stable_areas(&dir.path().join("stable.csv")).unwrap();
     let is_stable = |x: f64, y: f64| {
@@ -37,16 +30,7 @@ fn stable_tie_points_avoid_the_slide_and_recover_the_frame() {
             .flat_map(|a| &a.polygons)
             .any(|p| p.contains(x, y))
     };
-    let mut epochs: Vec<String> = truth.images.iter().map(|i| i.epoch.clone()).collect();
-    epochs.sort();
-    epochs.dedup();
-    let extractor = SiftExtractor {
-        detector: DetectorOptions {
-            limit: Some(KeypointLimit::spread(4000)),
-            ..DetectorOptions::default()
-        },
-        normalization: SiftNormalization::Root,
-    };
+    let extractor = common::rootsift(4000);
     // Tie points of one epoch, triangulated with the true cameras.
     let epoch_points = |epoch: &str| -> (Vec<TiePoint>, f64) {
         let images: Vec<usize> = (0..truth.images.len())

@@ -5,34 +5,25 @@
 //! 99 % of them. (Matches on the block that moved between epochs are true correspondences but
 //! count as wrong here: the static cameras cannot explain them.)
 
+mod common;
+
 use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use timesift_core::{CameraModel, EpochId, project_world};
-use timesift_features::{
-    DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
-};
+use timesift_features::FeatureExtractor;
 use timesift_geometry::triangulation::triangulate_two_view_midpoint;
 use timesift_matching::pairs::{PairPolicy, epoch_aware};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
-use timesift_synth::scenes::{Scale, build};
-use timesift_synth::writer::{WriteOptions, write_scene};
 
 #[test]
 fn inter_epoch_matches_exist_and_are_right() {
-    let dir = tempfile::tempdir().unwrap();
-    let spec = build("landslide", Scale::Small, 1).unwrap();
-    write_scene(&spec, dir.path(), &WriteOptions::default()).unwrap();
-    let truth =
-        timesift_io::cameras_json::read_cameras_json(&dir.path().join("truth/cameras.json"))
-            .unwrap();
-    let epoch_names: Vec<String> = {
-        let mut names: Vec<String> = truth.images.iter().map(|i| i.epoch.clone()).collect();
-        names.sort();
-        names.dedup();
-        names
-    };
+    let common::Rendered {
+        dir,
+        truth,
+        epochs: epoch_names,
+    } = common::landslide();
     let epoch_of: Vec<EpochId> = truth
         .images
         .iter()
@@ -51,13 +42,7 @@ fn inter_epoch_matches_exist_and_are_right() {
             Some([c.x, c.y, c.z])
         })
         .collect();
-    let extractor = SiftExtractor {
-        detector: DetectorOptions {
-            limit: Some(KeypointLimit::spread(4000)),
-            ..DetectorOptions::default()
-        },
-        normalization: SiftNormalization::Root,
-    };
+    let extractor = common::rootsift(4000);
     let features: Vec<_> = truth
         .images
         .par_iter()
