@@ -8,6 +8,7 @@
 //!   one line naming the file and the line or key.
 //! - Stage crates are called only through the types of `timesift-core`.
 
+pub mod align_stage;
 pub mod compare;
 pub mod config;
 mod error;

@@ -88,6 +88,15 @@ pub fn run_stage(project: &Project, stage: Stage) -> Result<(), ProjectError> {
             tracing::info!(%summary, "match stage done");
             Ok(())
         }
+        Stage::Align => {
+            let report = crate::align_stage::align_stage(project)?;
+            tracing::info!(
+                oriented = %report["images_oriented"],
+                rms_px = %report["rms_reprojection_px"],
+                "align stage done"
+            );
+            Ok(())
+        }
         Stage::Change => {
             for dir in crate::compare::change_stage(project)? {
                 tracing::info!(out = %dir.display(), "change products written");

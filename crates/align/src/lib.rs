@@ -1,6 +1,36 @@
-//! Orientation of the multi-epoch block: incremental SfM, georeferencing and the five
-//! co-registration strategies (`timesift`, `msfm`, `chunk`, `stp`, `independent`) of DESIGN.md
-//! (issue "Orientation of the multi-epoch block").
+//! Orientation of the multi-epoch block: incremental structure from motion over verified tracks,
+//! georeferencing, and (to come) the five co-registration strategies (`timesift`, `msfm`, `chunk`,
+//! `stp`, `independent`) of DESIGN.md.
 //!
-//! Invariants (once built): meets the other stages only through `timesift-core` types. Not
-//! implemented yet: this crate holds only its charter.
+//! Inside: `model` (input: camera groups, keypoint positions per image, tracks; output:
+//! [`Reconstruction`]), `options`, `state` (one reconstruction in progress: track → point table,
+//! triangulation of tracks, extension of points to newly oriented images, filtering), `init`
+//! (initial pair), `register` (next image and absolute pose), `adjust` (bundle adjustment through
+//! `timesift-bundle`), `incremental` (the loop and components), `georef` (similarity to GNSS
+//! priors and control points per component, merge, adjustment with the priors, control and
+//! check point residuals).
+//!
+//! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
+//! reads no file and knows nothing of descriptors or epochs' meaning; every random choice is
+//! seeded, so a run is reproducible; the frame of a reconstruction is arbitrary (first image at
+//! the origin) until georeferencing.
+
+mod adjust;
+mod error;
+mod georef;
+mod incremental;
+mod init;
+mod model;
+mod options;
+mod register;
+mod state;
+
+pub use adjust::CentrePrior;
+pub use error::AlignError;
+pub use georef::{
+    Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker, PointResidual, georeference,
+    ground_point_residuals,
+};
+pub use incremental::reconstruct;
+pub use model::{Reconstruction, SfmImage, SfmInput, SparsePoint};
+pub use options::{SelfCalibration, SfmOptions};

@@ -22,6 +22,7 @@ pub mod fsutil;
 pub mod geotiff;
 pub mod image;
 pub mod libmv;
+pub mod ply;
 pub mod pointcloud;
 pub mod wkt;
 

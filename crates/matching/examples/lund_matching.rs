@@ -3,7 +3,8 @@
 //! loop to profile and to try settings on. Environment: `RAYON_NUM_THREADS` (threads),
 //! `CONTRAST` (detector contrast threshold, default 0.02), `EUCLIDEAN` (ratio on distances
 //! instead of angles), `UNCALIBRATED` (fundamental instead of essential with EXIF focal),
-//! `ITERATIONS` (RANSAC cap).
+//! `ITERATIONS` (RANSAC cap), `BUDGET` (keypoints per image, default 8192), `NOMUTUAL` (no
+//! mutual check).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -26,7 +27,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     paths.sort();
     let extractor = SiftExtractor {
         detector: DetectorOptions {
-            limit: Some(KeypointLimit::spread(8192)),
+            limit: Some(KeypointLimit::spread(
+                std::env::var("BUDGET")
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(8192),
+            )),
             contrast_threshold: std::env::var("CONTRAST")
                 .ok()
                 .and_then(|v| v.parse().ok())
@@ -60,6 +66,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     } else {
                         FloatDistance::Angle
                     },
+                    mutual: std::env::var("NOMUTUAL").is_err(),
                     ..MatchOptions::default()
                 },
             )

@@ -1,0 +1,219 @@
+//! Bundle adjustment of a reconstruction in progress through `timesift-bundle`: which images,
+//! points and intrinsics are free, the datum, and writing the result back.
+
+use std::collections::BTreeMap;
+
+use nalgebra::Vector3;
+use timesift_bundle::problem::{BundleImage, BundlePoint};
+use timesift_bundle::{
+    BundleOptions, BundleProblem, BundleReport, CameraGroup, CenterPrior, Loss, Observation,
+    PointPrior,
+};
+use timesift_core::CameraModel;
+
+use crate::AlignError;
+use crate::state::State;
+
+/// A camera-centre prior (GNSS) on an image, in the reconstruction's frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CentrePrior {
+    /// Image index.
+    pub image: usize,
+    /// Measured centre.
+    pub position: Vector3<f64>,
+    /// Horizontal standard deviation, metres.
+    pub sigma_xy: f64,
+    /// Vertical standard deviation, metres.
+    pub sigma_z: f64,
+}
+
+/// A point measured by markers in images (a ground control point in an adjustment): its start
+/// position, its image measurements, and its surveyed coordinates when it constrains the datum.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct MarkedPoint {
+    pub position: Vector3<f64>,
+    /// (image, pixel, sigma in pixels).
+    pub markers: Vec<(usize, nalgebra::Vector2<f64>, f64)>,
+    /// Surveyed position with horizontal and vertical standard deviations.
+    pub prior: Option<(Vector3<f64>, f64, f64)>,
+}
+
+/// Which intrinsics an adjustment estimates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Intrinsics {
+    /// All fixed (local adjustments, early global ones).
+    Fixed,
+    /// `SelfCalibration::parameters` for groups with enough images.
+    Running,
+    /// `SelfCalibration::final_parameters` where a group has enough images for them.
+    Final,
+}
+
+/// One adjustment: the free images and the points; every other oriented image that sees one of
+/// the points enters fixed.
+pub(crate) struct Adjustment<'p> {
+    pub free_images: Vec<usize>,
+    pub points: Vec<usize>,
+    pub intrinsics: Intrinsics,
+    pub priors: &'p [CentrePrior],
+    pub marked: &'p [MarkedPoint],
+    /// Loss on every reprojection residual (markers included).
+    pub loss: Loss,
+    pub iterations: usize,
+}
+
+/// Robust loss of tie-point residuals (in sigmas) while the block grows: soft L1 beyond about
+/// 2 σ, so a few wrong matches do not pull the block before filtering removes them. Adjustments
+/// with markers use the trivial loss: a marker far from its prediction is the datum speaking,
+/// not an outlier.
+pub(crate) const TIE_POINT_LOSS: Loss = Loss::SoftL1(2.0);
+
+impl State<'_> {
+    /// Runs an adjustment and writes poses, points and intrinsics back; returns the report and
+    /// the adjusted positions of the marked points.
+    pub fn adjust(
+        &mut self,
+        a: &Adjustment<'_>,
+    ) -> Result<(BundleReport, Vec<Vector3<f64>>), AlignError> {
+        let input = self.input;
+        let oriented_per_group = {
+            let mut n = vec![0usize; input.cameras.len()];
+            for i in self.oriented() {
+                n[input.images[i].group] += 1;
+            }
+            n
+        };
+        let calibration = &self.options.self_calibration;
+        let mut problem = BundleProblem::default();
+        let mut free_group = vec![false; input.cameras.len()];
+        for &i in &a.free_images {
+            free_group[input.images[i].group] = true;
+        }
+        for (g, camera) in self.rec.cameras.iter().enumerate() {
+            let names: &[String] = match a.intrinsics {
+                Intrinsics::Fixed => &[],
+                _ if !free_group[g] || oriented_per_group[g] < calibration.min_images => &[],
+                Intrinsics::Final if oriented_per_group[g] >= calibration.final_min_images => {
+                    &calibration.final_parameters
+                }
+                _ => &calibration.parameters,
+            };
+            let model_names = camera.param_names();
+            let names: Vec<&str> = names
+                .iter()
+                .map(String::as_str)
+                .filter(|n| model_names.contains(n))
+                .collect();
+            problem
+                .groups
+                .push(CameraGroup::with_free(camera.clone(), &names)?);
+        }
+        // Images: the free ones, then fixed ones seeing the points.
+        let mut slot: BTreeMap<usize, usize> = BTreeMap::new();
+        for &i in &a.free_images {
+            if let Some(pose) = self.rec.poses[i] {
+                slot.entry(i).or_insert_with(|| {
+                    problem.images.push(BundleImage {
+                        pose,
+                        group: input.images[i].group,
+                        fixed: false,
+                    });
+                    problem.images.len() - 1
+                });
+            }
+        }
+        for (k, &p) in a.points.iter().enumerate() {
+            let point = &self.rec.points[p];
+            problem.points.push(BundlePoint {
+                position: point.position,
+                fixed: false,
+            });
+            for e in &point.observations {
+                let i = e.image.index();
+                let Some(pose) = self.rec.poses[i] else {
+                    continue;
+                };
+                let image = *slot.entry(i).or_insert_with(|| {
+                    problem.images.push(BundleImage {
+                        pose,
+                        group: input.images[i].group,
+                        fixed: true,
+                    });
+                    problem.images.len() - 1
+                });
+                problem.observations.push(Observation {
+                    image,
+                    point: k,
+                    pixel: input.pixel(e),
+                    sigma_px: self.options.tie_point_sigma_px,
+                });
+            }
+        }
+        let first_marked = problem.points.len();
+        for m in a.marked {
+            let k = problem.points.len();
+            problem.points.push(BundlePoint {
+                position: m.position,
+                fixed: false,
+            });
+            for &(i, pixel, sigma_px) in &m.markers {
+                let Some(&image) = slot.get(&i) else {
+                    continue;
+                };
+                problem.observations.push(Observation {
+                    image,
+                    point: k,
+                    pixel,
+                    sigma_px,
+                });
+            }
+            if let Some((position, sigma_xy, sigma_z)) = m.prior {
+                problem.point_priors.push(PointPrior {
+                    point: k,
+                    position,
+                    sigma_xy,
+                    sigma_z,
+                });
+            }
+        }
+        for prior in a.priors {
+            if let Some(&image) = slot.get(&prior.image) {
+                problem.center_priors.push(CenterPrior {
+                    image,
+                    position: prior.position,
+                    sigma_xy: prior.sigma_xy,
+                    sigma_z: prior.sigma_z,
+                });
+            }
+        }
+        // Datum: without fixed images or priors, the gauge image holds it (scale stays free;
+        // the damped solver copes with that one-dimensional null space).
+        let datum = problem.center_priors.len() + problem.point_priors.len();
+        if datum < 3 && problem.images.iter().all(|im| !im.fixed) {
+            let gauge = slot.get(&self.gauge).copied().unwrap_or(0);
+            if let Some(im) = problem.images.get_mut(gauge) {
+                im.fixed = true;
+            }
+        }
+        let options = BundleOptions {
+            loss: a.loss,
+            max_iterations: a.iterations,
+            ..BundleOptions::default()
+        };
+        let report = timesift_bundle::solve(&mut problem, &options)?;
+        for (&i, &s) in &slot {
+            self.rec.poses[i] = Some(problem.images[s].pose);
+        }
+        for (k, &p) in a.points.iter().enumerate() {
+            self.rec.points[p].position = problem.points[k].position;
+        }
+        for (g, group) in problem.groups.into_iter().enumerate() {
+            self.rec.cameras[g] = group.camera;
+        }
+        let marked = problem.points[first_marked..]
+            .iter()
+            .map(|p| p.position)
+            .collect();
+        Ok((report, marked))
+    }
+}

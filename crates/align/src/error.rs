@@ -1,0 +1,38 @@
+//! The error type of orientation.
+
+use thiserror::Error;
+
+/// Failures of orientation.
+#[derive(Debug, Error)]
+pub enum AlignError {
+    /// The input is inconsistent (an index out of range, a feature that does not exist, …).
+    #[error("invalid orientation input: {0}")]
+    InvalidInput(String),
+    /// An option is outside its domain.
+    #[error("invalid option `{name}` = {value}: {expected}")]
+    InvalidOption {
+        name: &'static str,
+        value: f64,
+        expected: &'static str,
+    },
+    /// No pair of images could start a reconstruction.
+    #[error(
+        "no initial pair: none of the {tried} most connected image pairs has {min_inliers} \
+         essential-matrix inliers with a median triangulation angle of {min_angle_deg}°, nor \
+         with those thresholds halved three times (too little overlap, texture or baseline)"
+    )]
+    NoInitialPair {
+        tried: usize,
+        min_inliers: usize,
+        min_angle_deg: f64,
+    },
+    /// Georeferencing is impossible with the given priors.
+    #[error("cannot georeference: {0}")]
+    Georeferencing(String),
+    /// A geometric solver failed where the orientation needed it.
+    #[error(transparent)]
+    Geometry(#[from] timesift_geometry::GeometryError),
+    /// The bundle adjustment rejected or failed a problem.
+    #[error(transparent)]
+    Bundle(#[from] timesift_bundle::BundleError),
+}

@@ -1,0 +1,380 @@
+//! Georeferencing: each component is brought into the world frame by a robust similarity from
+//! its camera centres to their GNSS priors and from intersected control points to their surveyed
+//! coordinates; the components that could be placed are merged and adjusted together with the
+//! priors as weighted observations; control and check points are then intersected from their
+//! markers alone and compared with their surveyed coordinates.
+
+use nalgebra::{Vector2, Vector3};
+use timesift_geometry::ransac::{RansacOptions, ransac};
+use timesift_geometry::similarity::{SimilarityEstimator, TransformKind, umeyama};
+use timesift_geometry::triangulation::{PixelObservation, intersect_weighted};
+
+use timesift_bundle::Loss;
+
+use crate::AlignError;
+use crate::adjust::{Adjustment, CentrePrior, Intrinsics, MarkedPoint};
+use crate::model::{Reconstruction, SfmInput};
+use crate::options::SfmOptions;
+use crate::state::{State, track_table};
+
+/// A marker: the measured pixel of a ground point in an image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Marker {
+    /// Image index.
+    pub image: usize,
+    /// Pixel (DESIGN.md convention).
+    pub pixel: Vector2<f64>,
+}
+
+/// A surveyed ground point: a control point (constrains the datum) or a check point (only
+/// compared afterwards).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroundPoint {
+    /// Name, as in the CSV files.
+    pub name: String,
+    /// Surveyed coordinates in the frame of the priors.
+    pub position: Vector3<f64>,
+    /// Horizontal standard deviation, metres.
+    pub sigma_xy: f64,
+    /// Vertical standard deviation, metres.
+    pub sigma_z: f64,
+    /// A check point (not used in the adjustment).
+    pub check: bool,
+    /// Its markers.
+    pub markers: Vec<Marker>,
+}
+
+/// Everything that can place the block in the world.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct GeoreferenceInput {
+    /// GNSS camera-centre priors.
+    pub centre_priors: Vec<CentrePrior>,
+    /// Control and check points.
+    pub points: Vec<GroundPoint>,
+    /// Standard deviation of marker measurements, pixels.
+    pub marker_sigma_px: f64,
+}
+
+/// What fixed the datum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Datum {
+    /// Camera-centre priors only.
+    Gnss,
+    /// Control points only.
+    ControlPoints,
+    /// Both.
+    GnssAndControlPoints,
+    /// Nothing: the arbitrary frame of the largest component (first image at the origin).
+    Local,
+}
+
+/// A control or check point after adjustment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointResidual {
+    /// Name.
+    pub name: String,
+    /// Check point (true) or control point.
+    pub check: bool,
+    /// Oriented images measuring it.
+    pub images: usize,
+    /// Intersected minus surveyed (dE, dN, dH), metres; `None` with fewer than two oriented
+    /// images.
+    pub residual: Option<Vector3<f64>>,
+}
+
+/// The georeferenced block.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Georeferenced {
+    /// The merged block in the world frame.
+    pub reconstruction: Reconstruction,
+    /// What fixed the datum.
+    pub datum: Datum,
+    /// Components left out because nothing placed them relative to the others.
+    pub dropped_components: usize,
+    /// Camera-centre priors rejected as outliers by the similarity RANSAC.
+    pub rejected_priors: usize,
+    /// Control and check points.
+    pub residuals: Vec<PointResidual>,
+    /// Final RMS reprojection error of the tie points, pixels.
+    pub rms_px: f64,
+}
+
+/// Pairs (block position, world position, threshold) of one component.
+struct Correspondences {
+    src: Vec<Vector3<f64>>,
+    dst: Vec<Vector3<f64>>,
+    sigma: Vec<f64>,
+    from_control: usize,
+    prior_index: Vec<Option<usize>>,
+}
+
+fn intersect(
+    input: &SfmInput,
+    rec: &Reconstruction,
+    markers: &[Marker],
+    sigma_px: f64,
+) -> (usize, Option<Vector3<f64>>) {
+    let observations: Vec<PixelObservation<'_>> = markers
+        .iter()
+        .filter_map(|m| {
+            let pose = rec.poses.get(m.image).copied().flatten()?;
+            Some(PixelObservation {
+                camera: rec.camera_of(input, m.image),
+                pose,
+                pixel: m.pixel,
+                sigma_px,
+            })
+        })
+        .collect();
+    let n = observations.len();
+    (
+        n,
+        intersect_weighted(&observations).ok().map(|p| p.position),
+    )
+}
+
+fn correspondences(
+    input: &SfmInput,
+    rec: &Reconstruction,
+    geo: &GeoreferenceInput,
+) -> Correspondences {
+    let mut c = Correspondences {
+        src: Vec::new(),
+        dst: Vec::new(),
+        sigma: Vec::new(),
+        from_control: 0,
+        prior_index: Vec::new(),
+    };
+    for (k, prior) in geo.centre_priors.iter().enumerate() {
+        if let Some(Some(pose)) = rec.poses.get(prior.image) {
+            c.src.push(pose.center());
+            c.dst.push(prior.position);
+            c.sigma.push(prior.sigma_xy.max(prior.sigma_z));
+            c.prior_index.push(Some(k));
+        }
+    }
+    for point in geo.points.iter().filter(|p| !p.check) {
+        if let (_, Some(position)) = intersect(input, rec, &point.markers, geo.marker_sigma_px) {
+            c.src.push(position);
+            c.dst.push(point.position);
+            c.sigma.push(point.sigma_xy.max(point.sigma_z));
+            c.from_control += 1;
+            c.prior_index.push(None);
+        }
+    }
+    c
+}
+
+/// Places a component in the world frame; returns the priors it accepted (indices into
+/// `geo.centre_priors`) and whether control points took part, or `None` when it cannot be placed.
+fn place(
+    input: &SfmInput,
+    rec: &mut Reconstruction,
+    geo: &GeoreferenceInput,
+    seed: u64,
+) -> Option<(Vec<usize>, bool, usize)> {
+    let c = correspondences(input, rec, geo);
+    if c.src.len() < 3 {
+        return None;
+    }
+    // Four standard deviations of the least accurate prior (the 3-D distance of an inlier stays
+    // below 3.8 σ with 99.7 % probability), at least a centimetre.
+    let threshold = 4.0 * c.sigma.iter().copied().fold(0.01, f64::max);
+    let result = ransac(
+        &SimilarityEstimator {
+            src: &c.src,
+            dst: &c.dst,
+            kind: TransformKind::Similarity,
+        },
+        &RansacOptions {
+            max_error: threshold,
+            seed,
+            ..RansacOptions::default()
+        },
+    )
+    .ok()?;
+    let inliers: Vec<usize> = (0..c.src.len()).filter(|&k| result.inliers[k]).collect();
+    if inliers.len() < 3 {
+        return None;
+    }
+    let src: Vec<_> = inliers.iter().map(|&k| c.src[k]).collect();
+    let dst: Vec<_> = inliers.iter().map(|&k| c.dst[k]).collect();
+    // Weighted by the priors' accuracies: a few surveyed control points outweigh many GNSS
+    // centres, as they do in the adjustment that follows.
+    let weights: Vec<f64> = inliers
+        .iter()
+        .map(|&k| 1.0 / (c.sigma[k] * c.sigma[k]))
+        .collect();
+    let world_from_block = umeyama(&src, &dst, Some(&weights), TransformKind::Similarity).ok()?;
+    rec.transform(&world_from_block);
+    let accepted: Vec<usize> = inliers.iter().filter_map(|&k| c.prior_index[k]).collect();
+    let rejected = c.prior_index.iter().flatten().count() - accepted.len();
+    Some((accepted, c.from_control > 0, rejected))
+}
+
+/// Georeferences the components of [`crate::reconstruct`] (largest first) and adjusts the
+/// merged block with the priors and control points. Without anything to place the largest
+/// component, it is returned in its own frame (`Datum::Local`) and the others are dropped.
+pub fn georeference(
+    input: &SfmInput,
+    components: Vec<Reconstruction>,
+    geo: &GeoreferenceInput,
+    options: &SfmOptions,
+) -> Result<Georeferenced, AlignError> {
+    if components.is_empty() {
+        return Err(AlignError::Georeferencing("no oriented component".into()));
+    }
+    if !(geo.marker_sigma_px > 0.0) && geo.points.iter().any(|p| !p.markers.is_empty()) {
+        return Err(AlignError::InvalidOption {
+            name: "marker_sigma_px",
+            value: geo.marker_sigma_px,
+            expected: "a positive standard deviation in pixels",
+        });
+    }
+    let total = components.len();
+    let mut placed: Vec<Reconstruction> = Vec::new();
+    let mut accepted_priors: Vec<usize> = Vec::new();
+    let mut used_control = false;
+    let mut rejected_priors = 0;
+    let mut largest_unplaced = None;
+    for (k, mut rec) in components.into_iter().enumerate() {
+        match place(input, &mut rec, geo, options.seed ^ k as u64) {
+            Some((accepted, control, rejected)) => {
+                accepted_priors.extend(accepted);
+                used_control |= control;
+                rejected_priors += rejected;
+                placed.push(rec);
+            }
+            None if k == 0 => largest_unplaced = Some(rec),
+            None => {}
+        }
+    }
+    let kept = placed.len().max(1);
+    let (mut merged, datum) = if placed.is_empty() {
+        let rec = largest_unplaced
+            .ok_or_else(|| AlignError::Georeferencing("no component could be kept".into()))?;
+        (rec, Datum::Local)
+    } else {
+        let mut iter = placed.into_iter();
+        let mut merged = iter
+            .next()
+            .ok_or_else(|| AlignError::Georeferencing("no component could be kept".into()))?;
+        for other in iter {
+            for (i, pose) in other.poses.into_iter().enumerate() {
+                if pose.is_some() {
+                    merged.poses[i] = pose;
+                }
+            }
+            merged.points.extend(other.points);
+        }
+        let datum = match (accepted_priors.is_empty(), used_control) {
+            (false, true) => Datum::GnssAndControlPoints,
+            (true, true) => Datum::ControlPoints,
+            _ => Datum::Gnss,
+        };
+        (merged, datum)
+    };
+    let dropped_components = total - kept;
+    let track_of = track_table(input);
+    let priors: Vec<CentrePrior> = accepted_priors
+        .iter()
+        .map(|&k| geo.centre_priors[k])
+        .collect();
+    if datum != Datum::Local {
+        let mut state = State::with_reconstruction(input, options, &track_of, merged);
+        for _ in 0..2 {
+            let marked = marked_points(input, &state.rec, geo);
+            let points = state.live_points();
+            let (report, marked_after) = state.adjust(&Adjustment {
+                free_images: state.oriented(),
+                points: points.clone(),
+                intrinsics: Intrinsics::Final,
+                priors: &priors,
+                marked: &marked,
+                loss: Loss::Trivial,
+                iterations: options.global_iterations,
+            })?;
+            for (m, after) in marked.iter().zip(&marked_after) {
+                if let Some((surveyed, _, _)) = m.prior {
+                    tracing::debug!(
+                        start = ?(m.position - surveyed),
+                        adjusted = ?(after - surveyed),
+                        "control point minus surveyed"
+                    );
+                }
+            }
+            tracing::debug!(?report, "georeferenced adjustment");
+            state.filter_points(&points);
+            state.complete_all_tracks();
+            state.compact();
+        }
+        merged = state.rec;
+    }
+    let residuals = if datum == Datum::Local {
+        Vec::new()
+    } else {
+        ground_point_residuals(input, &merged, geo, &|_| true)
+    };
+    let rms_px = merged.rms_px(input);
+    Ok(Georeferenced {
+        reconstruction: merged,
+        datum,
+        dropped_components,
+        rejected_priors,
+        residuals,
+        rms_px,
+    })
+}
+
+/// The control points (not check points) with at least two oriented markers, as marked points
+/// of an adjustment, started at their intersection.
+fn marked_points(
+    input: &SfmInput,
+    rec: &Reconstruction,
+    geo: &GeoreferenceInput,
+) -> Vec<MarkedPoint> {
+    geo.points
+        .iter()
+        .filter(|p| !p.check)
+        .filter_map(|p| {
+            let (_, position) = intersect(input, rec, &p.markers, geo.marker_sigma_px);
+            Some(MarkedPoint {
+                position: position?,
+                markers: p
+                    .markers
+                    .iter()
+                    .map(|m| (m.image, m.pixel, geo.marker_sigma_px))
+                    .collect(),
+                prior: Some((p.position, p.sigma_xy, p.sigma_z)),
+            })
+        })
+        .collect()
+}
+
+/// Intersects every ground point from its markers in the oriented images that `keep` accepts and
+/// compares it with its surveyed coordinates (e.g. per epoch: the images of one epoch).
+pub fn ground_point_residuals(
+    input: &SfmInput,
+    rec: &Reconstruction,
+    geo: &GeoreferenceInput,
+    keep: &dyn Fn(usize) -> bool,
+) -> Vec<PointResidual> {
+    geo.points
+        .iter()
+        .map(|p| {
+            let markers: Vec<Marker> = p
+                .markers
+                .iter()
+                .filter(|m| keep(m.image))
+                .copied()
+                .collect();
+            let (images, position) = intersect(input, rec, &markers, geo.marker_sigma_px);
+            PointResidual {
+                name: p.name.clone(),
+                check: p.check,
+                images,
+                residual: position.map(|x| x - p.position),
+            }
+        })
+        .collect()
+}

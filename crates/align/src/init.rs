@@ -1,0 +1,191 @@
+//! The initial pair of a reconstruction: among the pairs sharing the most tracks, the first whose
+//! essential matrix has enough inliers and whose triangulated inliers see each other under a
+//! large enough median angle (a rotation about the centre or a tiny baseline fails that test).
+
+use std::collections::HashMap;
+
+use nalgebra::Vector3;
+use timesift_core::{CameraModel, Pose};
+use timesift_geometry::essential::{EssentialEstimator, relative_pose_from_essential};
+use timesift_geometry::ransac::{RansacOptions, ransac};
+use timesift_geometry::triangulation::{triangulate_two_view_midpoint, triangulation_angle};
+
+use crate::AlignError;
+use crate::state::State;
+
+/// Shared tracks per image pair among the available images, most first (ties by index).
+pub(crate) fn pair_counts(state: &State<'_>) -> Vec<((usize, usize), usize)> {
+    let mut counts: HashMap<(usize, usize), usize> = HashMap::new();
+    for track in &state.input.tracks {
+        let images: Vec<usize> = track
+            .elements
+            .iter()
+            .map(|e| e.image.index())
+            .filter(|&i| state.available[i])
+            .collect();
+        for (k, &a) in images.iter().enumerate() {
+            for &b in &images[k + 1..] {
+                *counts.entry((a, b)).or_insert(0) += 1;
+            }
+        }
+    }
+    let mut pairs: Vec<_> = counts.into_iter().collect();
+    pairs.sort_by(|x, y| y.1.cmp(&x.1).then(x.0.cmp(&y.0)));
+    pairs
+}
+
+/// What a candidate pair gave.
+struct Candidate {
+    cam_b_from_cam_a: Pose,
+    inliers: usize,
+    median_angle_deg: f64,
+}
+
+/// Relative pose of a pair from their shared tracks.
+fn evaluate(
+    state: &State<'_>,
+    a: usize,
+    b: usize,
+    seed: u64,
+    min_inliers: usize,
+) -> Option<Candidate> {
+    let input = state.input;
+    let camera_a = state.rec.camera_of(input, a);
+    let camera_b = state.rec.camera_of(input, b);
+    let mut rays_a = Vec::new();
+    let mut rays_b = Vec::new();
+    for track in &input.tracks {
+        let ea = track.elements.iter().find(|e| e.image.index() == a);
+        let eb = track.elements.iter().find(|e| e.image.index() == b);
+        if let (Some(ea), Some(eb)) = (ea, eb) {
+            let (Ok(ra), Ok(rb)) = (
+                camera_a.unproject(&input.pixel(ea)),
+                camera_b.unproject(&input.pixel(eb)),
+            ) else {
+                continue;
+            };
+            rays_a.push(ra / ra.z);
+            rays_b.push(rb / rb.z);
+        }
+    }
+    if rays_a.len() < min_inliers {
+        return None;
+    }
+    let focal = 0.5 * (focal_px(camera_a) + focal_px(camera_b));
+    let estimator = EssentialEstimator {
+        x1: &rays_a,
+        x2: &rays_b,
+        focal_px: focal,
+    };
+    let result = ransac(
+        &estimator,
+        &RansacOptions {
+            max_error: state.options.init_max_error_px,
+            seed,
+            ..RansacOptions::default()
+        },
+    )
+    .ok()?;
+    if result.num_inliers < min_inliers {
+        return None;
+    }
+    let (x1, x2): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = result
+        .inliers
+        .iter()
+        .enumerate()
+        .filter(|(_, ok)| **ok)
+        .map(|(k, _)| (rays_a[k], rays_b[k]))
+        .unzip();
+    let (pose, _) = relative_pose_from_essential(&result.model, &x1, &x2).ok()?;
+    let identity = Pose::identity();
+    let mut angles: Vec<f64> = x1
+        .iter()
+        .zip(&x2)
+        .filter_map(|(r1, r2)| {
+            let p = triangulate_two_view_midpoint(&identity, r1, &pose, r2).ok()?;
+            (p.z > 0.0 && pose.transform_point(&p).z > 0.0)
+                .then(|| triangulation_angle(&identity.center(), &pose.center(), &p).to_degrees())
+        })
+        .collect();
+    if angles.len() < min_inliers {
+        return None;
+    }
+    angles.sort_by(f64::total_cmp);
+    Some(Candidate {
+        cam_b_from_cam_a: pose,
+        inliers: result.num_inliers,
+        median_angle_deg: angles[angles.len() / 2],
+    })
+}
+
+/// A camera's focal length in pixels, for expressing ray residuals in pixels: the mean of the
+/// unprojection's scales at the image centre.
+fn focal_px(camera: &dyn CameraModel) -> f64 {
+    let c = nalgebra::Vector2::new(camera.width() as f64 / 2.0, camera.height() as f64 / 2.0);
+    let d = nalgebra::Vector2::new(1.0, 0.0);
+    match (camera.unproject(&c), camera.unproject(&(c + d))) {
+        (Ok(a), Ok(b)) => 1.0 / ((b / b.z) - (a / a.z)).norm().max(1e-12),
+        _ => camera.width().max(camera.height()) as f64,
+    }
+}
+
+/// Halvings of the initial-pair thresholds tried when no pair passes (COLMAP relaxes its
+/// initialisation the same way): sequences of close-range photos rarely see 4° at first.
+const RELAXATIONS: u32 = 3;
+
+/// Chooses and orients the initial pair, triangulates its tracks and adjusts the two images.
+/// The most connected pairs are evaluated once; the one with the most inliers among those that
+/// pass the thresholds starts, the thresholds halving up to [`RELAXATIONS`] times when none does.
+/// Returns the pair.
+pub(crate) fn initialise(state: &mut State<'_>) -> Result<(usize, usize), AlignError> {
+    let options = state.options;
+    let pairs = pair_counts(state);
+    let min_shared = (options.init_min_inliers >> RELAXATIONS).max(15);
+    let evaluated: Vec<((usize, usize), Candidate)> = pairs
+        .iter()
+        .take_while(|(_, shared)| *shared >= min_shared)
+        .take(options.init_max_trials)
+        .filter_map(|&((a, b), _)| {
+            let seed = options.seed ^ ((a as u64) << 32 | b as u64);
+            let c = evaluate(state, a, b, seed, min_shared);
+            if c.is_none() {
+                tracing::debug!(a, b, "initial pair: too few essential inliers");
+            }
+            c.map(|c| ((a, b), c))
+        })
+        .collect();
+    for level in 0..=RELAXATIONS {
+        let min_inliers = (options.init_min_inliers >> level).max(15);
+        let min_angle = options.init_min_angle_deg / f64::from(1u32 << level);
+        let mut passing: Vec<&((usize, usize), Candidate)> = evaluated
+            .iter()
+            .filter(|(_, c)| c.inliers >= min_inliers && c.median_angle_deg >= min_angle)
+            .collect();
+        passing.sort_by(|x, y| y.1.inliers.cmp(&x.1.inliers).then(x.0.cmp(&y.0)));
+        for &&((a, b), ref candidate) in &passing {
+            tracing::info!(
+                a,
+                b,
+                inliers = candidate.inliers,
+                median_angle_deg = candidate.median_angle_deg,
+                "initial pair"
+            );
+            state.rec.poses[a] = Some(Pose::identity());
+            state.rec.poses[b] = Some(candidate.cam_b_from_cam_a);
+            state.gauge = a;
+            state.complete_tracks_of_image(a);
+            if state.rec.points.len() >= min_inliers / 2 {
+                return Ok((a, b));
+            }
+            state.rec.poses[a] = None;
+            state.rec.poses[b] = None;
+            state.rec.points.clear();
+            state.point_of_track.fill(crate::state::NONE);
+        }
+    }
+    Err(AlignError::NoInitialPair {
+        tried: evaluated.len(),
+        min_inliers: options.init_min_inliers,
+        min_angle_deg: options.init_min_angle_deg,
+    })
+}

@@ -1,0 +1,143 @@
+//! Settings of incremental structure from motion. Defaults follow COLMAP's mapper where it has an
+//! equivalent, with the reasons noted where they differ.
+
+use crate::AlignError;
+
+/// Which intrinsics the bundle adjustments estimate, by parameter name of the camera model
+/// (`CameraModel::param_names`), and from when.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SelfCalibration {
+    /// Parameters adjusted in global adjustments once a group has `min_images` oriented images.
+    pub parameters: Vec<String>,
+    /// Parameters adjusted in the final adjustment of a block (usually a superset: principal
+    /// point and decentring need the whole block to be separable from the poses).
+    pub final_parameters: Vec<String>,
+    /// Oriented images a group needs before its intrinsics are adjusted.
+    pub min_images: usize,
+    /// Oriented images a group needs before the final parameter set is used (fewer: the
+    /// `parameters` set).
+    pub final_min_images: usize,
+}
+
+impl Default for SelfCalibration {
+    fn default() -> Self {
+        let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect();
+        SelfCalibration {
+            parameters: names(&["f", "k1", "k2"]),
+            final_parameters: names(&["f", "cx", "cy", "k1", "k2", "k3", "p1", "p2"]),
+            min_images: 3,
+            final_min_images: 10,
+        }
+    }
+}
+
+/// Options of [`crate::reconstruct`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SfmOptions {
+    /// Fewest essential-matrix inliers of the initial pair.
+    pub init_min_inliers: usize,
+    /// Smallest median triangulation angle of the initial pair, degrees.
+    pub init_min_angle_deg: f64,
+    /// Most candidate pairs tried for initialisation (by number of shared tracks).
+    pub init_max_trials: usize,
+    /// Inlier threshold of the two-view and absolute-pose RANSACs, pixels (COLMAP: 4 and 12; the
+    /// absolute pose is scored on reprojections of points that carry their own error).
+    pub init_max_error_px: f64,
+    /// Inlier threshold of absolute-pose RANSAC, pixels.
+    pub abs_pose_max_error_px: f64,
+    /// Fewest 2-D/3-D inliers to orient an image.
+    pub abs_pose_min_inliers: usize,
+    /// Smallest inlier share of the 2-D/3-D correspondences to orient an image.
+    pub abs_pose_min_inlier_ratio: f64,
+    /// Times an image may fail to orient before it is given up (until the next global
+    /// adjustment makes more points available).
+    pub max_register_trials: usize,
+    /// Largest reprojection error of a kept observation, pixels.
+    pub max_reprojection_px: f64,
+    /// Smallest largest triangulation angle of a kept point, degrees.
+    pub min_triangulation_angle_deg: f64,
+    /// Oriented images adjusted around each new image (the new one included).
+    pub local_adjustment_images: usize,
+    /// A global adjustment runs when the oriented images grew by this factor since the last.
+    pub global_adjustment_growth: f64,
+    /// Intrinsics estimation.
+    pub self_calibration: SelfCalibration,
+    /// Standard deviation of tie-point measurements, pixels.
+    pub tie_point_sigma_px: f64,
+    /// Iterations of each global adjustment.
+    pub global_iterations: usize,
+    /// Iterations of each local adjustment.
+    pub local_iterations: usize,
+    /// Smallest component reported (images); smaller leftovers stay unoriented.
+    pub min_component_images: usize,
+    /// Seed of every RANSAC.
+    pub seed: u64,
+}
+
+impl Default for SfmOptions {
+    fn default() -> Self {
+        SfmOptions {
+            init_min_inliers: 50,
+            init_min_angle_deg: 4.0,
+            init_max_trials: 30,
+            init_max_error_px: 4.0,
+            abs_pose_max_error_px: 8.0,
+            abs_pose_min_inliers: 20,
+            abs_pose_min_inlier_ratio: 0.25,
+            max_register_trials: 2,
+            max_reprojection_px: 4.0,
+            min_triangulation_angle_deg: 1.5,
+            local_adjustment_images: 6,
+            global_adjustment_growth: 1.1,
+            self_calibration: SelfCalibration::default(),
+            tie_point_sigma_px: 1.0,
+            global_iterations: 50,
+            local_iterations: 25,
+            min_component_images: 3,
+            seed: 0xa1_16e,
+        }
+    }
+}
+
+impl SfmOptions {
+    /// Checks every option's domain.
+    pub fn validate(&self) -> Result<(), AlignError> {
+        let positive = [
+            ("init_max_error_px", self.init_max_error_px),
+            ("abs_pose_max_error_px", self.abs_pose_max_error_px),
+            ("max_reprojection_px", self.max_reprojection_px),
+            ("tie_point_sigma_px", self.tie_point_sigma_px),
+        ];
+        for (name, value) in positive {
+            if !(value > 0.0 && value.is_finite()) {
+                return Err(AlignError::InvalidOption {
+                    name,
+                    value,
+                    expected: "a positive finite number",
+                });
+            }
+        }
+        if !(self.global_adjustment_growth > 1.0) {
+            return Err(AlignError::InvalidOption {
+                name: "global_adjustment_growth",
+                value: self.global_adjustment_growth,
+                expected: "a factor above 1",
+            });
+        }
+        if !(0.0..1.0).contains(&self.abs_pose_min_inlier_ratio) {
+            return Err(AlignError::InvalidOption {
+                name: "abs_pose_min_inlier_ratio",
+                value: self.abs_pose_min_inlier_ratio,
+                expected: "a share in [0, 1)",
+            });
+        }
+        if self.init_min_inliers < 8 || self.abs_pose_min_inliers < 4 {
+            return Err(AlignError::InvalidOption {
+                name: "init_min_inliers / abs_pose_min_inliers",
+                value: self.init_min_inliers.min(self.abs_pose_min_inliers) as f64,
+                expected: "at least 8 two-view and 4 absolute-pose inliers",
+            });
+        }
+        Ok(())
+    }
+}

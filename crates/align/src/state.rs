@@ -1,0 +1,307 @@
+//! The state of one incremental reconstruction: the block so far, which track became which point,
+//! and the operations on points that every phase uses (triangulate a track, extend a point with
+//! newly oriented images, drop bad observations).
+
+use nalgebra::Vector3;
+use timesift_core::{Pose, TrackElement, project_world};
+use timesift_geometry::triangulation::{triangulate_dlt, triangulation_angle};
+
+use crate::model::{Reconstruction, SfmInput, SparsePoint};
+use crate::options::SfmOptions;
+
+/// "No track" / "no point" in the index tables.
+pub(crate) const NONE: u32 = u32::MAX;
+
+/// Per image, per keypoint: the index of its track, or [`NONE`].
+pub(crate) fn track_table(input: &SfmInput) -> Vec<Vec<u32>> {
+    let mut table: Vec<Vec<u32>> = input
+        .images
+        .iter()
+        .map(|im| vec![NONE; im.keypoints.len()])
+        .collect();
+    for (t, track) in input.tracks.iter().enumerate() {
+        for e in &track.elements {
+            table[e.image.index()][e.feature.index()] = t as u32;
+        }
+    }
+    table
+}
+
+/// One reconstruction in progress.
+pub(crate) struct State<'a> {
+    pub input: &'a SfmInput,
+    pub options: &'a SfmOptions,
+    pub track_of: &'a [Vec<u32>],
+    pub rec: Reconstruction,
+    /// Per track: its point, or [`NONE`].
+    pub point_of_track: Vec<u32>,
+    /// The image whose pose holds the datum when nothing else does (no fixed image, no prior).
+    pub gauge: usize,
+    /// Images this reconstruction may orient (not taken by an earlier component).
+    pub available: Vec<bool>,
+    /// Failed orientation attempts per image since the last global adjustment.
+    pub failed_trials: Vec<usize>,
+}
+
+impl<'a> State<'a> {
+    pub fn new(
+        input: &'a SfmInput,
+        options: &'a SfmOptions,
+        track_of: &'a [Vec<u32>],
+        available: Vec<bool>,
+    ) -> Self {
+        State {
+            input,
+            options,
+            track_of,
+            rec: Reconstruction {
+                cameras: input.cameras.clone(),
+                poses: vec![None; input.images.len()],
+                points: Vec::new(),
+            },
+            point_of_track: vec![NONE; input.tracks.len()],
+            gauge: 0,
+            available,
+            failed_trials: vec![0; input.images.len()],
+        }
+    }
+
+    /// Reprojection error of a world point in an oriented image, pixels (infinite when it does
+    /// not project or the image is not oriented).
+    pub fn error(&self, position: &Vector3<f64>, e: &TrackElement) -> f64 {
+        let image = e.image.index();
+        let Some(pose) = self.rec.poses[image] else {
+            return f64::INFINITY;
+        };
+        if pose.transform_point(position).z <= 0.0 {
+            return f64::INFINITY;
+        }
+        let camera = self.rec.camera_of(self.input, image);
+        project_world(camera, &pose, position)
+            .map_or(f64::INFINITY, |u| (u - self.input.pixel(e)).norm())
+    }
+
+    /// Largest angle between the rays of any two observations, degrees.
+    pub fn max_angle_deg(&self, position: &Vector3<f64>, observations: &[TrackElement]) -> f64 {
+        let centres: Vec<Vector3<f64>> = observations
+            .iter()
+            .filter_map(|e| self.rec.poses[e.image.index()].map(|p| p.center()))
+            .collect();
+        let mut best: f64 = 0.0;
+        for (i, a) in centres.iter().enumerate() {
+            for b in &centres[i + 1..] {
+                best = best.max(triangulation_angle(a, b, position));
+            }
+        }
+        best.to_degrees()
+    }
+
+    /// Triangulates a track without a point from its elements in oriented images: DLT, then the
+    /// worst observation is dropped while any exceeds the reprojection threshold; the point is
+    /// kept when at least two observations remain, in front of their cameras, with enough
+    /// triangulation angle. Returns whether a point was made.
+    pub fn triangulate_track(&mut self, track: usize) -> bool {
+        if self.point_of_track[track] != NONE {
+            return false;
+        }
+        let mut elements: Vec<TrackElement> = self.input.tracks[track]
+            .elements
+            .iter()
+            .filter(|e| self.rec.poses[e.image.index()].is_some())
+            .copied()
+            .collect();
+        let mut views: Vec<(Pose, Vector3<f64>)> = Vec::with_capacity(elements.len());
+        loop {
+            if elements.len() < 2 {
+                return false;
+            }
+            views.clear();
+            for e in &elements {
+                let image = e.image.index();
+                let camera = self.rec.camera_of(self.input, image);
+                let Ok(ray) = camera.unproject(&self.input.pixel(e)) else {
+                    return false;
+                };
+                views.push((self.rec.poses[image].unwrap_or_else(Pose::identity), ray));
+            }
+            let Ok(position) = triangulate_dlt(&views) else {
+                return false;
+            };
+            let errors: Vec<f64> = elements.iter().map(|e| self.error(&position, e)).collect();
+            let (worst, worst_error) = errors
+                .iter()
+                .copied()
+                .enumerate()
+                .fold((0, 0.0), |b, (i, e)| if e > b.1 { (i, e) } else { b });
+            if worst_error > self.options.max_reprojection_px {
+                elements.remove(worst);
+                continue;
+            }
+            if self.max_angle_deg(&position, &elements) < self.options.min_triangulation_angle_deg {
+                return false;
+            }
+            self.point_of_track[track] = self.rec.points.len() as u32;
+            self.rec.points.push(SparsePoint {
+                position,
+                track,
+                observations: elements,
+            });
+            return true;
+        }
+    }
+
+    /// Adds to the track's point, or triangulates, every element in an oriented image that is
+    /// not yet an observation and reprojects within the threshold. Returns observations added.
+    pub fn complete_track(&mut self, track: usize) -> usize {
+        let p = self.point_of_track[track];
+        if p == NONE {
+            return if self.triangulate_track(track) {
+                self.rec.points[self.point_of_track[track] as usize]
+                    .observations
+                    .len()
+            } else {
+                0
+            };
+        }
+        let point = &self.rec.points[p as usize];
+        let missing: Vec<TrackElement> = self.input.tracks[track]
+            .elements
+            .iter()
+            .filter(|e| {
+                self.rec.poses[e.image.index()].is_some()
+                    && !point.observations.contains(e)
+                    && self.error(&point.position, e) <= self.options.max_reprojection_px
+            })
+            .copied()
+            .collect();
+        let added = missing.len();
+        if added > 0 {
+            let point = &mut self.rec.points[p as usize];
+            point.observations.extend(missing);
+            point.observations.sort();
+        }
+        added
+    }
+
+    /// Completes every track with a keypoint in `image`.
+    pub fn complete_tracks_of_image(&mut self, image: usize) -> usize {
+        let tracks: Vec<u32> = self.track_of[image]
+            .iter()
+            .copied()
+            .filter(|&t| t != NONE)
+            .collect();
+        tracks
+            .into_iter()
+            .map(|t| self.complete_track(t as usize))
+            .sum()
+    }
+
+    /// Completes every track.
+    pub fn complete_all_tracks(&mut self) -> usize {
+        (0..self.input.tracks.len())
+            .map(|t| self.complete_track(t))
+            .sum()
+    }
+
+    /// Drops observations beyond the reprojection threshold from the given points, then the
+    /// points left with fewer than two observations or too small an angle. Returns the number of
+    /// observations dropped (those of dropped points included).
+    pub fn filter_points(&mut self, points: &[usize]) -> usize {
+        let mut dropped = 0;
+        for &p in points {
+            let point = &self.rec.points[p];
+            if point.observations.is_empty() {
+                continue;
+            }
+            let keep: Vec<TrackElement> = point
+                .observations
+                .iter()
+                .filter(|e| self.error(&point.position, e) <= self.options.max_reprojection_px)
+                .copied()
+                .collect();
+            let angle_ok = keep.len() >= 2
+                && self.max_angle_deg(&point.position, &keep)
+                    >= self.options.min_triangulation_angle_deg;
+            let before = point.observations.len();
+            if angle_ok {
+                dropped += before - keep.len();
+                self.rec.points[p].observations = keep;
+            } else {
+                dropped += before;
+                self.kill_point(p);
+            }
+        }
+        dropped
+    }
+
+    /// Removes a point (its slot stays, empty, until [`State::compact`]).
+    pub fn kill_point(&mut self, p: usize) {
+        let point = &mut self.rec.points[p];
+        point.observations.clear();
+        self.point_of_track[point.track] = NONE;
+    }
+
+    /// Indices of the live points.
+    pub fn live_points(&self) -> Vec<usize> {
+        (0..self.rec.points.len())
+            .filter(|&p| !self.rec.points[p].observations.is_empty())
+            .collect()
+    }
+
+    /// Indices of the live points observed by any of `images`.
+    pub fn points_seen_by(&self, images: &[usize]) -> Vec<usize> {
+        let mut points: Vec<usize> = images
+            .iter()
+            .flat_map(|&i| {
+                self.track_of[i].iter().filter_map(|&t| {
+                    if t == NONE {
+                        return None;
+                    }
+                    let p = self.point_of_track[t as usize];
+                    (p != NONE).then_some(p as usize)
+                })
+            })
+            .filter(|&p| {
+                self.rec.points[p]
+                    .observations
+                    .iter()
+                    .any(|e| images.contains(&e.image.index()))
+            })
+            .collect();
+        points.sort_unstable();
+        points.dedup();
+        points
+    }
+
+    /// Drops the empty point slots, renumbering the rest.
+    pub fn compact(&mut self) {
+        self.rec.points.retain(|p| !p.observations.is_empty());
+        self.point_of_track.fill(NONE);
+        for (p, point) in self.rec.points.iter().enumerate() {
+            self.point_of_track[point.track] = p as u32;
+        }
+    }
+
+    /// Oriented images.
+    pub fn oriented(&self) -> Vec<usize> {
+        (0..self.rec.poses.len())
+            .filter(|&i| self.rec.poses[i].is_some())
+            .collect()
+    }
+}
+
+impl<'a> State<'a> {
+    /// A state over a finished reconstruction (for adjustments after georeferencing).
+    pub fn with_reconstruction(
+        input: &'a SfmInput,
+        options: &'a SfmOptions,
+        track_of: &'a [Vec<u32>],
+        rec: Reconstruction,
+    ) -> Self {
+        let mut state = State::new(input, options, track_of, vec![true; input.images.len()]);
+        state.gauge = rec.poses.iter().position(Option::is_some).unwrap_or(0);
+        state.rec = rec;
+        state.compact();
+        state
+    }
+}

@@ -1,0 +1,311 @@
+//! Structure from motion and georeferencing on synthetic tracks (exact projections of known
+//! points through known cameras, optionally with pixel noise): exact recovery up to a similarity
+//! without noise, error bounds with noise, GNSS georeferencing to the priors' accuracy, and clear
+//! errors on degenerate input.
+
+use nalgebra::{UnitQuaternion, Vector2, Vector3};
+use proptest::prelude::*;
+use timesift_align::{
+    AlignError, CentrePrior, Datum, GeoreferenceInput, Reconstruction, SfmImage, SfmInput,
+    SfmOptions, georeference, reconstruct,
+};
+use timesift_core::{
+    BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
+    project_world,
+};
+use timesift_geometry::similarity::{TransformKind, umeyama};
+
+/// A nadir block: a grid of cameras 20 m above points with 3 m of relief.
+struct Scene {
+    input: SfmInput,
+    poses: Vec<Pose>,
+    points: Vec<Vector3<f64>>,
+}
+
+fn camera() -> Camera {
+    let mut c = BrownCamera::new(1000, 800, 900.0).unwrap();
+    c.k1 = -0.05;
+    c.k2 = 0.02;
+    c.cx = 3.0;
+    c.cy = -2.0;
+    Camera::Brown(c)
+}
+
+fn scene(seed: u64, noise_px: f64, n_points: usize) -> Scene {
+    let mut rng = SeededRng::new(seed);
+    let camera = camera();
+    let mut poses = Vec::new();
+    for row in 0..4 {
+        for col in 0..5 {
+            let centre = Vector3::new(
+                -6.0 + 3.0 * col as f64 + rng.uniform_range(-0.3, 0.3),
+                -4.5 + 3.0 * row as f64 + rng.uniform_range(-0.3, 0.3),
+                20.0 + rng.uniform_range(-0.5, 0.5),
+            );
+            // Looking down (camera z = −world z), x east, y south, with a few degrees of tilt.
+            let down = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+            let tilt = UnitQuaternion::from_euler_angles(
+                rng.uniform_range(-0.05, 0.05),
+                rng.uniform_range(-0.05, 0.05),
+                rng.uniform_range(-0.1, 0.1),
+            );
+            poses.push(Pose::from_rotation_and_center(tilt * down, &centre));
+        }
+    }
+    let points: Vec<Vector3<f64>> = (0..n_points)
+        .map(|_| {
+            Vector3::new(
+                rng.uniform_range(-14.0, 14.0),
+                rng.uniform_range(-12.0, 12.0),
+                rng.uniform_range(0.0, 3.0),
+            )
+        })
+        .collect();
+    let mut keypoints: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); poses.len()];
+    let mut tracks = Vec::new();
+    for x in &points {
+        let mut elements = Vec::new();
+        for (i, pose) in poses.iter().enumerate() {
+            let Ok(u) = project_world(&camera, pose, x) else {
+                continue;
+            };
+            if u.x < 0.0 || u.y < 0.0 || u.x > 1000.0 || u.y > 800.0 {
+                continue;
+            }
+            let noisy = u + Vector2::new(rng.normal(), rng.normal()) * noise_px;
+            elements.push(TrackElement {
+                image: ImageId::from(i),
+                feature: FeatureIndex::from(keypoints[i].len()),
+            });
+            keypoints[i].push(noisy);
+        }
+        tracks.push(Track { elements });
+    }
+    let mut start = BrownCamera::new(1000, 800, 850.0).unwrap();
+    start.cx = 0.0;
+    Scene {
+        input: one_camera_input(Camera::Brown(start), keypoints, tracks),
+        poses,
+        points,
+    }
+}
+
+/// An input whose images all share one camera.
+fn one_camera_input(
+    camera: Camera,
+    keypoints: Vec<Vec<Vector2<f64>>>,
+    tracks: Vec<Track>,
+) -> SfmInput {
+    SfmInput {
+        cameras: vec![camera],
+        images: keypoints
+            .into_iter()
+            .map(|keypoints| SfmImage {
+                group: 0,
+                keypoints,
+            })
+            .collect(),
+        tracks,
+    }
+}
+
+/// Largest camera-centre error after the best similarity onto the truth, and the median point
+/// error, both in metres (the median: points seen twice at the block's edge under a small angle
+/// are legitimately uncertain in depth).
+fn errors_after_similarity(rec: &Reconstruction, scene: &Scene) -> (f64, f64) {
+    let oriented: Vec<usize> = (0..scene.poses.len())
+        .filter(|&i| rec.poses[i].is_some())
+        .collect();
+    let ours: Vec<_> = oriented
+        .iter()
+        .map(|&i| rec.poses[i].unwrap().center())
+        .collect();
+    let truth: Vec<_> = oriented.iter().map(|&i| scene.poses[i].center()).collect();
+    let t = umeyama(&ours, &truth, None, TransformKind::Similarity).unwrap();
+    let centre = ours
+        .iter()
+        .zip(&truth)
+        .map(|(a, b)| (t.apply(a) - b).norm())
+        .fold(0.0, f64::max);
+    let mut errors: Vec<f64> = rec
+        .points
+        .iter()
+        .map(|p| (t.apply(&p.position) - scene.points[p.track]).norm())
+        .collect();
+    errors.sort_by(f64::total_cmp);
+    (centre, errors[errors.len() / 2])
+}
+
+#[test]
+fn noise_free_tracks_are_recovered_exactly_up_to_a_similarity() {
+    let s = scene(1, 0.0, 1500);
+    let components = reconstruct(&s.input, &SfmOptions::default()).unwrap();
+    assert_eq!(components.len(), 1);
+    let rec = &components[0];
+    assert_eq!(rec.num_oriented(), 20);
+    let rms = rec.rms_px(&s.input);
+    let (centre, point_median) = errors_after_similarity(rec, &s);
+    println!("rms {rms:.2e} px, centre {centre:.2e} m, points {point_median:.2e} m");
+    assert!(rms < 1e-4, "rms {rms}");
+    assert!(
+        centre < 1e-4 && point_median < 1e-4,
+        "{centre} {point_median}"
+    );
+    // Self-calibration found the true intrinsics from a 6 % wrong focal length.
+    let mut p = [0.0; 11];
+    rec.cameras[0].params(&mut p);
+    let mut t = [0.0; 11];
+    camera().params(&mut t);
+    assert!((p[0] - t[0]).abs() < 1e-3, "f {} vs {}", p[0], t[0]);
+}
+
+#[test]
+fn noisy_tracks_stay_within_error_bounds() {
+    let s = scene(2, 0.5, 1500);
+    let components = reconstruct(&s.input, &SfmOptions::default()).unwrap();
+    let rec = &components[0];
+    assert_eq!(rec.num_oriented(), 20);
+    let rms = rec.rms_px(&s.input);
+    let (centre, point_median) = errors_after_similarity(rec, &s);
+    println!("rms {rms:.3} px, centre {centre:.4} m, points {point_median:.4} m");
+    // 0.5 px noise per axis: about 0.7 px per observation, less the fitted share.
+    assert!(rms > 0.4 && rms < 0.75, "rms {rms}");
+    // A pixel is 2.2 cm on the ground; a point seen from 3 m apart at 20 m has a depth precision
+    // of (20 / 3) · (20 / 900) · 0.5 ≈ 7 cm from two views, better from more.
+    assert!(
+        centre < 0.03 && point_median < 0.1,
+        "{centre} {point_median}"
+    );
+}
+
+#[test]
+fn gnss_priors_place_the_block_in_the_world() {
+    let s = scene(3, 0.3, 1200);
+    let components = reconstruct(&s.input, &SfmOptions::default()).unwrap();
+    let mut rng = SeededRng::new(9);
+    // 5 cm priors; one gross outlier that the similarity RANSAC must reject.
+    let mut priors: Vec<CentrePrior> = s
+        .poses
+        .iter()
+        .enumerate()
+        .map(|(i, p)| CentrePrior {
+            image: i,
+            position: p.center() + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.05,
+            sigma_xy: 0.05,
+            sigma_z: 0.05,
+        })
+        .collect();
+    priors[7].position.x += 30.0;
+    let geo = GeoreferenceInput {
+        centre_priors: priors,
+        points: Vec::new(),
+        marker_sigma_px: 0.5,
+    };
+    let placed = georeference(&s.input, components, &geo, &SfmOptions::default()).unwrap();
+    assert_eq!(placed.datum, Datum::Gnss);
+    assert_eq!(placed.rejected_priors, 1);
+    let errors: Vec<f64> = (0..s.poses.len())
+        .map(|i| (placed.reconstruction.poses[i].unwrap().center() - s.poses[i].center()).norm())
+        .collect();
+    let worst = errors.iter().copied().fold(0.0, f64::max);
+    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    println!(
+        "centre errors: rms {rms:.4} m, worst {worst:.4} m; {:.3} px",
+        placed.rms_px
+    );
+    // Each centre is pulled towards its own 5 cm prior; the datum from 19 priors is good to
+    // about a centimetre.
+    assert!(
+        rms < 0.05 && worst < 0.12,
+        "centre errors rms {rms}, worst {worst}"
+    );
+}
+
+#[test]
+fn no_tracks_is_a_clear_error() {
+    let mut s = scene(4, 0.0, 300);
+    s.input.tracks.clear();
+    let err = reconstruct(&s.input, &SfmOptions::default()).unwrap_err();
+    assert!(matches!(err, AlignError::NoInitialPair { .. }), "{err}");
+    assert!(err.to_string().contains("no initial pair"), "{err}");
+}
+
+#[test]
+fn bad_input_names_what_is_wrong() {
+    let mut s = scene(5, 0.0, 200);
+    s.input.tracks[3].elements[0].feature = FeatureIndex(1_000_000);
+    let err = reconstruct(&s.input, &SfmOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("track 3") && err.contains("does not exist"),
+        "{err}"
+    );
+    let mut s = scene(5, 0.0, 200);
+    s.input.images[2].group = 4;
+    let err = reconstruct(&s.input, &SfmOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("image 2") && err.contains("camera group 4"),
+        "{err}"
+    );
+    let options = SfmOptions {
+        max_reprojection_px: -1.0,
+        ..SfmOptions::default()
+    };
+    let err = reconstruct(&scene(5, 0.0, 200).input, &options)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("max_reprojection_px"), "{err}");
+}
+
+/// A rotation about the centre (no baseline) cannot start a reconstruction.
+#[test]
+fn pure_rotation_has_no_initial_pair() {
+    let camera = camera();
+    let mut rng = SeededRng::new(6);
+    let poses: Vec<Pose> = (0..3)
+        .map(|k| {
+            Pose::from_rotation_and_center(
+                UnitQuaternion::from_euler_angles(0.0, 0.05 * k as f64, 0.0),
+                &Vector3::zeros(),
+            )
+        })
+        .collect();
+    let mut keypoints = vec![Vec::new(); 3];
+    let mut tracks = Vec::new();
+    for _ in 0..400 {
+        let x = Vector3::new(
+            rng.uniform_range(-5.0, 5.0),
+            rng.uniform_range(-4.0, 4.0),
+            rng.uniform_range(8.0, 12.0),
+        );
+        let mut elements = Vec::new();
+        for (i, pose) in poses.iter().enumerate() {
+            let u = project_world(&camera, pose, &x).unwrap();
+            elements.push(TrackElement {
+                image: ImageId::from(i),
+                feature: FeatureIndex::from(keypoints[i].len()),
+            });
+            keypoints[i].push(u);
+        }
+        tracks.push(Track { elements });
+    }
+    let input = one_camera_input(camera, keypoints, tracks);
+    let err = reconstruct(&input, &SfmOptions::default()).unwrap_err();
+    assert!(matches!(err, AlignError::NoInitialPair { .. }), "{err}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(8))]
+    /// Any seeded noise-free block is recovered up to a similarity.
+    #[test]
+    fn any_noise_free_block_is_recovered(seed in 0u64..1_000_000) {
+        let s = scene(seed, 0.0, 900);
+        let components = reconstruct(&s.input, &SfmOptions::default()).unwrap();
+        prop_assert_eq!(components[0].num_oriented(), 20);
+        let (centre, point_median) = errors_after_similarity(&components[0], &s);
+        prop_assert!(centre < 1e-3 && point_median < 1e-3, "{} {}", centre, point_median);
+    }
+}

@@ -1,0 +1,601 @@
+//! The `align` stage of `timesift run`: tracks from the verified matches under `work/`, incremental
+//! structure from motion, georeferencing from GNSS priors and control points, then the outputs
+//! of DESIGN.md: `out/cameras.json`, `out/colmap/`, `out/tiepoints.ply` and `out/report.json`.
+//!
+//! The orientation runs in a local frame: the project CRS minus an origin (the mean of the priors
+//! and control points, whole metres) so that solvers never see UTM-sized coordinates; the origin
+//! is added back when writing.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::{Vector2, Vector3};
+use rayon::prelude::*;
+use timesift_align::{
+    CentrePrior, Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker, PointResidual,
+    Reconstruction, SfmImage, SfmInput, SfmOptions, georeference, ground_point_residuals,
+    reconstruct,
+};
+use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose, Track};
+use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
+use timesift_matching::storage::{read_features, read_matches};
+use timesift_matching::tracks::{PairMatches, build_tracks};
+
+use crate::config::AlignMethod;
+use crate::{Project, ProjectError};
+
+/// Default standard deviations of control points that give none (m): RTK GNSS or total station.
+const DEFAULT_GCP_SIGMA: (f64, f64) = (0.02, 0.03);
+
+/// Focal length of a camera without EXIF focal length, in units of its longer side (COLMAP's
+/// default prior).
+const DEFAULT_FOCAL_FACTOR: f64 = 1.2;
+
+fn stage_error(message: String) -> ProjectError {
+    ProjectError::Stage {
+        stage: "align",
+        message,
+    }
+}
+
+/// Orients the block by the configured strategy and writes the outputs. Returns the report.
+pub fn align_stage(project: &Project) -> Result<serde_json::Value, ProjectError> {
+    let start = Instant::now();
+    let input = load_input(project)?;
+    let frame = LocalFrame::of(project)?;
+    let geo = ground_input(project, &frame)?;
+    let mut options = SfmOptions {
+        tie_point_sigma_px: project.config.align.tie_point_accuracy_px,
+        ..SfmOptions::default()
+    };
+    options.self_calibration.min_images = 3;
+    tracing::debug!(cameras = ?input.cameras, "initial cameras");
+    let epoch_of: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
+    let block = match project.config.align.method {
+        AlignMethod::Timesift => orient(&input, &geo, &options)?,
+        AlignMethod::Independent => {
+            let mut parts = Vec::new();
+            for e in 0..project.epochs.len() {
+                let keep = |i: usize| epoch_of[i] == e;
+                let sub = restrict(&input, &keep);
+                let sub_geo = restrict_ground(&geo, &keep);
+                match orient(&sub, &sub_geo, &options) {
+                    Ok(g) => parts.push((sub, g)),
+                    Err(err) => {
+                        return Err(stage_error(format!(
+                            "epoch \"{}\": {err}",
+                            project.epochs[e].name
+                        )));
+                    }
+                }
+            }
+            merge_independent(&input, parts)
+        }
+        other => {
+            return Err(stage_error(format!(
+                "align.method = \"{}\" is not available yet (available: timesift, independent)",
+                method_name(other)
+            )));
+        }
+    };
+    write_outputs(
+        project,
+        &input,
+        &geo,
+        &frame,
+        &block,
+        start.elapsed().as_secs_f64(),
+    )
+}
+
+fn method_name(m: AlignMethod) -> &'static str {
+    match m {
+        AlignMethod::Timesift => "timesift",
+        AlignMethod::Msfm => "msfm",
+        AlignMethod::Chunk => "chunk",
+        AlignMethod::Stp => "stp",
+        AlignMethod::Independent => "independent",
+    }
+}
+
+/// Structure from motion then georeferencing.
+fn orient(
+    input: &SfmInput,
+    geo: &GeoreferenceInput,
+    options: &SfmOptions,
+) -> Result<Georeferenced, ProjectError> {
+    let components = reconstruct(input, options).map_err(|e| stage_error(e.to_string()))?;
+    georeference(input, components, geo, options).map_err(|e| stage_error(e.to_string()))
+}
+
+/// The input with only the track elements in images that `keep` accepts.
+fn restrict(input: &SfmInput, keep: &dyn Fn(usize) -> bool) -> SfmInput {
+    SfmInput {
+        cameras: input.cameras.clone(),
+        images: input.images.clone(),
+        tracks: input
+            .tracks
+            .iter()
+            .filter_map(|t| {
+                let elements: Vec<_> = t
+                    .elements
+                    .iter()
+                    .filter(|e| keep(e.image.index()))
+                    .copied()
+                    .collect();
+                (elements.len() >= 2).then_some(Track { elements })
+            })
+            .collect(),
+    }
+}
+
+/// Priors and markers of the images that `keep` accepts.
+fn restrict_ground(geo: &GeoreferenceInput, keep: &dyn Fn(usize) -> bool) -> GeoreferenceInput {
+    GeoreferenceInput {
+        centre_priors: geo
+            .centre_priors
+            .iter()
+            .filter(|p| keep(p.image))
+            .copied()
+            .collect(),
+        points: geo
+            .points
+            .iter()
+            .map(|p| GroundPoint {
+                markers: p
+                    .markers
+                    .iter()
+                    .filter(|m| keep(m.image))
+                    .copied()
+                    .collect(),
+                ..p.clone()
+            })
+            .collect(),
+        marker_sigma_px: geo.marker_sigma_px,
+    }
+}
+
+/// The epochs oriented alone, as one block (disjoint images; points renumbered to the full
+/// input's tracks are not needed: observations name their keypoints).
+fn merge_independent(input: &SfmInput, parts: Vec<(SfmInput, Georeferenced)>) -> Georeferenced {
+    let mut merged = Reconstruction {
+        cameras: input.cameras.clone(),
+        poses: vec![None; input.images.len()],
+        points: Vec::new(),
+    };
+    let mut datum = Datum::Local;
+    let mut dropped = 0;
+    let mut rejected = 0;
+    for (_, part) in parts {
+        let r = part.reconstruction;
+        for (i, pose) in r.poses.iter().enumerate() {
+            if pose.is_some() {
+                merged.poses[i] = *pose;
+                let g = input.images[i].group;
+                merged.cameras[g] = r.cameras[g].clone();
+            }
+        }
+        merged.points.extend(r.points);
+        if datum == Datum::Local || part.datum == Datum::GnssAndControlPoints {
+            datum = part.datum;
+        }
+        dropped += part.dropped_components;
+        rejected += part.rejected_priors;
+    }
+    let rms_px = merged.rms_px(input);
+    Georeferenced {
+        reconstruction: merged,
+        datum,
+        dropped_components: dropped,
+        rejected_priors: rejected,
+        residuals: Vec::new(),
+        rms_px,
+    }
+}
+
+/// Keypoints of every image, tracks over every verified pair, initial cameras per group.
+fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
+    let n = project.images.len();
+    let keypoints = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let path = project.dir.join("work/features").join(format!("{i}.feat"));
+            read_features(&path)
+                .map(|(k, _)| k.iter().map(|k| Vector2::new(k.x, k.y)).collect::<Vec<_>>())
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| stage_error(format!("{e} (run the features and match stages first)")))?;
+    let pairs = match_files(&project.dir.join("work/matches"))?;
+    if pairs.is_empty() {
+        return Err(stage_error(format!(
+            "{}: no match files (run the match stage first)",
+            project.dir.join("work/matches").display()
+        )));
+    }
+    let verified = pairs
+        .par_iter()
+        .map(|(a, b, path)| {
+            read_matches(path).map(|matches| PairMatches {
+                a: ImageId::from(*a),
+                b: ImageId::from(*b),
+                matches,
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| stage_error(e.to_string()))?;
+    let verified: Vec<PairMatches> = verified
+        .into_iter()
+        .filter(|p| !p.matches.is_empty() && p.a.index() < n && p.b.index() < n)
+        .collect();
+    let counts: Vec<usize> = keypoints.iter().map(Vec::len).collect();
+    let tracks = build_tracks(&counts, &verified).map_err(|e| stage_error(e.to_string()))?;
+    // One camera per group, from the first image of the group's first epoch.
+    let mut group_index: BTreeMap<String, usize> = BTreeMap::new();
+    let mut cameras = Vec::new();
+    let mut group_of_epoch = Vec::new();
+    for epoch in &project.epochs {
+        let g = match group_index.get(&epoch.camera_group) {
+            Some(&g) => g,
+            None => {
+                let first =
+                    epoch.images.first().copied().ok_or_else(|| {
+                        stage_error(format!("epoch \"{}\" has no image", epoch.name))
+                    })?;
+                cameras.push(initial_camera(&project.image_path(first))?);
+                group_index.insert(epoch.camera_group.clone(), cameras.len() - 1);
+                cameras.len() - 1
+            }
+        };
+        group_of_epoch.push(g);
+    }
+    let images = project
+        .images
+        .iter()
+        .zip(keypoints)
+        .map(|(im, keypoints)| SfmImage {
+            group: group_of_epoch[im.epoch.index()],
+            keypoints,
+        })
+        .collect();
+    Ok(SfmInput {
+        cameras,
+        images,
+        tracks: tracks.tracks,
+    })
+}
+
+/// `work/matches/<a>_<b>.match` files, sorted.
+fn match_files(dir: &Path) -> Result<Vec<(usize, usize, PathBuf)>, ProjectError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| {
+        stage_error(format!(
+            "{}: {e} (run the match stage first)",
+            dir.display()
+        ))
+    })?;
+    let mut files = Vec::new();
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let Some(stem) = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.strip_suffix(".match"))
+        else {
+            continue;
+        };
+        let Some((a, b)) = stem.split_once('_') else {
+            continue;
+        };
+        if let (Ok(a), Ok(b)) = (a.parse::<usize>(), b.parse::<usize>()) {
+            files.push((a, b, path));
+        }
+    }
+    files.sort();
+    Ok(files)
+}
+
+/// A distortion-free `brown` camera of the image's size with the EXIF focal length, or the
+/// default focal length.
+fn initial_camera(path: &Path) -> Result<Camera, ProjectError> {
+    let (w, h) = timesift_io::image::dimensions(path)?;
+    let f = timesift_io::exif::read_exif(path)
+        .ok()
+        .and_then(|e| e.focal_length_px(w, h))
+        .unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+    BrownCamera::new(w, h, f)
+        .map(Camera::Brown)
+        .map_err(|e| stage_error(format!("{}: {e}", path.display())))
+}
+
+/// The local frame: project CRS minus `origin`.
+struct LocalFrame {
+    origin: Vector3<f64>,
+    priors: Vec<Option<crate::project::CameraPrior>>,
+}
+
+impl LocalFrame {
+    fn of(project: &Project) -> Result<Self, ProjectError> {
+        let priors = project.camera_priors()?;
+        let positions: Vec<Vector3<f64>> = priors
+            .iter()
+            .flatten()
+            .map(|p| p.position)
+            .chain(project.gcps.iter().map(|g| g.position))
+            .collect();
+        let origin = if positions.is_empty() {
+            Vector3::zeros()
+        } else {
+            let mean = positions.iter().sum::<Vector3<f64>>() / positions.len() as f64;
+            mean.map(f64::round)
+        };
+        Ok(LocalFrame { origin, priors })
+    }
+
+    /// `cam_from_world` in the project CRS from `cam_from_local`.
+    fn world_pose(&self, pose: &Pose) -> Pose {
+        Pose::new(
+            pose.rotation,
+            pose.translation - pose.rotation * self.origin,
+        )
+    }
+}
+
+/// GNSS priors, control points (markers of the reference epoch only unless
+/// `gcps_in_all_epochs`) and check points, in the local frame.
+fn ground_input(project: &Project, frame: &LocalFrame) -> Result<GeoreferenceInput, ProjectError> {
+    let index_of: BTreeMap<&str, usize> = project
+        .images
+        .iter()
+        .enumerate()
+        .map(|(i, im)| (im.name.as_str(), i))
+        .collect();
+    let reference = project.reference_epoch;
+    let markers_of = |name: &str, control: bool| -> Vec<Marker> {
+        project
+            .markers
+            .iter()
+            .filter(|m| m.name == name)
+            .filter_map(|m| {
+                let image = *index_of.get(m.image.as_str())?;
+                let in_reference = project.images[image].epoch == reference;
+                (!control || in_reference || project.config.align.gcps_in_all_epochs).then_some(
+                    Marker {
+                        image,
+                        pixel: m.pixel,
+                    },
+                )
+            })
+            .collect()
+    };
+    let mut points = Vec::new();
+    for (list, check) in [(&project.gcps, false), (&project.checkpoints, true)] {
+        for g in list {
+            let (sxy, sz) = g.sigma.unwrap_or(DEFAULT_GCP_SIGMA);
+            points.push(GroundPoint {
+                name: g.name.clone(),
+                position: g.position - frame.origin,
+                sigma_xy: sxy,
+                sigma_z: sz,
+                check,
+                markers: markers_of(&g.name, !check),
+            });
+        }
+    }
+    let centre_priors = frame
+        .priors
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            p.as_ref().map(|p| CentrePrior {
+                image: i,
+                position: p.position - frame.origin,
+                sigma_xy: p.sxy,
+                sigma_z: p.sz,
+            })
+        })
+        .collect();
+    Ok(GeoreferenceInput {
+        centre_priors,
+        points,
+        marker_sigma_px: project.config.align.marker_accuracy_px,
+    })
+}
+
+fn write_outputs(
+    project: &Project,
+    input: &SfmInput,
+    geo: &GeoreferenceInput,
+    frame: &LocalFrame,
+    block: &Georeferenced,
+    seconds: f64,
+) -> Result<serde_json::Value, ProjectError> {
+    let out = project.dir.join("out");
+    let rec = &block.reconstruction;
+    let crs = if block.datum == Datum::Local {
+        "local".to_string()
+    } else {
+        project.config.crs.clone()
+    };
+    let origin = if block.datum == Datum::Local {
+        Vector3::zeros()
+    } else {
+        frame.origin
+    };
+    let shifted = LocalFrame {
+        origin,
+        priors: Vec::new(),
+    };
+    // cameras.json
+    let mut group_names: Vec<String> = vec![String::new(); input.cameras.len()];
+    for epoch in &project.epochs {
+        if let Some(&first) = epoch.images.first() {
+            group_names[input.images[first.index()].group] = epoch.camera_group.clone();
+        }
+    }
+    let file = CamerasFile {
+        crs: crs.clone(),
+        cameras: group_names
+            .iter()
+            .cloned()
+            .zip(rec.cameras.iter().cloned())
+            .collect(),
+        images: project
+            .images
+            .iter()
+            .enumerate()
+            .map(|(i, im)| OrientedImage {
+                name: im.name.clone(),
+                epoch: project.epochs[im.epoch.index()].name.clone(),
+                camera: group_names[input.images[i].group].clone(),
+                pose: rec.poses[i].map(|p| shifted.world_pose(&p)),
+            })
+            .collect(),
+    };
+    timesift_io::cameras_json::write_cameras_json(&out.join("cameras.json"), &file)?;
+    // COLMAP text model with the tie points.
+    let mut model = timesift_io::colmap::from_reconstruction(&file)
+        .map_err(|e| stage_error(format!("COLMAP export: {e}")))?;
+    for (k, point) in rec.points.iter().enumerate() {
+        let id = k as u64 + 1;
+        let mut track = Vec::with_capacity(point.observations.len());
+        let mut error_sum = 0.0;
+        for e in &point.observations {
+            let image_id = e.image.index() as u32 + 1;
+            let Some(image) = model.images.get_mut(&image_id) else {
+                continue;
+            };
+            let pixel = input.pixel(e);
+            track.push((image_id, image.points2d.len() as u32));
+            image.points2d.push((pixel.x, pixel.y, id as i64));
+            if let Some(pose) = rec.poses[e.image.index()] {
+                let camera = rec.camera_of(input, e.image.index());
+                error_sum += timesift_core::project_world(camera, &pose, &point.position)
+                    .map_or(0.0, |u| (u - pixel).norm());
+            }
+        }
+        model.points.insert(
+            id,
+            timesift_io::colmap::ColmapPoint {
+                xyz: point.position + origin,
+                rgb: [128, 128, 128],
+                error: error_sum / track.len().max(1) as f64,
+                track,
+            },
+        );
+    }
+    timesift_io::colmap::write_colmap_text(&out.join("colmap"), &model)?;
+    // Tie points with their epochs.
+    let epoch_of: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
+    let tiepoints: Vec<timesift_io::ply::TiePoint> = rec
+        .points
+        .iter()
+        .map(|p| timesift_io::ply::TiePoint {
+            position: p.position + origin,
+            observations: p.observations.len().min(u16::MAX as usize) as u16,
+            epochs: p
+                .observations
+                .iter()
+                .fold(0u32, |m, e| m | 1u32 << (epoch_of[e.image.index()] % 32)),
+        })
+        .collect();
+    let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
+    timesift_io::ply::write_tiepoints(&out.join("tiepoints.ply"), &epoch_names, &tiepoints)?;
+    let report = report(project, input, geo, block, &tiepoints, seconds);
+    let text = serde_json::to_string_pretty(&report).unwrap_or_default();
+    let path = out.join("report.json");
+    timesift_io::fsutil::write_atomically(&path, |w| {
+        use std::io::Write;
+        w.write_all(text.as_bytes())
+            .map_err(|e| timesift_io::IoError::io(&path, e))
+    })?;
+    Ok(report)
+}
+
+fn residual_json(residuals: &[PointResidual], check: bool) -> serde_json::Value {
+    let rows: Vec<&PointResidual> = residuals.iter().filter(|r| r.check == check).collect();
+    let measured: Vec<Vector3<f64>> = rows.iter().filter_map(|r| r.residual).collect();
+    let rmse = |k: usize| {
+        (measured.iter().map(|d| d[k] * d[k]).sum::<f64>() / measured.len() as f64).sqrt()
+    };
+    serde_json::json!({
+        "points": rows.iter().map(|r| serde_json::json!({
+            "name": r.name,
+            "images": r.images,
+            "dE": r.residual.map(|d| d.x),
+            "dN": r.residual.map(|d| d.y),
+            "dH": r.residual.map(|d| d.z),
+        })).collect::<Vec<_>>(),
+        "rmse": if measured.is_empty() { serde_json::Value::Null } else {
+            serde_json::json!({"dE": rmse(0), "dN": rmse(1), "dH": rmse(2), "n": measured.len()})
+        },
+    })
+}
+
+fn report(
+    project: &Project,
+    input: &SfmInput,
+    geo: &GeoreferenceInput,
+    block: &Georeferenced,
+    tiepoints: &[timesift_io::ply::TiePoint],
+    seconds: f64,
+) -> serde_json::Value {
+    let rec = &block.reconstruction;
+    let mut epochs = serde_json::Map::new();
+    let residuals: Vec<(timesift_core::TrackElement, f64)> = rec.residuals(input).collect();
+    for (e, epoch) in project.epochs.iter().enumerate() {
+        let in_epoch = |i: usize| project.images[i].epoch.index() == e;
+        let given = epoch.images.len();
+        let oriented = epoch
+            .images
+            .iter()
+            .filter(|i| rec.poses[i.index()].is_some())
+            .count();
+        let errors: Vec<f64> = residuals
+            .iter()
+            .filter(|(el, _)| in_epoch(el.image.index()))
+            .map(|(_, r)| *r)
+            .collect();
+        let rms = (errors.iter().map(|r| r * r).sum::<f64>() / errors.len() as f64).sqrt();
+        let bit = 1u32 << (e % 32);
+        let tie = tiepoints.iter().filter(|p| p.epochs & bit != 0).count();
+        let inter = tiepoints
+            .iter()
+            .filter(|p| p.epochs & bit != 0 && p.epochs & !bit != 0)
+            .count();
+        let per_epoch = if block.datum == Datum::Local {
+            Vec::new()
+        } else {
+            ground_point_residuals(input, rec, geo, &in_epoch)
+        };
+        epochs.insert(
+            epoch.name.clone(),
+            serde_json::json!({
+                "images_given": given,
+                "images_oriented": oriented,
+                "rms_reprojection_px": if errors.is_empty() { None } else { Some(rms) },
+                "observations": errors.len(),
+                "tie_points": tie,
+                "inter_epoch_tie_points": inter,
+                "control_points": residual_json(&per_epoch, false),
+                "check_points": residual_json(&per_epoch, true),
+            }),
+        );
+    }
+    serde_json::json!({
+        "method": method_name(project.config.align.method),
+        "datum": format!("{:?}", block.datum),
+        "images_given": project.images.len(),
+        "images_oriented": rec.num_oriented(),
+        "rms_reprojection_px": block.rms_px,
+        "tie_points": rec.points.len(),
+        "components_dropped": block.dropped_components,
+        "gnss_priors_rejected": block.rejected_priors,
+        "cameras": rec.cameras.iter().map(|c| {
+            let mut p = vec![0.0; c.num_params()];
+            c.params(&mut p);
+            c.param_names().iter().copied().zip(p).collect::<BTreeMap<_, _>>()
+        }).collect::<Vec<_>>(),
+        "seconds": seconds,
+        "epochs": epochs,
+    })
+}

@@ -1,0 +1,89 @@
+//! `timesift run --to align` on a rendered two-epoch project (soil-pit: a vertical wall at close
+//! range, GCPs marked in the reference epoch only, check points in both): every image oriented,
+//! reprojection RMS within 0.5 px, check points within 1 GSD horizontally and 1.5 GSD vertically
+//! in every epoch, camera centres close to the truth; the output files are readable.
+
+mod common;
+
+use common::timesift;
+use nalgebra::Vector3;
+use timesift_io::cameras_json::read_cameras_json;
+use timesift_synth::scenes::{Scale, build};
+use timesift_synth::writer::{WriteOptions, write_scene};
+
+#[test]
+fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let spec = build("soil-pit", Scale::Small, 1).expect("scene");
+    write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
+    let path = dir.path().to_str().expect("utf-8 path");
+    let (ok, _, err) = timesift(&["run", path, "--to", "align"]);
+    assert!(ok, "{err}");
+    let out = dir.path().join("out");
+    let ours = read_cameras_json(&out.join("cameras.json")).expect("cameras.json");
+    let truth = read_cameras_json(&dir.path().join("truth/cameras.json")).expect("truth");
+    assert_eq!(ours.crs, truth.crs);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    println!("{report:#}");
+    // Ground sampling distance at the check points: mean camera distance over the focal length.
+    let checks: Vec<Vector3<f64>> = std::fs::read_to_string(dir.path().join("checkpoints.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').skip(1).map(|x| x.parse().unwrap()).collect();
+            Vector3::new(v[0], v[1], v[2])
+        })
+        .collect();
+    let centroid = checks.iter().sum::<Vector3<f64>>() / checks.len() as f64;
+    let mut distance = 0.0;
+    let mut centre_sq = 0.0;
+    for (o, t) in ours.images.iter().zip(&truth.images) {
+        assert_eq!(o.name, t.name);
+        let (o, t) = (o.pose.expect("oriented"), t.pose.unwrap());
+        distance += (t.center() - centroid).norm();
+        centre_sq += (o.center() - t.center()).norm_squared();
+    }
+    let n = ours.images.len() as f64;
+    let camera = truth.cameras.values().next().unwrap();
+    let mut f = vec![0.0; 11];
+    timesift_core::CameraModel::params(camera, &mut f);
+    let gsd = distance / n / f[0];
+    let centre_rmse = (centre_sq / n).sqrt();
+    println!("GSD {gsd:.4} m, camera centre RMSE {centre_rmse:.4} m");
+    assert_eq!(report["images_oriented"], report["images_given"]);
+    for (name, epoch) in report["epochs"].as_object().unwrap() {
+        assert_eq!(epoch["images_oriented"], epoch["images_given"], "{name}");
+        let rms = epoch["rms_reprojection_px"].as_f64().unwrap();
+        assert!(rms <= 0.5, "{name}: RMS {rms} px");
+        let chk = &epoch["check_points"]["rmse"];
+        let (de, dn, dh) = (
+            chk["dE"].as_f64().unwrap(),
+            chk["dN"].as_f64().unwrap(),
+            chk["dH"].as_f64().unwrap(),
+        );
+        // The wall faces north: its "horizontal" plane is (E, H), depth is N.
+        let horizontal = (de * de + dh * dh).sqrt();
+        assert!(
+            horizontal <= gsd && dn <= 1.5 * gsd,
+            "{name}: check points dE {de} dN {dn} dH {dh} against GSD {gsd}"
+        );
+        assert!(
+            epoch["inter_epoch_tie_points"].as_u64().unwrap() > 100,
+            "{name}"
+        );
+    }
+    assert!(
+        centre_rmse < 2.0 * gsd,
+        "camera centres off by {centre_rmse} m"
+    );
+    // The other outputs are readable and agree with cameras.json.
+    let model = timesift_io::colmap::read_colmap_text(&out.join("colmap")).expect("colmap model");
+    assert_eq!(model.images.len(), ours.images.len());
+    let (epochs, points) =
+        timesift_io::ply::read_tiepoints(&out.join("tiepoints.ply")).expect("tie points");
+    assert_eq!(epochs.len(), 2);
+    assert_eq!(points.len(), model.points.len());
+    assert!(points.iter().any(|p| p.epochs == 0b11));
+}
