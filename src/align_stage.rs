@@ -13,11 +13,10 @@ use std::time::Instant;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
-    CentrePrior, Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker, PointResidual,
-    Reconstruction, SfmImage, SfmInput, SfmOptions, georeference, ground_point_residuals,
-    reconstruct,
+    Block, CentrePrior, Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
+    PointResidual, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
 };
-use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose, Track};
+use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
 use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
@@ -51,38 +50,28 @@ pub fn align_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
     };
     options.self_calibration.min_images = 3;
     tracing::debug!(cameras = ?input.cameras, "initial cameras");
-    let epoch_of: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
-    let block = match project.config.align.method {
-        AlignMethod::Timesift => orient(&input, &geo, &options)?,
-        AlignMethod::Independent => {
-            let mut parts = Vec::new();
-            for e in 0..project.epochs.len() {
-                let keep = |i: usize| epoch_of[i] == e;
-                let sub = restrict(&input, &keep);
-                let sub_geo = restrict_ground(&geo, &keep);
-                match orient(&sub, &sub_geo, &options) {
-                    Ok(g) => parts.push((sub, g)),
-                    Err(err) => {
-                        return Err(stage_error(format!(
-                            "epoch \"{}\": {err}",
-                            project.epochs[e].name
-                        )));
-                    }
-                }
-            }
-            merge_independent(&input, parts)
-        }
-        other => {
-            return Err(stage_error(format!(
-                "align.method = \"{}\" is not available yet (available: timesift, independent)",
-                method_name(other)
-            )));
-        }
+    let name = method_name(project.config.align.method);
+    let strategy = timesift_align::strategy(name).ok_or_else(|| {
+        stage_error(format!(
+            "align.method = \"{name}\" is not available yet (available: {})",
+            timesift_align::AVAILABLE.join(", ")
+        ))
+    })?;
+    let block_input = Block {
+        sfm: input,
+        ground: geo,
+        epoch_of: project.images.iter().map(|im| im.epoch.index()).collect(),
+        epoch_names: project.epochs.iter().map(|e| e.name.clone()).collect(),
+        reference: project.reference_epoch.index(),
     };
+    let block = strategy
+        .orient(&block_input, &options)
+        .map_err(|e| stage_error(e.to_string()))?;
+    let (input, geo) = (&block_input.sfm, &block_input.ground);
     write_outputs(
         project,
-        &input,
-        &geo,
+        input,
+        geo,
         &frame,
         &block,
         start.elapsed().as_secs_f64(),
@@ -96,101 +85,6 @@ fn method_name(m: AlignMethod) -> &'static str {
         AlignMethod::Chunk => "chunk",
         AlignMethod::Stp => "stp",
         AlignMethod::Independent => "independent",
-    }
-}
-
-/// Structure from motion then georeferencing.
-fn orient(
-    input: &SfmInput,
-    geo: &GeoreferenceInput,
-    options: &SfmOptions,
-) -> Result<Georeferenced, ProjectError> {
-    let components = reconstruct(input, options).map_err(|e| stage_error(e.to_string()))?;
-    georeference(input, components, geo, options).map_err(|e| stage_error(e.to_string()))
-}
-
-/// The input with only the track elements in images that `keep` accepts.
-fn restrict(input: &SfmInput, keep: &dyn Fn(usize) -> bool) -> SfmInput {
-    SfmInput {
-        cameras: input.cameras.clone(),
-        images: input.images.clone(),
-        tracks: input
-            .tracks
-            .iter()
-            .filter_map(|t| {
-                let elements: Vec<_> = t
-                    .elements
-                    .iter()
-                    .filter(|e| keep(e.image.index()))
-                    .copied()
-                    .collect();
-                (elements.len() >= 2).then_some(Track { elements })
-            })
-            .collect(),
-    }
-}
-
-/// Priors and markers of the images that `keep` accepts.
-fn restrict_ground(geo: &GeoreferenceInput, keep: &dyn Fn(usize) -> bool) -> GeoreferenceInput {
-    GeoreferenceInput {
-        centre_priors: geo
-            .centre_priors
-            .iter()
-            .filter(|p| keep(p.image))
-            .copied()
-            .collect(),
-        points: geo
-            .points
-            .iter()
-            .map(|p| GroundPoint {
-                markers: p
-                    .markers
-                    .iter()
-                    .filter(|m| keep(m.image))
-                    .copied()
-                    .collect(),
-                ..p.clone()
-            })
-            .collect(),
-        marker_sigma_px: geo.marker_sigma_px,
-    }
-}
-
-/// The epochs oriented alone, as one block (disjoint images; points renumbered to the full
-/// input's tracks are not needed: observations name their keypoints).
-fn merge_independent(input: &SfmInput, parts: Vec<(SfmInput, Georeferenced)>) -> Georeferenced {
-    let mut merged = Reconstruction {
-        cameras: input.cameras.clone(),
-        poses: vec![None; input.images.len()],
-        points: Vec::new(),
-    };
-    let mut datum = Datum::Local;
-    let mut dropped = 0;
-    let mut rejected = 0;
-    for (_, part) in parts {
-        let r = part.reconstruction;
-        for (i, pose) in r.poses.iter().enumerate() {
-            if pose.is_some() {
-                merged.poses[i] = *pose;
-                let g = input.images[i].group;
-                merged.cameras[g] = r.cameras[g].clone();
-            }
-        }
-        merged.points.extend(r.points);
-        if datum == Datum::Local || part.datum == Datum::GnssAndControlPoints {
-            datum = part.datum;
-        }
-        dropped += part.dropped_components;
-        rejected += part.rejected_priors;
-    }
-    let rms_px = merged.rms_px(input);
-    Georeferenced {
-        reconstruction: merged,
-        datum,
-        dropped_components: dropped,
-        rejected_priors: rejected,
-        residuals: Vec::new(),
-        rms_px,
     }
 }
 
@@ -233,6 +127,7 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
     // One camera per group, from the first image of the group's first epoch.
     let mut group_index: BTreeMap<String, usize> = BTreeMap::new();
     let mut cameras = Vec::new();
+    let mut focal_known = Vec::new();
     let mut group_of_epoch = Vec::new();
     for epoch in &project.epochs {
         let g = match group_index.get(&epoch.camera_group) {
@@ -242,7 +137,9 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
                     epoch.images.first().copied().ok_or_else(|| {
                         stage_error(format!("epoch \"{}\" has no image", epoch.name))
                     })?;
-                cameras.push(initial_camera(&project.image_path(first))?);
+                let (camera, known) = initial_camera(&project.image_path(first))?;
+                cameras.push(camera);
+                focal_known.push(known);
                 group_index.insert(epoch.camera_group.clone(), cameras.len() - 1);
                 cameras.len() - 1
             }
@@ -262,6 +159,7 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
         cameras,
         images,
         tracks: tracks.tracks,
+        focal_known,
     })
 }
 
@@ -294,16 +192,16 @@ fn match_files(dir: &Path) -> Result<Vec<(usize, usize, PathBuf)>, ProjectError>
     Ok(files)
 }
 
-/// A distortion-free `brown` camera of the image's size with the EXIF focal length, or the
-/// default focal length.
-fn initial_camera(path: &Path) -> Result<Camera, ProjectError> {
+/// A distortion-free `brown` camera of the image's size with the EXIF focal length (known), or
+/// the default focal length (a guess).
+fn initial_camera(path: &Path) -> Result<(Camera, bool), ProjectError> {
     let (w, h) = timesift_io::image::dimensions(path)?;
-    let f = timesift_io::exif::read_exif(path)
+    let exif = timesift_io::exif::read_exif(path)
         .ok()
-        .and_then(|e| e.focal_length_px(w, h))
-        .unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+        .and_then(|e| e.focal_length_px(w, h));
+    let f = exif.unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
     BrownCamera::new(w, h, f)
-        .map(Camera::Brown)
+        .map(|c| (Camera::Brown(c), exif.is_some()))
         .map_err(|e| stage_error(format!("{}: {e}", path.display())))
 }
 
@@ -590,6 +488,7 @@ fn report(
         "tie_points": rec.points.len(),
         "components_dropped": block.dropped_components,
         "gnss_priors_rejected": block.rejected_priors,
+        "focal_length_held": block.focal_held,
         "cameras": rec.cameras.iter().map(|c| {
             let mut p = vec![0.0; c.num_params()];
             c.params(&mut p);

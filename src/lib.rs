@@ -11,6 +11,7 @@
 pub mod align_stage;
 pub mod compare;
 pub mod config;
+pub mod demo;
 mod error;
 pub mod features;
 pub mod info;
@@ -18,6 +19,7 @@ pub mod init;
 pub mod matching_stages;
 pub mod project;
 pub mod stages;
+pub mod truth;
 
 pub use error::ProjectError;
 pub use project::Project;

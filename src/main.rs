@@ -56,6 +56,12 @@ enum Command {
     },
     /// Keypoints and descriptors of one image, written in the text format of DESIGN.md.
     Features(features::FeaturesRequest),
+    /// Render a small two-epoch synthetic project, run the pipeline so far on it and print each
+    /// epoch's orientation accuracy against the truth.
+    Demo {
+        /// Where to write the project (empty or new). Default: ./timesift-demo.
+        dir: Option<PathBuf>,
+    },
     /// Compare two DEMs (GeoTIFF: DoD, co-registration, statistics, LoD, volumes) or two point
     /// clouds (LAS/LAZ: ICP, M3C2), made by timesift or any other software.
     Compare(Box<CompareArgs>),
@@ -185,6 +191,10 @@ fn run(command: Command) -> anyhow::Result<()> {
             );
         }
         Command::Compare(args) => compare(*args)?,
+        Command::Demo { dir } => {
+            let dir = dir.unwrap_or_else(|| PathBuf::from("timesift-demo"));
+            print!("{}", timesift::demo::demo(&dir)?);
+        }
     }
     Ok(())
 }

@@ -373,3 +373,19 @@ fn project_path_with_glob_characters_and_dot_epochs() {
     let e = info_error(&odd);
     assert!(e.contains("epoch[0].name"), "{e}");
 }
+
+#[test]
+fn demo_refuses_a_directory_that_is_not_empty() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("keep.txt"), "mine").unwrap();
+    let (ok, _, err) = timesift(&["demo", dir.path().to_str().unwrap()]);
+    assert!(!ok);
+    assert!(
+        err.contains("empty or new directory") && err.contains(dir.path().to_str().unwrap()),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("keep.txt")).unwrap(),
+        "mine"
+    );
+}

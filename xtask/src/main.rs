@@ -7,18 +7,24 @@
 //! - `bench features`: SIFT and LDB against OpenCV SIFT and COLMAP's CPU SIFT (quality on the
 //!   sandpyper `mar` orthophotos, seconds per image on `lund`).
 //! - `bench matching`: exhaustive matching of `lund` against COLMAP's CPU exhaustive matcher.
+//! - `bench align`: images to oriented block on `lund` against COLMAP's CPU pipeline (time, RMS
+//!   reprojection error).
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
 //!
 //! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
 //!   with its ground truth (`timesift-synth`).
 //!
-//! The `bench-methods` task of DESIGN.md arrives with its issue.
+//! - `bench-methods [--scenes a,b] [--methods m,n] [--scale small|full] [--out DIR]`: every
+//!   synthetic scene × every co-registration strategy, compared with the truth (tables as
+//!   markdown and JSON).
 
+mod bench_align;
 mod bench_bundle;
 mod bench_change;
 mod bench_features;
 mod bench_geometry;
 mod bench_matching;
+mod bench_methods;
 
 use std::path::PathBuf;
 
@@ -52,6 +58,24 @@ enum Task {
         /// Write the geometry and truth only, not the images.
         #[arg(long)]
         no_images: bool,
+    },
+    /// Every synthetic scene × every co-registration strategy against the truth.
+    BenchMethods {
+        /// Scenes, comma-separated (default: all seven).
+        #[arg(long, value_delimiter = ',')]
+        scenes: Option<Vec<String>>,
+        /// Strategies, comma-separated (default: all five).
+        #[arg(long, value_delimiter = ',')]
+        methods: Option<Vec<String>>,
+        /// small or full.
+        #[arg(long, default_value = "small")]
+        scale: String,
+        /// Seed of the scenes.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder (scenes, outputs per strategy, methods.md, methods.json).
+        #[arg(long, default_value = "target/bench-methods")]
+        out: PathBuf,
     },
     /// Stage benchmarks against peers, printing time ratios.
     Bench {
@@ -101,6 +125,8 @@ enum BenchStage {
     },
     /// Exhaustive matching of `lund` against COLMAP's CPU exhaustive matcher (2 threads).
     Matching,
+    /// Images to oriented block on `lund` against COLMAP's CPU pipeline (2 threads).
+    Align,
     /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
     Change {
         /// Core-point spacing for M3C2, metres.
@@ -212,8 +238,34 @@ fn main() -> anyhow::Result<()> {
             stage: BenchStage::Matching,
         } => bench_matching::run()?,
         Task::Bench {
+            stage: BenchStage::Align,
+        } => bench_align::run()?,
+        Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,
+        Task::BenchMethods {
+            scenes,
+            methods,
+            scale,
+            seed,
+            out,
+        } => bench_methods::run_bench(&bench_methods::MethodsBench {
+            scenes: scenes.unwrap_or_else(|| {
+                timesift_synth::scenes::SCENES
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect()
+            }),
+            methods: methods.unwrap_or_else(|| {
+                ["timesift", "independent", "chunk", "stp", "msfm"]
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect()
+            }),
+            scale,
+            seed,
+            out,
+        })?,
         Task::Synth {
             scene,
             out,

@@ -123,6 +123,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             })
             .collect(),
         tracks: tracks.tracks,
+        focal_known: vec![exif.focal_length_px(1024, 768).is_some()],
     };
     let start = Instant::now();
     let mut options = SfmOptions::default();

@@ -60,6 +60,18 @@ pub(crate) struct Adjustment<'p> {
     /// Loss on every reprojection residual (markers included).
     pub loss: Loss,
     pub iterations: usize,
+    /// Per camera group: hold the focal length fixed whatever the phase says.
+    pub focal_fixed: &'p [bool],
+    /// Also compute the standard deviations of the free intrinsics (needs a fixed datum).
+    pub precision: bool,
+}
+
+/// What an adjustment gives back besides the updated state.
+pub(crate) struct Adjusted {
+    pub report: BundleReport,
+    /// Per group: (parameter index, standard deviation) of each free intrinsic, when asked for
+    /// and the datum allowed it.
+    pub intrinsic_std: Option<Vec<Vec<(usize, f64)>>>,
 }
 
 /// Robust loss of tie-point residuals (in sigmas) while the block grows: soft L1 beyond about
@@ -69,12 +81,8 @@ pub(crate) struct Adjustment<'p> {
 pub(crate) const TIE_POINT_LOSS: Loss = Loss::SoftL1(2.0);
 
 impl State<'_> {
-    /// Runs an adjustment and writes poses, points and intrinsics back; returns the report and
-    /// the adjusted positions of the marked points.
-    pub fn adjust(
-        &mut self,
-        a: &Adjustment<'_>,
-    ) -> Result<(BundleReport, Vec<Vector3<f64>>), AlignError> {
+    /// Runs an adjustment and writes poses, points and intrinsics back.
+    pub fn adjust(&mut self, a: &Adjustment<'_>) -> Result<Adjusted, AlignError> {
         let input = self.input;
         let oriented_per_group = {
             let mut n = vec![0usize; input.cameras.len()];
@@ -99,10 +107,11 @@ impl State<'_> {
                 _ => &calibration.parameters,
             };
             let model_names = camera.param_names();
+            let focal_fixed = a.focal_fixed.get(g).copied().unwrap_or(false);
             let names: Vec<&str> = names
                 .iter()
                 .map(String::as_str)
-                .filter(|n| model_names.contains(n))
+                .filter(|n| model_names.contains(n) && !(focal_fixed && *n == "f"))
                 .collect();
             problem
                 .groups
@@ -149,7 +158,6 @@ impl State<'_> {
                 });
             }
         }
-        let first_marked = problem.points.len();
         for m in a.marked {
             let k = problem.points.len();
             problem.points.push(BundlePoint {
@@ -201,6 +209,16 @@ impl State<'_> {
             ..BundleOptions::default()
         };
         let report = timesift_bundle::solve(&mut problem, &options)?;
+        let intrinsic_std = if a.precision {
+            timesift_bundle::precision::precision(
+                &problem,
+                timesift_bundle::precision::CovarianceScale::Posterior,
+            )
+            .ok()
+            .map(|p| p.intrinsics)
+        } else {
+            None
+        };
         for (&i, &s) in &slot {
             self.rec.poses[i] = Some(problem.images[s].pose);
         }
@@ -210,10 +228,9 @@ impl State<'_> {
         for (g, group) in problem.groups.into_iter().enumerate() {
             self.rec.cameras[g] = group.camera;
         }
-        let marked = problem.points[first_marked..]
-            .iter()
-            .map(|p| p.position)
-            .collect();
-        Ok((report, marked))
+        Ok(Adjusted {
+            report,
+            intrinsic_std,
+        })
     }
 }

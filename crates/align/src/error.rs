@@ -29,6 +29,12 @@ pub enum AlignError {
     /// Georeferencing is impossible with the given priors.
     #[error("cannot georeference: {0}")]
     Georeferencing(String),
+    /// A strategy failed on one epoch.
+    #[error("epoch \"{epoch}\": {source}")]
+    Epoch {
+        epoch: String,
+        source: Box<AlignError>,
+    },
     /// A geometric solver failed where the orientation needed it.
     #[error(transparent)]
     Geometry(#[from] timesift_geometry::GeometryError),

@@ -97,6 +97,9 @@ pub struct Georeferenced {
     pub residuals: Vec<PointResidual>,
     /// Final RMS reprojection error of the tie points, pixels.
     pub rms_px: f64,
+    /// Per camera group: whether its focal length was held at its known value because the
+    /// block did not determine it (relative standard deviation above 0.2 %).
+    pub focal_held: Vec<bool>,
 }
 
 /// Pairs (block position, world position, threshold) of one component.
@@ -280,12 +283,19 @@ pub fn georeference(
         .iter()
         .map(|&k| geo.centre_priors[k])
         .collect();
+    let groups = input.cameras.len();
+    let known = |g: usize| input.focal_known.get(g).copied().unwrap_or(false);
+    let mut focal_fixed: Vec<bool> = (0..groups).map(known).collect();
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
-        for _ in 0..2 {
+        // First adjustment: every focal length free, with its precision; a known focal length
+        // that the block does not determine well goes back to its known value and stays.
+        focal_fixed.fill(false);
+        let before = state.rec.cameras.clone();
+        for round in 0..2 {
             let marked = marked_points(input, &state.rec, geo);
             let points = state.live_points();
-            let (report, marked_after) = state.adjust(&Adjustment {
+            let adjusted = state.adjust(&Adjustment {
                 free_images: state.oriented(),
                 points: points.clone(),
                 intrinsics: Intrinsics::Final,
@@ -293,17 +303,23 @@ pub fn georeference(
                 marked: &marked,
                 loss: Loss::Trivial,
                 iterations: options.global_iterations,
+                focal_fixed: &focal_fixed,
+                precision: round == 0,
             })?;
-            for (m, after) in marked.iter().zip(&marked_after) {
-                if let Some((surveyed, _, _)) = m.prior {
-                    tracing::debug!(
-                        start = ?(m.position - surveyed),
-                        adjusted = ?(after - surveyed),
-                        "control point minus surveyed"
+            tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
+            if round == 0 {
+                for g in (0..groups).filter(|&g| known(g)) {
+                    let relative = focal_relative_std(
+                        &state.rec.cameras[g],
+                        adjusted.intrinsic_std.as_ref().and_then(|s| s.get(g)),
                     );
+                    tracing::info!(group = g, relative_std = ?relative, "focal length precision");
+                    if relative.is_none_or(|r| r > FOCAL_DETERMINED) {
+                        focal_fixed[g] = true;
+                        restore_focal(&mut state.rec.cameras[g], &before[g]);
+                    }
                 }
             }
-            tracing::debug!(?report, "georeferenced adjustment");
             state.filter_points(&points);
             state.complete_all_tracks();
             state.compact();
@@ -323,7 +339,39 @@ pub fn georeference(
         rejected_priors,
         residuals,
         rms_px,
+        focal_held: focal_fixed,
     })
+}
+
+/// A known focal length is re-estimated only when the block determines it to this relative
+/// standard deviation (0.2 %: a tenth of the error of an EXIF focal length).
+const FOCAL_DETERMINED: f64 = 0.002;
+
+/// σ_f / f of a group from the adjustment's intrinsic standard deviations.
+fn focal_relative_std(
+    camera: &timesift_core::Camera,
+    stds: Option<&Vec<(usize, f64)>>,
+) -> Option<f64> {
+    use timesift_core::CameraModel;
+    let k = camera.param_names().iter().position(|n| *n == "f")?;
+    let sigma = stds?.iter().find(|(i, _)| *i == k)?.1;
+    let mut p = vec![0.0; camera.num_params()];
+    camera.params(&mut p);
+    Some(sigma / p[k].abs().max(1e-12))
+}
+
+/// Puts back the focal length of `before`, keeping the other adjusted intrinsics.
+fn restore_focal(camera: &mut timesift_core::Camera, before: &timesift_core::Camera) {
+    use timesift_core::CameraModel;
+    let Some(k) = camera.param_names().iter().position(|n| *n == "f") else {
+        return;
+    };
+    let mut p = vec![0.0; camera.num_params()];
+    camera.params(&mut p);
+    let mut q = vec![0.0; before.num_params()];
+    before.params(&mut q);
+    p[k] = q[k];
+    let _ = camera.set_params(&p);
 }
 
 /// The control points (not check points) with at least two oriented markers, as marked points

@@ -129,6 +129,8 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
         marked: &[],
         loss: TIE_POINT_LOSS,
         iterations: state.options.local_iterations,
+        focal_fixed: &state.input.focal_known,
+        precision: false,
     })?;
     state.filter_points(&points);
     state.complete_tracks_of_image(image);
@@ -138,15 +140,21 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
 /// Adjusts every oriented image and point, filters, re-triangulates and compacts.
 fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<(), AlignError> {
     let points = state.live_points();
-    let (report, _) = state.adjust(&Adjustment {
-        free_images: state.oriented(),
-        points: points.clone(),
-        intrinsics,
-        priors: &[],
-        marked: &[],
-        loss: TIE_POINT_LOSS,
-        iterations: state.options.global_iterations,
-    })?;
+    let report = state
+        .adjust(&Adjustment {
+            free_images: state.oriented(),
+            points: points.clone(),
+            intrinsics,
+            priors: &[],
+            marked: &[],
+            loss: TIE_POINT_LOSS,
+            iterations: state.options.global_iterations,
+            // A focal length from EXIF stays until georeferencing can tell whether the block
+            // determines it (a nadir block over flat ground does not: f trades with height).
+            focal_fixed: &state.input.focal_known,
+            precision: false,
+        })?
+        .report;
     let dropped = state.filter_points(&points);
     let added = state.complete_all_tracks();
     state.compact();

@@ -24,6 +24,7 @@ mod model;
 mod options;
 mod register;
 mod state;
+mod strategy;
 
 pub use adjust::CentrePrior;
 pub use error::AlignError;
@@ -34,3 +35,6 @@ pub use georef::{
 pub use incremental::reconstruct;
 pub use model::{Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{SelfCalibration, SfmOptions};
+pub use strategy::{
+    AVAILABLE, Block, ChunkAlignment, Independent, SingleBlock, Strategy, strategy,
+};

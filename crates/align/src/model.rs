@@ -27,11 +27,22 @@ pub struct SfmInput {
     pub images: Vec<SfmImage>,
     /// Tracks over the images' keypoints.
     pub tracks: Vec<Track>,
+    /// Per camera group: whether the initial focal length is known (EXIF, calibration) rather
+    /// than guessed. Known focal lengths are held during reconstruction and adjusted at
+    /// georeferencing only where the block determines them. Empty: all guessed.
+    pub focal_known: Vec<bool>,
 }
 
 impl SfmInput {
     /// Checks that every group, image and keypoint referred to exists and that pixels are finite.
     pub fn validate(&self) -> Result<(), AlignError> {
+        if !self.focal_known.is_empty() && self.focal_known.len() != self.cameras.len() {
+            return Err(AlignError::InvalidInput(format!(
+                "focal_known has {} entries for {} camera groups",
+                self.focal_known.len(),
+                self.cameras.len()
+            )));
+        }
         for (i, image) in self.images.iter().enumerate() {
             if image.group >= self.cameras.len() {
                 return Err(AlignError::InvalidInput(format!(

@@ -6,8 +6,9 @@
 use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
-    AlignError, CentrePrior, Datum, GeoreferenceInput, Reconstruction, SfmImage, SfmInput,
-    SfmOptions, georeference, reconstruct,
+    AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
+    Independent, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock, Strategy,
+    georeference, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -106,6 +107,7 @@ fn one_camera_input(
             })
             .collect(),
         tracks,
+        focal_known: Vec::new(),
     }
 }
 
@@ -308,4 +310,107 @@ proptest! {
         let (centre, point_median) = errors_after_similarity(&components[0], &s);
         prop_assert!(centre < 1e-3 && point_median < 1e-3, "{} {}", centre, point_median);
     }
+}
+
+/// Two "epochs" of the nadir block (its first two and last two rows) with exact GNSS priors,
+/// the second epoch's biased by `bias`; every prior claims 1.5 m, as a receiver with such a bias
+/// honestly would.
+fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
+    let epoch_of: Vec<usize> = (0..s.poses.len()).map(|i| usize::from(i >= 10)).collect();
+    let centre_priors = s
+        .poses
+        .iter()
+        .enumerate()
+        .map(|(i, p)| CentrePrior {
+            image: i,
+            position: p.center()
+                + if epoch_of[i] == 1 {
+                    bias
+                } else {
+                    Vector3::zeros()
+                },
+            sigma_xy: 1.5,
+            sigma_z: 1.5,
+        })
+        .collect();
+    Block {
+        sfm: s.input.clone(),
+        ground: GeoreferenceInput {
+            centre_priors,
+            points: Vec::new(),
+            marker_sigma_px: 0.5,
+        },
+        epoch_of,
+        epoch_names: vec!["first".into(), "second".into()],
+        reference: 0,
+    }
+}
+
+/// Mean camera-centre error (estimated − true) of the images of one epoch.
+fn mean_offset(g: &Georeferenced, s: &Scene, block: &Block, epoch: usize) -> Vector3<f64> {
+    let images: Vec<usize> = (0..s.poses.len())
+        .filter(|&i| block.epoch_of[i] == epoch)
+        .collect();
+    images
+        .iter()
+        .map(|&i| g.reconstruction.poses[i].unwrap().center() - s.poses[i].center())
+        .sum::<Vector3<f64>>()
+        / images.len() as f64
+}
+
+/// Largest camera-centre residual after one similarity of all cameras onto the truth: how far
+/// the epochs are from forming one rigid block.
+fn rigid_misfit(g: &Georeferenced, s: &Scene) -> f64 {
+    let ours: Vec<_> = (0..s.poses.len())
+        .map(|i| g.reconstruction.poses[i].unwrap().center())
+        .collect();
+    let truth: Vec<_> = s.poses.iter().map(|p| p.center()).collect();
+    let t = umeyama(&ours, &truth, None, TransformKind::Similarity).unwrap();
+    ours.iter()
+        .zip(&truth)
+        .map(|(a, b)| (t.apply(a) - b).norm())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn strategies_differ_as_the_papers_say_on_biased_gnss() {
+    let s = scene(7, 0.3, 1500);
+    let bias = Vector3::new(2.0, 0.0, 0.0);
+    let block = two_epoch_block(&s, bias);
+    let options = SfmOptions::default();
+    // Independent: the second epoch follows its biased priors; the epochs do not fit together.
+    let independent = Independent.orient(&block, &options).unwrap();
+    assert_eq!(independent.reconstruction.num_oriented(), 20);
+    let off = mean_offset(&independent, &s, &block, 1);
+    let misfit = rigid_misfit(&independent, &s);
+    println!("independent: second epoch off by {off:?}, rigid misfit {misfit:.3} m");
+    assert!((off - bias).norm() < 0.1, "{off:?}");
+    assert!(mean_offset(&independent, &s, &block, 0).norm() < 0.05);
+    assert!(misfit > 0.5, "{misfit}");
+    // Chunk: the second epoch is mapped onto the reference through shared tie points.
+    let chunk = ChunkAlignment.orient(&block, &options).unwrap();
+    assert_eq!(chunk.reconstruction.num_oriented(), 20);
+    let off = mean_offset(&chunk, &s, &block, 1);
+    let misfit = rigid_misfit(&chunk, &s);
+    println!("chunk: second epoch off by {off:?}, rigid misfit {misfit:.3} m");
+    assert!(off.norm() < 0.1 && misfit < 0.1, "{off:?} {misfit}");
+    // One block: the epochs share one geometry whatever the priors say; the datum is a
+    // compromise between the two epochs' priors.
+    let single = SingleBlock.orient(&block, &options).unwrap();
+    let misfit = rigid_misfit(&single, &s);
+    let (a, b) = (
+        mean_offset(&single, &s, &block, 0),
+        mean_offset(&single, &s, &block, 1),
+    );
+    println!("timesift: epochs off by {a:?} and {b:?}, rigid misfit {misfit:.4} m");
+    assert!(misfit < 0.05, "{misfit}");
+    assert!(
+        (a.x + b.x) / 2.0 > 0.5 && (a.x + b.x) / 2.0 < 1.5,
+        "{a:?} {b:?}"
+    );
+    // Strategy names and lookup.
+    for name in timesift_align::AVAILABLE {
+        assert_eq!(timesift_align::strategy(name).unwrap().name(), name);
+    }
+    assert!(timesift_align::strategy("stp-later").is_none());
 }

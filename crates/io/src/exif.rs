@@ -156,3 +156,100 @@ pub fn read_exif(path: &Path) -> Result<ExifInfo, IoError> {
         timestamp: text(Tag::DateTimeOriginal).or_else(|| text(Tag::DateTime)),
     })
 }
+
+/// Camera tags to embed in a JPEG, as a camera writes them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraTags {
+    /// Maker.
+    pub make: String,
+    /// Model.
+    pub model: String,
+    /// 35 mm equivalent focal length, millimetres (an integer in EXIF).
+    pub focal_length_35mm: u16,
+}
+
+/// A JPEG stream with an EXIF (APP1) segment holding `tags` inserted after its start-of-image
+/// marker. `what` names the image in errors.
+pub fn jpeg_with_camera_tags(
+    jpeg: &[u8],
+    tags: &CameraTags,
+    what: &Path,
+) -> Result<Vec<u8>, IoError> {
+    use exif::Field;
+    use exif::experimental::Writer;
+    if jpeg.len() < 2 || jpeg[0] != 0xFF || jpeg[1] != 0xD8 {
+        return Err(IoError::invalid(
+            what,
+            "not a JPEG stream (no start-of-image marker)",
+        ));
+    }
+    let ascii = |tag: Tag, s: &str| Field {
+        tag,
+        ifd_num: In::PRIMARY,
+        value: Value::Ascii(vec![s.as_bytes().to_vec()]),
+    };
+    let fields = [
+        ascii(Tag::Make, &tags.make),
+        ascii(Tag::Model, &tags.model),
+        Field {
+            tag: Tag::FocalLengthIn35mmFilm,
+            ifd_num: In::PRIMARY,
+            value: Value::Short(vec![tags.focal_length_35mm]),
+        },
+    ];
+    let mut writer = Writer::new();
+    for f in &fields {
+        writer.push_field(f);
+    }
+    let mut tiff = std::io::Cursor::new(Vec::new());
+    writer
+        .write(&mut tiff, false)
+        .map_err(|e| IoError::invalid(what, format!("cannot encode EXIF: {e}")))?;
+    let tiff = tiff.into_inner();
+    let length = u16::try_from(tiff.len() + 8)
+        .map_err(|_| IoError::invalid(what, "EXIF block larger than a JPEG segment"))?;
+    let mut out = Vec::with_capacity(jpeg.len() + tiff.len() + 10);
+    out.extend_from_slice(&jpeg[..2]);
+    out.extend_from_slice(&[0xFF, 0xE1]);
+    out.extend_from_slice(&length.to_be_bytes());
+    out.extend_from_slice(b"Exif\0\0");
+    out.extend_from_slice(&tiff);
+    out.extend_from_slice(&jpeg[2..]);
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn camera_tags_written_into_a_jpeg_read_back() {
+        use image::ImageEncoder;
+        let mut jpeg = std::io::Cursor::new(Vec::new());
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+            .write_image(&[128u8; 64 * 48], 64, 48, image::ExtendedColorType::L8)
+            .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tagged.jpg");
+        let tags = CameraTags {
+            make: "timesift".into(),
+            model: "synthetic".into(),
+            focal_length_35mm: 26,
+        };
+        let tagged = jpeg_with_camera_tags(jpeg.get_ref(), &tags, &path).unwrap();
+        std::fs::write(&path, &tagged).unwrap();
+        let info = read_exif(&path).unwrap();
+        assert_eq!(info.make.as_deref(), Some("timesift"));
+        assert_eq!(info.focal_length_35mm, Some(26.0));
+        let f = info.focal_length_px(64, 48).unwrap();
+        assert!((f - 26.0 / 36.0 * 64.0).abs() < 1e-9, "{f}");
+        assert_eq!(crate::image::dimensions(&path).unwrap(), (64, 48));
+        let err = jpeg_with_camera_tags(b"PNG", &tags, &path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("tagged.jpg") && err.contains("not a JPEG"),
+            "{err}"
+        );
+    }
+}

@@ -32,6 +32,7 @@ use crate::effects::{self, Channels};
 use crate::render::{RayTable, Scene, render_rays};
 use crate::scene::{Frame, ImageFormat, SceneSpec};
 use crate::terrain::Heightfield;
+use timesift_io::exif::{CameraTags, jpeg_with_camera_tags};
 
 /// What to write.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -182,7 +183,7 @@ pub fn write_scene(
                 let path = dir.join(&name);
                 let rendered = render_rays(&scene, &rays, &image.pose, epoch.shadows);
                 let pixels = effects::apply(&rendered, &image.effects);
-                let bytes = encode(
+                let mut bytes = encode(
                     &pixels,
                     epoch.camera.width,
                     epoch.camera.height,
@@ -190,6 +191,10 @@ pub fn write_scene(
                     epoch.format,
                 )
                 .map_err(|e| io_err(&path, e))?;
+                if let ImageFormat::Jpeg(_) = epoch.format {
+                    bytes = jpeg_with_camera_tags(&bytes, &camera_tags(&epoch.camera), &path)
+                        .map_err(|e| SynthError::Write(e.to_string()))?;
+                }
                 write_bytes_atomically(&path, &bytes)
                     .map_err(|e| SynthError::Write(e.to_string()))?;
                 written.megapixels += (epoch.camera.width * epoch.camera.height) as f64 / 1e6;
@@ -294,6 +299,18 @@ fn observe(
     }
     let distance = (x - c).norm();
     scene.sees(&c, x, 1e-6 * distance + 1e-4).then_some(px)
+}
+
+/// The EXIF a digital camera writes: its 35 mm equivalent focal length, an integer, so the
+/// nominal value is off the true calibration by up to 2 % (as real EXIF focal lengths are).
+/// Film scans (TIFF) carry none.
+fn camera_tags(camera: &timesift_core::BrownCamera) -> CameraTags {
+    let long_side = camera.width.max(camera.height) as f64;
+    CameraTags {
+        make: "timesift-synth".into(),
+        model: format!("{}x{}", camera.width, camera.height),
+        focal_length_35mm: (36.0 * camera.f / long_side).round() as u16,
+    }
 }
 
 fn encode(

@@ -1,0 +1,338 @@
+//! The co-registration strategies of DESIGN.md behind one trait. A [`Block`] is the whole
+//! multi-epoch input: epochs are only a partition of the images (which epoch each image belongs
+//! to, which one carries the datum); what a strategy does with that partition is the strategy.
+//!
+//! - [`SingleBlock`] (`timesift`): all epochs in one reconstruction and one georeferencing.
+//! - [`Independent`]: each epoch reconstructed and georeferenced with its own priors and markers.
+//! - [`ChunkAlignment`] (`chunk`): each epoch reconstructed alone; the reference epoch
+//!   georeferenced; every other epoch mapped onto it by one 7-parameter similarity from the
+//!   tie points the two epochs share (tracks spanning both), RANSAC then least squares.
+
+use std::collections::HashMap;
+
+use nalgebra::Vector3;
+use timesift_core::{Track, TrackElement};
+use timesift_geometry::ransac::{RansacOptions, ransac};
+use timesift_geometry::similarity::{SimilarityEstimator, TransformKind, umeyama};
+
+use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, georeference};
+use crate::model::{Reconstruction, SfmInput};
+use crate::options::SfmOptions;
+use crate::{AlignError, reconstruct};
+
+/// The multi-epoch input of a strategy.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Block {
+    /// Cameras, images and tracks over all epochs.
+    pub sfm: SfmInput,
+    /// Priors, control and check points (markers of every epoch).
+    pub ground: GeoreferenceInput,
+    /// Epoch index of each image.
+    pub epoch_of: Vec<usize>,
+    /// Epoch names, for messages.
+    pub epoch_names: Vec<String>,
+    /// The epoch that carries the datum.
+    pub reference: usize,
+}
+
+/// A co-registration strategy.
+pub trait Strategy {
+    /// The name of `align.method`.
+    fn name(&self) -> &'static str;
+    /// Orients and georeferences every epoch.
+    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError>;
+}
+
+/// The strategy called `name`, or `None` for an unknown or not yet available one.
+pub fn strategy(name: &str) -> Option<Box<dyn Strategy>> {
+    match name {
+        "timesift" => Some(Box::new(SingleBlock)),
+        "independent" => Some(Box::new(Independent)),
+        "chunk" => Some(Box::new(ChunkAlignment)),
+        _ => None,
+    }
+}
+
+/// Names of the available strategies.
+pub const AVAILABLE: [&str; 3] = ["timesift", "independent", "chunk"];
+
+/// `timesift`: one block.
+pub struct SingleBlock;
+
+impl Strategy for SingleBlock {
+    fn name(&self) -> &'static str {
+        "timesift"
+    }
+    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
+        let components = reconstruct(&block.sfm, options)?;
+        georeference(&block.sfm, components, &block.ground, options)
+    }
+}
+
+/// `independent`: every epoch alone.
+pub struct Independent;
+
+impl Strategy for Independent {
+    fn name(&self) -> &'static str {
+        "independent"
+    }
+    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
+        let mut parts = Vec::new();
+        for e in 0..block.epoch_names.len() {
+            let keep = |i: usize| block.epoch_of[i] == e;
+            let sub = restrict(&block.sfm, &keep);
+            let ground = restrict_ground(&block.ground, &keep);
+            let placed = reconstruct(&sub, options)
+                .and_then(|c| georeference(&sub, c, &ground, options))
+                .map_err(|source| in_epoch(block, e, source))?;
+            parts.push(placed);
+        }
+        Ok(merge(&block.sfm, parts))
+    }
+}
+
+/// `chunk`: epochs alone, then a similarity onto the reference epoch.
+pub struct ChunkAlignment;
+
+impl Strategy for ChunkAlignment {
+    fn name(&self) -> &'static str {
+        "chunk"
+    }
+    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
+        let r = block.reference;
+        let keep_ref = |i: usize| block.epoch_of[i] == r;
+        let sub = restrict(&block.sfm, &keep_ref);
+        let reference = reconstruct(&sub, options)
+            .and_then(|c| {
+                georeference(&sub, c, &restrict_ground(&block.ground, &keep_ref), options)
+            })
+            .map_err(|source| in_epoch(block, r, source))?;
+        let reference_points = point_index(&reference.reconstruction);
+        let mut parts = vec![reference.clone()];
+        for e in (0..block.epoch_names.len()).filter(|&e| e != r) {
+            let keep = |i: usize| block.epoch_of[i] == e;
+            let sub = restrict(&block.sfm, &keep);
+            let mut rec = reconstruct(&sub, options)
+                .map_err(|source| in_epoch(block, e, source))?
+                .into_iter()
+                .next()
+                .ok_or_else(|| in_epoch(block, e, AlignError::Georeferencing("empty".into())))?;
+            let (src, dst) = shared_points(
+                &block.sfm.tracks,
+                &rec,
+                &reference.reconstruction,
+                &reference_points,
+            );
+            let ref_from_epoch =
+                fit_similarity(&src, &dst, &reference.reconstruction, options.seed)
+                    .map_err(|source| in_epoch(block, e, source))?;
+            rec.transform(&ref_from_epoch);
+            parts.push(Georeferenced {
+                rms_px: rec.rms_px(&sub),
+                reconstruction: rec,
+                datum: reference.datum,
+                dropped_components: 0,
+                rejected_priors: 0,
+                residuals: Vec::new(),
+                focal_held: (0..sub.cameras.len())
+                    .map(|g| sub.focal_known.get(g).copied().unwrap_or(false))
+                    .collect(),
+            });
+        }
+        Ok(merge(&block.sfm, parts))
+    }
+}
+
+fn in_epoch(block: &Block, e: usize, source: AlignError) -> AlignError {
+    AlignError::Epoch {
+        epoch: block.epoch_names[e].clone(),
+        source: Box::new(source),
+    }
+}
+
+/// Map from a track element to the point that it observes.
+fn point_index(rec: &Reconstruction) -> HashMap<TrackElement, usize> {
+    let mut map = HashMap::new();
+    for (p, point) in rec.points.iter().enumerate() {
+        for e in &point.observations {
+            map.insert(*e, p);
+        }
+    }
+    map
+}
+
+/// 3-D correspondences between an epoch's points and the reference epoch's: one per track of
+/// the whole block that has a point in both.
+fn shared_points(
+    tracks: &[Track],
+    rec: &Reconstruction,
+    reference: &Reconstruction,
+    reference_points: &HashMap<TrackElement, usize>,
+) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+    let ours = point_index(rec);
+    let mut src = Vec::new();
+    let mut dst = Vec::new();
+    for track in tracks {
+        let a = track.elements.iter().find_map(|e| ours.get(e));
+        let b = track.elements.iter().find_map(|e| reference_points.get(e));
+        if let (Some(&a), Some(&b)) = (a, b) {
+            src.push(rec.points[a].position);
+            dst.push(reference.points[b].position);
+        }
+    }
+    (src, dst)
+}
+
+/// RANSAC similarity from an epoch's points to the reference's, with a threshold of three
+/// times the reference's median ground pixel (object-space size of a pixel at the points).
+fn fit_similarity(
+    src: &[Vector3<f64>],
+    dst: &[Vector3<f64>],
+    reference: &Reconstruction,
+    seed: u64,
+) -> Result<timesift_geometry::similarity::Similarity, AlignError> {
+    if src.len() < 3 {
+        return Err(AlignError::Georeferencing(format!(
+            "{} tie points shared with the reference epoch; a similarity needs 3",
+            src.len()
+        )));
+    }
+    let threshold = 3.0 * median_ground_pixel(reference);
+    let result = ransac(
+        &SimilarityEstimator {
+            src,
+            dst,
+            kind: TransformKind::Similarity,
+        },
+        &RansacOptions {
+            max_error: threshold,
+            seed,
+            ..RansacOptions::default()
+        },
+    )?;
+    let (a, b): (Vec<_>, Vec<_>) = (0..src.len())
+        .filter(|&k| result.inliers[k])
+        .map(|k| (src[k], dst[k]))
+        .unzip();
+    tracing::debug!(shared = src.len(), inliers = a.len(), "chunk similarity");
+    Ok(umeyama(&a, &b, None, TransformKind::Similarity)?)
+}
+
+/// Median over points of (distance to the first observing camera / its focal length).
+fn median_ground_pixel(rec: &Reconstruction) -> f64 {
+    let mut sizes: Vec<f64> = rec
+        .points
+        .iter()
+        .filter_map(|p| {
+            let e = p.observations.first()?;
+            let pose = rec.poses[e.image.index()]?;
+            let f = rec
+                .cameras
+                .iter()
+                .map(|c| {
+                    let mut v = vec![0.0; timesift_core::CameraModel::num_params(c)];
+                    timesift_core::CameraModel::params(c, &mut v);
+                    v[0]
+                })
+                .fold(0.0, f64::max);
+            Some((p.position - pose.center()).norm() / f.max(1.0))
+        })
+        .collect();
+    if sizes.is_empty() {
+        return 1.0;
+    }
+    sizes.sort_by(f64::total_cmp);
+    sizes[sizes.len() / 2]
+}
+
+/// The input with only the track elements in images that `keep` accepts.
+pub(crate) fn restrict(input: &SfmInput, keep: &dyn Fn(usize) -> bool) -> SfmInput {
+    SfmInput {
+        cameras: input.cameras.clone(),
+        images: input.images.clone(),
+        tracks: input
+            .tracks
+            .iter()
+            .filter_map(|t| {
+                let elements: Vec<_> = t
+                    .elements
+                    .iter()
+                    .filter(|e| keep(e.image.index()))
+                    .copied()
+                    .collect();
+                (elements.len() >= 2).then_some(Track { elements })
+            })
+            .collect(),
+        focal_known: input.focal_known.clone(),
+    }
+}
+
+/// Priors and markers of the images that `keep` accepts.
+pub(crate) fn restrict_ground(
+    geo: &GeoreferenceInput,
+    keep: &dyn Fn(usize) -> bool,
+) -> GeoreferenceInput {
+    GeoreferenceInput {
+        centre_priors: geo
+            .centre_priors
+            .iter()
+            .filter(|p| keep(p.image))
+            .copied()
+            .collect(),
+        points: geo
+            .points
+            .iter()
+            .map(|p| GroundPoint {
+                markers: p
+                    .markers
+                    .iter()
+                    .filter(|m| keep(m.image))
+                    .copied()
+                    .collect(),
+                ..p.clone()
+            })
+            .collect(),
+        marker_sigma_px: geo.marker_sigma_px,
+    }
+}
+
+/// Epochs oriented apart, as one block (their images are disjoint; points keep their
+/// observations, which name keypoints of the whole input).
+fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeferenced {
+    let mut merged = Reconstruction {
+        cameras: input.cameras.clone(),
+        poses: vec![None; input.images.len()],
+        points: Vec::new(),
+    };
+    let mut datum = Datum::Local;
+    let mut dropped = 0;
+    let mut rejected = 0;
+    let mut focal_held = vec![false; input.cameras.len()];
+    for part in parts {
+        let r = part.reconstruction;
+        for (i, pose) in r.poses.iter().enumerate() {
+            if pose.is_some() {
+                merged.poses[i] = *pose;
+                let g = input.images[i].group;
+                merged.cameras[g] = r.cameras[g].clone();
+                focal_held[g] = part.focal_held.get(g).copied().unwrap_or(false);
+            }
+        }
+        merged.points.extend(r.points);
+        if datum == Datum::Local || part.datum == Datum::GnssAndControlPoints {
+            datum = part.datum;
+        }
+        dropped += part.dropped_components;
+        rejected += part.rejected_priors;
+    }
+    let rms_px = merged.rms_px(input);
+    Georeferenced {
+        reconstruction: merged,
+        datum,
+        dropped_components: dropped,
+        rejected_priors: rejected,
+        residuals: Vec::new(),
+        rms_px,
+        focal_held,
+    }
+}

@@ -1,0 +1,165 @@
+//! `cargo xtask bench-methods`: every `synth` scene × every co-registration strategy. Each scene
+//! is rendered once and its features and matches computed once (they do not depend on the
+//! strategy); then the `align` stage runs per strategy and is compared with the truth: per
+//! strategy and epoch, images oriented, check-point RMSE (dE, dN, dH) in metres and in ground
+//! sampling distances, camera-centre RMSE, reprojection RMS, inter-epoch tie points, the
+//! disagreement of check points between each epoch and the reference epoch, and wall time.
+//! Written as `methods.md` and `methods.json` in the output folder and printed.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use timesift::Project;
+use timesift::config::AlignMethod;
+use timesift::stages::{Stage, run, run_stage};
+use timesift::truth::{EpochAccuracy, epoch_accuracy, ground_sampling_distance, triple};
+
+/// The strategies, in the papers' order.
+const METHODS: [(&str, AlignMethod); 5] = [
+    ("timesift", AlignMethod::Timesift),
+    ("independent", AlignMethod::Independent),
+    ("chunk", AlignMethod::Chunk),
+    ("stp", AlignMethod::Stp),
+    ("msfm", AlignMethod::Msfm),
+];
+
+/// What to run.
+pub struct MethodsBench {
+    pub scenes: Vec<String>,
+    pub methods: Vec<String>,
+    pub scale: String,
+    pub seed: u64,
+    pub out: PathBuf,
+}
+
+/// One strategy on one epoch of one scene (or its failure).
+#[derive(Debug, Clone, serde::Serialize)]
+struct Row {
+    scene: String,
+    method: String,
+    #[serde(flatten)]
+    accuracy: Option<EpochAccuracy>,
+    seconds: f64,
+    error: Option<String>,
+}
+
+pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
+    let scale: timesift_synth::scenes::Scale = bench
+        .scale
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("--scale: {e}"))?;
+    std::fs::create_dir_all(&bench.out).with_context(|| bench.out.display().to_string())?;
+    let mut rows = Vec::new();
+    for scene in &bench.scenes {
+        let dir = bench.out.join(scene);
+        let _ = std::fs::remove_dir_all(&dir);
+        let spec = timesift_synth::scenes::build(scene, scale, bench.seed)?;
+        timesift_synth::writer::write_scene(
+            &spec,
+            &dir,
+            &timesift_synth::writer::WriteOptions::default(),
+        )?;
+        let project = Project::load(&dir)?;
+        let start = Instant::now();
+        run(&project, Some(Stage::Features), Some(Stage::Match))?;
+        println!(
+            "{scene}: features and matches in {:.1} s",
+            start.elapsed().as_secs_f64()
+        );
+        let gsd = ground_sampling_distance(&dir)?;
+        println!("{scene}: ground sampling distance at the check points {gsd:.4} m");
+        for name in &bench.methods {
+            let method = METHODS
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|m| m.1)
+                .with_context(|| format!("unknown method {name}"))?;
+            let mut project = Project::load(&dir)?;
+            project.config.align.method = method;
+            let start = Instant::now();
+            let result = run_stage(&project, Stage::Align);
+            let seconds = start.elapsed().as_secs_f64();
+            match result {
+                Ok(()) => {
+                    let kept = dir.join(format!("out-{name}"));
+                    let _ = std::fs::remove_dir_all(&kept);
+                    std::fs::rename(dir.join("out"), &kept)?;
+                    rows.extend(evaluate(scene, name, &dir, &kept, gsd, seconds)?);
+                }
+                Err(e) => rows.push(Row {
+                    scene: scene.clone(),
+                    method: name.clone(),
+                    accuracy: None,
+                    seconds,
+                    error: Some(e.to_string()),
+                }),
+            }
+        }
+    }
+    let markdown = table(&rows);
+    println!("{markdown}");
+    std::fs::write(bench.out.join("methods.md"), &markdown)?;
+    std::fs::write(
+        bench.out.join("methods.json"),
+        serde_json::to_string_pretty(&rows)?,
+    )?;
+    println!("written: {}", bench.out.join("methods.{md,json}").display());
+    Ok(())
+}
+
+fn evaluate(
+    scene: &str,
+    method: &str,
+    dir: &Path,
+    out: &Path,
+    gsd: f64,
+    seconds: f64,
+) -> anyhow::Result<Vec<Row>> {
+    Ok(epoch_accuracy(dir, out, gsd)?
+        .into_iter()
+        .map(|a| Row {
+            scene: scene.to_string(),
+            method: method.to_string(),
+            accuracy: Some(a),
+            seconds,
+            error: None,
+        })
+        .collect())
+}
+
+fn table(rows: &[Row]) -> String {
+    let mut s = String::from(
+        "| scene | method | epoch | oriented | check RMSE dE/dN/dH (m) | (GSD) | epoch − ref. (m) \
+         | centre RMSE (m) | RMS px | inter-epoch ties | s |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let Some(a) = &r.accuracy else {
+            s.push_str(&format!(
+                "| {} | {} | – | failed: {} | | | | | | | {:.1} |\n",
+                r.scene,
+                r.method,
+                r.error.as_deref().unwrap_or("").replace('|', "/"),
+                r.seconds
+            ));
+            continue;
+        };
+        s.push_str(&format!(
+            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            r.scene,
+            r.method,
+            a.epoch,
+            a.images_oriented,
+            a.images_given,
+            triple(a.check_rmse_m, 3),
+            triple(a.check_rmse_gsd, 2),
+            triple(a.disagreement_m, 3),
+            triple(a.centre_rmse_m, 3),
+            a.rms_px.map_or("–".into(), |v| format!("{v:.3}")),
+            a.inter_epoch_tie_points,
+            r.seconds
+        ));
+    }
+    s
+}
