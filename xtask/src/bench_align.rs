@@ -140,17 +140,44 @@ fn colmap(images: &Path, work: &Path) -> anyhow::Result<(ColmapModel, f64)> {
         s("--SiftMatching.num_threads"),
         threads.clone(),
     ])?;
-    seconds += crate::colmap(&[
-        s("mapper"),
-        s("--database_path"),
-        database,
-        s("--image_path"),
-        images.display().to_string(),
-        s("--output_path"),
-        sparse.display().to_string(),
-        s("--Mapper.num_threads"),
-        threads,
-    ])?;
+    let mapper = |extra: &[String]| -> anyhow::Result<f64> {
+        let mut args = vec![
+            s("mapper"),
+            s("--database_path"),
+            database.clone(),
+            s("--image_path"),
+            images.display().to_string(),
+            s("--output_path"),
+            sparse.display().to_string(),
+            s("--Mapper.num_threads"),
+            threads.clone(),
+        ];
+        args.extend_from_slice(extra);
+        crate::colmap(&args)
+    };
+    // COLMAP 3.8's mapper exits with "failed to create sparse model" when its last attempt to
+    // start another model fails, even after writing a model: what it wrote counts.
+    // Its initial-pair search is randomised and this walking sequence has small baselines: when
+    // the defaults start no model, it gets a second run with a 4° initial triangulation angle
+    // (timesift relaxes its own thresholds the same way); only the run that made the model is
+    // timed.
+    let has_model = || std::fs::read_dir(&sparse).is_ok_and(|mut d| d.next().is_some());
+    let started = Instant::now();
+    if let Err(e) = mapper(&[]) {
+        println!("  (COLMAP mapper exit status: {e})");
+    }
+    if !has_model() {
+        println!(
+            "  (COLMAP mapper made no model with its defaults; again with init_min_tri_angle 4)"
+        );
+        let started = Instant::now();
+        if let Err(e) = mapper(&[s("--Mapper.init_min_tri_angle"), s("4")]) {
+            println!("  (COLMAP mapper exit status: {e})");
+        }
+        seconds += started.elapsed().as_secs_f64();
+    } else {
+        seconds += started.elapsed().as_secs_f64();
+    }
     // The largest model (COLMAP numbers them 0, 1, … by creation).
     let mut best: Option<ColmapModel> = None;
     for entry in std::fs::read_dir(&sparse)?.flatten() {

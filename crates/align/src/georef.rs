@@ -98,7 +98,7 @@ pub struct Georeferenced {
     /// Final RMS reprojection error of the tie points, pixels.
     pub rms_px: f64,
     /// Per camera group: whether its focal length was held at its known value because the
-    /// block did not determine it (relative standard deviation above 0.2 %).
+    /// block did not determine it (relative standard deviation above 5 %).
     pub focal_held: Vec<bool>,
 }
 
@@ -343,9 +343,12 @@ pub fn georeference(
     })
 }
 
-/// A known focal length is re-estimated only when the block determines it to this relative
-/// standard deviation (0.2 %: a tenth of the error of an EXIF focal length).
-const FOCAL_DETERMINED: f64 = 0.002;
+/// A known focal length is held at its known value when the block determines it worse than this
+/// relative standard deviation: the block cannot tell the focal length (a nadir block over flat
+/// ground trades it against flying height). A tighter gate (0.2 %) was tried: it held the EXIF
+/// focal length of `lund`, which is 20 % off (RMS 1.07 px instead of 0.71), and did not help
+/// where biased GNSS, not a weak geometry, drags the focal length (glacier).
+const FOCAL_DETERMINED: f64 = 0.05;
 
 /// σ_f / f of a group from the adjustment's intrinsic standard deviations.
 fn focal_relative_std(

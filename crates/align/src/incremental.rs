@@ -129,7 +129,7 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
         marked: &[],
         loss: TIE_POINT_LOSS,
         iterations: state.options.local_iterations,
-        focal_fixed: &state.input.focal_known,
+        focal_fixed: &[],
         precision: false,
     })?;
     state.filter_points(&points);
@@ -138,7 +138,7 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
 }
 
 /// Adjusts every oriented image and point, filters, re-triangulates and compacts.
-fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<(), AlignError> {
+pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<(), AlignError> {
     let points = state.live_points();
     let report = state
         .adjust(&Adjustment {

@@ -1,6 +1,6 @@
 //! Orientation of the multi-epoch block: incremental structure from motion over verified tracks,
-//! georeferencing, and (to come) the five co-registration strategies (`timesift`, `msfm`, `chunk`,
-//! `stp`, `independent`) of DESIGN.md.
+//! georeferencing, and the co-registration strategies of DESIGN.md behind one trait (`timesift`,
+//! `independent`, `chunk`, `msfm`; `stp` to come).
 //!
 //! Inside: `model` (input: camera groups, keypoint positions per image, tracks; output:
 //! [`Reconstruction`]), `options`, `state` (one reconstruction in progress: track → point table,
@@ -8,10 +8,11 @@
 //! (initial pair), `register` (next image and absolute pose), `adjust` (bundle adjustment through
 //! `timesift-bundle`), `incremental` (the loop and components), `georef` (similarity to GNSS
 //! priors and control points per component, merge, adjustment with the priors, control and
-//! check point residuals).
+//! check point residuals), `strategy` (the strategies over a multi-epoch `Block`).
 //!
 //! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
-//! reads no file and knows nothing of descriptors or epochs' meaning; every random choice is
+//! reads no file and knows nothing of descriptors; an epoch is a partition of the images and a
+//! reference index, nothing more; every random choice is
 //! seeded, so a run is reproducible; the frame of a reconstruction is arbitrary (first image at
 //! the origin) until georeferencing.
 
@@ -36,5 +37,6 @@ pub use incremental::reconstruct;
 pub use model::{Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{SelfCalibration, SfmOptions};
 pub use strategy::{
-    AVAILABLE, Block, ChunkAlignment, Independent, SingleBlock, Strategy, strategy,
+    AVAILABLE, Block, ChunkAlignment, Independent, ProgressiveMerge, SingleBlock, Strategy,
+    strategy,
 };

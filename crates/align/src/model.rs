@@ -28,8 +28,8 @@ pub struct SfmInput {
     /// Tracks over the images' keypoints.
     pub tracks: Vec<Track>,
     /// Per camera group: whether the initial focal length is known (EXIF, calibration) rather
-    /// than guessed. Known focal lengths are held during reconstruction and adjusted at
-    /// georeferencing only where the block determines them. Empty: all guessed.
+    /// than guessed. A known focal length is held at georeferencing where the block does not
+    /// determine it. Empty: all guessed.
     pub focal_known: Vec<bool>,
 }
 

@@ -15,9 +15,12 @@ use timesift_core::{Track, TrackElement};
 use timesift_geometry::ransac::{RansacOptions, ransac};
 use timesift_geometry::similarity::{SimilarityEstimator, TransformKind, umeyama};
 
+use crate::adjust::Intrinsics;
 use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, georeference};
+use crate::incremental::global;
 use crate::model::{Reconstruction, SfmInput};
 use crate::options::SfmOptions;
+use crate::state::{State, track_table};
 use crate::{AlignError, reconstruct};
 
 /// The multi-epoch input of a strategy.
@@ -49,12 +52,13 @@ pub fn strategy(name: &str) -> Option<Box<dyn Strategy>> {
         "timesift" => Some(Box::new(SingleBlock)),
         "independent" => Some(Box::new(Independent)),
         "chunk" => Some(Box::new(ChunkAlignment)),
+        "msfm" => Some(Box::new(ProgressiveMerge)),
         _ => None,
     }
 }
 
 /// Names of the available strategies.
-pub const AVAILABLE: [&str; 3] = ["timesift", "independent", "chunk"];
+pub const AVAILABLE: [&str; 4] = ["timesift", "independent", "chunk", "msfm"];
 
 /// `timesift`: one block.
 pub struct SingleBlock;
@@ -140,6 +144,66 @@ impl Strategy for ChunkAlignment {
             });
         }
         Ok(merge(&block.sfm, parts))
+    }
+}
+
+/// `msfm`: epochs alone, merged progressively, adjusted and georeferenced together.
+pub struct ProgressiveMerge;
+
+impl Strategy for ProgressiveMerge {
+    fn name(&self) -> &'static str {
+        "msfm"
+    }
+    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
+        let input = &block.sfm;
+        let track_of = track_table(input);
+        let r = block.reference;
+        let mut epochs: Vec<(usize, Reconstruction)> = Vec::new();
+        for e in 0..block.epoch_names.len() {
+            let keep = |i: usize| block.epoch_of[i] == e;
+            let sub = restrict(input, &keep);
+            let mut rec = reconstruct(&sub, options)
+                .map_err(|source| in_epoch(block, e, source))?
+                .into_iter()
+                .next()
+                .ok_or_else(|| in_epoch(block, e, AlignError::Georeferencing("empty".into())))?;
+            // Points name tracks of the epoch's own input; renumber them to the whole block's.
+            for p in &mut rec.points {
+                if let Some(o) = p.observations.first() {
+                    p.track = track_of[o.image.index()][o.feature.index()] as usize;
+                }
+            }
+            epochs.push((e, rec));
+        }
+        let at = epochs.iter().position(|(e, _)| *e == r).unwrap_or(0);
+        let (_, mut merged) = epochs.swap_remove(at);
+        while !epochs.is_empty() {
+            // The epoch sharing the most tie points with the block so far goes next.
+            let index = point_index(&merged);
+            let (k, (src, dst)) = epochs
+                .iter()
+                .map(|(_, rec)| shared_points(&input.tracks, rec, &merged, &index))
+                .enumerate()
+                .max_by_key(|(_, (src, _))| src.len())
+                .ok_or_else(|| AlignError::Georeferencing("no epoch left".into()))?;
+            let (e, mut rec) = epochs.swap_remove(k);
+            let block_from_epoch = fit_similarity(&src, &dst, &merged, options.seed)
+                .map_err(|source| in_epoch(block, e, source))?;
+            rec.transform(&block_from_epoch);
+            for (i, pose) in rec.poses.iter().enumerate() {
+                if pose.is_some() {
+                    merged.poses[i] = *pose;
+                    let g = input.images[i].group;
+                    merged.cameras[g] = rec.cameras[g].clone();
+                }
+            }
+            let mut state = State::with_reconstruction(input, options, &track_of, merged);
+            state.complete_all_tracks();
+            global(&mut state, Intrinsics::Running)?;
+            tracing::debug!(epoch = e, points = state.rec.points.len(), "epoch merged");
+            merged = state.rec;
+        }
+        georeference(input, vec![merged], &block.ground, options)
     }
 }
 

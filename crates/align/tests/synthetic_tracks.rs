@@ -7,8 +7,8 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    Independent, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock, Strategy,
-    georeference, reconstruct,
+    Independent, ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock,
+    Strategy, georeference, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -408,6 +408,12 @@ fn strategies_differ_as_the_papers_say_on_biased_gnss() {
         (a.x + b.x) / 2.0 > 0.5 && (a.x + b.x) / 2.0 < 1.5,
         "{a:?} {b:?}"
     );
+    // Progressive merge: epochs alone, then one block like timesift's.
+    let msfm = ProgressiveMerge.orient(&block, &options).unwrap();
+    assert_eq!(msfm.reconstruction.num_oriented(), 20);
+    let misfit = rigid_misfit(&msfm, &s);
+    println!("msfm: rigid misfit {misfit:.4} m");
+    assert!(misfit < 0.05, "{misfit}");
     // Strategy names and lookup.
     for name in timesift_align::AVAILABLE {
         assert_eq!(timesift_align::strategy(name).unwrap().name(), name);
