@@ -105,7 +105,14 @@ pub fn run() -> anyhow::Result<()> {
                 ours_rms / rms
             );
         }
-        Err(e) => println!("  COLMAP unavailable: {e}"),
+        Err(e) => {
+            // Kept for diagnosis: the database, the mapper's log and whatever it wrote.
+            println!(
+                "  COLMAP unavailable: {e} (work kept in {})",
+                work.display()
+            );
+            return Ok(());
+        }
     }
     let _ = std::fs::remove_dir_all(&work);
     Ok(())
@@ -153,7 +160,18 @@ fn colmap(images: &Path, work: &Path) -> anyhow::Result<(ColmapModel, f64)> {
             threads.clone(),
         ];
         args.extend_from_slice(extra);
-        crate::colmap(&args)
+        let started = Instant::now();
+        let output = std::process::Command::new("colmap")
+            .args(&args)
+            .output()
+            .context("running colmap mapper")?;
+        let mut log = output.stdout.clone();
+        log.extend_from_slice(&output.stderr);
+        std::fs::write(work.join("mapper.log"), &log)?;
+        if !output.status.success() {
+            anyhow::bail!("colmap mapper exit status {}", output.status);
+        }
+        Ok(started.elapsed().as_secs_f64())
     };
     // COLMAP 3.8's mapper exits with "failed to create sparse model" when its last attempt to
     // start another model fails, even after writing a model: what it wrote counts.

@@ -314,7 +314,8 @@ pub fn georeference(
                         adjusted.intrinsic_std.as_ref().and_then(|s| s.get(g)),
                     );
                     tracing::info!(group = g, relative_std = ?relative, "focal length precision");
-                    if relative.is_none_or(|r| r > FOCAL_DETERMINED) {
+                    // Without a precision (the covariance failed), the data decide as usual.
+                    if relative.is_some_and(|r| r > FOCAL_DETERMINED) {
                         focal_fixed[g] = true;
                         restore_focal(&mut state.rec.cameras[g], &before[g]);
                     }
