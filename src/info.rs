@@ -244,11 +244,18 @@ impl InfoReport {
         let _ = writeln!(s, "\ncamera groups");
         for c in &self.camera_groups {
             let focal = match (c.focal_length_mm, c.focal_length_35mm, c.focal_length_px) {
-                (mm, eq, Some(px)) => format!(
-                    "f ≈ {px:.0} px ({}{})",
-                    mm.map(|v| format!("{v} mm")).unwrap_or_default(),
-                    eq.map(|v| format!(", {v} mm equiv.")).unwrap_or_default()
-                ),
+                (mm, eq, Some(px)) => {
+                    let parts: Vec<String> = mm
+                        .map(|v| format!("{v} mm"))
+                        .into_iter()
+                        .chain(eq.map(|v| format!("{v} mm equiv.")))
+                        .collect();
+                    if parts.is_empty() {
+                        format!("f ≈ {px:.0} px")
+                    } else {
+                        format!("f ≈ {px:.0} px ({})", parts.join(", "))
+                    }
+                }
                 _ => "focal length unknown (no EXIF)".to_string(),
             };
             let _ = writeln!(
