@@ -51,7 +51,7 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
     let project = Project::load(dir)?;
     let start = Instant::now();
     run(&project, Some(Stage::Features), Some(Stage::Align))?;
-    let gsd = ground_sampling_distance(dir)?;
+    let gsd = ground_sampling_distance(&project)?;
     text.push_str(&format!(
         "features, matching and orientation in {:.0} s; ground sampling distance {:.2} mm\n\n",
         start.elapsed().as_secs_f64(),
@@ -66,7 +66,7 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
         "(in GSD)",
         "camera centres dE/dN/dH (mm)"
     ));
-    for row in epoch_accuracy(dir, &dir.join("out"), gsd)? {
+    for row in epoch_accuracy(&project, &dir.join("out"), gsd)? {
         let mm = |v: Option<[f64; 3]>| v.map(|v| v.map(|x| x * 1000.0));
         text.push_str(&format!(
             "{:<18} {:>9} {:>8} {:>30} {:>22} {:>30}\n",

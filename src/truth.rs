@@ -9,7 +9,7 @@ use std::path::Path;
 use nalgebra::Vector3;
 use timesift_io::cameras_json::read_cameras_json;
 
-use crate::ProjectError;
+use crate::{Project, ProjectError};
 
 /// One epoch of an orientation against the truth.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -39,9 +39,8 @@ pub struct EpochAccuracy {
 /// Mean distance from the true camera centres to the check points' centroid (or the control
 /// points' without check points) over the true focal length: the ground sampling distance where
 /// the check points are, metres.
-pub fn ground_sampling_distance(dir: &Path) -> Result<f64, ProjectError> {
-    let truth = read_cameras_json(&dir.join("truth/cameras.json"))?;
-    let project = crate::Project::load(dir)?;
+pub fn ground_sampling_distance(project: &Project) -> Result<f64, ProjectError> {
+    let truth = read_cameras_json(&project.dir.join("truth/cameras.json"))?;
     let points: Vec<Vector3<f64>> = if project.checkpoints.is_empty() {
         project.gcps.iter().map(|g| g.position).collect()
     } else {
@@ -87,9 +86,9 @@ fn check_residuals(epoch: &serde_json::Value) -> Vec<(String, Vector3<f64>)> {
 }
 
 /// Compares the orientation in `out` (a folder holding cameras.json and report.json) of the
-/// synthetic project `dir` with its truth.
+/// synthetic `project` with its truth.
 pub fn epoch_accuracy(
-    dir: &Path,
+    project: &Project,
     out: &Path,
     gsd: f64,
 ) -> Result<Vec<EpochAccuracy>, ProjectError> {
@@ -101,8 +100,7 @@ pub fn epoch_accuracy(
             message: format!("not JSON: {e}"),
         })?;
     let ours = read_cameras_json(&out.join("cameras.json"))?;
-    let truth = read_cameras_json(&dir.join("truth/cameras.json"))?;
-    let project = crate::Project::load(dir)?;
+    let truth = read_cameras_json(&project.dir.join("truth/cameras.json"))?;
     let reference_name = &project.epochs[project.reference_epoch.index()].name;
     let empty = serde_json::Map::new();
     let epochs = report["epochs"].as_object().unwrap_or(&empty);

@@ -20,6 +20,15 @@ const THREADS: usize = 2;
 /// RMS reprojection error over all observations of a COLMAP text model, pixels, and the number
 /// of observations.
 fn model_rms(model: &ColmapModel) -> anyhow::Result<(f64, usize)> {
+    let cameras = model
+        .cameras
+        .iter()
+        .map(|(id, c)| {
+            camera_from_colmap(&c.model, c.width, c.height, &c.params)
+                .map(|camera| (*id, camera))
+                .map_err(|e| anyhow::anyhow!("camera {id}: {e}"))
+        })
+        .collect::<anyhow::Result<std::collections::BTreeMap<_, _>>>()?;
     let mut sum = 0.0;
     let mut n = 0;
     for point in model.points.values() {
@@ -28,14 +37,11 @@ fn model_rms(model: &ColmapModel) -> anyhow::Result<(f64, usize)> {
                 .images
                 .get(&image_id)
                 .with_context(|| format!("point refers to missing image {image_id}"))?;
-            let c = model
-                .cameras
+            let camera = cameras
                 .get(&image.camera_id)
                 .with_context(|| format!("image refers to missing camera {}", image.camera_id))?;
-            let camera = camera_from_colmap(&c.model, c.width, c.height, &c.params)
-                .map_err(|e| anyhow::anyhow!("camera {}: {e}", image.camera_id))?;
             let (x, y, _) = image.points2d[index as usize];
-            let u = project_world(&camera, &image.pose, &point.xyz)
+            let u = project_world(camera, &image.pose, &point.xyz)
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             sum += (u - nalgebra::Vector2::new(x, y)).norm_squared();
             n += 1;

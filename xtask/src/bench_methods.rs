@@ -67,7 +67,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             "{scene}: features and matches in {:.1} s",
             start.elapsed().as_secs_f64()
         );
-        let gsd = ground_sampling_distance(&dir)?;
+        let gsd = ground_sampling_distance(&project)?;
         println!("{scene}: ground sampling distance at the check points {gsd:.4} m");
         for name in &bench.methods {
             let method = METHODS
@@ -85,7 +85,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
                     let kept = dir.join(format!("out-{name}"));
                     let _ = std::fs::remove_dir_all(&kept);
                     std::fs::rename(dir.join("out"), &kept)?;
-                    rows.extend(evaluate(scene, name, &dir, &kept, gsd, seconds)?);
+                    rows.extend(evaluate(scene, name, &project, &kept, gsd, seconds)?);
                 }
                 Err(e) => rows.push(Row {
                     scene: scene.clone(),
@@ -111,12 +111,12 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
 fn evaluate(
     scene: &str,
     method: &str,
-    dir: &Path,
+    project: &Project,
     out: &Path,
     gsd: f64,
     seconds: f64,
 ) -> anyhow::Result<Vec<Row>> {
-    Ok(epoch_accuracy(dir, out, gsd)?
+    Ok(epoch_accuracy(project, out, gsd)?
         .into_iter()
         .map(|a| Row {
             scene: scene.to_string(),

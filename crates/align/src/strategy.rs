@@ -190,13 +190,7 @@ impl Strategy for ProgressiveMerge {
             let block_from_epoch = fit_similarity(&src, &dst, &merged, options.seed)
                 .map_err(|source| in_epoch(block, e, source))?;
             rec.transform(&block_from_epoch);
-            for (i, pose) in rec.poses.iter().enumerate() {
-                if pose.is_some() {
-                    merged.poses[i] = *pose;
-                    let g = input.images[i].group;
-                    merged.cameras[g] = rec.cameras[g].clone();
-                }
-            }
+            adopt_oriented(&mut merged, &rec, input);
             let mut state = State::with_reconstruction(input, options, &track_of, merged);
             state.complete_all_tracks();
             global(&mut state, Intrinsics::Running)?;
@@ -282,24 +276,26 @@ fn fit_similarity(
     Ok(umeyama(&a, &b, None, TransformKind::Similarity)?)
 }
 
-/// Median over points of (distance to the first observing camera / its focal length).
+/// Median over points of (distance to the first observing camera / the longest focal length of
+/// the block).
 fn median_ground_pixel(rec: &Reconstruction) -> f64 {
+    let f = rec
+        .cameras
+        .iter()
+        .map(|c| {
+            let mut v = vec![0.0; timesift_core::CameraModel::num_params(c)];
+            timesift_core::CameraModel::params(c, &mut v);
+            v[0]
+        })
+        .fold(0.0, f64::max)
+        .max(1.0);
     let mut sizes: Vec<f64> = rec
         .points
         .iter()
         .filter_map(|p| {
             let e = p.observations.first()?;
             let pose = rec.poses[e.image.index()]?;
-            let f = rec
-                .cameras
-                .iter()
-                .map(|c| {
-                    let mut v = vec![0.0; timesift_core::CameraModel::num_params(c)];
-                    timesift_core::CameraModel::params(c, &mut v);
-                    v[0]
-                })
-                .fold(0.0, f64::max);
-            Some((p.position - pose.center()).norm() / f.max(1.0))
+            Some((p.position - pose.center()).norm() / f)
         })
         .collect();
     if sizes.is_empty() {
@@ -360,6 +356,25 @@ pub(crate) fn restrict_ground(
     }
 }
 
+/// Takes the poses of `other`'s oriented images and the intrinsics of their camera groups;
+/// returns those groups (with repeats).
+fn adopt_oriented(
+    merged: &mut Reconstruction,
+    other: &Reconstruction,
+    input: &SfmInput,
+) -> Vec<usize> {
+    let mut groups = Vec::new();
+    for (i, pose) in other.poses.iter().enumerate() {
+        if pose.is_some() {
+            merged.poses[i] = *pose;
+            let g = input.images[i].group;
+            merged.cameras[g] = other.cameras[g].clone();
+            groups.push(g);
+        }
+    }
+    groups
+}
+
 /// Epochs oriented apart, as one block (their images are disjoint; points keep their
 /// observations, which name keypoints of the whole input).
 fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeferenced {
@@ -374,13 +389,8 @@ fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeferenced {
     let mut focal_held = vec![false; input.cameras.len()];
     for part in parts {
         let r = part.reconstruction;
-        for (i, pose) in r.poses.iter().enumerate() {
-            if pose.is_some() {
-                merged.poses[i] = *pose;
-                let g = input.images[i].group;
-                merged.cameras[g] = r.cameras[g].clone();
-                focal_held[g] = part.focal_held.get(g).copied().unwrap_or(false);
-            }
+        for g in adopt_oriented(&mut merged, &r, input) {
+            focal_held[g] = part.focal_held.get(g).copied().unwrap_or(false);
         }
         merged.points.extend(r.points);
         if datum == Datum::Local || part.datum == Datum::GnssAndControlPoints {
