@@ -14,7 +14,7 @@ use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
     Block, CentrePrior, Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
-    PointResidual, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
+    PointResidual, FocalSource, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -22,6 +22,8 @@ use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use crate::config::AlignMethod;
+use crate::project::GivenFocal;
+use crate::stable_matcher::FeatureFileMatcher;
 use crate::{Project, ProjectError};
 
 /// Default standard deviations of control points that give none (m): RTK GNSS or total station.
@@ -51,9 +53,13 @@ pub fn align_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
     options.self_calibration.min_images = 3;
     tracing::debug!(cameras = ?input.cameras, "initial cameras");
     let name = method_name(project.config.align.method);
-    let strategy = timesift_align::strategy(name).ok_or_else(|| {
+    let matcher = FeatureFileMatcher {
+        features_dir: project.dir.join("work/features"),
+        seed: options.seed,
+    };
+    let strategy = timesift_align::strategy(name, &matcher).ok_or_else(|| {
         stage_error(format!(
-            "align.method = \"{name}\" is not available yet (available: {})",
+            "align.method = \"{name}\" is unknown (available: {})",
             timesift_align::AVAILABLE.join(", ")
         ))
     })?;
@@ -127,7 +133,7 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
     // One camera per group, from the first image of the group's first epoch.
     let mut group_index: BTreeMap<String, usize> = BTreeMap::new();
     let mut cameras = Vec::new();
-    let mut focal_known = Vec::new();
+    let mut focal = Vec::new();
     let mut group_of_epoch = Vec::new();
     for epoch in &project.epochs {
         let g = match group_index.get(&epoch.camera_group) {
@@ -137,9 +143,10 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
                     epoch.images.first().copied().ok_or_else(|| {
                         stage_error(format!("epoch \"{}\" has no image", epoch.name))
                     })?;
-                let (camera, known) = initial_camera(&project.image_path(first))?;
+                let given = project.calibrations.get(&epoch.camera_group);
+                let (camera, source) = initial_camera(&project.image_path(first), given)?;
                 cameras.push(camera);
-                focal_known.push(known);
+                focal.push(source);
                 group_index.insert(epoch.camera_group.clone(), cameras.len() - 1);
                 cameras.len() - 1
             }
@@ -159,7 +166,7 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
         cameras,
         images,
         tracks: tracks.tracks,
-        focal_known,
+        focal,
     })
 }
 
@@ -194,14 +201,24 @@ fn match_files(dir: &Path) -> Result<Vec<(usize, usize, PathBuf)>, ProjectError>
 
 /// A distortion-free `brown` camera of the image's size with the EXIF focal length (known), or
 /// the default focal length (a guess).
-fn initial_camera(path: &Path) -> Result<(Camera, bool), ProjectError> {
+fn initial_camera(
+    path: &Path,
+    given: Option<&GivenFocal>,
+) -> Result<(Camera, FocalSource), ProjectError> {
     let (w, h) = timesift_io::image::dimensions(path)?;
-    let exif = timesift_io::exif::read_exif(path)
-        .ok()
-        .and_then(|e| e.focal_length_px(w, h));
-    let f = exif.unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+    let (f, source) = match given {
+        Some(g) if g.adjust => (g.focal_px, FocalSource::Nominal),
+        Some(g) => (g.focal_px, FocalSource::Calibrated),
+        None => match timesift_io::exif::read_exif(path)
+            .ok()
+            .and_then(|e| e.focal_length_px(w, h))
+        {
+            Some(f) => (f, FocalSource::Nominal),
+            None => (DEFAULT_FOCAL_FACTOR * w.max(h) as f64, FocalSource::Guessed),
+        },
+    };
     BrownCamera::new(w, h, f)
-        .map(|c| (Camera::Brown(c), exif.is_some()))
+        .map(|c| (Camera::Brown(c), source))
         .map_err(|e| stage_error(format!("{}: {e}", path.display())))
 }
 
@@ -486,6 +503,7 @@ fn report(
         "images_oriented": rec.num_oriented(),
         "rms_reprojection_px": block.rms_px,
         "tie_points": rec.points.len(),
+        "inter_epoch_ties_split_as_moved": block.moved_ties_split,
         "components_dropped": block.dropped_components,
         "gnss_priors_rejected": block.rejected_priors,
         "focal_length_held": block.focal_held,

@@ -29,6 +29,34 @@ pub struct ProjectConfig {
     /// Change-detection options.
     #[serde(default)]
     pub change: ChangeConfig,
+    /// Known calibrations of camera groups (`[[camera]]`), e.g. from a film camera's
+    /// calibration certificate. Default: none (focal length from EXIF or 1.2 × the long side,
+    /// refined by self-calibration).
+    #[serde(default, rename = "camera")]
+    pub cameras: Vec<CameraConfig>,
+}
+
+/// One `[[camera]]`: a known calibration of a camera group. The focal length is given either in
+/// pixels (`focal_px`) or in millimetres with the pixel size (`focal_mm` and `pixel_mm`, e.g. a
+/// calibrated focal length of 152.06 mm and a scan resolution of 0.021 mm).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    /// Camera group: an epoch's name, or the `camera` that epochs name.
+    pub name: String,
+    /// Calibrated focal length in pixels.
+    #[serde(default)]
+    pub focal_px: Option<f64>,
+    /// Calibrated focal length in millimetres (needs `pixel_mm`).
+    #[serde(default)]
+    pub focal_mm: Option<f64>,
+    /// Pixel size in millimetres: sensor pixel pitch, or the scan resolution of a film.
+    #[serde(default)]
+    pub pixel_mm: Option<f64>,
+    /// Let the bundle adjustment refine the given focal length. Default `false`: a calibrated
+    /// focal length is held, as a nadir block cannot tell it from the flying height.
+    #[serde(default)]
+    pub adjust_focal: bool,
 }
 
 fn default_crs() -> String {

@@ -62,6 +62,9 @@ pub struct CameraGroupInfo {
     pub focal_length_35mm: Option<f64>,
     /// Initial focal length in pixels from EXIF, when derivable.
     pub focal_length_px: Option<f64>,
+    /// Focal length in pixels given in `[[camera]]` (a calibration), which orientation uses
+    /// instead of EXIF.
+    pub calibrated_focal_px: Option<f64>,
 }
 
 /// One image.
@@ -143,6 +146,7 @@ pub fn info(project: &Project) -> Result<InfoReport, ProjectError> {
             (Some(a), Some(b)) => Some(format!("{a} {b}")),
             (a, b) => a.clone().or(b.clone()),
         };
+        let calibrated_focal_px = project.calibrations.get(&name).map(|g| g.focal_px);
         camera_groups.push(CameraGroupInfo {
             name,
             epochs: epochs
@@ -155,6 +159,7 @@ pub fn info(project: &Project) -> Result<InfoReport, ProjectError> {
             focal_length_mm: ex.focal_length_mm,
             focal_length_35mm: ex.focal_length_35mm,
             focal_length_px: ex.focal_length_px(width, height),
+            calibrated_focal_px,
         });
     }
 
@@ -244,6 +249,9 @@ impl InfoReport {
         let _ = writeln!(s, "\ncamera groups");
         for c in &self.camera_groups {
             let focal = match (c.focal_length_mm, c.focal_length_35mm, c.focal_length_px) {
+                _ if let Some(px) = c.calibrated_focal_px => {
+                    format!("f = {px:.1} px (calibrated, project.toml)")
+                }
                 (mm, eq, Some(px)) => {
                     let parts: Vec<String> = mm
                         .map(|v| format!("{v} mm"))

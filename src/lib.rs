@@ -18,6 +18,7 @@ pub mod info;
 pub mod init;
 pub mod matching_stages;
 pub mod project;
+pub mod stable_matcher;
 pub mod stages;
 pub mod truth;
 

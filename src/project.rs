@@ -88,6 +88,17 @@ pub struct Project {
     pub stable_areas: Vec<StableArea>,
     /// Scale bars between marked targets.
     pub scale_bars: Vec<ScaleBarInput>,
+    /// Known focal lengths by camera group (`[[camera]]`).
+    pub calibrations: BTreeMap<String, GivenFocal>,
+}
+
+/// A focal length the user gave for a camera group.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GivenFocal {
+    /// Focal length, pixels.
+    pub focal_px: f64,
+    /// Whether the bundle adjustment may refine it.
+    pub adjust: bool,
 }
 
 fn is_image_file(path: &Path) -> bool {
@@ -111,6 +122,76 @@ fn normalise_name(name: &str) -> String {
         .filter(|c| !c.is_empty() && *c != ".")
         .collect::<Vec<_>>()
         .join("/")
+}
+
+/// The `[[camera]]` tables checked: each names a camera group once and gives one positive focal
+/// length, in pixels or in millimetres with the pixel size.
+fn camera_calibrations(
+    cfg_path: &Path,
+    config: &ProjectConfig,
+    epochs: &[Epoch],
+) -> Result<BTreeMap<String, GivenFocal>, ProjectError> {
+    let mut out = BTreeMap::new();
+    for (i, c) in config.cameras.iter().enumerate() {
+        let key = format!("camera[{i}]");
+        let error = |field: &str, message: String| {
+            ProjectError::config(cfg_path, format!("{key}.{field}"), message)
+        };
+        if !epochs.iter().any(|e| e.camera_group == c.name) {
+            let groups: std::collections::BTreeSet<&str> =
+                epochs.iter().map(|e| e.camera_group.as_str()).collect();
+            return Err(error(
+                "name",
+                format!(
+                    "\"{}\" is not a camera group of this project (groups: {})",
+                    c.name,
+                    groups.into_iter().collect::<Vec<_>>().join(", ")
+                ),
+            ));
+        }
+        let positive = |field: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(v)
+            } else {
+                Err(error(field, format!("expected a positive length, got {v}")))
+            }
+        };
+        let focal_px = match (c.focal_px, c.focal_mm, c.pixel_mm) {
+            (Some(px), None, None) => positive("focal_px", px)?,
+            (None, Some(mm), Some(pixel)) => {
+                positive("focal_mm", mm)? / positive("pixel_mm", pixel)?
+            }
+            (None, Some(_), None) => {
+                return Err(error(
+                    "pixel_mm",
+                    "missing: focal_mm needs the pixel size in millimetres".into(),
+                ));
+            }
+            (None, None, _) => {
+                return Err(error(
+                    "focal_px",
+                    "missing: give focal_px, or focal_mm with pixel_mm".into(),
+                ));
+            }
+            (Some(_), _, _) => {
+                return Err(error(
+                    "focal_mm",
+                    "give either focal_px or focal_mm with pixel_mm, not both".into(),
+                ));
+            }
+        };
+        let given = GivenFocal {
+            focal_px,
+            adjust: c.adjust_focal,
+        };
+        if out.insert(c.name.clone(), given).is_some() {
+            return Err(error(
+                "name",
+                format!("camera group \"{}\" is calibrated twice", c.name),
+            ));
+        }
+    }
+    Ok(out)
 }
 
 impl Project {
@@ -251,6 +332,8 @@ impl Project {
                 })?,
         };
 
+        let calibrations = camera_calibrations(&cfg_path, &config, &epochs)?;
+
         let input = |key: &str,
                      explicit: &Option<String>,
                      default: &str|
@@ -364,6 +447,7 @@ impl Project {
             gnss,
             stable_areas,
             scale_bars,
+            calibrations,
         })
     }
 

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use rayon::prelude::*;
-use timesift_align::{SfmImage, SfmInput, SfmOptions, reconstruct};
+use timesift_align::{FocalSource, SfmImage, SfmInput, SfmOptions, reconstruct};
 use timesift_core::{BrownCamera, Camera, ImageId};
 use timesift_features::{
     DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
@@ -123,7 +123,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             })
             .collect(),
         tracks: tracks.tracks,
-        focal_known: vec![exif.focal_length_px(1024, 768).is_some()],
+        focal: vec![if exif.focal_length_px(1024, 768).is_some() {
+            FocalSource::Nominal
+        } else {
+            FocalSource::Guessed
+        }],
     };
     let start = Instant::now();
     let mut options = SfmOptions::default();

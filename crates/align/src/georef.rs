@@ -13,7 +13,7 @@ use timesift_bundle::Loss;
 
 use crate::AlignError;
 use crate::adjust::{Adjustment, CentrePrior, Intrinsics, MarkedPoint};
-use crate::model::{Reconstruction, SfmInput};
+use crate::model::{FocalSource, Reconstruction, SfmInput};
 use crate::options::SfmOptions;
 use crate::state::{State, track_table};
 
@@ -100,6 +100,9 @@ pub struct Georeferenced {
     /// Per camera group: whether its focal length was held at its known value because the
     /// block did not determine it (relative standard deviation above 5 %).
     pub focal_held: Vec<bool>,
+    /// Inter-epoch tie points split by epoch because a surface moved between the epochs
+    /// (strategies that orient epochs together; 0 otherwise).
+    pub moved_ties_split: usize,
 }
 
 /// Pairs (block position, world position, threshold) of one component.
@@ -284,13 +287,17 @@ pub fn georeference(
         .map(|&k| geo.centre_priors[k])
         .collect();
     let groups = input.cameras.len();
-    let known = |g: usize| input.focal_known.get(g).copied().unwrap_or(false);
-    let mut focal_fixed: Vec<bool> = (0..groups).map(known).collect();
+    let calibrated = |g: usize| input.focal_source(g) == FocalSource::Calibrated;
+    let nominal = |g: usize| input.focal_source(g) == FocalSource::Nominal;
+    let mut focal_fixed: Vec<bool> = input.focal_held_during_sfm();
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
-        // First adjustment: every focal length free, with its precision; a known focal length
-        // that the block does not determine well goes back to its known value and stays.
-        focal_fixed.fill(false);
+        // First adjustment: every focal length but the calibrated ones free, with its
+        // precision; a nominal focal length that the block does not determine well goes back to
+        // its nominal value and stays.
+        for (g, fixed) in focal_fixed.iter_mut().enumerate() {
+            *fixed = calibrated(g);
+        }
         let before = state.rec.cameras.clone();
         for round in 0..2 {
             let marked = marked_points(input, &state.rec, geo);
@@ -308,7 +315,7 @@ pub fn georeference(
             })?;
             tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
             if round == 0 {
-                for g in (0..groups).filter(|&g| known(g)) {
+                for g in (0..groups).filter(|&g| nominal(g)) {
                     let relative = focal_relative_std(
                         &state.rec.cameras[g],
                         adjusted.intrinsic_std.as_ref().and_then(|s| s.get(g)),
@@ -341,6 +348,7 @@ pub fn georeference(
         residuals,
         rms_px,
         focal_held: focal_fixed,
+        moved_ties_split: 0,
     })
 }
 

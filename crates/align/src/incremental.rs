@@ -140,6 +140,7 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
 /// Adjusts every oriented image and point, filters, re-triangulates and compacts.
 pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<(), AlignError> {
     let points = state.live_points();
+    let focal_fixed = state.input.focal_held_during_sfm();
     let report = state
         .adjust(&Adjustment {
             free_images: state.oriented(),
@@ -151,7 +152,7 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
             iterations: state.options.global_iterations,
             // A focal length from EXIF stays until georeferencing can tell whether the block
             // determines it (a nadir block over flat ground does not: f trades with height).
-            focal_fixed: &state.input.focal_known,
+            focal_fixed: &focal_fixed,
             precision: false,
         })?
         .report;

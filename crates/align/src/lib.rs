@@ -1,6 +1,6 @@
 //! Orientation of the multi-epoch block: incremental structure from motion over verified tracks,
 //! georeferencing, and the co-registration strategies of DESIGN.md behind one trait (`timesift`,
-//! `independent`, `chunk`, `msfm`; `stp` to come).
+//! `independent`, `chunk`, `msfm`, `stp`).
 //!
 //! Inside: `model` (input: camera groups, keypoint positions per image, tracks; output:
 //! [`Reconstruction`]), `options`, `state` (one reconstruction in progress: track → point table,
@@ -8,10 +8,12 @@
 //! (initial pair), `register` (next image and absolute pose), `adjust` (bundle adjustment through
 //! `timesift-bundle`), `incremental` (the loop and components), `georef` (similarity to GNSS
 //! priors and control points per component, merge, adjustment with the priors, control and
-//! check point residuals), `strategy` (the strategies over a multi-epoch `Block`).
+//! check point residuals), `strategy` (the strategies over a multi-epoch `Block`), `moved`
+//! (inter-epoch tie points on surfaces that moved, split by epoch), `stable` (the `stp`
+//! strategy over a caller-given descriptor matcher).
 //!
 //! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
-//! reads no file and knows nothing of descriptors; an epoch is a partition of the images and a
+//! reads no file and knows nothing of descriptors (`stp` asks a [`StableMatcher`]); an epoch is a partition of the images and a
 //! reference index, nothing more; every random choice is
 //! seeded, so a run is reproducible; the frame of a reconstruction is arbitrary (first image at
 //! the origin) until georeferencing.
@@ -22,8 +24,10 @@ mod georef;
 mod incremental;
 mod init;
 mod model;
+mod moved;
 mod options;
 mod register;
+mod stable;
 mod state;
 mod strategy;
 
@@ -34,8 +38,9 @@ pub use georef::{
     ground_point_residuals,
 };
 pub use incremental::reconstruct;
-pub use model::{Reconstruction, SfmImage, SfmInput, SparsePoint};
+pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{SelfCalibration, SfmOptions};
+pub use stable::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};
 pub use strategy::{
     AVAILABLE, Block, ChunkAlignment, Independent, ProgressiveMerge, SingleBlock, Strategy,
     strategy,

@@ -27,19 +27,49 @@ pub struct SfmInput {
     pub images: Vec<SfmImage>,
     /// Tracks over the images' keypoints.
     pub tracks: Vec<Track>,
-    /// Per camera group: whether the initial focal length is known (EXIF, calibration) rather
-    /// than guessed. A known focal length is held at georeferencing where the block does not
-    /// determine it. Empty: all guessed.
-    pub focal_known: Vec<bool>,
+    /// Per camera group: where the initial focal length comes from. Empty: all guessed.
+    pub focal: Vec<FocalSource>,
+}
+
+/// What is known of a camera group's focal length before orientation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FocalSource {
+    /// A default (1.2 × the long side): self-calibration decides.
+    #[default]
+    Guessed,
+    /// A nominal value (EXIF, ±2 %): held during structure from motion, and at georeferencing
+    /// where the block does not determine it (a nadir block over flat ground trades f with height).
+    Nominal,
+    /// A calibrated value (a camera calibration certificate): held throughout.
+    Calibrated,
+}
+
+impl FocalSource {
+    /// Whether structure from motion keeps the initial focal length.
+    pub fn held_during_sfm(self) -> bool {
+        self != FocalSource::Guessed
+    }
 }
 
 impl SfmInput {
+    /// Where camera group `g`'s focal length comes from.
+    pub fn focal_source(&self, g: usize) -> FocalSource {
+        self.focal.get(g).copied().unwrap_or_default()
+    }
+
+    /// Per camera group: whether structure from motion holds the focal length.
+    pub(crate) fn focal_held_during_sfm(&self) -> Vec<bool> {
+        (0..self.cameras.len())
+            .map(|g| self.focal_source(g).held_during_sfm())
+            .collect()
+    }
+
     /// Checks that every group, image and keypoint referred to exists and that pixels are finite.
     pub fn validate(&self) -> Result<(), AlignError> {
-        if !self.focal_known.is_empty() && self.focal_known.len() != self.cameras.len() {
+        if !self.focal.is_empty() && self.focal.len() != self.cameras.len() {
             return Err(AlignError::InvalidInput(format!(
-                "focal_known has {} entries for {} camera groups",
-                self.focal_known.len(),
+                "focal has {} entries for {} camera groups",
+                self.focal.len(),
                 self.cameras.len()
             )));
         }

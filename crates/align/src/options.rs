@@ -70,6 +70,10 @@ pub struct SfmOptions {
     pub local_iterations: usize,
     /// Smallest component reported (images); smaller leftovers stay unoriented.
     pub min_component_images: usize,
+    /// An epoch's observations of an inter-epoch tie point that miss it by more than this many
+    /// times the block's median reprojection error mark a surface that moved: the point is split
+    /// by epoch (strategies that orient epochs together). `f64::INFINITY` keeps every tie.
+    pub moved_point_factor: f64,
     /// Seed of every RANSAC.
     pub seed: u64,
 }
@@ -94,6 +98,7 @@ impl Default for SfmOptions {
             global_iterations: 50,
             local_iterations: 25,
             min_component_images: 3,
+            moved_point_factor: 5.0,
             seed: 0xa1_16e,
         }
     }
@@ -122,6 +127,13 @@ impl SfmOptions {
                 name: "global_adjustment_growth",
                 value: self.global_adjustment_growth,
                 expected: "a factor above 1",
+            });
+        }
+        if !(self.moved_point_factor > 1.0) {
+            return Err(AlignError::InvalidOption {
+                name: "moved_point_factor",
+                value: self.moved_point_factor,
+                expected: "a factor above 1 (infinity keeps every tie)",
             });
         }
         if !(0.0..1.0).contains(&self.abs_pose_min_inlier_ratio) {

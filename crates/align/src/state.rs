@@ -115,16 +115,7 @@ impl<'a> State<'a> {
             if elements.len() < 2 {
                 return false;
             }
-            views.clear();
-            for e in &elements {
-                let image = e.image.index();
-                let camera = self.rec.camera_of(self.input, image);
-                let Ok(ray) = camera.unproject(&self.input.pixel(e)) else {
-                    return false;
-                };
-                views.push((self.rec.poses[image].unwrap_or_else(Pose::identity), ray));
-            }
-            let Ok(position) = triangulate_dlt(&views) else {
+            let Some(position) = self.triangulate_elements(&elements, &mut views) else {
                 return false;
             };
             let errors: Vec<f64> = elements.iter().map(|e| self.error(&position, e)).collect();
@@ -148,6 +139,22 @@ impl<'a> State<'a> {
             });
             return true;
         }
+    }
+
+    /// DLT triangulation of observations in oriented images (`views` is scratch space).
+    pub fn triangulate_elements(
+        &self,
+        elements: &[TrackElement],
+        views: &mut Vec<(Pose, Vector3<f64>)>,
+    ) -> Option<Vector3<f64>> {
+        views.clear();
+        for e in elements {
+            let image = e.image.index();
+            let camera = self.rec.camera_of(self.input, image);
+            let ray = camera.unproject(&self.input.pixel(e)).ok()?;
+            views.push((self.rec.poses[image]?, ray));
+        }
+        triangulate_dlt(views).ok()
     }
 
     /// Adds to the track's point, or triangulates, every element in an oriented image that is

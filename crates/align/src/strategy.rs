@@ -7,6 +7,11 @@
 //! - [`ChunkAlignment`] (`chunk`): each epoch reconstructed alone; the reference epoch
 //!   georeferenced; every other epoch mapped onto it by one 7-parameter similarity from the
 //!   tie points the two epochs share (tracks spanning both), RANSAC then least squares.
+//! - [`ProgressiveMerge`] (`msfm`): epochs alone, merged into one block most-connected first.
+//! - [`StableTiePoints`] (`stp`, module `stable`): stable tie points as control points.
+//!
+//! The strategies that orient epochs together (`timesift`, `msfm`) split the tie points whose
+//! epochs disagree (module `moved`).
 
 use std::collections::HashMap;
 
@@ -19,6 +24,8 @@ use crate::adjust::Intrinsics;
 use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, georeference};
 use crate::incremental::global;
 use crate::model::{Reconstruction, SfmInput};
+use crate::moved::separate_moved_points;
+use crate::stable::{StableMatcher, StableTiePoints};
 use crate::options::SfmOptions;
 use crate::state::{State, track_table};
 use crate::{AlignError, reconstruct};
@@ -46,19 +53,21 @@ pub trait Strategy {
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError>;
 }
 
-/// The strategy called `name`, or `None` for an unknown or not yet available one.
-pub fn strategy(name: &str) -> Option<Box<dyn Strategy>> {
+/// The strategy called `name`, or `None` for an unknown one. `stp` compares descriptors, which
+/// `matcher` does.
+pub fn strategy<'m>(name: &str, matcher: &'m dyn StableMatcher) -> Option<Box<dyn Strategy + 'm>> {
     match name {
         "timesift" => Some(Box::new(SingleBlock)),
         "independent" => Some(Box::new(Independent)),
         "chunk" => Some(Box::new(ChunkAlignment)),
         "msfm" => Some(Box::new(ProgressiveMerge)),
+        "stp" => Some(Box::new(StableTiePoints { matcher })),
         _ => None,
     }
 }
 
-/// Names of the available strategies.
-pub const AVAILABLE: [&str; 4] = ["timesift", "independent", "chunk", "msfm"];
+/// Names of the strategies.
+pub const AVAILABLE: [&str; 5] = ["timesift", "independent", "chunk", "msfm", "stp"];
 
 /// `timesift`: one block.
 pub struct SingleBlock;
@@ -69,7 +78,21 @@ impl Strategy for SingleBlock {
     }
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
         let components = reconstruct(&block.sfm, options)?;
-        georeference(&block.sfm, components, &block.ground, options)
+        let separated = separate_moved_points(
+            &block.sfm,
+            components,
+            &block.epoch_of,
+            block.reference,
+            options,
+        )?;
+        let mut placed = georeference(
+            &separated.input,
+            separated.components,
+            &block.ground,
+            options,
+        )?;
+        placed.moved_ties_split = separated.split;
+        Ok(placed)
     }
 }
 
@@ -138,9 +161,8 @@ impl Strategy for ChunkAlignment {
                 dropped_components: 0,
                 rejected_priors: 0,
                 residuals: Vec::new(),
-                focal_held: (0..sub.cameras.len())
-                    .map(|g| sub.focal_known.get(g).copied().unwrap_or(false))
-                    .collect(),
+                focal_held: sub.focal_held_during_sfm(),
+                moved_ties_split: 0,
             });
         }
         Ok(merge(&block.sfm, parts))
@@ -197,11 +219,20 @@ impl Strategy for ProgressiveMerge {
             tracing::debug!(epoch = e, points = state.rec.points.len(), "epoch merged");
             merged = state.rec;
         }
-        georeference(input, vec![merged], &block.ground, options)
+        let separated =
+            separate_moved_points(input, vec![merged], &block.epoch_of, r, options)?;
+        let mut placed = georeference(
+            &separated.input,
+            separated.components,
+            &block.ground,
+            options,
+        )?;
+        placed.moved_ties_split = separated.split;
+        Ok(placed)
     }
 }
 
-fn in_epoch(block: &Block, e: usize, source: AlignError) -> AlignError {
+pub(crate) fn in_epoch(block: &Block, e: usize, source: AlignError) -> AlignError {
     AlignError::Epoch {
         epoch: block.epoch_names[e].clone(),
         source: Box::new(source),
@@ -209,7 +240,7 @@ fn in_epoch(block: &Block, e: usize, source: AlignError) -> AlignError {
 }
 
 /// Map from a track element to the point that it observes.
-fn point_index(rec: &Reconstruction) -> HashMap<TrackElement, usize> {
+pub(crate) fn point_index(rec: &Reconstruction) -> HashMap<TrackElement, usize> {
     let mut map = HashMap::new();
     for (p, point) in rec.points.iter().enumerate() {
         for e in &point.observations {
@@ -221,7 +252,7 @@ fn point_index(rec: &Reconstruction) -> HashMap<TrackElement, usize> {
 
 /// 3-D correspondences between an epoch's points and the reference epoch's: one per track of
 /// the whole block that has a point in both.
-fn shared_points(
+pub(crate) fn shared_points(
     tracks: &[Track],
     rec: &Reconstruction,
     reference: &Reconstruction,
@@ -243,7 +274,7 @@ fn shared_points(
 
 /// RANSAC similarity from an epoch's points to the reference's, with a threshold of three
 /// times the reference's median ground pixel (object-space size of a pixel at the points).
-fn fit_similarity(
+pub(crate) fn fit_similarity(
     src: &[Vector3<f64>],
     dst: &[Vector3<f64>],
     reference: &Reconstruction,
@@ -278,7 +309,7 @@ fn fit_similarity(
 
 /// Median over points of (distance to the first observing camera / the longest focal length of
 /// the block).
-fn median_ground_pixel(rec: &Reconstruction) -> f64 {
+pub(crate) fn median_ground_pixel(rec: &Reconstruction) -> f64 {
     let f = rec
         .cameras
         .iter()
@@ -323,7 +354,7 @@ pub(crate) fn restrict(input: &SfmInput, keep: &dyn Fn(usize) -> bool) -> SfmInp
                 (elements.len() >= 2).then_some(Track { elements })
             })
             .collect(),
-        focal_known: input.focal_known.clone(),
+        focal: input.focal.clone(),
     }
 }
 
@@ -377,7 +408,7 @@ fn adopt_oriented(
 
 /// Epochs oriented apart, as one block (their images are disjoint; points keep their
 /// observations, which name keypoints of the whole input).
-fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeferenced {
+pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeferenced {
     let mut merged = Reconstruction {
         cameras: input.cameras.clone(),
         poses: vec![None; input.images.len()],
@@ -408,5 +439,6 @@ fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeferenced {
         residuals: Vec::new(),
         rms_px,
         focal_held,
+        moved_ties_split: 0,
     }
 }

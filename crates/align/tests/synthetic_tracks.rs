@@ -7,8 +7,9 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    Independent, ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock,
-    Strategy, georeference, reconstruct,
+    Independent, OfferedTiePoint, ProgressiveMerge, Reconstruction, SfmImage, SfmInput,
+    SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy,
+    georeference, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -33,6 +34,16 @@ fn camera() -> Camera {
 }
 
 fn scene(seed: u64, noise_px: f64, n_points: usize) -> Scene {
+    scene_with_motion(seed, noise_px, n_points, &|_, _| Vector3::zeros())
+}
+
+/// The nadir block, where image `i` sees point `x` displaced by `motion(i, x)`.
+fn scene_with_motion(
+    seed: u64,
+    noise_px: f64,
+    n_points: usize,
+    motion: &dyn Fn(usize, &Vector3<f64>) -> Vector3<f64>,
+) -> Scene {
     let mut rng = SeededRng::new(seed);
     let camera = camera();
     let mut poses = Vec::new();
@@ -67,7 +78,7 @@ fn scene(seed: u64, noise_px: f64, n_points: usize) -> Scene {
     for x in &points {
         let mut elements = Vec::new();
         for (i, pose) in poses.iter().enumerate() {
-            let Ok(u) = project_world(&camera, pose, x) else {
+            let Ok(u) = project_world(&camera, pose, &(x + motion(i, x))) else {
                 continue;
             };
             if u.x < 0.0 || u.y < 0.0 || u.x > 1000.0 || u.y > 800.0 {
@@ -107,7 +118,7 @@ fn one_camera_input(
             })
             .collect(),
         tracks,
-        focal_known: Vec::new(),
+        focal: Vec::new(),
     }
 }
 
@@ -414,9 +425,123 @@ fn strategies_differ_as_the_papers_say_on_biased_gnss() {
     let misfit = rigid_misfit(&msfm, &s);
     println!("msfm: rigid misfit {misfit:.4} m");
     assert!(misfit < 0.05, "{misfit}");
+    // Stable tie points: the second epoch, placed first by its biased priors, ends on the
+    // reference epoch's tie points (here matched by their common track, standing in for
+    // descriptors), with its own geometry adjusted.
+    let matcher = SameTrack::new(&block.sfm);
+    let stp = StableTiePoints { matcher: &matcher }
+        .orient(&block, &options)
+        .unwrap();
+    assert_eq!(stp.reconstruction.num_oriented(), 20);
+    let off = mean_offset(&stp, &s, &block, 1);
+    let misfit = rigid_misfit(&stp, &s);
+    println!("stp: second epoch off by {off:?}, rigid misfit {misfit:.4} m");
+    assert!(off.norm() < 0.1 && misfit < 0.1, "{off:?} {misfit}");
     // Strategy names and lookup.
     for name in timesift_align::AVAILABLE {
-        assert_eq!(timesift_align::strategy(name).unwrap().name(), name);
+        assert_eq!(timesift_align::strategy(name, &matcher).unwrap().name(), name);
     }
-    assert!(timesift_align::strategy("stp-later").is_none());
+    assert!(timesift_align::strategy("magic", &matcher).is_none());
+}
+
+/// The descriptor matching of `stp` replaced by the truth of the synthetic tracks: two offered
+/// points are a pair when their observations belong to one track and they lie within the search
+/// radius.
+struct SameTrack {
+    track_of: std::collections::HashMap<TrackElement, usize>,
+}
+
+impl SameTrack {
+    fn new(input: &SfmInput) -> Self {
+        let mut track_of = std::collections::HashMap::new();
+        for (t, track) in input.tracks.iter().enumerate() {
+            for e in &track.elements {
+                track_of.insert(*e, t);
+            }
+        }
+        SameTrack { track_of }
+    }
+}
+
+impl StableMatcher for SameTrack {
+    fn stable_pairs(
+        &self,
+        reference: &[OfferedTiePoint<'_>],
+        other: &[OfferedTiePoint<'_>],
+        search: &StableSearch,
+    ) -> Result<Vec<StableMatch>, String> {
+        let by_track: std::collections::HashMap<usize, usize> = reference
+            .iter()
+            .enumerate()
+            .filter_map(|(k, p)| Some((*self.track_of.get(p.observations.first()?)?, k)))
+            .collect();
+        Ok(other
+            .iter()
+            .enumerate()
+            .filter_map(|(k, p)| {
+                let t = self.track_of.get(p.observations.first()?)?;
+                let r = *by_track.get(t)?;
+                let d = reference[r].position - p.position;
+                (d.xy().norm() <= search.radius).then_some(StableMatch {
+                    reference: r,
+                    other: k,
+                    score: 0.1,
+                })
+            })
+            .collect())
+    }
+}
+
+/// Tie points on a surface that moved between the epochs (a slide 4 m in radius around
+/// (4, 0), 6 cm ≈ 2.7 px eastwards in the second epoch) are split by epoch; the stable ones keep
+/// tying the epochs.
+#[test]
+fn tie_points_on_a_moved_surface_stop_tying_the_epochs() {
+    let from_centre = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm();
+    let moved = |x: &Vector3<f64>| from_centre(x) < 4.0;
+    let s = scene_with_motion(11, 0.3, 1500, &|i, x| {
+        if i >= 10 && moved(x) {
+            Vector3::new(0.06, 0.0, 0.0)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let block = two_epoch_block(&s, Vector3::zeros());
+    // Inter-epoch points on the slide and off it (a metre of margin).
+    let ties = |g: &Georeferenced| {
+        let (mut on, mut off) = (0, 0);
+        for p in &g.reconstruction.points {
+            let epochs: std::collections::BTreeSet<usize> = p
+                .observations
+                .iter()
+                .map(|e| block.epoch_of[e.image.index()])
+                .collect();
+            if epochs.len() == 2 && from_centre(&p.position) < 3.0 {
+                on += 1;
+            } else if epochs.len() == 2 && from_centre(&p.position) > 5.0 {
+                off += 1;
+            }
+        }
+        (on, off)
+    };
+    let kept = SfmOptions {
+        moved_point_factor: f64::INFINITY,
+        ..SfmOptions::default()
+    };
+    let strained = SingleBlock.orient(&block, &kept).unwrap();
+    let (on_before, off_before) = ties(&strained);
+    let relaxed = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    let (on, off) = ties(&relaxed);
+    println!(
+        "kept: RMS {:.3} px, ties on the slide {on_before}, off {off_before}; \
+         split: RMS {:.3} px, ties on {on}, off {off}",
+        strained.rms_px, relaxed.rms_px
+    );
+    assert_eq!(relaxed.reconstruction.num_oriented(), 20);
+    assert!(on_before > 30, "the moved surface must tie the epochs at first");
+    assert!(on * 20 <= on_before, "{on} of {on_before} moved ties left");
+    assert!(off * 10 >= off_before * 9, "{off} of {off_before} stable ties left");
+    // 0.3 px per axis: an RMS of 0.3·√2 = 0.42 px once nothing strains the block.
+    assert!(relaxed.rms_px < 0.45, "{}", relaxed.rms_px);
+    assert!(strained.rms_px > relaxed.rms_px);
 }

@@ -598,6 +598,9 @@ fn write_change(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
     write_text(&dir.join("truth/change.json"), &(text + "\n"))
 }
 
+/// Side of an aerial film frame (23 cm × 23 cm), scanned whole.
+const FILM_FRAME_MM: f64 = 230.0;
+
 fn write_project(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
     let mut s = format!(
         "# Synthetic scene `{}` written by `cargo xtask synth`; the truth is in truth/.\n\
@@ -618,5 +621,23 @@ fn write_project(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
         "\n[align]\nmethod = \"timesift\"\nreference_epoch = \"{}\"\n",
         spec.epochs[0].name
     );
+    // Film scans carry no EXIF, but an aerial film camera comes with a calibration certificate
+    // (calibrated focal length in mm) and the scan has a known resolution: what a user of
+    // archival photos types into `[[camera]]`.
+    for e in spec
+        .epochs
+        .iter()
+        .filter(|e| matches!(e.format, ImageFormat::Tiff))
+    {
+        let pixel_mm = FILM_FRAME_MM / e.camera.width.max(e.camera.height) as f64;
+        let _ = write!(
+            s,
+            "\n# Calibration certificate of the film camera, and the scan resolution.\n\
+             [[camera]]\nname = \"{}\"\nfocal_mm = {:.3}\npixel_mm = {:.7}\n",
+            e.name,
+            e.camera.f * pixel_mm,
+            pixel_mm
+        );
+    }
     write_text(&dir.join("project.toml"), &s)
 }

@@ -1,0 +1,197 @@
+//! Tie points across a change. Time-SIFT relies on matches between epochs landing on what did
+//! not change; a feature on a surface that moved a little (ice thinning by decimetres, a creeping
+//! slope, a growing crop) still passes two-view verification at a few pixels and links the
+//! epochs through a point that fits none of them, straining the whole block (on the synthetic
+//! glacier the single block's median reprojection error doubles). Such a point is split by
+//! epoch: the epoch with the most observations keeps it; every other epoch whose observations
+//! miss it by more than the block's noise allows gets a track and a point of its own, which
+//! still serve its epoch's orientation but no longer tie the epochs together.
+
+use std::collections::BTreeMap;
+
+use nalgebra::Vector3;
+use timesift_core::{Pose, Track, TrackElement};
+
+use crate::AlignError;
+use crate::adjust::Intrinsics;
+use crate::incremental::global;
+use crate::model::{Reconstruction, SfmInput, SparsePoint};
+use crate::options::SfmOptions;
+use crate::state::{State, track_table};
+
+/// Smallest miss threshold, pixels: on noise-free data the median error is ~0 and nothing may
+/// be called moved for rounding.
+const MIN_MISS_PX: f64 = 0.25;
+
+/// What [`separate_moved_points`] returns: the input with the split tracks, and the components
+/// whose points refer to them.
+pub(crate) struct Separated {
+    pub input: SfmInput,
+    pub components: Vec<Reconstruction>,
+    /// Epoch groups split off their points, over both passes.
+    pub split: usize,
+}
+
+/// Splits the tie points whose epochs disagree, in two passes with a global adjustment of
+/// each component in between (the first pass sees a strained block, the second a relaxed one).
+/// `epoch_of` gives each image's epoch; `reference` keeps a point on ties.
+pub(crate) fn separate_moved_points(
+    input: &SfmInput,
+    mut components: Vec<Reconstruction>,
+    epoch_of: &[usize],
+    reference: usize,
+    options: &SfmOptions,
+) -> Result<Separated, AlignError> {
+    let mut input = input.clone();
+    let mut split = 0;
+    for pass in 0..2 {
+        let n = split_pass(&mut input, &mut components, epoch_of, reference, options);
+        split += n;
+        tracing::info!(pass, split = n, "inter-epoch tie points split where a surface moved");
+        if n == 0 {
+            break;
+        }
+        let track_of = track_table(&input);
+        components = components
+            .into_iter()
+            .map(|rec| {
+                let mut state = State::with_reconstruction(&input, options, &track_of, rec);
+                global(&mut state, Intrinsics::Final)?;
+                Ok(state.rec)
+            })
+            .collect::<Result<_, AlignError>>()?;
+    }
+    Ok(Separated {
+        input,
+        components,
+        split,
+    })
+}
+
+/// One pass over every component; returns the number of epoch groups split off.
+fn split_pass(
+    input: &mut SfmInput,
+    components: &mut [Reconstruction],
+    epoch_of: &[usize],
+    reference: usize,
+    options: &SfmOptions,
+) -> usize {
+    // A track with points in two components is left alone: its elements are shared.
+    let mut uses = vec![0u8; input.tracks.len()];
+    for rec in components.iter() {
+        for p in &rec.points {
+            uses[p.track] = uses[p.track].saturating_add(1);
+        }
+    }
+    let track_of = track_table(input);
+    let mut new_tracks: Vec<Track> = Vec::new();
+    let mut removed: Vec<(usize, usize)> = Vec::new(); // (track, epoch) moved to a new track
+    let mut split = 0;
+    for rec in components.iter_mut() {
+        let state = State::with_reconstruction(input, options, &track_of, rec.clone());
+        let threshold = miss_threshold(&state, options);
+        let mut views: Vec<(Pose, Vector3<f64>)> = Vec::new();
+        let mut new_points: Vec<SparsePoint> = Vec::new();
+        for point in &mut rec.points {
+            if uses[point.track] != 1 {
+                continue;
+            }
+            let groups = by_epoch(&point.observations, epoch_of);
+            if groups.len() < 2 {
+                continue;
+            }
+            let Some((&keeper, kept)) = groups
+                .iter()
+                .max_by_key(|(e, obs)| (obs.len(), **e == reference))
+            else {
+                continue;
+            };
+            let anchor = (kept.len() >= 2)
+                .then(|| state.triangulate_elements(kept, &mut views))
+                .flatten()
+                .filter(|x| {
+                    state.max_angle_deg(x, kept) >= options.min_triangulation_angle_deg
+                        && kept.iter().all(|e| state.error(x, e) <= threshold)
+                })
+                .unwrap_or(point.position);
+            for (&epoch, observations) in groups.iter().filter(|(e, _)| **e != keeper) {
+                let missing = observations
+                    .iter()
+                    .filter(|e| state.error(&anchor, e) > threshold)
+                    .count();
+                if 2 * missing <= observations.len() {
+                    continue;
+                }
+                split += 1;
+                point
+                    .observations
+                    .retain(|e| epoch_of[e.image.index()] != epoch);
+                removed.push((point.track, epoch));
+                let elements: Vec<TrackElement> = input.tracks[point.track]
+                    .elements
+                    .iter()
+                    .filter(|e| epoch_of[e.image.index()] == epoch)
+                    .copied()
+                    .collect();
+                if elements.len() < 2 {
+                    continue;
+                }
+                let track = input.tracks.len() + new_tracks.len();
+                new_tracks.push(Track { elements });
+                let position = (observations.len() >= 2)
+                    .then(|| state.triangulate_elements(observations, &mut views))
+                    .flatten()
+                    .filter(|x| {
+                        state.max_angle_deg(x, observations) >= options.min_triangulation_angle_deg
+                    });
+                if let Some(position) = position {
+                    new_points.push(SparsePoint {
+                        position,
+                        track,
+                        observations: observations.clone(),
+                    });
+                }
+            }
+        }
+        rec.points.extend(new_points);
+    }
+    for (track, epoch) in removed {
+        input.tracks[track]
+            .elements
+            .retain(|e| epoch_of[e.image.index()] != epoch);
+    }
+    input.tracks.extend(new_tracks);
+    split
+}
+
+/// Observations grouped by epoch.
+fn by_epoch(
+    observations: &[TrackElement],
+    epoch_of: &[usize],
+) -> BTreeMap<usize, Vec<TrackElement>> {
+    let mut groups: BTreeMap<usize, Vec<TrackElement>> = BTreeMap::new();
+    for e in observations {
+        groups.entry(epoch_of[e.image.index()]).or_default().push(*e);
+    }
+    groups
+}
+
+/// The miss that marks a moved point: `moved_point_factor` times the component's median
+/// reprojection error, at least [`MIN_MISS_PX`], at most the observation threshold.
+fn miss_threshold(state: &State<'_>, options: &SfmOptions) -> f64 {
+    let mut errors: Vec<f64> = state
+        .rec
+        .points
+        .iter()
+        .flat_map(|p| p.observations.iter().map(|e| state.error(&p.position, e)))
+        .filter(|e| e.is_finite())
+        .collect();
+    if errors.is_empty() {
+        return options.max_reprojection_px;
+    }
+    let mid = errors.len() / 2;
+    let (_, median, _) = errors.select_nth_unstable_by(mid, f64::total_cmp);
+    (options.moved_point_factor * *median)
+        .max(MIN_MISS_PX)
+        .min(options.max_reprojection_px)
+}

@@ -1,0 +1,232 @@
+//! `stp` (stable tie points): the reference epoch oriented and georeferenced; every other epoch
+//! oriented alone and roughly placed (its GNSS priors, or the similarity of the tie points it
+//! shares with the reference when it has none); its tie points matched by descriptor to the
+//! reference's within a horizontal radius, the pairs a RANSAC similarity keeps (ground that did
+//! not move) becoming control points of a final adjustment of the epoch. Unlike `chunk`, the
+//! epoch's own geometry (focal length, distortion, block deformation) is corrected by hundreds
+//! of control points, not only moved by one similarity.
+//!
+//! Descriptors are not this crate's business: the matching is a [`StableMatcher`] given by the
+//! caller (the orchestrator reads the feature files and uses `timesift-matching::stp`).
+
+use nalgebra::Vector3;
+use timesift_core::TrackElement;
+
+use crate::AlignError;
+use crate::georef::{GeoreferenceInput, Georeferenced, GroundPoint, Marker, georeference};
+use crate::model::{Reconstruction, SfmInput};
+use crate::options::SfmOptions;
+use crate::reconstruct;
+use crate::strategy::{
+    Block, Strategy, fit_similarity, in_epoch, median_ground_pixel, merge, point_index, restrict,
+    restrict_ground, shared_points,
+};
+
+/// A tie point offered for matching: its position (the reference epoch's world frame, or the
+/// other epoch's rough placement in it) and its observations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OfferedTiePoint<'a> {
+    /// Position, metres.
+    pub position: Vector3<f64>,
+    /// Its observations (image and keypoint), whose descriptors the matcher compares.
+    pub observations: &'a [TrackElement],
+}
+
+/// Where a [`StableMatcher`] searches and how far a stable pair may disagree.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StableSearch {
+    /// Horizontal search radius, metres: how far the rough placement may be off.
+    pub radius: f64,
+    /// RANSAC tolerance of the similarity between the two sets, metres.
+    pub tolerance: f64,
+}
+
+/// A stable pair: indices into the reference's and the other epoch's offered points, and the
+/// descriptor distance (lower is more certain).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StableMatch {
+    /// Index into the reference's points.
+    pub reference: usize,
+    /// Index into the other epoch's points.
+    pub other: usize,
+    /// Mean descriptor distance of the pair.
+    pub score: f64,
+}
+
+/// Matches two epochs' tie points by descriptor and keeps those on ground that did not move.
+pub trait StableMatcher {
+    /// The stable pairs between `reference` and `other`.
+    fn stable_pairs(
+        &self,
+        reference: &[OfferedTiePoint<'_>],
+        other: &[OfferedTiePoint<'_>],
+        search: &StableSearch,
+    ) -> Result<Vec<StableMatch>, String>;
+}
+
+/// The `stp` strategy, with the matcher that compares descriptors.
+pub struct StableTiePoints<'m> {
+    /// Descriptor matching of tie points.
+    pub matcher: &'m dyn StableMatcher,
+}
+
+/// Fewest stable pairs that may control an epoch.
+const MIN_STABLE_PAIRS: usize = 6;
+
+/// Search radius without priors (placement by shared tie points), in ground pixels.
+const RADIUS_WITHOUT_PRIORS_PX: f64 = 20.0;
+
+impl Strategy for StableTiePoints<'_> {
+    fn name(&self) -> &'static str {
+        "stp"
+    }
+
+    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
+        let r = block.reference;
+        let keep_ref = |i: usize| block.epoch_of[i] == r;
+        let sub = restrict(&block.sfm, &keep_ref);
+        let reference = reconstruct(&sub, options)
+            .and_then(|c| {
+                georeference(&sub, c, &restrict_ground(&block.ground, &keep_ref), options)
+            })
+            .map_err(|source| in_epoch(block, r, source))?;
+        let ground_px = median_ground_pixel(&reference.reconstruction);
+        let offered_reference = offer(&reference.reconstruction);
+        let mut parts = vec![reference.clone()];
+        for e in (0..block.epoch_names.len()).filter(|&e| e != r) {
+            let keep = |i: usize| block.epoch_of[i] == e;
+            let sub = restrict(&block.sfm, &keep);
+            let ground = restrict_ground(&block.ground, &keep);
+            let placed = self
+                .control_epoch(
+                    block,
+                    &sub,
+                    &ground,
+                    &reference,
+                    &offered_reference,
+                    ground_px,
+                    options,
+                )
+                .map_err(|source| in_epoch(block, e, source))?;
+            parts.push(placed);
+        }
+        Ok(merge(&block.sfm, parts))
+    }
+}
+
+impl StableTiePoints<'_> {
+    /// Orients one later epoch, places it roughly, finds its stable tie points and adjusts it
+    /// on them.
+    #[allow(clippy::too_many_arguments)]
+    fn control_epoch(
+        &self,
+        block: &Block,
+        sub: &SfmInput,
+        ground: &GeoreferenceInput,
+        reference: &Georeferenced,
+        offered_reference: &[OfferedTiePoint<'_>],
+        ground_px: f64,
+        options: &SfmOptions,
+    ) -> Result<Georeferenced, AlignError> {
+        let components = reconstruct(sub, options)?;
+        let (rough, radius) = if ground.centre_priors.len() >= 3 {
+            let priors_only = GeoreferenceInput {
+                centre_priors: ground.centre_priors.clone(),
+                points: Vec::new(),
+                marker_sigma_px: ground.marker_sigma_px,
+            };
+            let placed = georeference(sub, components, &priors_only, options)?;
+            // Priors claim their accuracy; the placement of a whole block is off by about
+            // their common bias, which the stated σ covers.
+            let sigma = ground
+                .centre_priors
+                .iter()
+                .map(|p| p.sigma_xy)
+                .fold(0.0, f64::max);
+            (placed.reconstruction, 3.0 * sigma + 5.0 * ground_px)
+        } else {
+            let mut rec = components
+                .into_iter()
+                .next()
+                .ok_or_else(|| AlignError::Georeferencing("nothing oriented".into()))?;
+            let index = point_index(&reference.reconstruction);
+            let (src, dst) = shared_points(
+                &block.sfm.tracks,
+                &rec,
+                &reference.reconstruction,
+                &index,
+            );
+            let reference_from_epoch =
+                fit_similarity(&src, &dst, &reference.reconstruction, options.seed)?;
+            rec.transform(&reference_from_epoch);
+            (rec, RADIUS_WITHOUT_PRIORS_PX * ground_px)
+        };
+        let offered = offer(&rough);
+        let search = StableSearch {
+            radius,
+            tolerance: 3.0 * ground_px,
+        };
+        let pairs = self
+            .matcher
+            .stable_pairs(offered_reference, &offered, &search)
+            .map_err(AlignError::Georeferencing)?;
+        tracing::info!(
+            pairs = pairs.len(),
+            radius,
+            tolerance = search.tolerance,
+            "stable tie points"
+        );
+        if pairs.len() < MIN_STABLE_PAIRS {
+            return Err(AlignError::Georeferencing(format!(
+                "{} stable tie points with the reference epoch (search radius {radius:.2} m); \
+                 {MIN_STABLE_PAIRS} are needed",
+                pairs.len()
+            )));
+        }
+        let mut controlled = GeoreferenceInput {
+            centre_priors: Vec::new(),
+            points: ground.points.clone(),
+            marker_sigma_px: ground.marker_sigma_px,
+        };
+        for (k, pair) in pairs.iter().enumerate() {
+            let Some(point) = offered.get(pair.other) else {
+                continue;
+            };
+            let Some(anchor) = offered_reference.get(pair.reference) else {
+                continue;
+            };
+            // A tie point is about a ground pixel precise across and two in height; a worse
+            // descriptor match weighs less.
+            let sigma = ground_px * (1.0 + 2.0 * pair.score);
+            controlled.points.push(GroundPoint {
+                name: format!("stable tie point {k}"),
+                position: anchor.position,
+                sigma_xy: sigma,
+                sigma_z: 2.0 * sigma,
+                check: false,
+                markers: point
+                    .observations
+                    .iter()
+                    .map(|e| Marker {
+                        image: e.image.index(),
+                        pixel: sub.pixel(e),
+                    })
+                    .collect(),
+            });
+        }
+        let mut placed = georeference(sub, vec![rough], &controlled, options)?;
+        placed.residuals.retain(|p| !p.name.starts_with("stable tie point"));
+        Ok(placed)
+    }
+}
+
+/// The points of a reconstruction as offered tie points.
+fn offer(rec: &Reconstruction) -> Vec<OfferedTiePoint<'_>> {
+    rec.points
+        .iter()
+        .map(|p| OfferedTiePoint {
+            position: p.position,
+            observations: &p.observations,
+        })
+        .collect()
+}
