@@ -159,6 +159,16 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         text,
         "# sz = 10.0    # default vertical standard deviation of priors, m"
     );
+    let _ = writeln!(
+        text,
+        "\n# A known calibration (e.g. a film camera's certificate and the scan resolution):\n\
+         # [[camera]]\n\
+         # name = {}      # camera group\n\
+         # focal_mm = 152.06  # with pixel_mm; or focal_px = ...\n\
+         # pixel_mm = 0.021\n\
+         # adjust_focal = false  # true: a starting value the bundle adjustment refines",
+        toml_string(&epochs[0].0)
+    );
 
     let config = ProjectConfig::parse(&config_path, &text)?;
     Project::from_config(dir, config)?;

@@ -389,3 +389,58 @@ fn demo_refuses_a_directory_that_is_not_empty() {
         "mine"
     );
 }
+
+/// `[[camera]]`: a calibrated focal length in millimetres with the pixel size is shown by
+/// `info` in pixels; a group that does not exist, a missing pixel size, two focal lengths and a
+/// non-positive length are errors naming the key.
+#[test]
+fn camera_calibration_is_checked_and_shown() {
+    let p = small_project();
+    let d = p.path().to_str().unwrap();
+    let head = "crs = \"local\"\n[[epoch]]\nname = \"2018\"\n[[epoch]]\nname = \"2019\"\n";
+    write(
+        p.path(),
+        "project.toml",
+        &format!("{head}[[camera]]\nname = \"2019\"\nfocal_mm = 8.8\npixel_mm = 0.0022\n"),
+    );
+    let (ok, out, err) = timesift(&["info", d, "--json"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let groups = report["camera_groups"].as_array().unwrap();
+    let given = |name: &str| {
+        groups
+            .iter()
+            .find(|g| g["name"] == name)
+            .map(|g| g["calibrated_focal_px"].clone())
+            .unwrap()
+    };
+    assert!((given("2019").as_f64().unwrap() - 4000.0).abs() < 1e-9);
+    assert!(given("2018").is_null());
+    let (ok, out, _) = timesift(&["info", d]);
+    assert!(ok && out.contains("f = 4000.0 px (calibrated"), "{out}");
+    for (camera, key, says) in [
+        ("name = \"2020\"\nfocal_px = 900", "camera[0].name", "2020"),
+        ("name = \"2018\"\nfocal_mm = 8.8", "camera[0].pixel_mm", "missing"),
+        (
+            "name = \"2018\"\nfocal_px = 900\nfocal_mm = 8.8\npixel_mm = 0.01",
+            "camera[0].focal_mm",
+            "not both",
+        ),
+        ("name = \"2018\"\nfocal_px = -3", "camera[0].focal_px", "positive"),
+    ] {
+        write(
+            p.path(),
+            "project.toml",
+            &format!("{head}[[camera]]\n{camera}\n"),
+        );
+        let e = info_error(p.path());
+        assert!(e.contains(key) && e.contains(says), "{e}");
+    }
+    write(
+        p.path(),
+        "project.toml",
+        &format!("{head}[[camera]]\nname = \"2018\"\nfocal_px = 900\n[[camera]]\nname = \"2018\"\nfocal_px = 901\n"),
+    );
+    let e = info_error(p.path());
+    assert!(e.contains("camera[1].name") && e.contains("twice"), "{e}");
+}

@@ -1,7 +1,8 @@
 //! `timesift run --to align` on a rendered two-epoch project (soil-pit: a vertical wall at close
 //! range, GCPs marked in the reference epoch only, check points in both): every image oriented,
 //! reprojection RMS within 0.5 px, check points within 1 GSD horizontally and 1.5 GSD vertically
-//! in every epoch, camera centres close to the truth; the output files are readable.
+//! in every epoch, camera centres close to the truth; the output files are readable. Then the
+//! same with `align.method = "stp"`.
 
 mod common;
 
@@ -52,23 +53,8 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
     let gsd = distance / n / f[0];
     let centre_rmse = (centre_sq / n).sqrt();
     println!("GSD {gsd:.4} m, camera centre RMSE {centre_rmse:.4} m");
-    assert_eq!(report["images_oriented"], report["images_given"]);
+    check_epochs(&report, gsd);
     for (name, epoch) in report["epochs"].as_object().unwrap() {
-        assert_eq!(epoch["images_oriented"], epoch["images_given"], "{name}");
-        let rms = epoch["rms_reprojection_px"].as_f64().unwrap();
-        assert!(rms <= 0.5, "{name}: RMS {rms} px");
-        let chk = &epoch["check_points"]["rmse"];
-        let (de, dn, dh) = (
-            chk["dE"].as_f64().unwrap(),
-            chk["dN"].as_f64().unwrap(),
-            chk["dH"].as_f64().unwrap(),
-        );
-        // The wall faces north: its "horizontal" plane is (E, H), depth is N.
-        let horizontal = (de * de + dh * dh).sqrt();
-        assert!(
-            horizontal <= gsd && dn <= 1.5 * gsd,
-            "{name}: check points dE {de} dN {dn} dH {dh} against GSD {gsd}"
-        );
         assert!(
             epoch["inter_epoch_tie_points"].as_u64().unwrap() > 100,
             "{name}"
@@ -86,4 +72,44 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
     assert_eq!(epochs.len(), 2);
     assert_eq!(points.len(), model.points.len());
     assert!(points.iter().any(|p| p.epochs == 0b11));
+
+    // `stp` on the same features and matches: the second epoch controlled by the reference
+    // epoch's stable tie points (descriptors read back from the feature files) meets the same
+    // bounds.
+    let config = dir.path().join("project.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        text.replace("method = \"timesift\"", "method = \"stp\""),
+    )
+    .unwrap();
+    let (ok, _, err) = timesift(&["run", path, "--from", "align", "--to", "align"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["method"], "stp");
+    check_epochs(&report, gsd);
+}
+
+/// Every epoch fully oriented, RMS within 0.5 px, check points within 1 GSD across the wall
+/// and 1.5 GSD in depth.
+fn check_epochs(report: &serde_json::Value, gsd: f64) {
+    assert_eq!(report["images_oriented"], report["images_given"]);
+    for (name, epoch) in report["epochs"].as_object().unwrap() {
+        assert_eq!(epoch["images_oriented"], epoch["images_given"], "{name}");
+        let rms = epoch["rms_reprojection_px"].as_f64().unwrap();
+        assert!(rms <= 0.5, "{name}: RMS {rms} px");
+        let chk = &epoch["check_points"]["rmse"];
+        let (de, dn, dh) = (
+            chk["dE"].as_f64().unwrap(),
+            chk["dN"].as_f64().unwrap(),
+            chk["dH"].as_f64().unwrap(),
+        );
+        // The wall faces north: its "horizontal" plane is (E, H), depth is N.
+        let horizontal = (de * de + dh * dh).sqrt();
+        assert!(
+            horizontal <= gsd && dn <= 1.5 * gsd,
+            "{name}: check points dE {de} dN {dn} dH {dh} against GSD {gsd}"
+        );
+    }
 }
