@@ -13,8 +13,8 @@ use std::time::Instant;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
-    Block, CentrePrior, Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
-    PointResidual, FocalSource, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
+    Block, CentrePrior, Datum, FocalSource, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
+    PointResidual, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};

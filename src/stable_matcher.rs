@@ -8,8 +8,8 @@ use std::path::PathBuf;
 
 use timesift_align::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch};
 use timesift_core::Descriptors;
-use timesift_matching::stp::{StpOptions, TiePoint, stable_tie_points};
 use timesift_matching::storage::read_features;
+use timesift_matching::stp::{StpOptions, TiePoint, stable_tie_points};
 
 /// Reads descriptors from a project's feature files.
 pub struct FeatureFileMatcher {
@@ -39,9 +39,8 @@ impl FeatureFileMatcher {
             let path = self.features_dir.join(format!("{image}.feat"));
             let (_, descriptors) = read_features(&path).map_err(|e| e.to_string())?;
             for f in features {
-                let v = descriptor(&descriptors, f).ok_or_else(|| {
-                    format!("{}: keypoint {f} has no descriptor", path.display())
-                })?;
+                let v = descriptor(&descriptors, f)
+                    .ok_or_else(|| format!("{}: keypoint {f} has no descriptor", path.display()))?;
                 dim = v.len();
                 table.insert((image, f), v);
             }
@@ -69,7 +68,12 @@ fn descriptor(descriptors: &Descriptors, i: usize) -> Option<Vec<f32>> {
     match descriptors {
         Descriptors::Float { dim, data } => {
             let v = data.get(i * dim..(i + 1) * dim)?;
-            let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt().max(f32::EPSILON);
+            let norm = v
+                .iter()
+                .map(|x| x * x)
+                .sum::<f32>()
+                .sqrt()
+                .max(f32::EPSILON);
             Some(v.iter().map(|x| x / norm).collect())
         }
         Descriptors::Binary { bytes, data } => {
@@ -106,7 +110,8 @@ impl StableMatcher for FeatureFileMatcher {
             seed: self.seed,
             ..StpOptions::default()
         };
-        let result = stable_tie_points(&reference, &other, dim, &options).map_err(|e| e.to_string())?;
+        let result =
+            stable_tie_points(&reference, &other, dim, &options).map_err(|e| e.to_string())?;
         tracing::info!(
             candidates = result.candidates,
             stable = result.pairs.len(),

@@ -420,13 +420,21 @@ fn camera_calibration_is_checked_and_shown() {
     assert!(ok && out.contains("f = 4000.0 px (calibrated"), "{out}");
     for (camera, key, says) in [
         ("name = \"2020\"\nfocal_px = 900", "camera[0].name", "2020"),
-        ("name = \"2018\"\nfocal_mm = 8.8", "camera[0].pixel_mm", "missing"),
+        (
+            "name = \"2018\"\nfocal_mm = 8.8",
+            "camera[0].pixel_mm",
+            "missing",
+        ),
         (
             "name = \"2018\"\nfocal_px = 900\nfocal_mm = 8.8\npixel_mm = 0.01",
             "camera[0].focal_mm",
             "not both",
         ),
-        ("name = \"2018\"\nfocal_px = -3", "camera[0].focal_px", "positive"),
+        (
+            "name = \"2018\"\nfocal_px = -3",
+            "camera[0].focal_px",
+            "positive",
+        ),
     ] {
         write(
             p.path(),
@@ -439,7 +447,9 @@ fn camera_calibration_is_checked_and_shown() {
     write(
         p.path(),
         "project.toml",
-        &format!("{head}[[camera]]\nname = \"2018\"\nfocal_px = 900\n[[camera]]\nname = \"2018\"\nfocal_px = 901\n"),
+        &format!(
+            "{head}[[camera]]\nname = \"2018\"\nfocal_px = 900\n[[camera]]\nname = \"2018\"\nfocal_px = 901\n"
+        ),
     );
     let e = info_error(p.path());
     assert!(e.contains("camera[1].name") && e.contains("twice"), "{e}");

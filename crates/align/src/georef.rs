@@ -330,7 +330,10 @@ pub fn georeference(
             }
             if round == 0 {
                 let bound = state.tighten_to_noise();
-                tracing::info!(bound_px = bound, "observation outlier bound from the block's noise");
+                tracing::info!(
+                    bound_px = bound,
+                    "observation outlier bound from the block's noise"
+                );
             }
             state.filter_points(&points);
             state.complete_all_tracks();

@@ -47,7 +47,11 @@ pub(crate) fn separate_moved_points(
     for pass in 0..2 {
         let n = split_pass(&mut input, &mut components, epoch_of, reference, options);
         split += n;
-        tracing::info!(pass, split = n, "inter-epoch tie points split where a surface moved");
+        tracing::info!(
+            pass,
+            split = n,
+            "inter-epoch tie points split where a surface moved"
+        );
         if n == 0 {
             break;
         }
@@ -171,7 +175,10 @@ fn by_epoch(
 ) -> BTreeMap<usize, Vec<TrackElement>> {
     let mut groups: BTreeMap<usize, Vec<TrackElement>> = BTreeMap::new();
     for e in observations {
-        groups.entry(epoch_of[e.image.index()]).or_default().push(*e);
+        groups
+            .entry(epoch_of[e.image.index()])
+            .or_default()
+            .push(*e);
     }
     groups
 }

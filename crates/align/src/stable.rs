@@ -150,12 +150,8 @@ impl StableTiePoints<'_> {
                 .next()
                 .ok_or_else(|| AlignError::Georeferencing("nothing oriented".into()))?;
             let index = point_index(&reference.reconstruction);
-            let (src, dst) = shared_points(
-                &block.sfm.tracks,
-                &rec,
-                &reference.reconstruction,
-                &index,
-            );
+            let (src, dst) =
+                shared_points(&block.sfm.tracks, &rec, &reference.reconstruction, &index);
             let reference_from_epoch =
                 fit_similarity(&src, &dst, &reference.reconstruction, options.seed)?;
             rec.transform(&reference_from_epoch);
@@ -215,7 +211,9 @@ impl StableTiePoints<'_> {
             });
         }
         let mut placed = georeference(sub, vec![rough], &controlled, options)?;
-        placed.residuals.retain(|p| !p.name.starts_with("stable tie point"));
+        placed
+            .residuals
+            .retain(|p| !p.name.starts_with("stable tie point"));
         Ok(placed)
     }
 }

@@ -25,8 +25,8 @@ use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, georef
 use crate::incremental::global;
 use crate::model::{Reconstruction, SfmInput};
 use crate::moved::separate_moved_points;
-use crate::stable::{StableMatcher, StableTiePoints};
 use crate::options::SfmOptions;
+use crate::stable::{StableMatcher, StableTiePoints};
 use crate::state::{State, track_table};
 use crate::{AlignError, reconstruct};
 
@@ -219,8 +219,7 @@ impl Strategy for ProgressiveMerge {
             tracing::debug!(epoch = e, points = state.rec.points.len(), "epoch merged");
             merged = state.rec;
         }
-        let separated =
-            separate_moved_points(input, vec![merged], &block.epoch_of, r, options)?;
+        let separated = separate_moved_points(input, vec![merged], &block.epoch_of, r, options)?;
         let mut placed = georeference(
             &separated.input,
             separated.components,

@@ -7,9 +7,9 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    Independent, OfferedTiePoint, ProgressiveMerge, Reconstruction, SfmImage, SfmInput,
-    SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy,
-    georeference, reconstruct,
+    Independent, OfferedTiePoint, ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions,
+    SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy, georeference,
+    reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -439,7 +439,10 @@ fn strategies_differ_as_the_papers_say_on_biased_gnss() {
     assert!(off.norm() < 0.1 && misfit < 0.1, "{off:?} {misfit}");
     // Strategy names and lookup.
     for name in timesift_align::AVAILABLE {
-        assert_eq!(timesift_align::strategy(name, &matcher).unwrap().name(), name);
+        assert_eq!(
+            timesift_align::strategy(name, &matcher).unwrap().name(),
+            name
+        );
     }
     assert!(timesift_align::strategy("magic", &matcher).is_none());
 }
@@ -538,9 +541,15 @@ fn tie_points_on_a_moved_surface_stop_tying_the_epochs() {
         strained.rms_px, relaxed.rms_px
     );
     assert_eq!(relaxed.reconstruction.num_oriented(), 20);
-    assert!(on_before > 30, "the moved surface must tie the epochs at first");
+    assert!(
+        on_before > 30,
+        "the moved surface must tie the epochs at first"
+    );
     assert!(on * 20 <= on_before, "{on} of {on_before} moved ties left");
-    assert!(off * 10 >= off_before * 9, "{off} of {off_before} stable ties left");
+    assert!(
+        off * 10 >= off_before * 9,
+        "{off} of {off_before} stable ties left"
+    );
     // 0.3 px per axis: an RMS of 0.3·√2 = 0.42 px once nothing strains the block.
     assert!(relaxed.rms_px < 0.45, "{}", relaxed.rms_px);
     assert!(strained.rms_px > relaxed.rms_px);
