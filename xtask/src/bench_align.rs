@@ -182,25 +182,38 @@ fn colmap(images: &Path, work: &Path) -> anyhow::Result<(ColmapModel, f64)> {
     // COLMAP 3.8's mapper exits with "failed to create sparse model" when its last attempt to
     // start another model fails, even after writing a model: what it wrote counts.
     // Its initial-pair search is randomised and this walking sequence has small baselines: when
-    // the defaults start no model, it gets a second run with a 4° initial triangulation angle
-    // (timesift relaxes its own thresholds the same way); only the run that made the model is
-    // timed.
+    // the defaults start no model, it runs again with relaxed thresholds, first a 4° initial
+    // triangulation angle (timesift relaxes its own thresholds the same way), then 2° with a
+    // laxer absolute pose; only the run that made the model is timed.
     let has_model = || std::fs::read_dir(&sparse).is_ok_and(|mut d| d.next().is_some());
-    let started = Instant::now();
-    if let Err(e) = mapper(&[]) {
-        println!("  (COLMAP mapper exit status: {e})");
-    }
-    if !has_model() {
-        println!(
-            "  (COLMAP mapper made no model with its defaults; again with init_min_tri_angle 4)"
-        );
+    let relaxations: [&[&str]; 3] = [
+        &[],
+        &["--Mapper.init_min_tri_angle", "4"],
+        &[
+            "--Mapper.init_min_tri_angle",
+            "2",
+            "--Mapper.abs_pose_min_num_inliers",
+            "15",
+            "--Mapper.abs_pose_min_inlier_ratio",
+            "0.15",
+        ],
+    ];
+    for (k, extra) in relaxations.iter().enumerate() {
+        if k > 0 {
+            println!(
+                "  (COLMAP mapper made no model; again with {})",
+                extra.join(" ")
+            );
+        }
         let started = Instant::now();
-        if let Err(e) = mapper(&[s("--Mapper.init_min_tri_angle"), s("4")]) {
+        let extra: Vec<String> = extra.iter().map(|v| s(v)).collect();
+        if let Err(e) = mapper(&extra) {
             println!("  (COLMAP mapper exit status: {e})");
         }
-        seconds += started.elapsed().as_secs_f64();
-    } else {
-        seconds += started.elapsed().as_secs_f64();
+        if has_model() {
+            seconds += started.elapsed().as_secs_f64();
+            break;
+        }
     }
     // The largest model (COLMAP numbers them 0, 1, … by creation).
     let mut best: Option<ColmapModel> = None;

@@ -97,7 +97,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             }
         }
     }
-    let markdown = table(&rows);
+    let markdown = table(&rows) + &findings(&rows);
     println!("{markdown}");
     std::fs::write(bench.out.join("methods.md"), &markdown)?;
     std::fs::write(
@@ -161,5 +161,116 @@ fn table(rows: &[Row]) -> String {
             r.seconds
         ));
     }
+    s
+}
+
+/// The papers' questions answered from the rows, per scene: how high each strategy's check
+/// points are off (RMS of dH over the epochs, in GSD) and how far the later epochs disagree with
+/// the reference epoch in height (RMS of the epoch − reference dH over the later epochs, m).
+/// The reference is each scene's first epoch, as `synth` writes it.
+fn findings(rows: &[Row]) -> String {
+    let mut scenes: Vec<&str> = Vec::new();
+    let mut methods: Vec<&str> = Vec::new();
+    for r in rows {
+        if !scenes.contains(&r.scene.as_str()) {
+            scenes.push(&r.scene);
+        }
+        if !methods.contains(&r.method.as_str()) {
+            methods.push(&r.method);
+        }
+    }
+    let rms = |v: &[f64]| {
+        (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
+    };
+    // (check dH RMS in GSD, later epochs' dH disagreement RMS in m) per scene and method.
+    let summary = |scene: &str, method: &str| -> (Option<f64>, Option<f64>) {
+        let epochs: Vec<&EpochAccuracy> = rows
+            .iter()
+            .filter(|r| r.scene == scene && r.method == method)
+            .filter_map(|r| r.accuracy.as_ref())
+            .collect();
+        let check: Vec<f64> = epochs
+            .iter()
+            .filter_map(|a| a.check_rmse_gsd.map(|c| c[2]))
+            .collect();
+        let apart: Vec<f64> = epochs
+            .iter()
+            .skip(1)
+            .filter_map(|a| a.disagreement_m.map(|d| d[2]))
+            .collect();
+        (rms(&check), rms(&apart))
+    };
+    let cell =
+        |v: Option<f64>, digits: usize| v.map_or("–".to_string(), |v| format!("{v:.digits$}"));
+    let mut s = String::from(
+        "\n## Height, per scene: check dH RMS over the epochs (GSD) · epoch − reference dH RMS \
+         over the later epochs (m)\n\n| scene |",
+    );
+    for m in &methods {
+        s.push_str(&format!(" {m} |"));
+    }
+    s.push_str(&format!("\n|---|{}\n", "---|".repeat(methods.len())));
+    for scene in &scenes {
+        s.push_str(&format!("| {scene} |"));
+        for m in &methods {
+            let (check, apart) = summary(scene, m);
+            s.push_str(&format!(" {} · {} |", cell(check, 2), cell(apart, 3)));
+        }
+        s.push('\n');
+    }
+    // The comparisons the papers make, scene by scene.
+    let mut compare =
+        |title: &str, a: &str, b: &str, pick: fn((Option<f64>, Option<f64>)) -> Option<f64>| {
+            if !(methods.contains(&a) && methods.contains(&b)) {
+                return;
+            }
+            let (mut yes, mut even, mut no) = (Vec::new(), Vec::new(), Vec::new());
+            for scene in &scenes {
+                if let (Some(x), Some(y)) = (pick(summary(scene, a)), pick(summary(scene, b))) {
+                    let entry = format!("{scene} ({x:.2} vs {y:.2})");
+                    // Within 10 % (or 0.01) is a tie: synthetic noise, not a finding.
+                    if (x - y).abs() <= (0.1 * x.max(y)).max(0.01) {
+                        even.push(entry);
+                    } else if x > y {
+                        yes.push(entry);
+                    } else {
+                        no.push(entry);
+                    }
+                }
+            }
+            let list = |v: &[String]| {
+                if v.is_empty() {
+                    "–".to_string()
+                } else {
+                    v.join(", ")
+                }
+            };
+            s.push_str(&format!(
+                "\n- {title}: on {} of {} scenes: {}; within 10 %: {}; the opposite: {}\n",
+                yes.len(),
+                yes.len() + even.len() + no.len(),
+                list(&yes),
+                list(&even),
+                list(&no),
+            ));
+        };
+    compare(
+        "`chunk` worse than `timesift` in height (check dH, GSD)",
+        "chunk",
+        "timesift",
+        |(check, _)| check,
+    );
+    compare(
+        "`timesift` disagrees more than `stp` between epochs in height (m)",
+        "timesift",
+        "stp",
+        |(_, apart)| apart,
+    );
+    compare(
+        "`independent` disagrees more than `timesift` between epochs in height (m)",
+        "independent",
+        "timesift",
+        |(_, apart)| apart,
+    );
     s
 }
