@@ -53,8 +53,10 @@ pub struct CameraConfig {
     /// Pixel size in millimetres: sensor pixel pitch, or the scan resolution of a film.
     #[serde(default)]
     pub pixel_mm: Option<f64>,
-    /// Let the bundle adjustment refine the given focal length. Default `false`: a calibrated
-    /// focal length is held, as a nadir block cannot tell it from the flying height.
+    /// Treat the given focal length as nominal, like an EXIF value: held during structure from
+    /// motion, then refined at georeferencing where the block determines it (relative σ under
+    /// 5 %). Default `false`: a calibrated focal length is held throughout, as a nadir block
+    /// cannot tell it from the flying height.
     #[serde(default)]
     pub adjust_focal: bool,
 }

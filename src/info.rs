@@ -249,9 +249,10 @@ impl InfoReport {
         let _ = writeln!(s, "\ncamera groups");
         for c in &self.camera_groups {
             let focal = match (c.focal_length_mm, c.focal_length_35mm, c.focal_length_px) {
-                _ if let Some(px) = c.calibrated_focal_px => {
-                    format!("f = {px:.1} px (calibrated, project.toml)")
-                }
+                _ if c.calibrated_focal_px.is_some() => format!(
+                    "f = {:.1} px (given in project.toml)",
+                    c.calibrated_focal_px.unwrap_or(0.0)
+                ),
                 (mm, eq, Some(px)) => {
                     let parts: Vec<String> = mm
                         .map(|v| format!("{v} mm"))

@@ -166,7 +166,7 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
          # name = {}      # camera group\n\
          # focal_mm = 152.06  # with pixel_mm; or focal_px = ...\n\
          # pixel_mm = 0.021\n\
-         # adjust_focal = false  # true: a starting value the bundle adjustment refines",
+         # adjust_focal = false  # true: nominal, refined where the georeferenced block determines it",
         toml_string(&epochs[0].0)
     );
 

@@ -158,8 +158,15 @@ fn camera_calibrations(
         };
         let focal_px = match (c.focal_px, c.focal_mm, c.pixel_mm) {
             (Some(px), None, None) => positive("focal_px", px)?,
-            (None, Some(mm), Some(pixel)) => {
-                positive("focal_mm", mm)? / positive("pixel_mm", pixel)?
+            (None, Some(mm), Some(pixel)) => positive(
+                "focal_mm",
+                positive("focal_mm", mm)? / positive("pixel_mm", pixel)?,
+            )?,
+            (Some(_), None, Some(_)) => {
+                return Err(error(
+                    "pixel_mm",
+                    "only with focal_mm (focal_px is already in pixels)".into(),
+                ));
             }
             (None, Some(_), None) => {
                 return Err(error(

@@ -33,7 +33,7 @@ impl FeatureFileMatcher {
                     .push(e.feature.index());
             }
         }
-        let mut dim = 0;
+        let mut dim = None;
         let mut table: BTreeMap<(usize, usize), Vec<f32>> = BTreeMap::new();
         for (image, features) in wanted {
             let path = self.features_dir.join(format!("{image}.feat"));
@@ -41,10 +41,22 @@ impl FeatureFileMatcher {
             for f in features {
                 let v = descriptor(&descriptors, f)
                     .ok_or_else(|| format!("{}: keypoint {f} has no descriptor", path.display()))?;
-                dim = v.len();
+                match dim {
+                    None => dim = Some(v.len()),
+                    Some(d) if d != v.len() => {
+                        return Err(format!(
+                            "{}: descriptors of {} values where others have {d} (features of \
+                             different methods in one project?)",
+                            path.display(),
+                            v.len()
+                        ));
+                    }
+                    Some(_) => {}
+                }
                 table.insert((image, f), v);
             }
         }
+        let dim = dim.ok_or_else(|| "no tie point to match".to_string())?;
         let tie_points = points
             .iter()
             .map(|p| TiePoint {

@@ -417,7 +417,10 @@ fn camera_calibration_is_checked_and_shown() {
     assert!((given("2019").as_f64().unwrap() - 4000.0).abs() < 1e-9);
     assert!(given("2018").is_null());
     let (ok, out, _) = timesift(&["info", d]);
-    assert!(ok && out.contains("f = 4000.0 px (calibrated"), "{out}");
+    assert!(
+        ok && out.contains("f = 4000.0 px (given in project.toml)"),
+        "{out}"
+    );
     for (camera, key, says) in [
         ("name = \"2020\"\nfocal_px = 900", "camera[0].name", "2020"),
         (

@@ -164,6 +164,9 @@ fn table(rows: &[Row]) -> String {
     s
 }
 
+/// (check dH RMS over the epochs in GSD, later epochs' dH disagreement RMS in m).
+type Summary = (Option<f64>, Option<f64>);
+
 /// The papers' questions answered from the rows, per scene: how high each strategy's check
 /// points are off (RMS of dH over the epochs, in GSD) and how far the later epochs disagree with
 /// the reference epoch in height (RMS of the epoch − reference dH over the later epochs, m).
@@ -183,7 +186,7 @@ fn findings(rows: &[Row]) -> String {
         (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
     };
     // (check dH RMS in GSD, later epochs' dH disagreement RMS in m) per scene and method.
-    let summary = |scene: &str, method: &str| -> (Option<f64>, Option<f64>) {
+    let summary = |scene: &str, method: &str| -> Summary {
         let epochs: Vec<&EpochAccuracy> = rows
             .iter()
             .filter(|r| r.scene == scene && r.method == method)
@@ -219,41 +222,40 @@ fn findings(rows: &[Row]) -> String {
         s.push('\n');
     }
     // The comparisons the papers make, scene by scene.
-    let mut compare =
-        |title: &str, a: &str, b: &str, pick: fn((Option<f64>, Option<f64>)) -> Option<f64>| {
-            if !(methods.contains(&a) && methods.contains(&b)) {
-                return;
-            }
-            let (mut yes, mut even, mut no) = (Vec::new(), Vec::new(), Vec::new());
-            for scene in &scenes {
-                if let (Some(x), Some(y)) = (pick(summary(scene, a)), pick(summary(scene, b))) {
-                    let entry = format!("{scene} ({x:.2} vs {y:.2})");
-                    // Within 10 % (or 0.01) is a tie: synthetic noise, not a finding.
-                    if (x - y).abs() <= (0.1 * x.max(y)).max(0.01) {
-                        even.push(entry);
-                    } else if x > y {
-                        yes.push(entry);
-                    } else {
-                        no.push(entry);
-                    }
-                }
-            }
-            let list = |v: &[String]| {
-                if v.is_empty() {
-                    "–".to_string()
+    let mut compare = |title: &str, a: &str, b: &str, pick: fn(Summary) -> Option<f64>| {
+        if !(methods.contains(&a) && methods.contains(&b)) {
+            return;
+        }
+        let (mut yes, mut even, mut no) = (Vec::new(), Vec::new(), Vec::new());
+        for scene in &scenes {
+            if let (Some(x), Some(y)) = (pick(summary(scene, a)), pick(summary(scene, b))) {
+                let entry = format!("{scene} ({x:.2} vs {y:.2})");
+                // Within 10 % (or 0.01) is a tie: synthetic noise, not a finding.
+                if (x - y).abs() <= (0.1 * x.max(y)).max(0.01) {
+                    even.push(entry);
+                } else if x > y {
+                    yes.push(entry);
                 } else {
-                    v.join(", ")
+                    no.push(entry);
                 }
-            };
-            s.push_str(&format!(
-                "\n- {title}: on {} of {} scenes: {}; within 10 %: {}; the opposite: {}\n",
-                yes.len(),
-                yes.len() + even.len() + no.len(),
-                list(&yes),
-                list(&even),
-                list(&no),
-            ));
+            }
+        }
+        let list = |v: &[String]| {
+            if v.is_empty() {
+                "–".to_string()
+            } else {
+                v.join(", ")
+            }
         };
+        s.push_str(&format!(
+            "\n- {title}: on {} of {} scenes: {}; within 10 %: {}; the opposite: {}\n",
+            yes.len(),
+            yes.len() + even.len() + no.len(),
+            list(&yes),
+            list(&even),
+            list(&no),
+        ));
+    };
     compare(
         "`chunk` worse than `timesift` in height (check dH, GSD)",
         "chunk",

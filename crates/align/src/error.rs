@@ -29,6 +29,9 @@ pub enum AlignError {
     /// Georeferencing is impossible with the given priors.
     #[error("cannot georeference: {0}")]
     Georeferencing(String),
+    /// The descriptor matching of stable tie points failed.
+    #[error("stable tie-point matching: {0}")]
+    StableMatching(String),
     /// A strategy failed on one epoch.
     #[error("epoch \"{epoch}\": {source}")]
     Epoch {

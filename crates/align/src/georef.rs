@@ -299,7 +299,9 @@ pub fn georeference(
             *fixed = calibrated(g);
         }
         let before = state.rec.cameras.clone();
-        for round in 0..2 {
+        // Round 0 settles the focal lengths, round 1 (a consistent block again) measures its
+        // noise and drops the outliers beyond it, round 2 adjusts without them.
+        for round in 0..3 {
             let marked = marked_points(input, &state.rec, geo);
             let points = state.live_points();
             let adjusted = state.adjust(&Adjustment {
@@ -314,6 +316,13 @@ pub fn georeference(
                 precision: round == 0,
             })?;
             tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
+            if round == 1 {
+                let bound = state.tighten_to_noise();
+                tracing::info!(
+                    bound_px = bound,
+                    "observation outlier bound from the block's noise"
+                );
+            }
             if round == 0 {
                 for g in (0..groups).filter(|&g| nominal(g)) {
                     let relative = focal_relative_std(
@@ -327,13 +336,6 @@ pub fn georeference(
                         restore_focal(&mut state.rec.cameras[g], &before[g]);
                     }
                 }
-            }
-            if round == 0 {
-                let bound = state.tighten_to_noise();
-                tracing::info!(
-                    bound_px = bound,
-                    "observation outlier bound from the block's noise"
-                );
             }
             state.filter_points(&points);
             state.complete_all_tracks();

@@ -30,6 +30,24 @@ pub(crate) struct Separated {
     pub components: Vec<Reconstruction>,
     /// Epoch groups split off their points, over both passes.
     pub split: usize,
+    /// For each track appended to `input.tracks` (index `first_new + k`), the caller's track it
+    /// was split from.
+    origin: Vec<usize>,
+    /// Number of the caller's tracks.
+    first_new: usize,
+}
+
+impl Separated {
+    /// Points back onto the caller's tracks: a point of a split-off track names the track it
+    /// came from (whose elements include its observations), so the reconstruction is consistent
+    /// with the caller's input. Two points may then name one track.
+    pub fn restore_track_ids(&self, rec: &mut Reconstruction) {
+        for p in &mut rec.points {
+            if p.track >= self.first_new {
+                p.track = self.origin[p.track - self.first_new];
+            }
+        }
+    }
 }
 
 /// Splits the tie points whose epochs disagree, in two passes with a global adjustment of
@@ -42,10 +60,24 @@ pub(crate) fn separate_moved_points(
     reference: usize,
     options: &SfmOptions,
 ) -> Result<Separated, AlignError> {
+    let first_new = input.tracks.len();
     let mut input = input.clone();
+    let mut origin = Vec::new();
     let mut split = 0;
-    for pass in 0..2 {
-        let n = split_pass(&mut input, &mut components, epoch_of, reference, options);
+    let passes = if options.moved_point_factor.is_finite() {
+        2
+    } else {
+        0
+    };
+    for pass in 0..passes {
+        let n = split_pass(
+            &mut input,
+            &mut components,
+            epoch_of,
+            reference,
+            options,
+            &mut origin,
+        );
         split += n;
         tracing::info!(
             pass,
@@ -69,17 +101,29 @@ pub(crate) fn separate_moved_points(
         input,
         components,
         split,
+        origin,
+        first_new,
     })
 }
 
-/// One pass over every component; returns the number of epoch groups split off.
+/// One pass over every component; returns the number of epoch groups split off. `origin`
+/// receives, for each track appended, the track of the caller's input it comes from.
 fn split_pass(
     input: &mut SfmInput,
     components: &mut [Reconstruction],
     epoch_of: &[usize],
     reference: usize,
     options: &SfmOptions,
+    origin: &mut Vec<usize>,
 ) -> usize {
+    let first_new = input.tracks.len() - origin.len();
+    let original = |t: usize| {
+        if t >= first_new {
+            origin[t - first_new]
+        } else {
+            t
+        }
+    };
     // A track with points in two components is left alone: its elements are shared.
     let mut uses = vec![0u8; input.tracks.len()];
     for rec in components.iter() {
@@ -89,6 +133,7 @@ fn split_pass(
     }
     let track_of = track_table(input);
     let mut new_tracks: Vec<Track> = Vec::new();
+    let mut new_origin: Vec<usize> = Vec::new();
     let mut removed: Vec<(usize, usize)> = Vec::new(); // (track, epoch) moved to a new track
     let mut split = 0;
     for rec in components.iter_mut() {
@@ -142,6 +187,7 @@ fn split_pass(
                 }
                 let track = input.tracks.len() + new_tracks.len();
                 new_tracks.push(Track { elements });
+                new_origin.push(original(point.track));
                 let position = (observations.len() >= 2)
                     .then(|| state.triangulate_elements(observations, &mut views))
                     .flatten()
@@ -156,6 +202,10 @@ fn split_pass(
                     });
                 }
             }
+            // A point left with one observation is no point (`compact` drops it).
+            if point.observations.len() < 2 {
+                point.observations.clear();
+            }
         }
         rec.points.extend(new_points);
     }
@@ -165,6 +215,7 @@ fn split_pass(
             .retain(|e| epoch_of[e.image.index()] != epoch);
     }
     input.tracks.extend(new_tracks);
+    origin.extend(new_origin);
     split
 }
 

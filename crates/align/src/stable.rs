@@ -13,7 +13,7 @@ use nalgebra::Vector3;
 use timesift_core::TrackElement;
 
 use crate::AlignError;
-use crate::georef::{GeoreferenceInput, Georeferenced, GroundPoint, Marker, georeference};
+use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker, georeference};
 use crate::model::{Reconstruction, SfmInput};
 use crate::options::SfmOptions;
 use crate::reconstruct;
@@ -129,13 +129,21 @@ impl StableTiePoints<'_> {
         options: &SfmOptions,
     ) -> Result<Georeferenced, AlignError> {
         let components = reconstruct(sub, options)?;
-        let (rough, radius) = if ground.centre_priors.len() >= 3 {
-            let priors_only = GeoreferenceInput {
-                centre_priors: ground.centre_priors.clone(),
-                points: Vec::new(),
-                marker_sigma_px: ground.marker_sigma_px,
-            };
-            let placed = georeference(sub, components, &priors_only, options)?;
+        let priors_only = GeoreferenceInput {
+            centre_priors: ground.centre_priors.clone(),
+            points: Vec::new(),
+            marker_sigma_px: ground.marker_sigma_px,
+        };
+        // Placed by the priors when they place it (three or more, not all rejected).
+        let by_priors = if ground.centre_priors.len() >= 3 {
+            let placed = georeference(sub, components.clone(), &priors_only, options)?;
+            (placed.datum != Datum::Local).then_some(placed)
+        } else {
+            None
+        };
+        let dropped;
+        let (rough, radius) = if let Some(placed) = by_priors {
+            dropped = placed.dropped_components;
             // Priors claim their accuracy; the placement of a whole block is off by about
             // their common bias, which the stated σ covers.
             let sigma = ground
@@ -145,6 +153,9 @@ impl StableTiePoints<'_> {
                 .fold(0.0, f64::max);
             (placed.reconstruction, 3.0 * sigma + 5.0 * ground_px)
         } else {
+            // Without placing priors only the largest component can be placed, by the tracks
+            // it shares with the reference epoch.
+            dropped = components.len().saturating_sub(1);
             let mut rec = components
                 .into_iter()
                 .next()
@@ -165,7 +176,7 @@ impl StableTiePoints<'_> {
         let pairs = self
             .matcher
             .stable_pairs(offered_reference, &offered, &search)
-            .map_err(AlignError::Georeferencing)?;
+            .map_err(AlignError::StableMatching)?;
         tracing::info!(
             pairs = pairs.len(),
             radius,
@@ -211,9 +222,11 @@ impl StableTiePoints<'_> {
             });
         }
         let mut placed = georeference(sub, vec![rough], &controlled, options)?;
-        placed
-            .residuals
-            .retain(|p| !p.name.starts_with("stable tie point"));
+        // The report is about the user's control and check points.
+        let user: std::collections::HashSet<&str> =
+            ground.points.iter().map(|p| p.name.as_str()).collect();
+        placed.residuals.retain(|p| user.contains(p.name.as_str()));
+        placed.dropped_components += dropped;
         Ok(placed)
     }
 }

@@ -319,7 +319,8 @@ impl<'a> State<'a> {
             let (_, median, _) = errors.select_nth_unstable_by(mid, f64::total_cmp);
             let sigma = *median / 1.1774;
             self.max_error_px = (OUTLIER_SIGMAS * sigma)
-                .clamp(MIN_OUTLIER_BOUND_PX, self.options.max_reprojection_px);
+                .max(MIN_OUTLIER_BOUND_PX)
+                .min(self.options.max_reprojection_px);
         }
         self.max_error_px
     }

@@ -78,20 +78,17 @@ impl Strategy for SingleBlock {
     }
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
         let components = reconstruct(&block.sfm, options)?;
-        let separated = separate_moved_points(
+        let mut separated = separate_moved_points(
             &block.sfm,
             components,
             &block.epoch_of,
             block.reference,
             options,
         )?;
-        let mut placed = georeference(
-            &separated.input,
-            separated.components,
-            &block.ground,
-            options,
-        )?;
+        let components = std::mem::take(&mut separated.components);
+        let mut placed = georeference(&separated.input, components, &block.ground, options)?;
         placed.moved_ties_split = separated.split;
+        separated.restore_track_ids(&mut placed.reconstruction);
         Ok(placed)
     }
 }
@@ -219,14 +216,12 @@ impl Strategy for ProgressiveMerge {
             tracing::debug!(epoch = e, points = state.rec.points.len(), "epoch merged");
             merged = state.rec;
         }
-        let separated = separate_moved_points(input, vec![merged], &block.epoch_of, r, options)?;
-        let mut placed = georeference(
-            &separated.input,
-            separated.components,
-            &block.ground,
-            options,
-        )?;
+        let mut separated =
+            separate_moved_points(input, vec![merged], &block.epoch_of, r, options)?;
+        let components = std::mem::take(&mut separated.components);
+        let mut placed = georeference(&separated.input, components, &block.ground, options)?;
         placed.moved_ties_split = separated.split;
+        separated.restore_track_ids(&mut placed.reconstruction);
         Ok(placed)
     }
 }

@@ -546,6 +546,12 @@ fn tie_points_on_a_moved_surface_stop_tying_the_epochs() {
         "the moved surface must tie the epochs at first"
     );
     assert!(on * 20 <= on_before, "{on} of {on_before} moved ties left");
+    assert_eq!(strained.moved_ties_split, 0);
+    assert!(
+        relaxed.moved_ties_split >= on_before,
+        "{}",
+        relaxed.moved_ties_split
+    );
     assert!(
         off * 10 >= off_before * 9,
         "{off} of {off_before} stable ties left"
