@@ -504,6 +504,7 @@ fn report(
         "rms_reprojection_px": block.rms_px,
         "tie_points": rec.points.len(),
         "inter_epoch_ties_split_as_moved": block.moved_ties_split,
+        "observation_bound_px": block.observation_bound_px,
         "components_dropped": block.dropped_components,
         "gnss_priors_rejected": block.rejected_priors,
         "focal_length_held": block.focal_held,

@@ -54,6 +54,10 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
     let centre_rmse = (centre_sq / n).sqrt();
     println!("GSD {gsd:.4} m, camera centre RMSE {centre_rmse:.4} m");
     check_epochs(&report, gsd);
+    // The outlier bound comes from the block's noise: within [0.5, 4] px by construction, and
+    // 4 σ of an RMS within 0.5 px is under 2 px.
+    let bound = report["observation_bound_px"].as_f64().unwrap();
+    assert!((0.5..2.0).contains(&bound), "observation bound {bound} px");
     for (name, epoch) in report["epochs"].as_object().unwrap() {
         assert!(
             epoch["inter_epoch_tie_points"].as_u64().unwrap() > 100,

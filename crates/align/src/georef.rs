@@ -103,6 +103,10 @@ pub struct Georeferenced {
     /// Inter-epoch tie points split by epoch because a surface moved between the epochs
     /// (strategies that orient epochs together; 0 otherwise).
     pub moved_ties_split: usize,
+    /// Largest reprojection error of a kept observation in the final adjustment, pixels: 4 σ of
+    /// the block's own noise, at most the options' threshold; the largest over the parts of a
+    /// strategy that georeferences epochs apart. `None` when nothing was georeferenced.
+    pub observation_bound_px: Option<f64>,
 }
 
 /// Pairs (block position, world position, threshold) of one component.
@@ -290,6 +294,7 @@ pub fn georeference(
     let calibrated = |g: usize| input.focal_source(g) == FocalSource::Calibrated;
     let nominal = |g: usize| input.focal_source(g) == FocalSource::Nominal;
     let mut focal_fixed: Vec<bool> = input.focal_held_during_sfm();
+    let mut bound = None;
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
         // First adjustment: every focal length but the calibrated ones free, with its
@@ -341,6 +346,7 @@ pub fn georeference(
             state.complete_all_tracks();
             state.compact();
         }
+        bound = Some(state.max_error_px);
         merged = state.rec;
     }
     let residuals = if datum == Datum::Local {
@@ -358,6 +364,7 @@ pub fn georeference(
         rms_px,
         focal_held: focal_fixed,
         moved_ties_split: 0,
+        observation_bound_px: bound,
     })
 }
 

@@ -160,6 +160,7 @@ impl Strategy for ChunkAlignment {
                 residuals: Vec::new(),
                 focal_held: sub.focal_held_during_sfm(),
                 moved_ties_split: 0,
+                observation_bound_px: None,
             });
         }
         Ok(merge(&block.sfm, parts))
@@ -412,7 +413,12 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
     let mut dropped = 0;
     let mut rejected = 0;
     let mut focal_held = vec![false; input.cameras.len()];
+    let mut bound: Option<f64> = None;
     for part in parts {
+        bound = match (bound, part.observation_bound_px) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        };
         let r = part.reconstruction;
         for g in adopt_oriented(&mut merged, &r, input) {
             focal_held[g] = part.focal_held.get(g).copied().unwrap_or(false);
@@ -434,5 +440,6 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
         rms_px,
         focal_held,
         moved_ties_split: 0,
+        observation_bound_px: bound,
     }
 }
