@@ -4,7 +4,7 @@
 //! `CONTRAST` (detector contrast threshold, default 0.02), `EUCLIDEAN` (ratio on distances
 //! instead of angles), `UNCALIBRATED` (fundamental instead of essential with EXIF focal),
 //! `ITERATIONS` (RANSAC cap), `BUDGET` (keypoints per image, default 8192), `NOMUTUAL` (no
-//! mutual check).
+//! mutual check), `PAIRS` (print every pair's matches and inliers).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -110,6 +110,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         })
         .collect::<Result<Vec<_>, _>>()?;
     let verification = start.elapsed().as_secs_f64();
+    if std::env::var("PAIRS").is_ok() {
+        // One line per pair: image numbers (1-based, as COLMAP's image ids in name order),
+        // descriptor matches, verified inliers (0 when not verified).
+        for ((&(a, b), m), v) in pairs.iter().zip(&matches).zip(&verified) {
+            println!(
+                "pair {} {} {} {}",
+                a + 1,
+                b + 1,
+                m.len(),
+                v.as_ref().map_or(0, |v| v.inliers.len())
+            );
+        }
+    }
     let mut inliers: Vec<usize> = verified.iter().flatten().map(|v| v.inliers.len()).collect();
     inliers.sort_unstable();
     println!(
