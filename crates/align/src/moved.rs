@@ -237,19 +237,10 @@ fn by_epoch(
 /// The miss that marks a moved point: `moved_point_factor` times the component's median
 /// reprojection error, at least [`MIN_MISS_PX`], at most the observation threshold.
 fn miss_threshold(state: &State<'_>, options: &SfmOptions) -> f64 {
-    let mut errors: Vec<f64> = state
-        .rec
-        .points
-        .iter()
-        .flat_map(|p| p.observations.iter().map(|e| state.error(&p.position, e)))
-        .filter(|e| e.is_finite())
-        .collect();
-    if errors.is_empty() {
-        return options.max_reprojection_px;
+    match state.median_error() {
+        None => options.max_reprojection_px,
+        Some((median, _)) => (options.moved_point_factor * median)
+            .max(MIN_MISS_PX)
+            .min(options.max_reprojection_px),
     }
-    let mid = errors.len() / 2;
-    let (_, median, _) = errors.select_nth_unstable_by(mid, f64::total_cmp);
-    (options.moved_point_factor * *median)
-        .max(MIN_MISS_PX)
-        .min(options.max_reprojection_px)
 }

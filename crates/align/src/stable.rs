@@ -18,8 +18,8 @@ use crate::model::{Reconstruction, SfmInput};
 use crate::options::SfmOptions;
 use crate::reconstruct;
 use crate::strategy::{
-    Block, Strategy, fit_similarity, in_epoch, median_ground_pixel, merge, point_index, restrict,
-    restrict_ground, shared_points,
+    Block, Strategy, fit_similarity, in_epoch, median_ground_pixel, merge, orient_reference,
+    point_index, restrict, restrict_ground, shared_points,
 };
 
 /// A tie point offered for matching: its position (the reference epoch's world frame, or the
@@ -83,13 +83,7 @@ impl Strategy for StableTiePoints<'_> {
 
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
         let r = block.reference;
-        let keep_ref = |i: usize| block.epoch_of[i] == r;
-        let sub = restrict(&block.sfm, &keep_ref);
-        let reference = reconstruct(&sub, options)
-            .and_then(|c| {
-                georeference(&sub, c, &restrict_ground(&block.ground, &keep_ref), options)
-            })
-            .map_err(|source| in_epoch(block, r, source))?;
+        let reference = orient_reference(block, options)?;
         let ground_px = median_ground_pixel(&reference.reconstruction);
         let offered_reference = offer(&reference.reconstruction);
         let mut parts = vec![reference.clone()];

@@ -307,6 +307,18 @@ impl<'a> State<'a> {
     /// threshold let through (grain matched to grain, a moving shadow edge). σ is estimated
     /// robustly from the median error norm (Rayleigh: median = 1.1774 σ). Returns the threshold.
     pub fn tighten_to_noise(&mut self) -> f64 {
+        if let Some((median, MIN_OBSERVATIONS_FOR_NOISE..)) = self.median_error() {
+            let sigma = median / 1.1774;
+            self.max_error_px = (OUTLIER_SIGMAS * sigma)
+                .max(MIN_OUTLIER_BOUND_PX)
+                .min(self.options.max_reprojection_px);
+        }
+        self.max_error_px
+    }
+
+    /// Median reprojection error of the points' observations, pixels, and how many finite
+    /// errors it is taken over; `None` without any.
+    pub fn median_error(&self) -> Option<(f64, usize)> {
         let mut errors: Vec<f64> = self
             .rec
             .points
@@ -314,15 +326,12 @@ impl<'a> State<'a> {
             .flat_map(|p| p.observations.iter().map(|e| self.error(&p.position, e)))
             .filter(|e| e.is_finite())
             .collect();
-        if errors.len() >= MIN_OBSERVATIONS_FOR_NOISE {
-            let mid = errors.len() / 2;
-            let (_, median, _) = errors.select_nth_unstable_by(mid, f64::total_cmp);
-            let sigma = *median / 1.1774;
-            self.max_error_px = (OUTLIER_SIGMAS * sigma)
-                .max(MIN_OUTLIER_BOUND_PX)
-                .min(self.options.max_reprojection_px);
+        if errors.is_empty() {
+            return None;
         }
-        self.max_error_px
+        let mid = errors.len() / 2;
+        let (_, median, _) = errors.select_nth_unstable_by(mid, f64::total_cmp);
+        Some((*median, errors.len()))
     }
 
     /// Oriented images.

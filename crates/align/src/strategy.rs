@@ -124,13 +124,7 @@ impl Strategy for ChunkAlignment {
     }
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
         let r = block.reference;
-        let keep_ref = |i: usize| block.epoch_of[i] == r;
-        let sub = restrict(&block.sfm, &keep_ref);
-        let reference = reconstruct(&sub, options)
-            .and_then(|c| {
-                georeference(&sub, c, &restrict_ground(&block.ground, &keep_ref), options)
-            })
-            .map_err(|source| in_epoch(block, r, source))?;
+        let reference = orient_reference(block, options)?;
         let reference_points = point_index(&reference.reconstruction);
         let mut parts = vec![reference.clone()];
         for e in (0..block.epoch_names.len()).filter(|&e| e != r) {
@@ -225,6 +219,19 @@ impl Strategy for ProgressiveMerge {
         separated.restore_track_ids(&mut placed.reconstruction);
         Ok(placed)
     }
+}
+
+/// The reference epoch reconstructed and georeferenced alone, with its own priors and markers.
+pub(crate) fn orient_reference(
+    block: &Block,
+    options: &SfmOptions,
+) -> Result<Georeferenced, AlignError> {
+    let r = block.reference;
+    let keep = |i: usize| block.epoch_of[i] == r;
+    let sub = restrict(&block.sfm, &keep);
+    reconstruct(&sub, options)
+        .and_then(|c| georeference(&sub, c, &restrict_ground(&block.ground, &keep), options))
+        .map_err(|source| in_epoch(block, r, source))
 }
 
 pub(crate) fn in_epoch(block: &Block, e: usize, source: AlignError) -> AlignError {
