@@ -1,5 +1,5 @@
 //! The `features` and `match` stages of `timesift run`: keypoints and descriptors per image, then
-//! epoch-aware pairs, matching, verification and tracks, written under `work/` of the project so
+//! epoch-aware pairs, matching, verification, guided matching and tracks, written under `work/` of the project so
 //! that a run resumes where it stopped and memory holds one image's features per thread while
 //! extracting.
 //!
@@ -16,6 +16,7 @@ use timesift_features::{
     DetectorOptions, FeatureExtractor, KeypointLimit, LdbExtractor, SiftExtractor,
     SiftNormalization,
 };
+use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{PairPolicy, epoch_aware};
 use timesift_matching::storage::{read_features, read_matches, write_features, write_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
@@ -129,6 +130,7 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
         ..MatchOptions::default()
     };
     let verify = VerifyOptions::default();
+    let guided = GuidedOptions::default();
     let results: Vec<Result<Vec<timesift_matching::Match>, String>> = pairs
         .par_iter()
         .map(|&(a, b)| {
@@ -139,10 +141,12 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
             let (ka, da) = &features[a];
             let (kb, db) = &features[b];
             let putative = match_descriptors(da, db, &options).map_err(|e| e.to_string())?;
-            let inliers = verify_pair(ka, kb, &putative, None, &verify)
-                .map_err(|e| e.to_string())?
-                .map(|v| v.inliers)
-                .unwrap_or_default();
+            let inliers =
+                match verify_pair(ka, kb, &putative, None, &verify).map_err(|e| e.to_string())? {
+                    Some(verified) => grow_verified(ka, da, kb, db, &verified, &guided)
+                        .map_err(|e| e.to_string())?,
+                    None => Vec::new(),
+                };
             write_matches(&path, &inliers).map_err(|e| e.to_string())?;
             Ok(inliers)
         })

@@ -41,6 +41,11 @@ pub enum Scoring {
     /// loss `2u − u²` with `u = min(r / max_error, 1)`. No sharp threshold: `max_error` only needs
     /// to be a generous upper bound.
     Marginalized,
+    /// Most inliers within `max_error`; among models with as many, the smallest sum of squared
+    /// inlier residuals (COLMAP's support measure). Where a decision hangs on an inlier count
+    /// (a pair verified with at least 15), this is the score that decides it: MSAC may prefer
+    /// 14 tight inliers to 15 looser ones.
+    InlierCount,
 }
 
 /// Options of [`ransac`].
@@ -54,6 +59,11 @@ pub struct RansacOptions {
     pub min_iterations: usize,
     /// Most iterations.
     pub max_iterations: usize,
+    /// Adaptive termination starts only once the best model has this many inliers; below, the
+    /// search runs to `max_iterations`. For decisions that hinge on reaching a count (a pair is
+    /// verified with 15 inliers): the confidence bound assumes the best model's inlier ratio is
+    /// the true one, which is pessimistic exactly when the best is still short of the count.
+    pub min_support: usize,
     /// Scoring function.
     pub scoring: Scoring,
     /// Local optimisation steps after each new best model (0 disables LO).
@@ -69,6 +79,7 @@ impl Default for RansacOptions {
             confidence: 0.9999,
             min_iterations: 10,
             max_iterations: 10_000,
+            min_support: 0,
             scoring: Scoring::Msac,
             local_optimization_steps: 10,
             seed: 0x7153,
@@ -113,6 +124,9 @@ struct Scorer {
     threshold_sq: f64,
     threshold: f64,
     scoring: Scoring,
+    /// Number of data, for [`Scoring::InlierCount`]: an inlier's loss is its squared residual
+    /// over `threshold_sq · (n + 1)`, so all inliers together weigh less than one outlier.
+    num_data: usize,
 }
 
 impl Scorer {
@@ -123,6 +137,13 @@ impl Scorer {
                 let u = (r2.sqrt() / self.threshold).min(1.0);
                 2.0 * u - u * u
             }
+            Scoring::InlierCount => {
+                if r2 <= self.threshold_sq {
+                    r2 / (self.threshold_sq * (self.num_data + 1) as f64)
+                } else {
+                    1.0
+                }
+            }
         }
     }
 
@@ -132,7 +153,7 @@ impl Scorer {
     /// marginalised loss's own weight otherwise).
     fn weight(&self, r2: f64) -> f64 {
         match self.scoring {
-            Scoring::Msac => 1.0 - (r2 / self.threshold_sq).min(1.0),
+            Scoring::Msac | Scoring::InlierCount => 1.0 - (r2 / self.threshold_sq).min(1.0),
             Scoring::Marginalized => 1.0 - (r2.sqrt() / self.threshold).min(1.0),
         }
     }
@@ -194,6 +215,7 @@ pub fn ransac<E: Estimator>(
         threshold_sq: options.max_error * options.max_error,
         threshold: options.max_error,
         scoring: options.scoring,
+        num_data: n,
     };
     let mut rng = SeededRng::new(options.seed);
     let mut sample = vec![0usize; m];
@@ -216,8 +238,10 @@ pub fn ransac<E: Estimator>(
                 let (model, loss, count) =
                     local_optimization(est, &scorer, options, &mut rng, model, loss, count);
                 best = Some((model, loss, count));
-                needed = required_iterations(count as f64 / n as f64, m, options.confidence)
-                    .min(options.max_iterations);
+                if count >= options.min_support {
+                    needed = required_iterations(count as f64 / n as f64, m, options.confidence)
+                        .min(options.max_iterations);
+                }
             }
         }
     }
@@ -362,6 +386,63 @@ mod tests {
         }
     }
 
+    /// 14 points exactly on y = 0 and 15 within ±0.45 of y = 10 + x / 2 (x in 0..14): with
+    /// threshold 1, MSAC prefers the first line (loss 15 against 15 · 0.45² + 14), the inlier
+    /// count the second.
+    fn tight_few_and_loose_many() -> Vec<(f64, f64)> {
+        let mut pts: Vec<(f64, f64)> = (0..14).map(|i| (i as f64, 0.0)).collect();
+        pts.extend((0..15).map(|i| {
+            let x = i as f64 * 14.0 / 15.0;
+            (x, 10.0 + 0.5 * x + if i % 2 == 0 { 0.45 } else { -0.45 })
+        }));
+        pts
+    }
+
+    #[test]
+    fn inlier_count_scoring_prefers_more_inliers_to_tighter_ones() {
+        let pts = tight_few_and_loose_many();
+        let run = |scoring| {
+            ransac(
+                &Line { pts: &pts },
+                &RansacOptions {
+                    max_error: 1.0,
+                    scoring,
+                    min_iterations: 500,
+                    ..Default::default()
+                },
+            )
+            .unwrap()
+        };
+        let msac = run(Scoring::Msac);
+        assert_eq!(msac.num_inliers, 14);
+        assert!(msac.model.0.abs() < 1e-9 && msac.model.1.abs() < 1e-9);
+        let count = run(Scoring::InlierCount);
+        assert_eq!(count.num_inliers, 15);
+        assert!((count.model.0 - 0.5).abs() < 0.1 && (count.model.1 - 10.0).abs() < 0.5);
+        assert!(count.inliers[14..].iter().all(|&b| b));
+    }
+
+    #[test]
+    fn the_search_runs_its_whole_budget_while_short_of_min_support() {
+        let pts = tight_few_and_loose_many();
+        let run = |min_support| {
+            ransac(
+                &Line { pts: &pts },
+                &RansacOptions {
+                    max_error: 1.0,
+                    max_iterations: 3000,
+                    min_support,
+                    ..Default::default()
+                },
+            )
+            .unwrap()
+        };
+        // 14 of 29 inliers: the confidence bound stops after ~40 samples of two.
+        assert!(run(0).iterations < 100, "{}", run(0).iterations);
+        assert_eq!(run(30).iterations, 3000);
+        assert!(run(10).iterations < 100);
+    }
+
     #[test]
     fn line_with_half_outliers_is_found_and_iterations_adapt() {
         let mut rng = SeededRng::new(3);
@@ -375,7 +456,7 @@ mod tests {
                 }
             })
             .collect();
-        for scoring in [Scoring::Msac, Scoring::Marginalized] {
+        for scoring in [Scoring::Msac, Scoring::Marginalized, Scoring::InlierCount] {
             let r = ransac(
                 &Line { pts: &pts },
                 &RansacOptions {

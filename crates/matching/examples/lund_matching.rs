@@ -4,7 +4,8 @@
 //! `CONTRAST` (detector contrast threshold, default 0.02), `EUCLIDEAN` (ratio on distances
 //! instead of angles), `UNCALIBRATED` (fundamental instead of essential with EXIF focal),
 //! `ITERATIONS` (RANSAC cap), `BUDGET` (keypoints per image, default 8192), `NOMUTUAL` (no
-//! mutual check), `PAIRS` (print every pair's matches and inliers).
+//! mutual check), `PAIRS` (print every pair's matches and inliers), `UNGUIDED` (no guided
+//! matching after verification).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -14,6 +15,7 @@ use timesift_core::{CameraModel, PinholeCamera};
 use timesift_features::{
     DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
 };
+use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{PairPolicy, select};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
@@ -94,9 +96,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }
                 _ => None,
             };
-            verify_pair(
-                &features[a].keypoints,
-                &features[b].keypoints,
+            let (ka, da) = (&features[a].keypoints, &features[a].descriptors);
+            let (kb, db) = (&features[b].keypoints, &features[b].descriptors);
+            let verified = verify_pair(
+                ka,
+                kb,
                 m,
                 pair_cameras,
                 &VerifyOptions {
@@ -106,9 +110,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         .unwrap_or(10_000),
                     ..VerifyOptions::default()
                 },
-            )
+            )?;
+            match verified {
+                Some(v) if std::env::var("UNGUIDED").is_err() => Ok(Some(grow_verified(
+                    ka,
+                    da,
+                    kb,
+                    db,
+                    &v,
+                    &GuidedOptions::default(),
+                )?)),
+                v => Ok(v.map(|v| v.inliers)),
+            }
         })
-        .collect::<Result<Vec<_>, _>>()?;
+        .collect::<Result<Vec<_>, timesift_matching::MatchingError>>()?;
     let verification = start.elapsed().as_secs_f64();
     if std::env::var("PAIRS").is_ok() {
         // One line per pair: image numbers (1-based, as COLMAP's image ids in name order),
@@ -119,11 +134,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 a + 1,
                 b + 1,
                 m.len(),
-                v.as_ref().map_or(0, |v| v.inliers.len())
+                v.as_ref().map_or(0, Vec::len)
             );
         }
     }
-    let mut inliers: Vec<usize> = verified.iter().flatten().map(|v| v.inliers.len()).collect();
+    let mut inliers: Vec<usize> = verified.iter().flatten().map(Vec::len).collect();
     inliers.sort_unstable();
     println!(
         "calibrated: {} of {n} images have an EXIF focal length",

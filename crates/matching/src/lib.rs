@@ -3,7 +3,8 @@
 //!
 //! Map: [`matcher`] (nearest neighbours of float descriptors by blocked matrix products, binary
 //! ones by popcount; ratio test, mutual check, maximum distance), [`verify`] (fundamental,
-//! essential and homography RANSAC from `timesift-geometry`, two-view type), [`pairs`] (which
+//! essential and homography RANSAC from `timesift-geometry`, two-view type), [`guided`] (more
+//! matches for a verified pair, searched along its epipolar lines), [`pairs`] (which
 //! image pairs to match: exhaustive, sequential, spatial, epoch-aware), [`tracks`]
 //! (conflict-free union-find over verified matches, statistics per epoch pair), [`storage`]
 //! (versioned binary feature and match files with checksums), [`stp`] (stable tie points between
@@ -14,6 +15,7 @@
 //! thread count.
 
 mod error;
+pub mod guided;
 pub mod matcher;
 pub mod pairs;
 pub mod storage;

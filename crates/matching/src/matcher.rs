@@ -67,21 +67,21 @@ impl Default for MatchOptions {
 
 /// The two nearest neighbours found so far: (distance, index) pairs, best first.
 #[derive(Debug, Clone, Copy)]
-struct Nearest {
-    best: f32,
-    second: f32,
-    index: u32,
+pub(crate) struct Nearest {
+    pub(crate) best: f32,
+    pub(crate) second: f32,
+    pub(crate) index: u32,
 }
 
 impl Nearest {
-    const EMPTY: Nearest = Nearest {
+    pub(crate) const EMPTY: Nearest = Nearest {
         best: f32::INFINITY,
         second: f32::INFINITY,
         index: u32::MAX,
     };
 
     #[inline]
-    fn offer(&mut self, distance: f32, index: u32) {
+    pub(crate) fn offer(&mut self, distance: f32, index: u32) {
         if distance < self.best {
             self.second = self.best;
             self.best = distance;
@@ -114,7 +114,7 @@ impl Nearest {
         }
     }
 
-    fn passes(&self, options: &MatchOptions, angles: bool) -> bool {
+    pub(crate) fn passes(&self, options: &MatchOptions, angles: bool) -> bool {
         // Chord of unit vectors → angle.
         let angle = |d: f32| 2.0 * (0.5 * d).min(1.0).asin();
         let (best, second) = if angles {
@@ -395,7 +395,7 @@ fn to_words(data: &[u8], bytes: usize) -> Vec<u64> {
     out
 }
 
-fn describe(d: &Descriptors) -> String {
+pub(crate) fn describe(d: &Descriptors) -> String {
     match d {
         Descriptors::Float { dim, .. } => format!("{dim}-D float"),
         Descriptors::Binary { bytes, .. } => format!("{bytes}-byte binary"),

@@ -2,7 +2,7 @@
 //! with a moving block): features, epoch-aware pairs, matching and verification. Every pair of
 //! consecutive epochs gets verified inter-epoch matches, and the verified matches are right: the
 //! point triangulated from the true cameras reprojects within 2 px in both images for at least
-//! 99 % of them. (Matches on the block that moved between epochs are true correspondences but
+//! 99 % of them, after guided matching as before it. (Matches on the block that moved between epochs are true correspondences but
 //! count as wrong here: the static cameras cannot explain them.)
 
 mod common;
@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use timesift_core::{CameraModel, EpochId, project_world};
 use timesift_features::FeatureExtractor;
 use timesift_geometry::triangulation::triangulate_two_view_midpoint;
+use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{PairPolicy, epoch_aware};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
@@ -67,25 +68,35 @@ fn inter_epoch_matches_exist_and_are_right() {
         ratio_on: FloatDistance::Angle,
         ..MatchOptions::default()
     };
+    let unguided = std::sync::atomic::AtomicUsize::new(0);
     let verified: Vec<_> = pairs
         .par_iter()
         .filter_map(|&(a, b)| {
-            let m = match_descriptors(&features[a].descriptors, &features[b].descriptors, &options)
-                .unwrap();
-            verify_pair(
-                &features[a].keypoints,
-                &features[b].keypoints,
+            let (ka, da) = (&features[a].keypoints, &features[a].descriptors);
+            let (kb, db) = (&features[b].keypoints, &features[b].descriptors);
+            let m = match_descriptors(da, db, &options).unwrap();
+            // 2 px: these images are 512 px wide, where COLMAP's 4 px default (meant for
+            // multi-megapixel photos) is 1 % of the frame. At 4 px the precision is 0.9895.
+            let max_error_px = 2.0;
+            let v = verify_pair(
+                ka,
+                kb,
                 &m,
                 None,
-                // 2 px: these images are 512 px wide, where COLMAP's 4 px default (meant for
-                // multi-megapixel photos) is 1 % of the frame. At 4 px the precision is 0.9895.
                 &VerifyOptions {
-                    max_error_px: 2.0,
+                    max_error_px,
                     ..VerifyOptions::default()
                 },
             )
-            .unwrap()
-            .map(|v| (a, b, v))
+            .unwrap()?;
+            // What the match stage keeps: the inliers grown by guided matching.
+            let guided = GuidedOptions {
+                max_error_px,
+                ..GuidedOptions::default()
+            };
+            let grown = grow_verified(ka, da, kb, db, &v, &guided).unwrap();
+            unguided.fetch_add(v.inliers.len(), std::sync::atomic::Ordering::Relaxed);
+            Some((a, b, grown))
         })
         .collect();
     let mut per_epoch_pair: BTreeMap<(EpochId, EpochId), usize> = BTreeMap::new();
@@ -96,9 +107,9 @@ fn inter_epoch_matches_exist_and_are_right() {
             epoch_of[*a].min(epoch_of[*b]),
             epoch_of[*a].max(epoch_of[*b]),
         );
-        *per_epoch_pair.entry((ea, eb)).or_insert(0) += v.inliers.len();
+        *per_epoch_pair.entry((ea, eb)).or_insert(0) += v.len();
         let mut pair_correct = 0;
-        for m in &v.inliers {
+        for m in v {
             let ka = &features[*a].keypoints[m.query as usize];
             let kb = &features[*b].keypoints[m.train as usize];
             let (pa, pb) = (
@@ -119,23 +130,20 @@ fn inter_epoch_matches_exist_and_are_right() {
             pair_correct += usize::from(ok);
         }
         correct += pair_correct;
-        total += v.inliers.len();
-        worst_pairs.push((
-            pair_correct as f64 / v.inliers.len() as f64,
-            *a,
-            *b,
-            v.inliers.len(),
-        ));
+        total += v.len();
+        worst_pairs.push((pair_correct as f64 / v.len() as f64, *a, *b, v.len()));
     }
     worst_pairs.sort_by(|x, y| x.0.total_cmp(&y.0));
     let precision = correct as f64 / total as f64;
     println!(
-        "{} images, {} epochs, {} pairs, {} verified; {total} verified matches, precision {:.4}; \
+        "{} images, {} epochs, {} pairs, {} verified; {total} verified matches ({} before guided \
+         matching), precision {:.4}; \
          inlier matches per epoch pair {per_epoch_pair:?}; worst pairs {:?}",
         features.len(),
         epoch_names.len(),
         pairs.len(),
         verified.len(),
+        unguided.into_inner(),
         precision,
         &worst_pairs[..worst_pairs.len().min(3)]
     );

@@ -1,0 +1,634 @@
+//! Guided matching (Hartley & Zisserman 2004, §11.9; COLMAP's `guided_matching`): once a pair's
+//! epipolar geometry is verified, each descriptor is compared only with the other image's
+//! keypoints within the inlier threshold of its epipolar line. The ratio test then looks at far
+//! fewer competitors, so correct matches that lost the global ratio test to a look-alike
+//! elsewhere in the image (repeated windows, foliage, the same texture seen from further away)
+//! come back; every match found this way is an inlier of the geometry by construction.
+//!
+//! The candidates near a line are found through a grid of cells over the second image, walked
+//! along the line: a few hundred point–line tests and a few dozen descriptor distances per
+//! keypoint instead of thousands.
+
+use nalgebra::{Matrix3, Vector3};
+use timesift_core::{Descriptors, Keypoint};
+
+use crate::matcher::{FloatDistance, Nearest};
+use crate::verify::VerifiedPair;
+use crate::{Match, MatchOptions, MatchingError};
+
+/// Guided matches may be at most as far apart in descriptor space as this percentile of the
+/// pair's verified matches.
+const PERCENT: usize = 90;
+
+/// Side of the grid cells over the second image, pixels.
+const CELL_PX: f64 = 32.0;
+
+/// Options of [`guided_matches`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GuidedOptions {
+    /// Largest distance of a keypoint from the epipolar line of its match, pixels, in both
+    /// images (so the Sampson distance of every guided match is below it too).
+    pub max_error_px: f64,
+    /// Ratio test, mutual check and maximum distance, applied among the candidates of the band.
+    pub matching: MatchOptions,
+}
+
+impl Default for GuidedOptions {
+    fn default() -> Self {
+        Self {
+            max_error_px: 4.0,
+            matching: MatchOptions {
+                ratio_on: FloatDistance::Angle,
+                ..MatchOptions::default()
+            },
+        }
+    }
+}
+
+/// Matches of keypoints `ka` (descriptors `da`) with `kb` (`db`) constrained by the fundamental
+/// matrix `f` (pixels; `x_b' f x_a = 0`). Matches come ordered by query.
+pub fn guided_matches(
+    ka: &[Keypoint],
+    da: &Descriptors,
+    kb: &[Keypoint],
+    db: &Descriptors,
+    f: &Matrix3<f64>,
+    options: &GuidedOptions,
+) -> Result<Vec<Match>, MatchingError> {
+    if !(options.max_error_px > 0.0 && options.max_error_px.is_finite()) {
+        return Err(MatchingError::InvalidOption {
+            name: "max_error_px",
+            value: options.max_error_px,
+            expected: "a positive number of pixels",
+        });
+    }
+    let ratio = options.matching.ratio;
+    if !(ratio > 0.0 && ratio <= 1.0) {
+        return Err(MatchingError::InvalidOption {
+            name: "ratio",
+            value: ratio as f64,
+            expected: "in (0, 1]",
+        });
+    }
+    let distance = DescriptorDistance::new(da, db)?;
+    for (keypoints, descriptors) in [(ka, da), (kb, db)] {
+        if keypoints.len() != descriptors.len() {
+            return Err(MatchingError::InvalidOption {
+                name: "descriptors",
+                value: descriptors.len() as f64,
+                expected: "one descriptor per keypoint",
+            });
+        }
+    }
+    if ka.is_empty() || kb.is_empty() || !f.iter().all(|v| v.is_finite()) {
+        return Ok(Vec::new());
+    }
+    let angles = options.matching.ratio_on == FloatDistance::Angle
+        && matches!(da, Descriptors::Float { .. });
+    let all_a: Vec<u32> = (0..ka.len() as u32).collect();
+    let forward = nearest_in_band(ka, &all_a, kb, f, options.max_error_px, |i, j| {
+        distance.get(i, j)
+    });
+    // The mutual check needs the reverse search only from the keypoints of b that some
+    // keypoint of a chose.
+    let backward = if options.matching.mutual {
+        let mut targets: Vec<u32> = forward
+            .iter()
+            .filter(|n| n.passes(&options.matching, angles))
+            .map(|n| n.index)
+            .collect();
+        targets.sort_unstable();
+        targets.dedup();
+        let ft = f.transpose();
+        let near = nearest_in_band(kb, &targets, ka, &ft, options.max_error_px, |j, i| {
+            distance.get(i, j)
+        });
+        let mut by_b = vec![Nearest::EMPTY; kb.len()];
+        for (&j, n) in targets.iter().zip(near) {
+            by_b[j as usize] = n;
+        }
+        Some(by_b)
+    } else {
+        None
+    };
+    let mut matches = Vec::new();
+    for (i, near) in forward.iter().enumerate() {
+        if !near.passes(&options.matching, angles) {
+            continue;
+        }
+        let j = near.index as usize;
+        if let Some(backward) = &backward {
+            let back = &backward[j];
+            if back.index as usize != i || !back.passes(&options.matching, angles) {
+                continue;
+            }
+        }
+        matches.push(Match {
+            query: i as u32,
+            train: j as u32,
+            distance: near.best,
+        });
+    }
+    Ok(matches)
+}
+
+/// The inliers of a verified pair grown by guided matching with its fundamental matrix
+/// (unchanged when a homography verified it: no epipolar line to search along).
+pub fn grow_verified(
+    ka: &[Keypoint],
+    da: &Descriptors,
+    kb: &[Keypoint],
+    db: &Descriptors,
+    verified: &VerifiedPair,
+    options: &GuidedOptions,
+) -> Result<Vec<Match>, MatchingError> {
+    let Some(f) = &verified.fundamental else {
+        return Ok(verified.inliers.clone());
+    };
+    // Few candidates lie in the band, so the ratio test alone is weak there (a keypoint whose
+    // true match was not detected meets a lone candidate, and a lone candidate passes): guided
+    // matches must also be as alike as the pair's verified matches are.
+    let mut distances: Vec<f32> = verified.inliers.iter().map(|m| m.distance).collect();
+    distances.sort_unstable_by(f32::total_cmp);
+    let Some(&typical) = distances.get(distances.len() * PERCENT / 100) else {
+        return Ok(verified.inliers.clone());
+    };
+    let typical = match (da, options.matching.ratio_on) {
+        (Descriptors::Float { .. }, FloatDistance::Angle) => 2.0 * (0.5 * typical).min(1.0).asin(),
+        _ => typical,
+    };
+    let options = GuidedOptions {
+        matching: MatchOptions {
+            max_distance: Some(
+                options
+                    .matching
+                    .max_distance
+                    .map_or(typical, |m| m.min(typical)),
+            ),
+            ..options.matching
+        },
+        ..*options
+    };
+    let guided = guided_matches(ka, da, kb, db, f, &options)?;
+    Ok(grow_inliers(&verified.inliers, &guided, ka.len(), kb.len()))
+}
+
+/// The verified inliers of a pair grown by guided matching: the guided matches, plus every
+/// original inlier whose keypoints no guided match uses (a match can lose the band's ratio test
+/// only to a competitor that is itself on the line).
+pub fn grow_inliers(inliers: &[Match], guided: &[Match], num_a: usize, num_b: usize) -> Vec<Match> {
+    let mut used_a = vec![false; num_a];
+    let mut used_b = vec![false; num_b];
+    let mut out = Vec::with_capacity(guided.len() + inliers.len());
+    for m in guided.iter().chain(inliers) {
+        let (a, b) = (m.query as usize, m.train as usize);
+        if a < num_a && b < num_b && !used_a[a] && !used_b[b] {
+            used_a[a] = true;
+            used_b[b] = true;
+            out.push(*m);
+        }
+    }
+    out.sort_by_key(|m| (m.query, m.train));
+    out
+}
+
+/// For each keypoint `from[i]` with `i` in `which`, its two nearest descriptors among the
+/// keypoints of `to` within `band` pixels of its epipolar line `f · x`. `squared_distance(i, j)`
+/// compares their descriptors; the distances come back unsquared.
+fn nearest_in_band(
+    from: &[Keypoint],
+    which: &[u32],
+    to: &[Keypoint],
+    f: &Matrix3<f64>,
+    band: f64,
+    squared_distance: impl Fn(usize, usize) -> f32,
+) -> Vec<Nearest> {
+    let grid = Grid::new(to);
+    let mut cells = Vec::new();
+    which
+        .iter()
+        .map(|&i| {
+            let i = i as usize;
+            let k = &from[i];
+            let mut near = Nearest::EMPTY;
+            let line = f * Vector3::new(k.x, k.y, 1.0);
+            let norm = (line.x * line.x + line.y * line.y).sqrt();
+            if !(norm > 0.0 && norm.is_finite()) {
+                return near;
+            }
+            let line = line / norm;
+            grid.cells_near_line(&line, band, &mut cells);
+            for &cell in &cells {
+                for &j in grid.members(cell) {
+                    let p = &to[j as usize];
+                    if (line.x * p.x + line.y * p.y + line.z).abs() <= band {
+                        near.offer(squared_distance(i, j as usize), j);
+                    }
+                }
+            }
+            near.best = near.best.sqrt();
+            near.second = near.second.sqrt();
+            near
+        })
+        .collect()
+}
+
+/// Keypoints bucketed in square cells (compressed rows: the members of cell c are
+/// `order[start[c]..start[c + 1]]`).
+struct Grid {
+    x0: f64,
+    y0: f64,
+    cols: usize,
+    rows: usize,
+    start: Vec<usize>,
+    order: Vec<u32>,
+}
+
+impl Grid {
+    fn new(keypoints: &[Keypoint]) -> Self {
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for k in keypoints {
+            x0 = x0.min(k.x);
+            y0 = y0.min(k.y);
+            x1 = x1.max(k.x);
+            y1 = y1.max(k.y);
+        }
+        let cols = (((x1 - x0) / CELL_PX).floor() as usize + 1).max(1);
+        let rows = (((y1 - y0) / CELL_PX).floor() as usize + 1).max(1);
+        let cell = |k: &Keypoint| {
+            let c = (((k.x - x0) / CELL_PX) as usize).min(cols - 1);
+            let r = (((k.y - y0) / CELL_PX) as usize).min(rows - 1);
+            r * cols + c
+        };
+        let mut start = vec![0usize; cols * rows + 1];
+        for k in keypoints {
+            start[cell(k) + 1] += 1;
+        }
+        for c in 0..cols * rows {
+            start[c + 1] += start[c];
+        }
+        let mut next = start.clone();
+        let mut order = vec![0u32; keypoints.len()];
+        for (i, k) in keypoints.iter().enumerate() {
+            let c = cell(k);
+            order[next[c]] = i as u32;
+            next[c] += 1;
+        }
+        Grid {
+            x0,
+            y0,
+            cols,
+            rows,
+            start,
+            order,
+        }
+    }
+
+    fn members(&self, cell: usize) -> &[u32] {
+        &self.order[self.start[cell]..self.start[cell + 1]]
+    }
+
+    /// The cells that may hold points within `band` of the line `l · (x, y, 1) = 0` (`l`
+    /// normalised so that (l.x, l.y) is a unit normal), written into `out`.
+    fn cells_near_line(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<usize>) {
+        out.clear();
+        // Walk along the axis the line runs closer to: for each column (row) of cells, the
+        // range of rows (columns) the band crosses in it.
+        let horizontal = l.y.abs() >= l.x.abs();
+        let (steps, span) = if horizontal {
+            (self.cols, self.rows)
+        } else {
+            (self.rows, self.cols)
+        };
+        for s in 0..steps {
+            // Along-axis extent of this strip of cells, in pixels.
+            let (lo, hi, origin_across) = if horizontal {
+                let lo = self.x0 + s as f64 * CELL_PX;
+                (lo, lo + CELL_PX, self.y0)
+            } else {
+                let lo = self.y0 + s as f64 * CELL_PX;
+                (lo, lo + CELL_PX, self.x0)
+            };
+            // Across-axis coordinate of the line at `t` along: a·t + b·u + c = 0 with (a, b)
+            // the along and across components of the normal.
+            let (a, b) = if horizontal { (l.x, l.y) } else { (l.y, l.x) };
+            let across = |t: f64| -(a * t + l.z) / b;
+            let half_width = band / b.abs();
+            let (u0, u1) = (across(lo), across(hi));
+            let (u_min, u_max) = (u0.min(u1) - half_width, u0.max(u1) + half_width);
+            let first = ((u_min - origin_across) / CELL_PX).floor();
+            let last = ((u_max - origin_across) / CELL_PX).floor();
+            if last < 0.0 || first >= span as f64 {
+                continue;
+            }
+            let first = first.max(0.0) as usize;
+            let last = (last as usize).min(span - 1);
+            for u in first..=last {
+                out.push(if horizontal {
+                    u * self.cols + s
+                } else {
+                    s * self.cols + u
+                });
+            }
+        }
+    }
+}
+
+/// Squared distances between descriptors of the two images (Euclidean, or Hamming bits), as
+/// [`Nearest`] expects them once their square roots are taken.
+enum DescriptorDistance<'a> {
+    Float {
+        dim: usize,
+        a: &'a [f32],
+        b: &'a [f32],
+    },
+    Binary {
+        bytes: usize,
+        a: &'a [u8],
+        b: &'a [u8],
+    },
+}
+
+impl<'a> DescriptorDistance<'a> {
+    fn new(a: &'a Descriptors, b: &'a Descriptors) -> Result<Self, MatchingError> {
+        match (a, b) {
+            (
+                Descriptors::Float { dim: da, data: xa },
+                Descriptors::Float { dim: db, data: xb },
+            ) if da == db => Ok(DescriptorDistance::Float {
+                dim: *da,
+                a: xa,
+                b: xb,
+            }),
+            (
+                Descriptors::Binary {
+                    bytes: ba,
+                    data: xa,
+                },
+                Descriptors::Binary {
+                    bytes: bb,
+                    data: xb,
+                },
+            ) if ba == bb => Ok(DescriptorDistance::Binary {
+                bytes: *ba,
+                a: xa,
+                b: xb,
+            }),
+            _ => Err(MatchingError::IncompatibleDescriptors {
+                a: crate::matcher::describe(a),
+                b: crate::matcher::describe(b),
+            }),
+        }
+    }
+
+    fn get(&self, i: usize, j: usize) -> f32 {
+        match self {
+            DescriptorDistance::Float { dim, a, b } => {
+                squared_euclidean(&a[i * dim..(i + 1) * dim], &b[j * dim..(j + 1) * dim])
+            }
+            DescriptorDistance::Binary { bytes, a, b } => {
+                let (x, y) = (
+                    &a[i * bytes..(i + 1) * bytes],
+                    &b[j * bytes..(j + 1) * bytes],
+                );
+                let bits = x
+                    .iter()
+                    .zip(y)
+                    .map(|(p, q)| (p ^ q).count_ones())
+                    .sum::<u32>();
+                (bits * bits) as f32
+            }
+        }
+    }
+}
+
+/// ‖x − y‖², in eight independent lanes so that it vectorises.
+#[inline]
+fn squared_euclidean(x: &[f32], y: &[f32]) -> f32 {
+    const LANES: usize = 8;
+    let mut lanes = [0.0f32; LANES];
+    let (xc, yc) = (x.chunks_exact(LANES), y.chunks_exact(LANES));
+    let tail: f32 = xc
+        .remainder()
+        .iter()
+        .zip(yc.remainder())
+        .map(|(p, q)| (p - q) * (p - q))
+        .sum();
+    for (p, q) in xc.zip(yc) {
+        for k in 0..LANES {
+            let d = p[k] - q[k];
+            lanes[k] += d * d;
+        }
+    }
+    lanes.iter().sum::<f32>() + tail
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use timesift_core::SeededRng;
+
+    fn keypoint(x: f64, y: f64) -> Keypoint {
+        Keypoint {
+            x,
+            y,
+            scale: 2.0,
+            orientation: 0.0,
+            response: 1.0,
+            octave: 0,
+        }
+    }
+
+    fn unit_descriptor(rng: &mut SeededRng, dim: usize) -> Vec<f32> {
+        let v: Vec<f32> = (0..dim).map(|_| rng.normal() as f32).collect();
+        let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+        v.into_iter().map(|x| x / norm).collect()
+    }
+
+    /// A copy of `d` moved a little (angle about `noise` radians).
+    fn perturbed(rng: &mut SeededRng, d: &[f32], noise: f64) -> Vec<f32> {
+        let v: Vec<f32> = d
+            .iter()
+            .map(|x| x + (noise / (d.len() as f64).sqrt() * rng.normal()) as f32)
+            .collect();
+        let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+        v.into_iter().map(|x| x / norm).collect()
+    }
+
+    /// The fundamental matrix of a rectified stereo pair: epipolar lines are image rows.
+    fn rectified() -> Matrix3<f64> {
+        Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0)
+    }
+
+    /// Every keypoint of image a has its true match on the same row of image b, 40–200 px to
+    /// the left, and a look-alike about as close to it in descriptor space `offset` px off the
+    /// row (rows are 9 px apart).
+    fn stereo_with_lookalikes(
+        n: usize,
+        offset: f64,
+    ) -> (Vec<Keypoint>, Descriptors, Vec<Keypoint>, Descriptors) {
+        let mut rng = SeededRng::new(7);
+        let (mut ka, mut kb, mut da, mut db) = (vec![], vec![], vec![], vec![]);
+        for i in 0..n {
+            let (x, y) = (300.0 + rng.uniform() * 600.0, 20.0 + 9.0 * i as f64);
+            let d = unit_descriptor(&mut rng, 128);
+            ka.push(keypoint(x, y));
+            da.extend_from_slice(&d);
+            kb.push(keypoint(x - rng.uniform_range(40.0, 200.0), y));
+            db.extend(perturbed(&mut rng, &d, 0.3));
+            kb.push(keypoint(x - rng.uniform_range(-300.0, 300.0), y + offset));
+            db.extend(perturbed(&mut rng, &d, 0.28));
+        }
+        let float = |data| Descriptors::Float { dim: 128, data };
+        (ka, float(da), kb, float(db))
+    }
+
+    #[test]
+    fn guided_matching_recovers_matches_that_lose_the_global_ratio_test() {
+        let n = 60;
+        let (ka, da, kb, db) = stereo_with_lookalikes(n, 30.0);
+        let options = GuidedOptions::default();
+        // Globally, each true match has a look-alike as its rival: the ratio test drops it.
+        let global = crate::match_descriptors(&da, &db, &options.matching).unwrap();
+        assert!(global.len() < n / 10, "{} global matches", global.len());
+        let guided = guided_matches(&ka, &da, &kb, &db, &rectified(), &options).unwrap();
+        assert_eq!(guided.len(), n);
+        for m in &guided {
+            // True matches are the even keypoints of b.
+            assert_eq!(m.train, 2 * m.query, "{m:?}");
+        }
+    }
+
+    #[test]
+    fn a_lookalike_on_the_line_still_fails_the_ratio_test() {
+        let (ka, da, kb, db) = stereo_with_lookalikes(40, 0.5);
+        let guided =
+            guided_matches(&ka, &da, &kb, &db, &rectified(), &GuidedOptions::default()).unwrap();
+        assert!(guided.len() < 4, "{} matches", guided.len());
+    }
+
+    #[test]
+    fn grown_matches_are_as_alike_as_the_verified_ones() {
+        let n = 60;
+        let (ka, da, kb, db) = stereo_with_lookalikes(n, 30.0);
+        // The true matches differ by about 0.3 rad: verified matches ten times closer set a
+        // bound that none of them meets; verified matches as far apart admit them all.
+        let verified = |distance: f32| VerifiedPair {
+            model: crate::verify::EpipolarModel::Fundamental,
+            kind: timesift_geometry::homography::TwoViewType::General,
+            inliers: (0..10)
+                .map(|i| Match {
+                    query: i,
+                    train: 2 * i,
+                    distance,
+                })
+                .collect(),
+            homography_inliers: 0,
+            fundamental: Some(rectified()),
+        };
+        let options = GuidedOptions::default();
+        let tight = grow_verified(&ka, &da, &kb, &db, &verified(0.03), &options).unwrap();
+        assert_eq!(tight.len(), 10);
+        let loose = grow_verified(&ka, &da, &kb, &db, &verified(0.6), &options).unwrap();
+        assert_eq!(loose.len(), n);
+        assert!(loose.iter().all(|m| m.train == 2 * m.query));
+        // A homography gives no lines to search along: the inliers stay as they are.
+        let planar = VerifiedPair {
+            fundamental: None,
+            ..verified(0.6)
+        };
+        assert_eq!(
+            grow_verified(&ka, &da, &kb, &db, &planar, &options)
+                .unwrap()
+                .len(),
+            10
+        );
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let (ka, da, kb, _) = stereo_with_lookalikes(3, 30.0);
+        let binary = Descriptors::Binary {
+            bytes: 32,
+            data: vec![0; 32 * kb.len()],
+        };
+        let f = rectified();
+        assert!(matches!(
+            guided_matches(&ka, &da, &kb, &binary, &f, &GuidedOptions::default()),
+            Err(MatchingError::IncompatibleDescriptors { .. })
+        ));
+        let options = GuidedOptions {
+            max_error_px: 0.0,
+            ..GuidedOptions::default()
+        };
+        assert!(matches!(
+            guided_matches(&ka, &da, &kb, &da, &f, &options),
+            Err(MatchingError::InvalidOption {
+                name: "max_error_px",
+                ..
+            })
+        ));
+        // Fewer descriptors than keypoints.
+        assert!(matches!(
+            guided_matches(&ka, &da, &kb, &da, &f, &GuidedOptions::default()),
+            Err(MatchingError::InvalidOption {
+                name: "descriptors",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn grown_inliers_never_use_a_keypoint_twice() {
+        let m = |query, train| Match {
+            query,
+            train,
+            distance: 0.1,
+        };
+        let inliers = [m(0, 0), m(1, 1), m(2, 2)];
+        let guided = [m(0, 0), m(1, 5), m(3, 2), m(4, 4)];
+        let grown = grow_inliers(&inliers, &guided, 5, 6);
+        // Guided matches first; the original 1→1 and 2→2 collide with guided 1→5 and 3→2.
+        let pairs: Vec<_> = grown.iter().map(|m| (m.query, m.train)).collect();
+        assert_eq!(pairs, vec![(0, 0), (1, 5), (3, 2), (4, 4)]);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// The grid walk finds exactly the points within the band that a scan of all points finds.
+        #[test]
+        fn grid_walk_finds_every_point_near_a_line(
+            seed in 0u64..1000,
+            angle in 0.0f64..std::f64::consts::PI,
+            offset in -300.0f64..1300.0,
+            band in 0.5f64..40.0,
+        ) {
+            let mut rng = SeededRng::new(seed);
+            let points: Vec<Keypoint> = (0..400)
+                .map(|_| keypoint(rng.uniform_range(-5.0, 1030.0), rng.uniform_range(0.0, 770.0)))
+                .collect();
+            let line = Vector3::new(angle.cos(), angle.sin(), -offset);
+            let grid = Grid::new(&points);
+            let mut cells = Vec::new();
+            grid.cells_near_line(&line, band, &mut cells);
+            let mut found: Vec<u32> = cells
+                .iter()
+                .flat_map(|&c| grid.members(c).iter().copied())
+                .filter(|&j| {
+                    let p = &points[j as usize];
+                    (line.x * p.x + line.y * p.y + line.z).abs() <= band
+                })
+                .collect();
+            found.sort_unstable();
+            let expected: Vec<u32> = (0..points.len() as u32)
+                .filter(|&j| {
+                    let p = &points[j as usize];
+                    (line.x * p.x + line.y * p.y + line.z).abs() <= band
+                })
+                .collect();
+            prop_assert_eq!(found, expected);
+        }
+    }
+}
