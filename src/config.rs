@@ -183,6 +183,22 @@ pub enum FeatureMethod {
     Ldb,
 }
 
+/// Which image pairs the `match` stage matches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PairSelection {
+    /// Within an epoch the nearest images by position prior when every image has one, else
+    /// every pair; between epochs the nearest images of every other epoch (every image without
+    /// priors). The default.
+    #[default]
+    Auto,
+    /// Every pair of images, priors or not.
+    Exhaustive,
+    /// The `auto` pairs, then only those whose largest-scale keypoints match (plus each image's
+    /// best few per epoch): for large blocks without priors, where most pairs do not overlap.
+    Preselect,
+}
+
 /// `[align]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -196,6 +212,9 @@ pub struct AlignConfig {
     /// Features. Default `sift`.
     #[serde(default)]
     pub features: FeatureMethod,
+    /// Which pairs are matched. Default `auto`.
+    #[serde(default)]
+    pub pair_selection: PairSelection,
     /// Keypoint limit per image. Default 40000.
     #[serde(default = "default_max_keypoints")]
     pub max_keypoints: usize,
@@ -226,6 +245,7 @@ impl Default for AlignConfig {
             method: AlignMethod::default(),
             reference_epoch: None,
             features: FeatureMethod::default(),
+            pair_selection: PairSelection::default(),
             max_keypoints: default_max_keypoints(),
             tie_point_accuracy_px: default_tie_px(),
             marker_accuracy_px: default_marker_px(),
@@ -323,10 +343,21 @@ impl ProjectConfig {
     pub fn parse(path: &Path, text: &str) -> Result<Self, ProjectError> {
         let config: ProjectConfig = toml::from_str(text).map_err(|e| {
             let line = e.span().map(|s| line_of(text, s.start)).unwrap_or(1);
+            let mut message = e.message().trim().replace('\n', " ");
+            // A bad value: name its key (serde's message only names the value).
+            let key = text
+                .lines()
+                .nth(line - 1)
+                .and_then(|l| l.split_once('='))
+                .map(|(k, _)| k.trim())
+                .filter(|k| !k.is_empty() && !k.starts_with('#') && !message.contains(k));
+            if let Some(key) = key {
+                message = format!("`{key}`: {message}");
+            }
             ProjectError::Reference {
                 path: path.to_path_buf(),
                 line,
-                message: e.message().trim().replace('\n', " "),
+                message,
             }
         })?;
         let positive = [

@@ -142,6 +142,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     );
     let _ = writeln!(text, "reference_epoch = {}", toml_string(&epochs[0].0));
     let _ = writeln!(text, "features = \"sift\"  # sift | ldb");
+    let _ = writeln!(
+        text,
+        "# pair_selection = \"auto\"  # auto | exhaustive | preselect (large blocks without priors)"
+    );
     let _ = writeln!(text, "# max_keypoints = 40000");
     let _ = writeln!(text, "# tie_point_accuracy_px = 1.0");
     let _ = writeln!(text, "# marker_accuracy_px = 0.5");

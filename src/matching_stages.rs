@@ -18,12 +18,13 @@ use timesift_features::{
 };
 use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{PairPolicy, epoch_aware};
+use timesift_matching::preselect::{PreselectOptions, coarse_matches, preselect};
 use timesift_matching::storage::{read_features, read_matches, write_features, write_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
 
-use crate::config::FeatureMethod;
+use crate::config::{FeatureMethod, PairSelection};
 use crate::{Project, ProjectError};
 
 /// Neighbours of each image within its epoch, by prior camera centre.
@@ -116,6 +117,12 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
         })
         .collect();
     let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
+    let selection = project.config.align.pair_selection;
+    let positions = if selection == PairSelection::Exhaustive {
+        vec![None; n]
+    } else {
+        positions
+    };
     let within = if positions.iter().all(Option::is_some) {
         PairPolicy::Spatial {
             neighbours: WITHIN_EPOCH_NEIGHBOURS,
@@ -124,7 +131,16 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
     } else {
         PairPolicy::Exhaustive
     };
-    let pairs = epoch_aware(&epoch_of, &positions, within, ACROSS_EPOCH_NEIGHBOURS);
+    let candidates = epoch_aware(&epoch_of, &positions, within, ACROSS_EPOCH_NEIGHBOURS);
+    let candidate_count = candidates.len();
+    let pairs = if selection == PairSelection::Preselect {
+        let options = PreselectOptions::default();
+        let coarse = coarse_matches(&features, &candidates, &options)
+            .map_err(|e| stage_error("match", format!("preselection: {e}")))?;
+        preselect(&coarse, &epoch_of, &options)
+    } else {
+        candidates
+    };
     let options = MatchOptions {
         ratio_on: FloatDistance::Angle,
         ..MatchOptions::default()
@@ -177,6 +193,7 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
         *per_epoch_pair.entry(key).or_insert(0) += 1;
     }
     let summary = serde_json::json!({
+        "candidate_pairs": candidate_count,
         "pairs": pairs.len(),
         "verified_pairs": verified.len(),
         "verified_pairs_per_epoch_pair": per_epoch_pair,

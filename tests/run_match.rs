@@ -52,3 +52,43 @@ fn features_and_match_stages_write_work_files_and_resume() {
         serde_json::from_str(&std::fs::read_to_string(&summary_path).unwrap()).unwrap();
     assert_eq!(again, summary);
 }
+
+#[test]
+fn preselection_keeps_every_epoch_linked_and_bad_values_are_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let spec = build("soil-pit", Scale::Small, 1).expect("scene");
+    write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
+    let path = dir.path().to_str().expect("utf-8 path");
+    let toml_path = dir.path().join("project.toml");
+    let original = std::fs::read_to_string(&toml_path).unwrap();
+    assert!(original.contains("[align]\n"), "{original}");
+    let with = |value: &str| {
+        original.replace("[align]\n", &format!("[align]\npair_selection = {value}\n"))
+    };
+    std::fs::write(&toml_path, with("\"fast\"")).unwrap();
+    let (ok, _, err) = timesift(&["run", path, "--to", "match"]);
+    assert!(!ok);
+    assert!(
+        err.contains("pair_selection") && err.contains("preselect"),
+        "{err}"
+    );
+    std::fs::write(&toml_path, with("\"preselect\"")).unwrap();
+    let (ok, _, err) = timesift(&["run", path, "--to", "match"]);
+    assert!(ok, "{err}");
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("work/matches/summary.json")).unwrap(),
+    )
+    .unwrap();
+    println!("{summary}");
+    let (pairs, candidates) = (
+        summary["pairs"].as_u64().unwrap(),
+        summary["candidate_pairs"].as_u64().unwrap(),
+    );
+    assert!(pairs > 0 && pairs <= candidates, "{pairs} of {candidates}");
+    let per_epoch = summary["verified_pairs_per_epoch_pair"]
+        .as_object()
+        .unwrap();
+    // Two epochs: both within-epoch groups and the inter-epoch group keep verified pairs.
+    assert_eq!(per_epoch.len(), 3, "{per_epoch:?}");
+    assert!(per_epoch.values().all(|v| v.as_u64().unwrap() > 0));
+}

@@ -12,11 +12,13 @@
 use std::time::Instant;
 
 use rayon::prelude::*;
+use timesift_core::EpochId;
 use timesift_features::{
     DetectorOptions, FeatureExtractor, KeypointLimit, SiftExtractor, SiftNormalization,
 };
 use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{PairPolicy, select};
+use timesift_matching::preselect::{PreselectOptions, coarse_matches, preselect};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
 
@@ -71,11 +73,17 @@ pub fn run() -> anyhow::Result<()> {
                 Ok(Some((grown.len(), verified.inliers.len())))
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
-        Ok((
-            verified.into_iter().flatten().collect::<Vec<_>>(),
-            start.elapsed().as_secs_f64(),
-        ))
+        Ok((verified, start.elapsed().as_secs_f64()))
     })?;
+    let verified_set: Vec<(usize, usize)> = pairs
+        .iter()
+        .zip(&counts)
+        .filter(|(_, c)| c.is_some())
+        .map(|(p, _)| *p)
+        .collect();
+    let components = components(n, &verified_set);
+    let pair_inliers = counts;
+    let counts: Vec<(usize, usize)> = pair_inliers.iter().flatten().copied().collect();
     let median = |mut v: Vec<usize>| {
         v.sort_unstable();
         v.get(v.len() / 2).copied().unwrap_or(0)
@@ -98,6 +106,49 @@ pub fn run() -> anyhow::Result<()> {
          matching)",
         "timesift",
     );
+    println!(
+        "  verified pair graph: {components} connected component{}",
+        if components == 1 { "" } else { "s" }
+    );
+    // Preselection, as the match stage runs it with `[align] pair_selection = "preselect"`.
+    let preselect_options = PreselectOptions::default();
+    let features: Vec<_> = ours
+        .iter()
+        .map(|f| (f.keypoints.clone(), f.descriptors.clone()))
+        .collect();
+    let (selected, preselect_seconds) = pool.install(|| -> anyhow::Result<_> {
+        let start = Instant::now();
+        let coarse = coarse_matches(&features, &pairs, &preselect_options)?;
+        let selected = preselect(&coarse, &vec![EpochId::from(0); n], &preselect_options);
+        Ok((selected, start.elapsed().as_secs_f64()))
+    })?;
+    let kept = verified_set
+        .iter()
+        .filter(|p| selected.binary_search(p).is_ok())
+        .count();
+    let inliers_of = |keep: &dyn Fn(&(usize, usize)) -> bool| -> usize {
+        pairs
+            .iter()
+            .zip(&pair_inliers)
+            .filter(|(p, _)| keep(p))
+            .map(|(_, c)| c.map_or(0, |c| c.0))
+            .sum()
+    };
+    let inlier_share = inliers_of(&|p| selected.binary_search(p).is_ok()) as f64
+        / inliers_of(&|_| true).max(1) as f64;
+    println!(
+        "  preselection ({} largest-scale keypoints per image, {} coarse matches or an image's {} \
+         best): {} of {} pairs in {preselect_seconds:.1} s; they hold {kept} of the {} verified \
+         pairs ({:.1} % of the inliers; {} components among them)",
+        preselect_options.keypoints,
+        preselect_options.min_matches,
+        preselect_options.keep_best,
+        selected.len(),
+        pairs.len(),
+        verified_set.len(),
+        100.0 * inlier_share,
+        components_of_kept(n, &verified_set, &selected),
+    );
     match colmap(&dir) {
         Ok((report, colmap_seconds)) => {
             let number = |key: &str| report[key].as_f64().unwrap_or(f64::NAN);
@@ -116,6 +167,37 @@ pub fn run() -> anyhow::Result<()> {
         Err(e) => println!("  COLMAP unavailable: {e}"),
     }
     Ok(())
+}
+
+/// Connected components of the graph of `n` images with edges `pairs`.
+fn components(n: usize, pairs: &[(usize, usize)]) -> usize {
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let mut count = n;
+    for &(a, b) in pairs {
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        if ra != rb {
+            parent[ra] = rb;
+            count -= 1;
+        }
+    }
+    count
+}
+
+/// Components of the verified pairs that preselection keeps.
+fn components_of_kept(n: usize, verified: &[(usize, usize)], selected: &[(usize, usize)]) -> usize {
+    let kept: Vec<(usize, usize)> = verified
+        .iter()
+        .copied()
+        .filter(|p| selected.binary_search(p).is_ok())
+        .collect();
+    components(n, &kept)
 }
 
 /// COLMAP's CPU feature extraction then exhaustive matching; the stats of its database and the

@@ -5,7 +5,7 @@
 //! instead of angles), `UNCALIBRATED` (fundamental instead of essential with EXIF focal),
 //! `ITERATIONS` (RANSAC cap), `BUDGET` (keypoints per image, default 8192), `NOMUTUAL` (no
 //! mutual check), `PAIRS` (print every pair's matches and inliers), `UNGUIDED` (no guided
-//! matching after verification).
+//! matching after verification), `PRESELECT` (preselection settings against the verified pairs).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -17,6 +17,7 @@ use timesift_features::{
 };
 use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{PairPolicy, select};
+use timesift_matching::preselect::{PreselectOptions, coarse_matches, preselect};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
 
@@ -136,6 +137,48 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 m.len(),
                 v.as_ref().map_or(0, Vec::len)
             );
+        }
+    }
+    if std::env::var("PRESELECT").is_ok() {
+        // Preselection settings against the verified pairs of exhaustive matching.
+        let feats: Vec<_> = features
+            .iter()
+            .map(|f| (f.keypoints.clone(), f.descriptors.clone()))
+            .collect();
+        let total: usize = verified.iter().flatten().map(Vec::len).sum();
+        let epochs = vec![timesift_core::EpochId::from(0); n];
+        for keypoints in [512, 1024, 2048] {
+            let base = PreselectOptions {
+                keypoints,
+                ..PreselectOptions::default()
+            };
+            let coarse = coarse_matches(&feats, &pairs, &base)?;
+            for min_matches in [4, 6, 8, 12] {
+                for keep_best in [3, 5] {
+                    let options = PreselectOptions {
+                        min_matches,
+                        keep_best,
+                        ..base
+                    };
+                    let selected = preselect(&coarse, &epochs, &options);
+                    let (mut kept, mut kept_inliers, mut all) = (0, 0, 0);
+                    for (p, v) in pairs.iter().zip(&verified) {
+                        if let Some(v) = v {
+                            all += 1;
+                            if selected.binary_search(p).is_ok() {
+                                kept += 1;
+                                kept_inliers += v.len();
+                            }
+                        }
+                    }
+                    println!(
+                        "preselect {keypoints} kp, >= {min_matches} or best {keep_best}: {} pairs, \
+                         {kept} of {all} verified, {:.1} % of inliers",
+                        selected.len(),
+                        100.0 * kept_inliers as f64 / total as f64
+                    );
+                }
+            }
         }
     }
     let mut inliers: Vec<usize> = verified.iter().flatten().map(Vec::len).collect();

@@ -15,6 +15,7 @@ use timesift_core::{Descriptors, Keypoint};
 use crate::matcher::{FloatDistance, Nearest};
 use crate::verify::VerifiedPair;
 use crate::{Match, MatchOptions, MatchingError};
+use timesift_geometry::homography::TwoViewType;
 
 /// Guided matches may be at most as far apart in descriptor space as this percentile of the
 /// pair's verified matches.
@@ -26,8 +27,9 @@ const CELL_PX: f64 = 32.0;
 /// Options of [`guided_matches`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GuidedOptions {
-    /// Largest distance of a keypoint from the epipolar line of its match, pixels, in both
-    /// images (so the Sampson distance of every guided match is below it too).
+    /// Largest distance of a keypoint of the second image from the epipolar line of its match,
+    /// pixels (and of the first image's keypoint from the reverse line, with the mutual check),
+    /// so the Sampson distance of every guided match is below it too.
     pub max_error_px: f64,
     /// Ratio test, mutual check and maximum distance, applied among the candidates of the band.
     pub matching: MatchOptions,
@@ -133,7 +135,8 @@ pub fn guided_matches(
 }
 
 /// The inliers of a verified pair grown by guided matching with its fundamental matrix
-/// (unchanged when a homography verified it: no epipolar line to search along).
+/// (unchanged when a homography verified it or explains it as well: no reliable epipolar line
+/// to search along).
 pub fn grow_verified(
     ka: &[Keypoint],
     da: &Descriptors,
@@ -142,8 +145,10 @@ pub fn grow_verified(
     verified: &VerifiedPair,
     options: &GuidedOptions,
 ) -> Result<Vec<Match>, MatchingError> {
-    let Some(f) = &verified.fundamental else {
-        return Ok(verified.inliers.clone());
+    // Planar scenes and rotations determine F poorly (a rotation has no epipole): no lines.
+    let f = match (&verified.fundamental, verified.kind) {
+        (Some(f), TwoViewType::General) => f,
+        _ => return Ok(verified.inliers.clone()),
     };
     // Few candidates lie in the band, so the ratio test alone is weak there (a keypoint whose
     // true match was not detected meets a lone candidate, and a lone candidate passes): guided
@@ -170,7 +175,13 @@ pub fn grow_verified(
         ..*options
     };
     let guided = guided_matches(ka, da, kb, db, f, &options)?;
-    Ok(grow_inliers(&verified.inliers, &guided, ka.len(), kb.len()))
+    let grown = grow_inliers(&verified.inliers, &guided, ka.len(), kb.len());
+    // One guided match can displace two inliers (one sharing each keypoint): never fewer.
+    Ok(if grown.len() >= verified.inliers.len() {
+        grown
+    } else {
+        verified.inliers.clone()
+    })
 }
 
 /// The verified inliers of a pair grown by guided matching: the guided matches, plus every
@@ -238,45 +249,61 @@ fn nearest_in_band(
 struct Grid {
     x0: f64,
     y0: f64,
+    /// Side of a cell, pixels: [`CELL_PX`], or more for a huge extent (the grid has at most
+    /// [`MAX_CELLS_PER_SIDE`] cells per side).
+    cell: f64,
     cols: usize,
     rows: usize,
     start: Vec<usize>,
+    /// Keypoints by cell; those with a non-finite coordinate are left out.
     order: Vec<u32>,
 }
 
+/// Most cells along a side of the grid: a stray keypoint far outside the frame (coordinates
+/// come from files) cannot make the grid huge.
+const MAX_CELLS_PER_SIDE: f64 = 4096.0;
+
 impl Grid {
     fn new(keypoints: &[Keypoint]) -> Self {
-        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-        for k in keypoints {
+        let finite = |k: &Keypoint| k.x.is_finite() && k.y.is_finite();
+        let (mut x0, mut y0, mut x1, mut y1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for (n, k) in keypoints.iter().filter(|k| finite(k)).enumerate() {
+            if n == 0 {
+                (x0, y0, x1, y1) = (k.x, k.y, k.x, k.y);
+            }
             x0 = x0.min(k.x);
             y0 = y0.min(k.y);
             x1 = x1.max(k.x);
             y1 = y1.max(k.y);
         }
-        let cols = (((x1 - x0) / CELL_PX).floor() as usize + 1).max(1);
-        let rows = (((y1 - y0) / CELL_PX).floor() as usize + 1).max(1);
-        let cell = |k: &Keypoint| {
-            let c = (((k.x - x0) / CELL_PX) as usize).min(cols - 1);
-            let r = (((k.y - y0) / CELL_PX) as usize).min(rows - 1);
+        let cell = CELL_PX.max((x1 - x0).max(y1 - y0) / MAX_CELLS_PER_SIDE);
+        let cols = ((x1 - x0) / cell).floor() as usize + 1;
+        let rows = ((y1 - y0) / cell).floor() as usize + 1;
+        let index = |k: &Keypoint| {
+            let c = (((k.x - x0) / cell) as usize).min(cols - 1);
+            let r = (((k.y - y0) / cell) as usize).min(rows - 1);
             r * cols + c
         };
         let mut start = vec![0usize; cols * rows + 1];
-        for k in keypoints {
-            start[cell(k) + 1] += 1;
+        for k in keypoints.iter().filter(|k| finite(k)) {
+            start[index(k) + 1] += 1;
         }
         for c in 0..cols * rows {
             start[c + 1] += start[c];
         }
         let mut next = start.clone();
-        let mut order = vec![0u32; keypoints.len()];
+        let mut order = vec![0u32; start[cols * rows]];
         for (i, k) in keypoints.iter().enumerate() {
-            let c = cell(k);
-            order[next[c]] = i as u32;
-            next[c] += 1;
+            if finite(k) {
+                let c = index(k);
+                order[next[c]] = i as u32;
+                next[c] += 1;
+            }
         }
         Grid {
             x0,
             y0,
+            cell,
             cols,
             rows,
             start,
@@ -303,11 +330,11 @@ impl Grid {
         for s in 0..steps {
             // Along-axis extent of this strip of cells, in pixels.
             let (lo, hi, origin_across) = if horizontal {
-                let lo = self.x0 + s as f64 * CELL_PX;
-                (lo, lo + CELL_PX, self.y0)
+                let lo = self.x0 + s as f64 * self.cell;
+                (lo, lo + self.cell, self.y0)
             } else {
-                let lo = self.y0 + s as f64 * CELL_PX;
-                (lo, lo + CELL_PX, self.x0)
+                let lo = self.y0 + s as f64 * self.cell;
+                (lo, lo + self.cell, self.x0)
             };
             // Across-axis coordinate of the line at `t` along: a·t + b·u + c = 0 with (a, b)
             // the along and across components of the normal.
@@ -316,8 +343,8 @@ impl Grid {
             let half_width = band / b.abs();
             let (u0, u1) = (across(lo), across(hi));
             let (u_min, u_max) = (u0.min(u1) - half_width, u0.max(u1) + half_width);
-            let first = ((u_min - origin_across) / CELL_PX).floor();
-            let last = ((u_max - origin_across) / CELL_PX).floor();
+            let first = ((u_min - origin_across) / self.cell).floor();
+            let last = ((u_max - origin_across) / self.cell).floor();
             if last < 0.0 || first >= span as f64 {
                 continue;
             }
@@ -396,7 +423,7 @@ impl<'a> DescriptorDistance<'a> {
                     .zip(y)
                     .map(|(p, q)| (p ^ q).count_ones())
                     .sum::<u32>();
-                (bits * bits) as f32
+                bits as f32 * bits as f32
             }
         }
     }
@@ -592,6 +619,22 @@ mod tests {
         // Guided matches first; the original 1→1 and 2→2 collide with guided 1→5 and 3→2.
         let pairs: Vec<_> = grown.iter().map(|m| (m.query, m.train)).collect();
         assert_eq!(pairs, vec![(0, 0), (1, 5), (3, 2), (4, 4)]);
+    }
+
+    #[test]
+    fn stray_keypoints_cannot_blow_up_the_grid() {
+        let mut points = vec![keypoint(10.0, 10.0), keypoint(1e12, -1e12)];
+        points.push(keypoint(f64::NAN, 5.0));
+        points.push(keypoint(f64::INFINITY, 5.0));
+        let grid = Grid::new(&points);
+        assert!(grid.cols <= 4097 && grid.rows <= 4097);
+        // The two finite keypoints are bucketed, the others left out.
+        assert_eq!(grid.order.len(), 2);
+        let only_strays = Grid::new(&points[2..]);
+        assert!(only_strays.order.is_empty());
+        let mut cells = Vec::new();
+        only_strays.cells_near_line(&Vector3::new(0.0, 1.0, -5.0), 4.0, &mut cells);
+        assert!(cells.iter().all(|&c| only_strays.members(c).is_empty()));
     }
 
     proptest! {

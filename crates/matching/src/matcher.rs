@@ -212,7 +212,7 @@ pub fn match_descriptors(
                             let bits: u32 =
                                 qa.iter().zip(qb).map(|(x, y)| (x ^ y).count_ones()).sum();
                             // Squared, like the float distances, so one scan serves both.
-                            *o = (bits * bits) as f32;
+                            *o = bits as f32 * bits as f32;
                         }
                     })
                 })

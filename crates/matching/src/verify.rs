@@ -5,7 +5,7 @@
 
 use nalgebra::{Matrix3, Vector2, Vector3};
 use timesift_core::{CameraModel, Keypoint};
-use timesift_geometry::essential::EssentialEstimator;
+use timesift_geometry::essential::{EssentialEstimator, sampson_distance_sq};
 use timesift_geometry::fundamental::{FundamentalEstimator, eight_point};
 use timesift_geometry::homography::{HomographyEstimator, TwoViewType, classify_two_view};
 use timesift_geometry::ransac::{Estimator, RansacOptions, RansacResult, Scoring, ransac};
@@ -132,17 +132,8 @@ pub fn verify_pair(
                     flags[i] = result.inliers[k];
                 }
             }
-            let (q1, q2): (Vec<_>, Vec<_>) = flags
-                .iter()
-                .zip(p1.iter().zip(&p2))
-                .filter(|(ok, _)| **ok)
-                .map(|(_, (u, v))| (*u, *v))
-                .unzip();
-            (
-                EpipolarModel::Essential,
-                flags,
-                eight_point(&q1, &q2, None).ok(),
-            )
+            let fundamental = pixel_fundamental(&p1, &p2, &flags, options);
+            (EpipolarModel::Essential, flags, fundamental)
         }
         None => {
             let estimator = FundamentalEstimator { p1: &p1, p2: &p2 };
@@ -197,6 +188,35 @@ pub fn verify_pair(
     }
 }
 
+/// The fundamental matrix in pixels of an essential matrix's inliers, for guided matching: the
+/// eight-point fit to their pixels (lens distortion makes it approximate), kept only when their
+/// median Sampson distance to it is within the threshold; `None` too for an unverified pair.
+fn pixel_fundamental(
+    p1: &[Vector2<f64>],
+    p2: &[Vector2<f64>],
+    inliers: &[bool],
+    options: &VerifyOptions,
+) -> Option<Matrix3<f64>> {
+    let (q1, q2): (Vec<_>, Vec<_>) = inliers
+        .iter()
+        .zip(p1.iter().zip(p2))
+        .filter(|(ok, _)| **ok)
+        .map(|(_, (u, v))| (*u, *v))
+        .unzip();
+    if q1.len() < options.min_inliers.max(8) {
+        return None;
+    }
+    let f = eight_point(&q1, &q2, None).ok()?;
+    let mut errors: Vec<f64> = q1
+        .iter()
+        .zip(&q2)
+        .map(|(u, v)| sampson_distance_sq(&f, &u.push(1.0), &v.push(1.0)))
+        .collect();
+    errors.sort_unstable_by(f64::total_cmp);
+    let median = errors[errors.len() / 2].sqrt();
+    (median <= options.max_error_px).then_some(f)
+}
+
 /// RANSAC for a model whose verdict is an inlier count. MSAC first (the tighter inlier set);
 /// when its model is short of `min_inliers`, the question becomes whether any model reaches
 /// the count, so a second search maximises the count itself (MSAC may prefer 14 tight inliers
@@ -210,7 +230,9 @@ fn decide<E: Estimator>(
     min_inliers: usize,
 ) -> Option<RansacResult<E::Model>> {
     let first = ransac(estimator, options).ok();
-    if first.as_ref().is_some_and(|r| r.num_inliers >= min_inliers) {
+    if estimator.num_data() < min_inliers
+        || first.as_ref().is_some_and(|r| r.num_inliers >= min_inliers)
+    {
         return first;
     }
     let count_options = RansacOptions {

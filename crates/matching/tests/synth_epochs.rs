@@ -2,7 +2,7 @@
 //! with a moving block): features, epoch-aware pairs, matching and verification. Every pair of
 //! consecutive epochs gets verified inter-epoch matches, and the verified matches are right: the
 //! point triangulated from the true cameras reprojects within 2 px in both images for at least
-//! 99 % of them, after guided matching as before it. (Matches on the block that moved between epochs are true correspondences but
+//! 99 % of them, the inliers grown by guided matching included. (Matches on the block that moved between epochs are true correspondences but
 //! count as wrong here: the static cameras cannot explain them.)
 
 mod common;
