@@ -50,6 +50,53 @@ fn stage_error(stage: &'static str, message: String) -> ProjectError {
     ProjectError::Stage { stage, message }
 }
 
+/// Version of the match stage's algorithm, part of its settings: a change that alters the
+/// verified matches (such as guided matching, version 2) makes a resumed run redo them.
+const MATCH_ALGORITHM: u32 = 2;
+
+/// Makes `dir` hold only results made with `settings`: when `dir/settings.json` records other
+/// settings (or is missing while results of an earlier run are there), the files with extension
+/// `ext` are removed, as are those of every folder in `dependents`; then the settings are
+/// recorded. A resumed run thus reuses only what the current settings would produce.
+fn start_with_settings(
+    stage: &'static str,
+    dir: &std::path::Path,
+    ext: &str,
+    settings: &serde_json::Value,
+    dependents: &[(&std::path::Path, &str)],
+) -> Result<(), ProjectError> {
+    let path = dir.join("settings.json");
+    let recorded: Option<serde_json::Value> = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    if recorded.as_ref() == Some(settings) {
+        return Ok(());
+    }
+    for (folder, extension) in std::iter::once((dir, ext)).chain(dependents.iter().copied()) {
+        let Ok(entries) = std::fs::read_dir(folder) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            let file = entry.path();
+            if file.extension().is_some_and(|e| e == extension) {
+                std::fs::remove_file(&file).map_err(|e| {
+                    stage_error(stage, format!("{}: cannot remove: {e}", file.display()))
+                })?;
+            }
+        }
+    }
+    if recorded.is_some() {
+        tracing::info!(stage, "settings changed: earlier results removed");
+    }
+    let text = serde_json::to_string_pretty(settings).unwrap_or_default();
+    timesift_io::fsutil::write_atomically(&path, |w| {
+        use std::io::Write;
+        w.write_all(text.as_bytes())
+            .map_err(|e| timesift_io::IoError::io(&path, e))
+    })?;
+    Ok(())
+}
+
 /// Extracts the features of every image whose feature file is missing or unreadable.
 pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
     let detector = DetectorOptions {
@@ -65,6 +112,20 @@ pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
         }),
         FeatureMethod::Ldb => Box::new(LdbExtractor { detector }),
     };
+    let settings = serde_json::json!({
+        "features": project.config.align.features,
+        "max_keypoints": project.config.align.max_keypoints,
+        "contrast_threshold": detector.contrast_threshold,
+    });
+    let features_dir = project.dir.join("work/features");
+    let matches_dir = project.dir.join("work/matches");
+    start_with_settings(
+        "features",
+        &features_dir,
+        "feat",
+        &settings,
+        &[(&matches_dir, "match")],
+    )?;
     let todo: Vec<usize> = (0..project.images.len())
         .filter(|&i| read_features(&features_path(project, i)).is_err())
         .collect();
@@ -132,6 +193,15 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
         PairPolicy::Exhaustive
     };
     let candidates = epoch_aware(&epoch_of, &positions, within, ACROSS_EPOCH_NEIGHBOURS);
+    // A pair's matches do not depend on which other pairs are selected: only the algorithm.
+    let settings = serde_json::json!({ "algorithm": MATCH_ALGORITHM });
+    start_with_settings(
+        "match",
+        &project.dir.join("work/matches"),
+        "match",
+        &settings,
+        &[],
+    )?;
     let candidate_count = candidates.len();
     let pairs = if selection == PairSelection::Preselect {
         let options = PreselectOptions::default();

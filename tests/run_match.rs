@@ -22,6 +22,10 @@ fn features_and_match_stages_write_work_files_and_resume() {
     assert!(ok, "{err}");
     let features = std::fs::read_dir(dir.path().join("work/features"))
         .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .is_ok_and(|e| e.path().extension().is_some_and(|x| x == "feat"))
+        })
         .count();
     assert_eq!(features, written.images);
     let summary_path = dir.path().join("work/matches/summary.json");
@@ -91,4 +95,55 @@ fn preselection_keeps_every_epoch_linked_and_bad_values_are_named() {
     // Two epochs: both within-epoch groups and the inter-epoch group keep verified pairs.
     assert_eq!(per_epoch.len(), 3, "{per_epoch:?}");
     assert!(per_epoch.values().all(|v| v.as_u64().unwrap() > 0));
+}
+
+#[test]
+fn changed_settings_redo_the_features_and_the_matches() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let spec = build("soil-pit", Scale::Small, 1).expect("scene");
+    let written = write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
+    let path = dir.path().to_str().expect("utf-8 path");
+    let toml_path = dir.path().join("project.toml");
+    let original = std::fs::read_to_string(&toml_path).unwrap();
+    let with_limit = |n: usize| {
+        std::fs::write(
+            &toml_path,
+            original.replace("[align]\n", &format!("[align]\nmax_keypoints = {n}\n")),
+        )
+        .unwrap()
+    };
+    let most_keypoints = || {
+        (0..written.images)
+            .map(|i| {
+                let file = dir.path().join(format!("work/features/{i}.feat"));
+                timesift_matching::storage::read_features(&file)
+                    .unwrap()
+                    .0
+                    .len()
+            })
+            .max()
+            .unwrap()
+    };
+    let match_files = || {
+        std::fs::read_dir(dir.path().join("work/matches"))
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .is_ok_and(|e| e.path().extension().is_some_and(|x| x == "match"))
+            })
+            .count()
+    };
+    with_limit(300);
+    let (ok, _, err) = timesift(&["run", path, "--to", "match"]);
+    assert!(ok, "{err}");
+    assert!(most_keypoints() <= 300);
+    assert!(match_files() > 0);
+    // A smaller budget: the features are extracted again, and the matches made from the old
+    // ones are gone.
+    with_limit(150);
+    let (ok, _, err) = timesift(&["run", path, "--to", "features"]);
+    assert!(ok, "{err}");
+    let most = most_keypoints();
+    assert!(most <= 150 && most > 0, "{most}");
+    assert_eq!(match_files(), 0);
 }
