@@ -97,6 +97,31 @@ fn start_with_settings(
     Ok(())
 }
 
+/// Removes the match files of pairs not in `pairs` (sorted), left by a run with another pair
+/// selection: the align stage reads every match file, and its tracks should be this run's.
+fn remove_unselected(dir: &std::path::Path, pairs: &[(usize, usize)]) -> Result<(), ProjectError> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let file = entry.path();
+        let pair = file
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.strip_suffix(".match"))
+            .and_then(|stem| stem.split_once('_'))
+            .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)));
+        if let Some(pair) = pair {
+            if pairs.binary_search(&pair).is_err() {
+                std::fs::remove_file(&file).map_err(|e| {
+                    stage_error("match", format!("{}: cannot remove: {e}", file.display()))
+                })?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Extracts the features of every image whose feature file is missing or unreadable.
 pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
     let detector = DetectorOptions {
@@ -211,6 +236,7 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
     } else {
         candidates
     };
+    remove_unselected(&project.dir.join("work/matches"), &pairs)?;
     let options = MatchOptions {
         ratio_on: FloatDistance::Angle,
         ..MatchOptions::default()

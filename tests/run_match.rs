@@ -95,6 +95,20 @@ fn preselection_keeps_every_epoch_linked_and_bad_values_are_named() {
     // Two epochs: both within-epoch groups and the inter-epoch group keep verified pairs.
     assert_eq!(per_epoch.len(), 3, "{per_epoch:?}");
     assert!(per_epoch.values().all(|v| v.as_u64().unwrap() > 0));
+    // Only the selected pairs have match files: one left by another selection is removed.
+    let stray = dir.path().join("work/matches/0_999.match");
+    std::fs::copy(dir.path().join("work/matches/settings.json"), &stray).unwrap();
+    let (ok, _, err) = timesift(&["run", path, "--from", "match", "--to", "match"]);
+    assert!(ok, "{err}");
+    assert!(!stray.exists());
+    let files = std::fs::read_dir(dir.path().join("work/matches"))
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .is_ok_and(|e| e.path().extension().is_some_and(|x| x == "match"))
+        })
+        .count();
+    assert_eq!(files as u64, pairs);
 }
 
 #[test]
