@@ -181,17 +181,7 @@ fn match_files(dir: &Path) -> Result<Vec<(usize, usize, PathBuf)>, ProjectError>
     let mut files = Vec::new();
     for entry in entries.flatten() {
         let path = entry.path();
-        let Some(stem) = path
-            .file_name()
-            .and_then(|n| n.to_str())
-            .and_then(|n| n.strip_suffix(".match"))
-        else {
-            continue;
-        };
-        let Some((a, b)) = stem.split_once('_') else {
-            continue;
-        };
-        if let (Ok(a), Ok(b)) = (a.parse::<usize>(), b.parse::<usize>()) {
+        if let Some((a, b)) = crate::matching_stages::match_file_pair(&path) {
             files.push((a, b, path));
         }
     }

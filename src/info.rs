@@ -248,12 +248,14 @@ impl InfoReport {
         }
         let _ = writeln!(s, "\ncamera groups");
         for c in &self.camera_groups {
-            let focal = match (c.focal_length_mm, c.focal_length_35mm, c.focal_length_px) {
-                _ if c.calibrated_focal_px.is_some() => format!(
-                    "f = {:.1} px (given in project.toml)",
-                    c.calibrated_focal_px.unwrap_or(0.0)
-                ),
-                (mm, eq, Some(px)) => {
+            let focal = match (
+                c.calibrated_focal_px,
+                c.focal_length_mm,
+                c.focal_length_35mm,
+                c.focal_length_px,
+            ) {
+                (Some(given), ..) => format!("f = {given:.1} px (given in project.toml)"),
+                (None, mm, eq, Some(px)) => {
                     let parts: Vec<String> = mm
                         .map(|v| format!("{v} mm"))
                         .into_iter()

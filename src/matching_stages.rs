@@ -46,6 +46,13 @@ fn matches_path(project: &Project, a: usize, b: usize) -> PathBuf {
         .join(format!("{a}_{b}.match"))
 }
 
+/// The image pair of a `work/matches/<a>_<b>.match` file; `None` for any other file.
+pub(crate) fn match_file_pair(path: &std::path::Path) -> Option<(usize, usize)> {
+    let stem = path.file_name()?.to_str()?.strip_suffix(".match")?;
+    let (a, b) = stem.split_once('_')?;
+    Some((a.parse().ok()?, b.parse().ok()?))
+}
+
 fn stage_error(stage: &'static str, message: String) -> ProjectError {
     ProjectError::Stage { stage, message }
 }
@@ -105,13 +112,7 @@ fn remove_unselected(dir: &std::path::Path, pairs: &[(usize, usize)]) -> Result<
     };
     for entry in entries.flatten() {
         let file = entry.path();
-        let pair = file
-            .file_name()
-            .and_then(|n| n.to_str())
-            .and_then(|n| n.strip_suffix(".match"))
-            .and_then(|stem| stem.split_once('_'))
-            .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)));
-        if let Some(pair) = pair {
+        if let Some(pair) = match_file_pair(&file) {
             if pairs.binary_search(&pair).is_err() {
                 std::fs::remove_file(&file).map_err(|e| {
                     stage_error("match", format!("{}: cannot remove: {e}", file.display()))
@@ -230,7 +231,8 @@ pub fn match_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
     let candidate_count = candidates.len();
     let pairs = if selection == PairSelection::Preselect {
         let options = PreselectOptions::default();
-        let coarse = coarse_matches(&features, &candidates, &options)
+        let views: Vec<_> = features.iter().map(|(k, d)| (k.as_slice(), d)).collect();
+        let coarse = coarse_matches(&views, &candidates, &options)
             .map_err(|e| stage_error("match", format!("preselection: {e}")))?;
         preselect(&coarse, &epoch_of, &options)
     } else {

@@ -6,13 +6,30 @@ mod common;
 
 use common::timesift;
 use timesift_synth::scenes::{Scale, build};
-use timesift_synth::writer::{WriteOptions, write_scene};
+use timesift_synth::writer::{WriteOptions, Written, write_scene};
 
-#[test]
-fn features_and_match_stages_write_work_files_and_resume() {
+/// The `soil-pit` scene (small, seed 1) written into a fresh folder.
+fn soil_pit() -> (tempfile::TempDir, Written) {
     let dir = tempfile::tempdir().expect("tempdir");
     let spec = build("soil-pit", Scale::Small, 1).expect("scene");
     let written = write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
+    (dir, written)
+}
+
+/// Number of files with extension `ext` in `dir`.
+fn count_files(dir: &std::path::Path, ext: &str) -> usize {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .is_ok_and(|e| e.path().extension().is_some_and(|x| x == ext))
+        })
+        .count()
+}
+
+#[test]
+fn features_and_match_stages_write_work_files_and_resume() {
+    let (dir, written) = soil_pit();
     let path = dir.path().to_str().expect("utf-8 path");
     // Matching before features is a clear error.
     let (ok, _, err) = timesift(&["run", path, "--from", "match", "--to", "match"]);
@@ -20,13 +37,7 @@ fn features_and_match_stages_write_work_files_and_resume() {
     assert!(err.contains("run the features stage first"), "{err}");
     let (ok, _, err) = timesift(&["run", path, "--to", "match"]);
     assert!(ok, "{err}");
-    let features = std::fs::read_dir(dir.path().join("work/features"))
-        .unwrap()
-        .filter(|e| {
-            e.as_ref()
-                .is_ok_and(|e| e.path().extension().is_some_and(|x| x == "feat"))
-        })
-        .count();
+    let features = count_files(&dir.path().join("work/features"), "feat");
     assert_eq!(features, written.images);
     let summary_path = dir.path().join("work/matches/summary.json");
     let summary: serde_json::Value =
@@ -59,9 +70,7 @@ fn features_and_match_stages_write_work_files_and_resume() {
 
 #[test]
 fn preselection_keeps_every_epoch_linked_and_bad_values_are_named() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let spec = build("soil-pit", Scale::Small, 1).expect("scene");
-    write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
+    let (dir, _) = soil_pit();
     let path = dir.path().to_str().expect("utf-8 path");
     let toml_path = dir.path().join("project.toml");
     let original = std::fs::read_to_string(&toml_path).unwrap();
@@ -101,21 +110,13 @@ fn preselection_keeps_every_epoch_linked_and_bad_values_are_named() {
     let (ok, _, err) = timesift(&["run", path, "--from", "match", "--to", "match"]);
     assert!(ok, "{err}");
     assert!(!stray.exists());
-    let files = std::fs::read_dir(dir.path().join("work/matches"))
-        .unwrap()
-        .filter(|e| {
-            e.as_ref()
-                .is_ok_and(|e| e.path().extension().is_some_and(|x| x == "match"))
-        })
-        .count();
+    let files = count_files(&dir.path().join("work/matches"), "match");
     assert_eq!(files as u64, pairs);
 }
 
 #[test]
 fn changed_settings_redo_the_features_and_the_matches() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let spec = build("soil-pit", Scale::Small, 1).expect("scene");
-    let written = write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
+    let (dir, written) = soil_pit();
     let path = dir.path().to_str().expect("utf-8 path");
     let toml_path = dir.path().join("project.toml");
     let original = std::fs::read_to_string(&toml_path).unwrap();
@@ -138,15 +139,7 @@ fn changed_settings_redo_the_features_and_the_matches() {
             .max()
             .unwrap()
     };
-    let match_files = || {
-        std::fs::read_dir(dir.path().join("work/matches"))
-            .unwrap()
-            .filter(|e| {
-                e.as_ref()
-                    .is_ok_and(|e| e.path().extension().is_some_and(|x| x == "match"))
-            })
-            .count()
-    };
+    let match_files = || count_files(&dir.path().join("work/matches"), "match");
     with_limit(300);
     let (ok, _, err) = timesift(&["run", path, "--to", "match"]);
     assert!(ok, "{err}");

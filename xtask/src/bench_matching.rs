@@ -81,7 +81,7 @@ pub fn run() -> anyhow::Result<()> {
         .filter(|(_, c)| c.is_some())
         .map(|(p, _)| *p)
         .collect();
-    let components = components(n, &verified_set);
+    let verified_components = components(n, &verified_set);
     let pair_inliers = counts;
     let counts: Vec<(usize, usize)> = pair_inliers.iter().flatten().copied().collect();
     let median = |mut v: Vec<usize>| {
@@ -107,14 +107,14 @@ pub fn run() -> anyhow::Result<()> {
         "timesift",
     );
     println!(
-        "  verified pair graph: {components} connected component{}",
-        if components == 1 { "" } else { "s" }
+        "  verified pair graph: {verified_components} connected component{}",
+        if verified_components == 1 { "" } else { "s" }
     );
     // Preselection, as the match stage runs it with `[align] pair_selection = "preselect"`.
     let preselect_options = PreselectOptions::default();
     let features: Vec<_> = ours
         .iter()
-        .map(|f| (f.keypoints.clone(), f.descriptors.clone()))
+        .map(|f| (f.keypoints.as_slice(), &f.descriptors))
         .collect();
     let (selected, preselect_seconds) = pool.install(|| -> anyhow::Result<_> {
         let start = Instant::now();
@@ -122,32 +122,30 @@ pub fn run() -> anyhow::Result<()> {
         let selected = preselect(&coarse, &vec![EpochId::from(0); n], &preselect_options);
         Ok((selected, start.elapsed().as_secs_f64()))
     })?;
-    let kept = verified_set
-        .iter()
-        .filter(|p| selected.binary_search(p).is_ok())
-        .count();
-    let inliers_of = |keep: &dyn Fn(&(usize, usize)) -> bool| -> usize {
-        pairs
-            .iter()
-            .zip(&pair_inliers)
-            .filter(|(p, _)| keep(p))
-            .map(|(_, c)| c.map_or(0, |c| c.0))
-            .sum()
-    };
-    let inlier_share = inliers_of(&|p| selected.binary_search(p).is_ok()) as f64
-        / inliers_of(&|_| true).max(1) as f64;
+    // The verified pairs preselection keeps, and their share of all verified inliers.
+    let (mut kept, mut kept_inliers, mut all_inliers) = (Vec::new(), 0, 0);
+    for (p, c) in pairs.iter().zip(&pair_inliers) {
+        let Some((inliers, _)) = c else { continue };
+        all_inliers += inliers;
+        if selected.binary_search(p).is_ok() {
+            kept.push(*p);
+            kept_inliers += inliers;
+        }
+    }
+    let inlier_share = kept_inliers as f64 / all_inliers.max(1) as f64;
     println!(
         "  preselection ({} largest-scale keypoints per image, {} coarse matches or an image's {} \
-         best): {} of {} pairs in {preselect_seconds:.1} s; they hold {kept} of the {} verified \
+         best): {} of {} pairs in {preselect_seconds:.1} s; they hold {} of the {} verified \
          pairs ({:.1} % of the inliers; {} components among them)",
         preselect_options.keypoints,
         preselect_options.min_matches,
         preselect_options.keep_best,
         selected.len(),
         pairs.len(),
+        kept.len(),
         verified_set.len(),
         100.0 * inlier_share,
-        components_of_kept(n, &verified_set, &selected),
+        components(n, &kept),
     );
     match colmap(&dir) {
         Ok((report, colmap_seconds)) => {
@@ -188,16 +186,6 @@ fn components(n: usize, pairs: &[(usize, usize)]) -> usize {
         }
     }
     count
-}
-
-/// Components of the verified pairs that preselection keeps.
-fn components_of_kept(n: usize, verified: &[(usize, usize)], selected: &[(usize, usize)]) -> usize {
-    let kept: Vec<(usize, usize)> = verified
-        .iter()
-        .copied()
-        .filter(|p| selected.binary_search(p).is_ok())
-        .collect();
-    components(n, &kept)
 }
 
 /// COLMAP's CPU feature extraction then exhaustive matching; the stats of its database and the

@@ -143,7 +143,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // Preselection settings against the verified pairs of exhaustive matching.
         let feats: Vec<_> = features
             .iter()
-            .map(|f| (f.keypoints.clone(), f.descriptors.clone()))
+            .map(|f| (f.keypoints.as_slice(), &f.descriptors))
             .collect();
         let total: usize = verified.iter().flatten().map(Vec::len).sum();
         let epochs = vec![timesift_core::EpochId::from(0); n];

@@ -12,7 +12,7 @@
 use nalgebra::{Matrix3, Vector3};
 use timesift_core::{Descriptors, Keypoint};
 
-use crate::matcher::{FloatDistance, Nearest};
+use crate::matcher::{FloatDistance, Nearest, describe, squared_hamming, to_words};
 use crate::verify::VerifiedPair;
 use crate::{Match, MatchOptions, MatchingError};
 use timesift_geometry::homography::TwoViewType;
@@ -369,10 +369,11 @@ enum DescriptorDistance<'a> {
         a: &'a [f32],
         b: &'a [f32],
     },
+    /// As 64-bit words, like the exhaustive matcher's.
     Binary {
-        bytes: usize,
-        a: &'a [u8],
-        b: &'a [u8],
+        words: usize,
+        a: Vec<u64>,
+        b: Vec<u64>,
     },
 }
 
@@ -397,13 +398,13 @@ impl<'a> DescriptorDistance<'a> {
                     data: xb,
                 },
             ) if ba == bb => Ok(DescriptorDistance::Binary {
-                bytes: *ba,
-                a: xa,
-                b: xb,
+                words: ba.div_ceil(8),
+                a: to_words(xa, *ba),
+                b: to_words(xb, *bb),
             }),
             _ => Err(MatchingError::IncompatibleDescriptors {
-                a: crate::matcher::describe(a),
-                b: crate::matcher::describe(b),
+                a: describe(a),
+                b: describe(b),
             }),
         }
     }
@@ -413,18 +414,10 @@ impl<'a> DescriptorDistance<'a> {
             DescriptorDistance::Float { dim, a, b } => {
                 squared_euclidean(&a[i * dim..(i + 1) * dim], &b[j * dim..(j + 1) * dim])
             }
-            DescriptorDistance::Binary { bytes, a, b } => {
-                let (x, y) = (
-                    &a[i * bytes..(i + 1) * bytes],
-                    &b[j * bytes..(j + 1) * bytes],
-                );
-                let bits = x
-                    .iter()
-                    .zip(y)
-                    .map(|(p, q)| (p ^ q).count_ones())
-                    .sum::<u32>();
-                bits as f32 * bits as f32
-            }
+            DescriptorDistance::Binary { words, a, b } => squared_hamming(
+                &a[i * words..(i + 1) * words],
+                &b[j * words..(j + 1) * words],
+            ),
         }
     }
 }

@@ -209,10 +209,7 @@ pub fn match_descriptors(
                     scan_block(rows.start, rows.len(), nb, |i, out| {
                         let qa = &wa[(rows.start + i) * words..(rows.start + i + 1) * words];
                         for (o, qb) in out.iter_mut().zip(wb.chunks(words)) {
-                            let bits: u32 =
-                                qa.iter().zip(qb).map(|(x, y)| (x ^ y).count_ones()).sum();
-                            // Squared, like the float distances, so one scan serves both.
-                            *o = bits as f32 * bits as f32;
+                            *o = squared_hamming(qa, qb);
                         }
                     })
                 })
@@ -381,8 +378,20 @@ fn squared_norm(v: &[f32]) -> f32 {
     v.iter().map(|x| x * x).sum()
 }
 
+/// Squared Hamming distance of two binary descriptors held as words: squared, like the float
+/// distances, so that one scan (and [`Nearest`]) serves both.
+#[inline]
+pub(crate) fn squared_hamming(a: &[u64], b: &[u64]) -> f32 {
+    let bits = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x ^ y).count_ones())
+        .sum::<u32>() as f32;
+    bits * bits
+}
+
 /// Binary descriptors as little-endian 64-bit words, the last word of each zero-padded.
-fn to_words(data: &[u8], bytes: usize) -> Vec<u64> {
+pub(crate) fn to_words(data: &[u8], bytes: usize) -> Vec<u64> {
     let words = bytes.div_ceil(8);
     let mut out = Vec::with_capacity(data.len() / bytes.max(1) * words);
     for d in data.chunks(bytes) {

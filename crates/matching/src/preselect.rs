@@ -56,16 +56,16 @@ pub struct CoarsePair {
 }
 
 /// The coarse-match counts of every candidate pair (`features[i]`: keypoints and descriptors of
-/// image i; pairs index into it).
+/// image i, borrowed from wherever the caller holds them; pairs index into it).
 pub fn coarse_matches(
-    features: &[(Vec<Keypoint>, Descriptors)],
+    features: &[(&[Keypoint], &Descriptors)],
     candidates: &[(usize, usize)],
     options: &PreselectOptions,
 ) -> Result<Vec<CoarsePair>, MatchingError> {
     use rayon::prelude::*;
     let coarse: Vec<Descriptors> = features
         .par_iter()
-        .map(|(keypoints, descriptors)| largest_scales(keypoints, descriptors, options.keypoints))
+        .map(|&(keypoints, descriptors)| largest_scales(keypoints, descriptors, options.keypoints))
         .collect::<Result<_, _>>()?;
     candidates
         .par_iter()
@@ -138,20 +138,21 @@ fn largest_scales(
     });
     order.truncate(count);
     order.sort_unstable();
+    // The rows `order` of descriptors `width` values wide.
+    fn rows<T: Copy>(data: &[T], width: usize, order: &[usize]) -> Vec<T> {
+        order
+            .iter()
+            .flat_map(|&i| data[i * width..(i + 1) * width].iter().copied())
+            .collect()
+    }
     Ok(match descriptors {
         Descriptors::Float { dim, data } => Descriptors::Float {
             dim: *dim,
-            data: order
-                .iter()
-                .flat_map(|&i| data[i * dim..(i + 1) * dim].iter().copied())
-                .collect(),
+            data: rows(data, *dim, &order),
         },
         Descriptors::Binary { bytes, data } => Descriptors::Binary {
             bytes: *bytes,
-            data: order
-                .iter()
-                .flat_map(|&i| data[i * bytes..(i + 1) * bytes].iter().copied())
-                .collect(),
+            data: rows(data, *bytes, &order),
         },
     })
 }
