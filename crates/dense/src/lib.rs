@@ -1,4 +1,189 @@
-//! Multi-view stereo per epoch with frozen orientations and depth-map fusion into a dense cloud.
+//! Multi-view stereo of one epoch on frozen orientations: per-view depth maps by PatchMatch with
+//! slanted planes, filtering, and fusion into one coloured cloud (step 3 of Time-SIFT).
 //!
-//! Invariants (once built): sees one epoch at a time; never changes an orientation. Not implemented
-//! yet: this crate holds only its charter.
+//! The steps, each a function the caller can run, cache and resume on its own:
+//! 1. [`plan::plan_epoch`]: per view, the working pinhole camera at the chosen level, the pose
+//!    in a local frame, the source views (shared sparse points, triangulation angle, scale) and
+//!    the depth range (sparse-point depths).
+//! 2. [`undistort::UndistortMap`]: each original image resampled to its working camera, with the
+//!    pixels that may not produce depths (masks, no-data) marked.
+//! 3. [`patchmatch::run_pass`] for each pass of [`patchmatch::plan_schedule`], view by view:
+//!    coarse-to-fine PatchMatch (ACMH/ACMM) with a geometric-consistency term.
+//! 4. [`filter::filter_depth_map`]: depths that enough sources agree with, good cost, no speckle.
+//! 5. [`fusion::fuse`]: consistent depths of several views merged into points.
+//!
+//! [`reconstruct_epoch`] chains them in memory for callers with few images (tests, examples).
+//!
+//! Invariants:
+//! - Sees one epoch at a time and never changes an orientation: poses and cameras are inputs.
+//! - Reads and writes no file (the root package does, through `timesift-io`); images come in as
+//!   decoded buffers, results go out as [`DepthMap`]s and a [`FusedCloud`].
+//! - Every random draw is seeded per pixel, and parallel work never reads what it writes, so
+//!   results do not depend on the number of threads.
+//! - Matching works in f32 in camera frames and a local frame centred on the cameras; world
+//!   positions of fused points are computed in f64.
+
+pub mod camera;
+pub mod depth_map;
+mod error;
+pub mod filter;
+pub mod fusion;
+pub mod image;
+pub mod patchmatch;
+pub mod plan;
+pub mod undistort;
+
+pub use camera::WorkingCamera;
+pub use depth_map::DepthMap;
+pub use error::DenseError;
+pub use filter::{FilterOptions, filter_depth_map};
+pub use fusion::{FusedCloud, FusionOptions, FusionView, fuse};
+pub use image::{ImageView, Mask, Plane, WorkingImage};
+pub use patchmatch::{Pass, PassInput, PassKind, PatchMatchOptions, plan_schedule, run_pass};
+pub use plan::{EpochInput, EpochPlan, PlanOptions, SparsePoint, View, ViewPlan, plan_epoch};
+pub use undistort::{UndistortMap, working_camera};
+
+/// Every option of dense matching.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct DenseOptions {
+    /// Level, sources.
+    pub plan: PlanOptions,
+    /// PatchMatch.
+    pub patchmatch: PatchMatchOptions,
+    /// Depth-map filter.
+    pub filter: FilterOptions,
+    /// Fusion.
+    pub fusion: FusionOptions,
+    /// Whether pixels exactly black in every channel are no-data (scan borders).
+    pub black_is_nodata: bool,
+}
+
+/// The depth maps and fused cloud of one epoch, computed in memory: every working image and
+/// every map of a pass are held at once, so this is for small epochs (tests, examples); the
+/// `dense` stage runs the same steps view by view with a cache on disk. `images[k]` is the
+/// original image of view k, `masks[k]` an optional mask in its pixels.
+pub fn reconstruct_epoch(
+    input: &EpochInput,
+    images: &[ImageView<'_>],
+    masks: &[Option<&Mask>],
+    options: &DenseOptions,
+) -> Result<EpochResult, DenseError> {
+    if images.len() != input.views.len() || masks.len() != input.views.len() {
+        return Err(DenseError::InvalidInput(format!(
+            "{} views, {} images, {} masks",
+            input.views.len(),
+            images.len(),
+            masks.len()
+        )));
+    }
+    let plan = plan_epoch(input, &options.plan)?;
+    let working: Vec<WorkingImage> = input
+        .views
+        .iter()
+        .zip(&plan.views)
+        .zip(images.iter().zip(masks))
+        .map(|((view, vp), (image, mask))| {
+            UndistortMap::new(&view.camera, vp.camera, options.plan.level).apply(
+                image,
+                *mask,
+                options.black_is_nodata,
+            )
+        })
+        .collect::<Result<_, _>>()?;
+    let passes = plan_schedule(&plan, &options.patchmatch);
+    let mut maps: Vec<Option<DepthMap>> = vec![None; plan.views.len()];
+    for (index, pass) in passes.iter().enumerate() {
+        let mut next = Vec::with_capacity(plan.views.len());
+        for (view, vp) in plan.views.iter().enumerate() {
+            let sources: Vec<&WorkingImage> =
+                vp.sources.iter().map(|s| &working[s.view]).collect();
+            let source_maps: Vec<Option<&DepthMap>> =
+                vp.sources.iter().map(|s| maps[s.view].as_ref()).collect();
+            let pass_input = PassInput {
+                reference: &working[view],
+                sources: &sources,
+                previous: maps[view].as_ref(),
+                source_maps: &source_maps,
+            };
+            next.push(Some(run_pass(
+                &plan,
+                view,
+                index,
+                pass,
+                &pass_input,
+                &options.patchmatch,
+            )?));
+        }
+        maps = next;
+    }
+    let finals: Vec<DepthMap> = maps
+        .into_iter()
+        .zip(&plan.views)
+        .map(|(m, vp)| m.unwrap_or_else(|| DepthMap::empty(vp.camera.width, vp.camera.height)))
+        .collect();
+    let filtered: Vec<DepthMap> = plan
+        .views
+        .iter()
+        .enumerate()
+        .map(|(view, vp)| {
+            let source_maps: Vec<Option<&DepthMap>> =
+                vp.sources.iter().map(|s| Some(&finals[s.view])).collect();
+            filter_depth_map(&plan, view, &finals[view], &source_maps, &options.filter)
+        })
+        .collect::<Result<_, _>>()?;
+    let cloud = fuse(&plan, &options.fusion, &mut |view: usize| {
+        let map = filtered[view].clone();
+        let rgb = colours_at(&working[view], map.width, map.height);
+        Ok::<_, DenseError>(FusionView { map, rgb })
+    })?;
+    Ok(EpochResult {
+        plan,
+        depth_maps: finals,
+        filtered,
+        cloud,
+    })
+}
+
+/// What [`reconstruct_epoch`] computes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpochResult {
+    /// The plan.
+    pub plan: EpochPlan,
+    /// Each view's map after the last pass.
+    pub depth_maps: Vec<DepthMap>,
+    /// Each view's map after filtering.
+    pub filtered: Vec<DepthMap>,
+    /// The fused cloud.
+    pub cloud: FusedCloud,
+}
+
+/// The colours of a working image at the size of a map (the image itself, or averaged down to
+/// a coarser scale).
+pub fn colours_at(image: &WorkingImage, width: usize, height: usize) -> Vec<[f32; 3]> {
+    let mut rgb = image.rgb.clone();
+    let (mut w, mut h) = (image.width(), image.height());
+    while w > width && w / 2 >= width {
+        let (hw, hh) = (w / 2, h / 2);
+        let mut half = Vec::with_capacity(hw * hh);
+        for j in 0..hh {
+            for i in 0..hw {
+                let mut c = [0.0f32; 3];
+                for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let p = rgb[(2 * j + dj) * w + 2 * i + di];
+                    for k in 0..3 {
+                        c[k] += 0.25 * p[k];
+                    }
+                }
+                half.push(c);
+            }
+        }
+        rgb = half;
+        w = hw;
+        h = hh;
+    }
+    if w == width && h == height {
+        rgb
+    } else {
+        vec![[0.0; 3]; width * height]
+    }
+}

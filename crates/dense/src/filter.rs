@@ -1,0 +1,308 @@
+//! Filtering of a view's final depth map: a depth survives where at least `min_views` sources
+//! agree with it (forward–backward reprojection through their maps within a pixel tolerance,
+//! relative depth and normal tolerances), its matching cost is good, and it is not part of an
+//! isolated speckle (a small connected region of similar depths).
+
+use nalgebra::Vector3;
+
+use crate::DenseError;
+use crate::camera::WorkingCamera;
+use crate::depth_map::{DepthMap, NO_COST};
+use crate::plan::EpochPlan;
+
+/// Options of the filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FilterOptions {
+    /// Least number of sources that must agree with a depth.
+    pub min_views: usize,
+    /// Largest forward–backward reprojection error, pixels of the map.
+    pub max_reprojection_px: f64,
+    /// Largest relative depth difference.
+    pub max_relative_depth: f64,
+    /// Largest angle between the normals, degrees.
+    pub max_normal_angle_deg: f64,
+    /// Largest matching cost (1 − NCC, plus the geometric term of the last pass).
+    pub max_cost: f32,
+    /// Connected regions of fewer pixels are removed as speckles.
+    pub min_region: usize,
+}
+
+impl Default for FilterOptions {
+    fn default() -> Self {
+        FilterOptions {
+            min_views: 2,
+            max_reprojection_px: 2.0,
+            max_relative_depth: 0.01,
+            max_normal_angle_deg: 30.0,
+            max_cost: 0.6,
+            min_region: 10,
+        }
+    }
+}
+
+impl FilterOptions {
+    /// Checks every option's domain.
+    pub fn validate(&self) -> Result<(), DenseError> {
+        if self.min_views == 0 {
+            return Err(DenseError::InvalidOption(
+                "min_views: expected at least 1".into(),
+            ));
+        }
+        if !(self.max_reprojection_px > 0.0)
+            || !(self.max_relative_depth > 0.0)
+            || !(self.max_normal_angle_deg > 0.0)
+            || !(self.max_cost > 0.0)
+        {
+            return Err(DenseError::InvalidOption(
+                "filter tolerances must be positive".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A view's map as seen from another view: its camera at the map's scale and `other_from_ref`.
+pub(crate) struct Neighbour<'a> {
+    pub map: &'a DepthMap,
+    pub camera: WorkingCamera,
+    /// `other_from_ref` rotation.
+    pub r: nalgebra::Matrix3<f64>,
+    /// `other_from_ref` translation.
+    pub t: Vector3<f64>,
+}
+
+/// The outcome of checking a reference depth against a neighbour's map.
+pub(crate) struct Agreement {
+    /// The neighbour's pixel index.
+    pub pixel: usize,
+    /// The neighbour's point, reference frame.
+    pub point: Vector3<f64>,
+    /// The neighbour's normal, reference frame.
+    pub normal: Vector3<f64>,
+}
+
+impl Neighbour<'_> {
+    /// Whether the neighbour's map agrees with the reference point `x` (reference frame) seen at
+    /// reference pixel (u, v) with normal `n`: the neighbour's depth at the projection of `x`,
+    /// lifted and projected back, lands within `max_px` of (u, v), its depth along the reference
+    /// ray is within `max_rel` of the reference depth, and the normals within `min_cos`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn agrees(
+        &self,
+        ref_camera: &WorkingCamera,
+        u: f64,
+        v: f64,
+        x: &Vector3<f64>,
+        n: &Vector3<f64>,
+        max_px: f64,
+        max_rel: f64,
+        min_cos: f64,
+    ) -> Option<Agreement> {
+        let xo = self.r * x + self.t;
+        let p = self.camera.project(&xo)?;
+        if !self.camera.contains(p.x, p.y) {
+            return None;
+        }
+        let (i, j) = (p.x as usize, p.y as usize);
+        let k = j * self.map.width + i;
+        let d = self.map.depth[k] as f64;
+        if !(d > 0.0) {
+            return None;
+        }
+        let yo = self.camera.pixel_ray(i, j) * d;
+        let y = self.r.transpose() * (yo - self.t);
+        let back = ref_camera.project(&y)?;
+        if (back.x - u).powi(2) + (back.y - v).powi(2) > max_px * max_px {
+            return None;
+        }
+        if ((y.z - x.z) / x.z).abs() > max_rel {
+            return None;
+        }
+        let no = self.map.normal[k];
+        let normal = self.r.transpose() * Vector3::new(no[0] as f64, no[1] as f64, no[2] as f64);
+        if normal.dot(n) < min_cos {
+            return None;
+        }
+        Some(Agreement {
+            pixel: k,
+            point: y,
+            normal,
+        })
+    }
+}
+
+/// The camera of a map of `width × height` made for a view of working camera `camera`.
+pub(crate) fn camera_of_map(
+    camera: &WorkingCamera,
+    width: usize,
+    height: usize,
+) -> Option<WorkingCamera> {
+    (0..16)
+        .map(|s| camera.at_scale(s))
+        .find(|c| c.width == width && c.height == height)
+}
+
+/// Neighbours of `view` from its sources' maps (`None` entries are skipped).
+pub(crate) fn neighbours<'a>(
+    plan: &EpochPlan,
+    view: usize,
+    maps: &[Option<&'a DepthMap>],
+) -> Vec<Neighbour<'a>> {
+    let vp = &plan.views[view];
+    let local_from_ref = vp.cam_from_local.inverse();
+    vp.sources
+        .iter()
+        .zip(maps)
+        .filter_map(|(s, m)| {
+            let m = (*m)?;
+            let sp = &plan.views[s.view];
+            let camera = camera_of_map(&sp.camera, m.width, m.height)?;
+            let other_from_ref = sp.cam_from_local * local_from_ref;
+            Some(Neighbour {
+                map: m,
+                camera,
+                r: other_from_ref.rotation_matrix(),
+                t: other_from_ref.translation,
+            })
+        })
+        .collect()
+}
+
+/// The filtered map of `view`, checked against its sources' maps (`source_maps` in the order
+/// of the plan's sources; a missing one counts as disagreeing).
+pub fn filter_depth_map(
+    plan: &EpochPlan,
+    view: usize,
+    map: &DepthMap,
+    source_maps: &[Option<&DepthMap>],
+    options: &FilterOptions,
+) -> Result<DepthMap, DenseError> {
+    options.validate()?;
+    let vp = plan
+        .views
+        .get(view)
+        .ok_or_else(|| DenseError::InvalidInput(format!("no view {view} in the plan")))?;
+    let camera = camera_of_map(&vp.camera, map.width, map.height).ok_or_else(|| {
+        DenseError::InvalidInput(format!(
+            "a depth map of {} × {} fits no scale of view {view}",
+            map.width, map.height
+        ))
+    })?;
+    if !map.is_consistent() {
+        return Err(DenseError::InvalidInput(
+            "a depth map's channels differ in length".into(),
+        ));
+    }
+    let others = neighbours(plan, view, source_maps);
+    let min_cos = options.max_normal_angle_deg.to_radians().cos();
+    let mut out = DepthMap::empty(map.width, map.height);
+    for j in 0..map.height {
+        for i in 0..map.width {
+            let k = j * map.width + i;
+            let d = map.depth[k];
+            if !(d > 0.0) || !(map.cost[k] <= options.max_cost) {
+                continue;
+            }
+            let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
+            let x = camera.ray(u, v) * d as f64;
+            let nn = map.normal[k];
+            let n = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
+            let agreeing = others
+                .iter()
+                .filter(|o| {
+                    o.agrees(
+                        &camera,
+                        u,
+                        v,
+                        &x,
+                        &n,
+                        options.max_reprojection_px,
+                        options.max_relative_depth,
+                        min_cos,
+                    )
+                    .is_some()
+                })
+                .count();
+            if agreeing >= options.min_views {
+                out.depth[k] = d;
+                out.normal[k] = map.normal[k];
+                out.cost[k] = map.cost[k];
+            }
+        }
+    }
+    remove_speckles(&mut out, options.min_region, options.max_relative_depth as f32);
+    Ok(out)
+}
+
+/// Removes connected regions (4-neighbourhood, neighbours within `max_rel` relative depth) of
+/// fewer than `min_region` pixels.
+pub fn remove_speckles(map: &mut DepthMap, min_region: usize, max_rel: f32) {
+    if min_region <= 1 {
+        return;
+    }
+    let (w, h) = (map.width, map.height);
+    let mut label = vec![u32::MAX; w * h];
+    let mut stack = Vec::new();
+    let mut members = Vec::new();
+    let mut next = 0u32;
+    for start in 0..w * h {
+        if !(map.depth[start] > 0.0) || label[start] != u32::MAX {
+            continue;
+        }
+        members.clear();
+        stack.push(start);
+        label[start] = next;
+        while let Some(k) = stack.pop() {
+            members.push(k);
+            let (x, y) = (k % w, k / w);
+            let d = map.depth[k];
+            let mut visit = |q: usize| {
+                let e = map.depth[q];
+                if e > 0.0 && label[q] == u32::MAX && (e - d).abs() <= max_rel * d {
+                    label[q] = next;
+                    stack.push(q);
+                }
+            };
+            if x > 0 {
+                visit(k - 1);
+            }
+            if x + 1 < w {
+                visit(k + 1);
+            }
+            if y > 0 {
+                visit(k - w);
+            }
+            if y + 1 < h {
+                visit(k + w);
+            }
+        }
+        if members.len() < min_region {
+            for &k in &members {
+                map.depth[k] = 0.0;
+                map.normal[k] = [0.0; 3];
+                map.cost[k] = NO_COST;
+            }
+        }
+        next += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn speckles_go_and_regions_stay() {
+        let mut map = DepthMap::empty(10, 10);
+        for j in 0..5 {
+            for i in 0..5 {
+                map.depth[j * 10 + i] = 10.0;
+            }
+        }
+        map.depth[8 * 10 + 8] = 10.0;
+        map.depth[8 * 10 + 9] = 10.02;
+        remove_speckles(&mut map, 4, 0.01);
+        assert_eq!(map.valid_count(), 25);
+        assert_eq!(map.depth[88], 0.0);
+    }
+}

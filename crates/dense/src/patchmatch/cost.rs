@@ -1,0 +1,547 @@
+//! The matching cost of a plane hypothesis at a reference pixel against one source view:
+//! bilateral-weighted NCC over a sparse window warped by the plane-induced homography, and the
+//! geometric-consistency term (forward–backward reprojection through the source's depth map).
+//!
+//! Everything here runs in the innermost loop: f32, no allocation, the reference half of the
+//! NCC computed once per pixel ([`RefWindow`]) and reused for every hypothesis and source.
+
+use crate::camera::WorkingCamera;
+use crate::image::{Mask, Plane};
+
+/// Cost of a failed evaluation (projection outside the source, no texture): the worst NCC cost.
+pub const WORST: f32 = 2.0;
+
+/// Least weighted intensity variance of a window (intensities 0–1): below it NCC is noise.
+const MIN_VARIANCE: f32 = 1e-7;
+
+/// Most samples of a window (the options keep `(2 radius / step + 1)²` below it).
+pub const MAX_WINDOW: usize = 128;
+/// Lanes of the accumulations: sample counts are padded to a multiple of it with zero weights,
+/// so the sums have a fixed order whatever the instruction set.
+const LANES: usize = 8;
+
+/// Window offsets and spatial weights of the sparse NCC window, padded to a multiple of
+/// [`LANES`] samples (padding: offset 0, weight 0).
+#[derive(Debug, Clone)]
+pub struct WindowShape {
+    /// dx per sample.
+    pub dx: Vec<f32>,
+    /// dy per sample.
+    pub dy: Vec<f32>,
+    /// Spatial part of the bilateral weight per sample (0 for padding).
+    pub spatial: Vec<f32>,
+    /// Samples that are not padding.
+    pub samples: usize,
+    /// 1 / (2 σ_color²).
+    pub inv_two_sigma_color2: f32,
+}
+
+impl WindowShape {
+    /// Samples at `-radius..=radius` by `step` in both directions (the sparse window of ACMH and
+    /// COLMAP), spatial weight `exp(-r² / 2σs²)`. Fails beyond [`MAX_WINDOW`] samples.
+    pub fn new(
+        radius: usize,
+        step: usize,
+        sigma_spatial: f32,
+        sigma_color: f32,
+    ) -> Option<WindowShape> {
+        let r = radius as i64;
+        let ticks: Vec<f32> = (-r..=r).step_by(step.max(1)).map(|d| d as f32).collect();
+        let samples = ticks.len() * ticks.len();
+        let padded = samples.div_ceil(LANES) * LANES;
+        if padded > MAX_WINDOW {
+            return None;
+        }
+        let (mut dx, mut dy, mut spatial) = (
+            Vec::with_capacity(padded),
+            Vec::with_capacity(padded),
+            Vec::with_capacity(padded),
+        );
+        for &y in &ticks {
+            for &x in &ticks {
+                dx.push(x);
+                dy.push(y);
+                spatial.push((-(x * x + y * y) / (2.0 * sigma_spatial * sigma_spatial)).exp());
+            }
+        }
+        dx.resize(padded, 0.0);
+        dy.resize(padded, 0.0);
+        spatial.resize(padded, 0.0);
+        Some(WindowShape {
+            dx,
+            dy,
+            spatial,
+            samples,
+            inv_two_sigma_color2: 1.0 / (2.0 * sigma_color * sigma_color),
+        })
+    }
+
+    /// Samples including padding.
+    pub fn len(&self) -> usize {
+        self.dx.len()
+    }
+
+    /// Whether the window is empty (never, for a valid shape).
+    pub fn is_empty(&self) -> bool {
+        self.dx.is_empty()
+    }
+}
+
+/// The reference half of the NCC at one pixel: bilateral weights and centred intensities.
+#[derive(Debug, Clone)]
+pub struct RefWindow {
+    /// Normalised weights (summing to 1; 0 for padding).
+    pub weight: Vec<f32>,
+    /// Weight × (intensity − weighted mean).
+    pub weighted_centred: Vec<f32>,
+    /// Weighted variance of the reference intensities.
+    pub variance: f32,
+}
+
+impl RefWindow {
+    /// Scratch for windows of `shape`.
+    pub fn new(shape: &WindowShape) -> RefWindow {
+        RefWindow {
+            weight: vec![0.0; shape.len()],
+            weighted_centred: vec![0.0; shape.len()],
+            variance: 0.0,
+        }
+    }
+
+    /// Fills the window at pixel (i, j) of `grey` (samples clamped to the image). Returns
+    /// whether the window has texture enough for NCC.
+    pub fn fill(&mut self, shape: &WindowShape, grey: &Plane, i: usize, j: usize) -> bool {
+        let centre = grey.at(i, j);
+        let (w, h) = (grey.width as i64, grey.height as i64);
+        let mut sum_w = 0.0f32;
+        let mut sum_wr = 0.0f32;
+        for k in 0..shape.len() {
+            let x = (i as i64 + shape.dx[k] as i64).clamp(0, w - 1) as usize;
+            let y = (j as i64 + shape.dy[k] as i64).clamp(0, h - 1) as usize;
+            // Relative to the centre: keeps the variance accurate in f32.
+            let r = grey.at(x, y) - centre;
+            let wt = shape.spatial[k] * (-(r * r) * shape.inv_two_sigma_color2).exp();
+            self.weight[k] = wt;
+            self.weighted_centred[k] = r;
+            sum_w += wt;
+            sum_wr += wt * r;
+        }
+        let inv = 1.0 / sum_w;
+        let mean = sum_wr * inv;
+        let mut var = 0.0f32;
+        for k in 0..shape.len() {
+            self.weight[k] *= inv;
+            let c = self.weighted_centred[k] - mean;
+            var += self.weight[k] * c * c;
+            self.weighted_centred[k] = self.weight[k] * c;
+        }
+        self.variance = var;
+        var > MIN_VARIANCE
+    }
+}
+
+/// A source view at the pass's scale, in the reference camera's frame.
+pub struct SourceView<'a> {
+    /// Grey intensities.
+    pub grey: &'a Plane,
+    /// Usable pixels.
+    pub mask: &'a Mask,
+    /// The source's camera at this scale.
+    pub camera: WorkingCamera,
+    /// `src_from_ref` rotation, row-major.
+    pub r: [f32; 9],
+    /// `src_from_ref` translation.
+    pub t: [f32; 3],
+    /// The source's depth map for the geometric term, with the camera of its scale.
+    pub depth: Option<(&'a [f32], WorkingCamera)>,
+}
+
+/// The reference camera at the pass's scale, as f32 for the inner loops.
+#[derive(Debug, Clone, Copy)]
+pub struct RefCamera {
+    /// Focal length.
+    pub f: f32,
+    /// Principal point.
+    pub cx: f32,
+    /// Principal point.
+    pub cy: f32,
+}
+
+impl RefCamera {
+    /// Of a working camera.
+    pub fn of(c: &WorkingCamera) -> RefCamera {
+        RefCamera {
+            f: c.f as f32,
+            cx: c.cx as f32,
+            cy: c.cy as f32,
+        }
+    }
+
+    /// The ray (z = 1) through continuous pixel coordinates (u, v).
+    #[inline]
+    pub fn ray(&self, u: f32, v: f32) -> [f32; 3] {
+        [(u - self.cx) / self.f, (v - self.cy) / self.f, 1.0]
+    }
+}
+
+#[inline]
+fn dot(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// The homography from reference pixels to source pixels induced by the plane `n·X + w = 0`
+/// (reference camera frame): `H = K_s (R − t nᵀ / w) K_r⁻¹`, row-major.
+#[inline]
+pub fn homography(src: &SourceView<'_>, k_ref: &RefCamera, n: &[f32; 3], w: f32) -> [f32; 9] {
+    let r = &src.r;
+    let t = &src.t;
+    let inv_w = 1.0 / w;
+    // M = R − t nᵀ / w
+    let mut m = [0.0f32; 9];
+    for row in 0..3 {
+        for col in 0..3 {
+            m[row * 3 + col] = r[row * 3 + col] - t[row] * n[col] * inv_w;
+        }
+    }
+    // M K_r⁻¹, with K_r⁻¹ = [[1/f, 0, -cx/f], [0, 1/f, -cy/f], [0, 0, 1]].
+    let (fi, cx, cy) = (1.0 / k_ref.f, k_ref.cx, k_ref.cy);
+    let mut a = [0.0f32; 9];
+    for row in 0..3 {
+        let (m0, m1, m2) = (m[row * 3], m[row * 3 + 1], m[row * 3 + 2]);
+        a[row * 3] = m0 * fi;
+        a[row * 3 + 1] = m1 * fi;
+        a[row * 3 + 2] = m2 - (m0 * cx + m1 * cy) * fi;
+    }
+    // K_s A, with K_s = [[f, 0, cx], [0, f, cy], [0, 0, 1]].
+    let (fs, sx, sy) = (
+        src.camera.f as f32,
+        src.camera.cx as f32,
+        src.camera.cy as f32,
+    );
+    let mut h = [0.0f32; 9];
+    for col in 0..3 {
+        h[col] = fs * a[col] + sx * a[6 + col];
+        h[3 + col] = fs * a[3 + col] + sy * a[6 + col];
+        h[6 + col] = a[6 + col];
+    }
+    h
+}
+
+/// 1 − NCC of the reference window at (u, v) (pixel centre) against the source through `h`,
+/// in [0, 2]; [`WORST`] when the window leaves the front of the source, its centre leaves the
+/// source or lands on an unusable pixel, or the source window has no texture. Source samples
+/// beyond the border are clamped to it.
+#[inline]
+pub fn ncc_cost(
+    shape: &WindowShape,
+    window: &RefWindow,
+    src: &SourceView<'_>,
+    h: &[f32; 9],
+    u: f32,
+    v: f32,
+) -> f32 {
+    let z = h[6] * u + h[7] * v + h[8];
+    if !(z > 1e-6) {
+        return WORST;
+    }
+    let cu = (h[0] * u + h[1] * v + h[2]) / z;
+    let cv = (h[3] * u + h[4] * v + h[5]) / z;
+    let (sw, sh) = (src.grey.width as f32, src.grey.height as f32);
+    if !(cu >= 0.0 && cv >= 0.0 && cu < sw && cv < sh) || !src.mask.at(cu as usize, cv as usize)
+    {
+        return WORST;
+    }
+    // The window's corners in front of the source (a plane seen edge-on folds the window).
+    let (lo, hi) = (shape.dx[0], shape.dx[shape.samples - 1]);
+    if [(lo, lo), (hi, lo), (lo, hi), (hi, hi)]
+        .iter()
+        .any(|&(dx, dy)| !(h[6] * (u + dx) + h[7] * (v + dy) + h[8] > 1e-6))
+    {
+        return WORST;
+    }
+    let (cov, var_s) = window_moments(shape, window, src.grey, h, u, v);
+    if !(var_s > MIN_VARIANCE) {
+        return WORST;
+    }
+    let ncc = cov / (window.variance * var_s).sqrt();
+    (1.0 - ncc).clamp(0.0, WORST)
+}
+
+/// Weighted covariance with the reference and weighted variance of the source samples.
+#[inline]
+fn window_moments(
+    shape: &WindowShape,
+    window: &RefWindow,
+    grey: &Plane,
+    h: &[f32; 9],
+    u: f32,
+    v: f32,
+) -> (f32, f32) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA, checked just above.
+        return unsafe { window_moments_avx2(shape, window, grey, h, u, v) };
+    }
+    window_moments_portable(shape, window, grey, h, u, v)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn window_moments_avx2(
+    shape: &WindowShape,
+    window: &RefWindow,
+    grey: &Plane,
+    h: &[f32; 9],
+    u: f32,
+    v: f32,
+) -> (f32, f32) {
+    window_moments_portable(shape, window, grey, h, u, v)
+}
+
+/// The kernel, written in stages the compiler vectorises (positions, bilinear weights,
+/// accumulation in [`LANES`] independent lanes) around the scalar gather of the four corners.
+/// Floating-point operations are never contracted or reordered, so every instruction set gives
+/// the same result.
+#[inline(always)]
+fn window_moments_portable(
+    shape: &WindowShape,
+    window: &RefWindow,
+    grey: &Plane,
+    h: &[f32; 9],
+    u: f32,
+    v: f32,
+) -> (f32, f32) {
+    let n = shape.len();
+    let (dx, dy) = (&shape.dx[..n], &shape.dy[..n]);
+    let mut px = [0.0f32; MAX_WINDOW];
+    let mut py = [0.0f32; MAX_WINDOW];
+    // Continuous positions relative to the band of pixel centres, clamped into it.
+    let xmax = (grey.width - 1) as f32 - 1e-3;
+    let ymax = (grey.height - 1) as f32 - 1e-3;
+    for k in 0..n {
+        let x = u + dx[k];
+        let y = v + dy[k];
+        let iz = 1.0 / (h[6] * x + h[7] * y + h[8]);
+        px[k] = ((h[0] * x + h[1] * y + h[2]) * iz - 0.5).clamp(0.0, xmax);
+        py[k] = ((h[3] * x + h[4] * y + h[5]) * iz - 0.5).clamp(0.0, ymax);
+    }
+    // Integer corners and fractions (vectorised), then the scalar gather of the four corners,
+    // then the interpolation (vectorised).
+    let width = grey.width;
+    let mut index = [0u32; MAX_WINDOW];
+    for k in 0..n {
+        let (i, j) = (px[k] as u32, py[k] as u32);
+        px[k] -= i as f32;
+        py[k] -= j as f32;
+        index[k] = j * width as u32 + i;
+    }
+    let data = &grey.data;
+    let mut corners = [[0.0f32; 4]; MAX_WINDOW];
+    for k in 0..n {
+        let at = index[k] as usize;
+        let top = &data[at..at + 2];
+        let bottom = &data[at + width..at + width + 2];
+        corners[k] = [top[0], top[1], bottom[0], bottom[1]];
+    }
+    let mut value = [0.0f32; MAX_WINDOW];
+    for k in 0..n {
+        let [a, b, c, d] = corners[k];
+        let top = a + (b - a) * px[k];
+        let bottom = c + (d - c) * px[k];
+        value[k] = top + (bottom - top) * py[k];
+    }
+    // Relative to one sample, which keeps the variance accurate in f32.
+    let offset = value[shape.samples / 2];
+    let mut s1 = [0.0f32; LANES];
+    let mut s2 = [0.0f32; LANES];
+    let mut sr = [0.0f32; LANES];
+    for k0 in (0..n).step_by(LANES) {
+        for l in 0..LANES {
+            let k = k0 + l;
+            let s = value[k] - offset;
+            let ws = window.weight[k] * s;
+            s1[l] += ws;
+            s2[l] += ws * s;
+            sr[l] += window.weighted_centred[k] * s;
+        }
+    }
+    let (mut sum_s, mut sum_ss, mut sum_rs) = (0.0f32, 0.0f32, 0.0f32);
+    for l in 0..LANES {
+        sum_s += s1[l];
+        sum_ss += s2[l];
+        sum_rs += sr[l];
+    }
+    (sum_rs, sum_ss - sum_s * sum_s)
+}
+
+/// The geometric-consistency term (ACMM): the reference pixel (u, v) at depth `depth` is
+/// projected into the source, lifted with the source's own depth there, and projected back;
+/// the distance to (u, v) in pixels, at most `max_px` (also when the source has no depth there).
+#[inline]
+pub fn geometric_cost(
+    src: &SourceView<'_>,
+    k_ref: &RefCamera,
+    u: f32,
+    v: f32,
+    depth: f32,
+    max_px: f32,
+) -> f32 {
+    let Some((map, cam)) = src.depth else {
+        return 0.0;
+    };
+    let ray = k_ref.ray(u, v);
+    let x = [ray[0] * depth, ray[1] * depth, depth];
+    let r = &src.r;
+    let t = &src.t;
+    let xs = [
+        r[0] * x[0] + r[1] * x[1] + r[2] * x[2] + t[0],
+        r[3] * x[0] + r[4] * x[1] + r[5] * x[2] + t[1],
+        r[6] * x[0] + r[7] * x[1] + r[8] * x[2] + t[2],
+    ];
+    if !(xs[2] > 0.0) {
+        return max_px;
+    }
+    let (f, cx, cy) = (cam.f as f32, cam.cx as f32, cam.cy as f32);
+    let us = cx + f * xs[0] / xs[2];
+    let vs = cy + f * xs[1] / xs[2];
+    if !(us >= 0.0 && vs >= 0.0 && us < cam.width as f32 && vs < cam.height as f32) {
+        return max_px;
+    }
+    let d = map[vs as usize * cam.width + us as usize];
+    if !(d > 0.0) {
+        return max_px;
+    }
+    // Lift (us, vs) with the source's depth, back to the reference frame: X = Rᵀ (Xs − t).
+    let ys = [(us - cx) / f * d - t[0], (vs - cy) / f * d - t[1], d - t[2]];
+    let y = [
+        r[0] * ys[0] + r[3] * ys[1] + r[6] * ys[2],
+        r[1] * ys[0] + r[4] * ys[1] + r[7] * ys[2],
+        r[2] * ys[0] + r[5] * ys[1] + r[8] * ys[2],
+    ];
+    if !(y[2] > 0.0) {
+        return max_px;
+    }
+    let du = k_ref.cx + k_ref.f * y[0] / y[2] - u;
+    let dv = k_ref.cy + k_ref.f * y[1] / y[2] - v;
+    (du * du + dv * dv).sqrt().min(max_px)
+}
+
+/// Depth at the ray `ray` (z = 1) of the plane `n·X + w = 0`; non-positive when the plane does
+/// not face the ray.
+#[inline]
+pub fn plane_depth(n: &[f32; 3], w: f32, ray: &[f32; 3]) -> f32 {
+    let denom = dot(n, ray);
+    if denom.abs() < 1e-8 {
+        return -1.0;
+    }
+    -w / denom
+}
+
+/// Offset `w` of the plane through the point at `depth` on `ray` with normal `n`.
+#[inline]
+pub fn plane_offset(n: &[f32; 3], depth: f32, ray: &[f32; 3]) -> f32 {
+    -(dot(n, ray) * depth)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(w: usize, h: usize, f: f64) -> WorkingCamera {
+        WorkingCamera {
+            width: w,
+            height: h,
+            f,
+            cx: 0.5 * w as f64 + 1.5,
+            cy: 0.5 * h as f64 - 2.0,
+        }
+    }
+
+    /// The homography of a plane maps every reference pixel to the projection of the plane's
+    /// point on its ray.
+    #[test]
+    fn homography_maps_plane_points() {
+        let kr = camera(100, 80, 90.0);
+        let ks = camera(120, 90, 110.0);
+        // src_from_ref: a rotation of 0.1 rad about y and a shift.
+        let (c, s) = (0.1f32.cos(), 0.1f32.sin());
+        let r = [c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c];
+        let t = [-0.5, 0.1, 0.05];
+        let grey = Plane::filled(120, 90, 0.0);
+        let mask = Mask::all(120, 90);
+        let src = SourceView {
+            grey: &grey,
+            mask: &mask,
+            camera: ks,
+            r,
+            t,
+            depth: None,
+        };
+        let k_ref = RefCamera::of(&kr);
+        let n = {
+            let v = [0.2f32, -0.1, -1.0];
+            let l = dot(&v, &v).sqrt();
+            [v[0] / l, v[1] / l, v[2] / l]
+        };
+        let ray0 = k_ref.ray(50.0, 40.0);
+        let w = plane_offset(&n, 10.0, &ray0);
+        let h = homography(&src, &k_ref, &n, w);
+        for (u, v) in [(10.5f32, 12.5f32), (70.5, 60.5), (50.0, 40.0)] {
+            let ray = k_ref.ray(u, v);
+            let d = plane_depth(&n, w, &ray);
+            let x = [ray[0] * d, ray[1] * d, d];
+            let xs = [
+                r[0] * x[0] + r[1] * x[1] + r[2] * x[2] + t[0],
+                r[3] * x[0] + r[4] * x[1] + r[5] * x[2] + t[1],
+                r[6] * x[0] + r[7] * x[1] + r[8] * x[2] + t[2],
+            ];
+            let expected = (
+                ks.cx as f32 + ks.f as f32 * xs[0] / xs[2],
+                ks.cy as f32 + ks.f as f32 * xs[1] / xs[2],
+            );
+            let z = h[6] * u + h[7] * v + h[8];
+            let got = (
+                (h[0] * u + h[1] * v + h[2]) / z,
+                (h[3] * u + h[4] * v + h[5]) / z,
+            );
+            assert!((got.0 - expected.0).abs() < 1e-3, "{got:?} {expected:?}");
+            assert!((got.1 - expected.1).abs() < 1e-3, "{got:?} {expected:?}");
+        }
+    }
+
+    #[test]
+    fn ncc_is_zero_cost_for_identical_views_and_worst_without_texture() {
+        let k = camera(60, 50, 60.0);
+        let mut grey = Plane::filled(60, 50, 0.0);
+        for j in 0..50 {
+            for i in 0..60 {
+                grey.data[j * 60 + i] = 0.5 + 0.2 * ((i as f32 * 0.7).sin() * (j as f32 * 0.45).cos());
+            }
+        }
+        let mask = Mask::all(60, 50);
+        let identity = SourceView {
+            grey: &grey,
+            mask: &mask,
+            camera: k,
+            r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            t: [0.0, 0.0, 0.0],
+            depth: None,
+        };
+        let shape = WindowShape::new(4, 2, 4.0, 0.1).unwrap();
+        let mut window = RefWindow::new(&shape);
+        assert!(window.fill(&shape, &grey, 30, 25));
+        let k_ref = RefCamera::of(&k);
+        let n = [0.0, 0.0, -1.0];
+        let h = homography(&identity, &k_ref, &n, 5.0);
+        let cost = ncc_cost(&shape, &window, &identity, &h, 30.5, 25.5);
+        assert!(cost < 1e-4, "{cost}");
+        let flat = Plane::filled(60, 50, 0.3);
+        assert!(!window.fill(&shape, &flat, 30, 25));
+        let flat_src = SourceView {
+            grey: &flat,
+            ..identity
+        };
+        assert!(window.fill(&shape, &grey, 30, 25));
+        assert_eq!(ncc_cost(&shape, &window, &flat_src, &h, 30.5, 25.5), WORST);
+    }
+}

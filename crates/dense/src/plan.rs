@@ -1,0 +1,423 @@
+//! What dense matching of one epoch will do before it touches a pixel: each view's working camera,
+//! its pose in a local frame, its source views and its depth range, all from the frozen
+//! orientation and the sparse points.
+//!
+//! Source views (per reference view, from the same epoch only — the caller passes one epoch):
+//! every other view that shares sparse points is scored as OpenMVS does, per shared point, by a
+//! triangulation-angle weight (full between 5° and 45°, penalised below and above) times a scale
+//! weight (the ratio of the two views' ground footprints, full between 1 and 1.6), the sum
+//! multiplied by the fraction of the reference image those shared points cover (16 × 16 cells).
+//! Views with fewer than 3 shared points or whose 75th-percentile triangulation angle is below
+//! 1° (COLMAP's rule) are never sources. The best `max_sources` whose score is at least 3 % of
+//! the best are kept.
+//!
+//! Depth range (COLMAP's rule): the 1st and 99th percentiles of the depths of the view's sparse
+//! points, widened by 25 %.
+
+use nalgebra::{Translation3, UnitQuaternion, Vector3};
+use timesift_core::{Camera, Pose};
+
+use crate::DenseError;
+use crate::camera::WorkingCamera;
+use crate::undistort::working_camera;
+
+/// One oriented view of the epoch: its camera (original, distorted) and `cam_from_world`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct View {
+    /// The camera model of the original image.
+    pub camera: Camera,
+    /// The frozen orientation.
+    pub cam_from_world: Pose,
+}
+
+/// A sparse (tie) point and the views that observe it (indices into the epoch's views).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SparsePoint {
+    /// World position.
+    pub position: Vector3<f64>,
+    /// Observing views, indices into [`EpochInput::views`].
+    pub views: Vec<usize>,
+}
+
+/// The orientation of one epoch, frozen: what dense matching starts from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpochInput {
+    /// Oriented views.
+    pub views: Vec<View>,
+    /// Sparse points observed by at least one of them.
+    pub points: Vec<SparsePoint>,
+}
+
+/// Options of the plan.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlanOptions {
+    /// Resolution level: 1 (full), 2 (half), 4 or 8.
+    pub level: u32,
+    /// Most source views per reference view.
+    pub max_sources: usize,
+}
+
+impl Default for PlanOptions {
+    fn default() -> Self {
+        PlanOptions {
+            level: 2,
+            max_sources: 8,
+        }
+    }
+}
+
+/// A source view of a reference view, with its score.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Source {
+    /// Index of the source view in the epoch.
+    pub view: usize,
+    /// View-selection score (higher is better).
+    pub score: f64,
+    /// Shared sparse points.
+    pub shared_points: usize,
+    /// Median triangulation angle over the shared points, radians.
+    pub median_angle: f64,
+}
+
+/// Everything dense matching needs to know about one view.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewPlan {
+    /// The ideal pinhole the image is resampled to.
+    pub camera: WorkingCamera,
+    /// Pose in the plan's local frame (world minus [`EpochPlan::origin`]).
+    pub cam_from_local: Pose,
+    /// Source views, best first; empty when no view qualifies (the view gets no depth map).
+    pub sources: Vec<Source>,
+    /// Depth range (min, max), metres along the optical axis.
+    pub depth_range: (f64, f64),
+}
+
+/// The plan of one epoch.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpochPlan {
+    /// World position of the local frame's origin (the mean camera centre), so that matching
+    /// works with small numbers whatever the CRS.
+    pub origin: Vector3<f64>,
+    /// Per view, in the order of [`EpochInput::views`].
+    pub views: Vec<ViewPlan>,
+    /// The level the plan was made for.
+    pub level: u32,
+}
+
+impl EpochPlan {
+    /// `local_from_world` for points.
+    pub fn local_from_world(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        p - self.origin
+    }
+    /// `world_from_local` for points.
+    pub fn world_from_local(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        p + self.origin
+    }
+}
+
+/// Least shared points for a view to be a source.
+const MIN_SHARED_POINTS: usize = 3;
+/// Least 75th-percentile triangulation angle of a source (COLMAP's `min_triangulation_angle`).
+const MIN_SOURCE_ANGLE_DEG: f64 = 1.0;
+/// Triangulation angles with full weight.
+const GOOD_ANGLES_DEG: (f64, f64) = (5.0, 45.0);
+/// Footprint ratios with full weight (OpenMVS).
+const GOOD_SCALE_RATIO: f64 = 1.6;
+/// Least score of a kept source relative to the best.
+const MIN_RELATIVE_SCORE: f64 = 0.03;
+/// Coverage grid of the reference image (cells per side).
+const COVERAGE_CELLS: usize = 16;
+/// Percentiles and widening of the depth range.
+const DEPTH_PERCENTILES: (f64, f64) = (0.01, 0.99);
+const DEPTH_MARGIN: (f64, f64) = (0.75, 1.25);
+/// Least sparse points in front of a view to bound its depths.
+const MIN_DEPTH_POINTS: usize = 3;
+
+/// Weight of a triangulation angle (radians): 1 between 5° and 45°, falling quadratically to 0
+/// at 0°, and as a Gaussian of σ 10° beyond 45°.
+fn angle_weight(angle: f64) -> f64 {
+    let (lo, hi) = (
+        GOOD_ANGLES_DEG.0.to_radians(),
+        GOOD_ANGLES_DEG.1.to_radians(),
+    );
+    if angle < lo {
+        (angle / lo).powi(2)
+    } else if angle <= hi {
+        1.0
+    } else {
+        let s = 10f64.to_radians();
+        (-(angle - hi).powi(2) / (2.0 * s * s)).exp()
+    }
+}
+
+/// Weight of a footprint ratio `reference / source` (OpenMVS): sources seeing the ground at a
+/// much finer or coarser resolution than the reference match badly.
+fn scale_weight(ratio: f64) -> f64 {
+    if ratio > GOOD_SCALE_RATIO {
+        (GOOD_SCALE_RATIO / ratio).powi(2)
+    } else if ratio >= 1.0 {
+        1.0
+    } else {
+        ratio * ratio
+    }
+}
+
+/// The plan of one epoch.
+pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan, DenseError> {
+    let n = input.views.len();
+    if n < 2 {
+        return Err(DenseError::TooFewViews {
+            found: n,
+            needed: 2,
+        });
+    }
+    if options.max_sources == 0 {
+        return Err(DenseError::InvalidOption(
+            "max_sources = 0: expected at least 1".into(),
+        ));
+    }
+    for p in &input.points {
+        if let Some(&v) = p.views.iter().find(|&&v| v >= n) {
+            return Err(DenseError::InvalidInput(format!(
+                "a sparse point names view {v} of an epoch of {n} views"
+            )));
+        }
+    }
+    let origin = input
+        .views
+        .iter()
+        .map(|v| v.cam_from_world.center())
+        .sum::<Vector3<f64>>()
+        / n as f64;
+    let world_from_local = Pose::new(UnitQuaternion::identity(), Translation3::from(origin).vector);
+    let poses: Vec<Pose> = input
+        .views
+        .iter()
+        .map(|v| v.cam_from_world * world_from_local)
+        .collect();
+    let centres: Vec<Vector3<f64>> = poses.iter().map(Pose::center).collect();
+    let cameras = input
+        .views
+        .iter()
+        .map(|v| working_camera(&v.camera, options.level))
+        .collect::<Result<Vec<_>, _>>()?;
+    let points: Vec<Vector3<f64>> = input.points.iter().map(|p| p.position - origin).collect();
+    // Points of each view.
+    let mut points_of: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (k, p) in input.points.iter().enumerate() {
+        for &v in &p.views {
+            if points_of[v].last() != Some(&k) {
+                points_of[v].push(k);
+            }
+        }
+    }
+    let views = (0..n)
+        .map(|a| {
+            let depth_range = depth_range(a, &poses[a], &points_of[a], &points)?;
+            let sources = select_sources(a, input, &poses, &centres, &cameras, &points, options);
+            Ok(ViewPlan {
+                camera: cameras[a],
+                cam_from_local: poses[a],
+                sources,
+                depth_range,
+            })
+        })
+        .collect::<Result<Vec<_>, DenseError>>()?;
+    Ok(EpochPlan {
+        origin,
+        views,
+        level: options.level,
+    })
+}
+
+fn depth_range(
+    view: usize,
+    pose: &Pose,
+    point_ids: &[usize],
+    points: &[Vector3<f64>],
+) -> Result<(f64, f64), DenseError> {
+    let mut depths: Vec<f64> = point_ids
+        .iter()
+        .map(|&k| pose.transform_point(&points[k]).z)
+        .filter(|z| *z > 0.0)
+        .collect();
+    if depths.len() < MIN_DEPTH_POINTS {
+        return Err(DenseError::NoDepthRange {
+            view,
+            points: depths.len(),
+        });
+    }
+    depths.sort_by(f64::total_cmp);
+    let at = |q: f64| depths[((depths.len() as f64 * q) as usize).min(depths.len() - 1)];
+    Ok((
+        at(DEPTH_PERCENTILES.0) * DEPTH_MARGIN.0,
+        at(DEPTH_PERCENTILES.1) * DEPTH_MARGIN.1,
+    ))
+}
+
+/// Per candidate source: score sum, shared points, angles, coverage cells.
+struct Candidate {
+    score: f64,
+    angles: Vec<f64>,
+    cells: Vec<bool>,
+}
+
+fn select_sources(
+    a: usize,
+    input: &EpochInput,
+    poses: &[Pose],
+    centres: &[Vector3<f64>],
+    cameras: &[WorkingCamera],
+    points: &[Vector3<f64>],
+    options: &PlanOptions,
+) -> Vec<Source> {
+    let n = input.views.len();
+    let mut candidates: Vec<Option<Candidate>> = (0..n).map(|_| None).collect();
+    let cam_a = &cameras[a];
+    for (k, p) in input.points.iter().enumerate() {
+        if !p.views.contains(&a) {
+            continue;
+        }
+        let x = &points[k];
+        let in_a = poses[a].transform_point(x);
+        let Some(pixel) = cam_a.project(&in_a) else {
+            continue;
+        };
+        let cell = if cam_a.contains(pixel.x, pixel.y) {
+            let ci = (pixel.x / cam_a.width as f64 * COVERAGE_CELLS as f64) as usize;
+            let cj = (pixel.y / cam_a.height as f64 * COVERAGE_CELLS as f64) as usize;
+            Some(cj.min(COVERAGE_CELLS - 1) * COVERAGE_CELLS + ci.min(COVERAGE_CELLS - 1))
+        } else {
+            None
+        };
+        let ray_a = centres[a] - x;
+        for &b in &p.views {
+            if b == a {
+                continue;
+            }
+            let in_b = poses[b].transform_point(x);
+            if !(in_b.z > 0.0) {
+                continue;
+            }
+            let ray_b = centres[b] - x;
+            let angle = ray_a.angle(&ray_b);
+            // Footprint of a pixel on the ground: depth / focal.
+            let ratio = (in_b.z / cameras[b].f) / (in_a.z / cam_a.f);
+            let c = candidates[b].get_or_insert_with(|| Candidate {
+                score: 0.0,
+                angles: Vec::new(),
+                cells: vec![false; COVERAGE_CELLS * COVERAGE_CELLS],
+            });
+            // The footprint ratio as OpenMVS defines it: reference over source resolution.
+            c.score += angle_weight(angle).max(0.1) * scale_weight(1.0 / ratio);
+            c.angles.push(angle);
+            if let Some(cell) = cell {
+                c.cells[cell] = true;
+            }
+        }
+    }
+    let mut sources: Vec<Source> = candidates
+        .into_iter()
+        .enumerate()
+        .filter_map(|(b, c)| {
+            let mut c = c?;
+            if c.angles.len() < MIN_SHARED_POINTS {
+                return None;
+            }
+            c.angles.sort_by(f64::total_cmp);
+            let q = |f: f64| c.angles[((c.angles.len() - 1) as f64 * f).round() as usize];
+            if q(0.75) < MIN_SOURCE_ANGLE_DEG.to_radians() {
+                return None;
+            }
+            let area = c.cells.iter().filter(|&&x| x).count() as f64 / c.cells.len() as f64;
+            Some(Source {
+                view: b,
+                score: c.score * area.max(0.01),
+                shared_points: c.angles.len(),
+                median_angle: q(0.5),
+            })
+        })
+        .collect();
+    sources.sort_by(|x, y| y.score.total_cmp(&x.score).then(x.view.cmp(&y.view)));
+    let best = sources.first().map_or(0.0, |s| s.score);
+    sources.retain(|s| s.score >= MIN_RELATIVE_SCORE * best);
+    sources.truncate(options.max_sources);
+    sources
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use timesift_core::BrownCamera;
+
+    fn nadir(x: f64, y: f64, h: f64) -> Pose {
+        // Looking down: camera x = east, y = south, z = down.
+        let r = nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
+        Pose::from_rt(&r, &Vector3::zeros())
+            .map(|p| Pose::from_rotation_and_center(p.rotation, &Vector3::new(x, y, h)))
+            .unwrap()
+    }
+
+    fn strip(xs: &[f64]) -> EpochInput {
+        let camera = Camera::Brown(BrownCamera::new(400, 300, 400.0).unwrap());
+        let views: Vec<View> = xs
+            .iter()
+            .map(|&x| View {
+                camera: camera.clone(),
+                cam_from_world: nadir(500_000.0 + x, 5_000_000.0, 100.0),
+            })
+            .collect();
+        let mut points = Vec::new();
+        for i in 0..40 {
+            for j in 0..30 {
+                let p = Vector3::new(
+                    500_000.0 - 60.0 + 4.0 * i as f64,
+                    5_000_000.0 - 45.0 + 3.0 * j as f64,
+                    (i % 3) as f64,
+                );
+                let seen: Vec<usize> = views
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, v)| {
+                        let c = v.cam_from_world.transform_point(&p);
+                        c.z > 0.0 && (c.x / c.z).abs() < 0.5 && (c.y / c.z).abs() < 0.375
+                    })
+                    .map(|(k, _)| k)
+                    .collect();
+                if seen.len() >= 2 {
+                    points.push(SparsePoint { position: p, views: seen });
+                }
+            }
+        }
+        EpochInput { views, points }
+    }
+
+    #[test]
+    fn sources_prefer_overlap_at_a_useful_angle() {
+        // View 1 is 2 m from view 0 (1°: too narrow), view 2 is 25 m away (14°), view 3 is 80 m
+        // away (little overlap).
+        let input = strip(&[0.0, 2.0, 25.0, 80.0]);
+        let plan = plan_epoch(&input, &PlanOptions::default()).unwrap();
+        let first: Vec<usize> = plan.views[0].sources.iter().map(|s| s.view).collect();
+        assert_eq!(first[0], 2, "{:?}", plan.views[0].sources);
+        let (near, far) = plan.views[0].depth_range;
+        assert!(near < 98.0 * 0.8 && far > 100.0 * 1.2, "{near} {far}");
+        // The plan's local frame has small numbers.
+        assert!(plan.views[0].cam_from_local.center().norm() < 100.0);
+    }
+
+    #[test]
+    fn one_view_and_blind_views_are_errors() {
+        let input = strip(&[0.0]);
+        assert!(matches!(
+            plan_epoch(&input, &PlanOptions::default()),
+            Err(DenseError::TooFewViews { found: 1, .. })
+        ));
+        let mut input = strip(&[0.0, 25.0]);
+        input.points.clear();
+        assert!(matches!(
+            plan_epoch(&input, &PlanOptions::default()),
+            Err(DenseError::NoDepthRange { view: 0, .. })
+        ));
+    }
+}
