@@ -26,6 +26,9 @@ pub struct ProjectConfig {
     /// Orientation options.
     #[serde(default)]
     pub align: AlignConfig,
+    /// Dense-matching options.
+    #[serde(default)]
+    pub dense: DenseConfig,
     /// Change-detection options.
     #[serde(default)]
     pub change: ChangeConfig,
@@ -254,6 +257,97 @@ impl Default for AlignConfig {
     }
 }
 
+/// `[dense]`: multi-view stereo per epoch on the frozen orientation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DenseConfig {
+    /// Resolution: 1 (full), 2 (half, Metashape's "high"), 4 or 8. Default 2.
+    #[serde(default = "default_dense_level")]
+    pub level: u32,
+    /// Most source views per image. Default 8.
+    #[serde(default = "default_max_sources")]
+    pub max_sources: usize,
+    /// Least sources that must agree with a depth for it to be kept. Default 2.
+    #[serde(default = "default_min_views")]
+    pub min_views: usize,
+    /// Least images a fused point is made from. Default 3.
+    #[serde(default = "default_min_images")]
+    pub min_images: usize,
+    /// Half-size of the matching window, pixels. Default 5 (11 × 11, sampled every other pixel).
+    #[serde(default = "default_window_radius")]
+    pub window_radius: usize,
+    /// PatchMatch iterations of the photometric passes. Default 3.
+    #[serde(default = "default_photometric_iterations")]
+    pub iterations: usize,
+    /// PatchMatch iterations of the geometric-consistency passes. Default 2.
+    #[serde(default = "default_geometric_iterations")]
+    pub geometric_iterations: usize,
+    /// Largest matching cost (1 − NCC) of a kept depth. Default 0.6.
+    #[serde(default = "default_max_cost")]
+    pub max_cost: f32,
+    /// Pixels exactly black in every channel are no-data (scan borders). Default `true`.
+    #[serde(default = "yes")]
+    pub black_is_nodata: bool,
+}
+
+fn default_dense_level() -> u32 {
+    2
+}
+fn default_max_sources() -> usize {
+    8
+}
+fn default_min_views() -> usize {
+    2
+}
+fn default_min_images() -> usize {
+    3
+}
+fn default_window_radius() -> usize {
+    5
+}
+fn default_photometric_iterations() -> usize {
+    3
+}
+fn default_geometric_iterations() -> usize {
+    2
+}
+fn default_max_cost() -> f32 {
+    0.6
+}
+
+impl Default for DenseConfig {
+    fn default() -> Self {
+        DenseConfig {
+            level: default_dense_level(),
+            max_sources: default_max_sources(),
+            min_views: default_min_views(),
+            min_images: default_min_images(),
+            window_radius: default_window_radius(),
+            iterations: default_photometric_iterations(),
+            geometric_iterations: default_geometric_iterations(),
+            max_cost: default_max_cost(),
+            black_is_nodata: true,
+        }
+    }
+}
+
+impl DenseConfig {
+    /// The dense crate's options.
+    pub fn options(&self) -> timesift_dense::DenseOptions {
+        let mut o = timesift_dense::DenseOptions::default();
+        o.plan.level = self.level;
+        o.plan.max_sources = self.max_sources;
+        o.patchmatch.window_radius = self.window_radius;
+        o.patchmatch.photometric_iterations = self.iterations;
+        o.patchmatch.geometric_iterations = self.geometric_iterations;
+        o.filter.min_views = self.min_views;
+        o.filter.max_cost = self.max_cost;
+        o.fusion.min_images = self.min_images;
+        o.black_is_nodata = self.black_is_nodata;
+        o
+    }
+}
+
 /// Which epochs the `change` stage compares.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -388,6 +482,45 @@ impl ProjectConfig {
                 path,
                 "change.registration_error",
                 format!("expected a number ≥ 0, found {e}"),
+            ));
+        }
+        let dense = &config.dense;
+        if !matches!(dense.level, 1 | 2 | 4 | 8) {
+            return Err(ProjectError::config(
+                path,
+                "dense.level",
+                format!("expected 1, 2, 4 or 8, found {}", dense.level),
+            ));
+        }
+        for (key, value, range) in [
+            ("dense.max_sources", dense.max_sources, 1..=32),
+            ("dense.min_views", dense.min_views, 1..=32),
+            ("dense.min_images", dense.min_images, 2..=1000),
+            ("dense.window_radius", dense.window_radius, 2..=7),
+            ("dense.iterations", dense.iterations, 1..=20),
+            (
+                "dense.geometric_iterations",
+                dense.geometric_iterations,
+                0..=20,
+            ),
+        ] {
+            if !range.contains(&value) {
+                return Err(ProjectError::config(
+                    path,
+                    key,
+                    format!(
+                        "expected {} to {}, found {value}",
+                        range.start(),
+                        range.end()
+                    ),
+                ));
+            }
+        }
+        if !(dense.max_cost > 0.0 && dense.max_cost <= 2.0) {
+            return Err(ProjectError::config(
+                path,
+                "dense.max_cost",
+                format!("expected a cost in (0, 2], found {}", dense.max_cost),
             ));
         }
         if config.align.max_keypoints == 0 {

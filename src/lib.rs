@@ -8,16 +8,12 @@
 //!   one line naming the file and the line or key.
 //! - Stage crates are called only through the types of `timesift-core`.
 
-pub mod align_stage;
-pub mod compare;
+pub mod commands;
 pub mod config;
-pub mod demo;
 mod error;
-pub mod features;
-pub mod info;
-pub mod init;
-pub mod matching_stages;
+pub mod layout;
 pub mod project;
+pub mod report;
 pub mod stable_matcher;
 pub mod stages;
 pub mod truth;

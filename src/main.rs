@@ -4,10 +4,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use timesift::commands::init::InitOptions;
+use timesift::commands::{compare, features, info, init};
 use timesift::config::Coregistration;
-use timesift::init::InitOptions;
 use timesift::stages::Stage;
-use timesift::{Project, compare, features, info, init, stages};
+use timesift::{Project, stages};
 use timesift_change::icp::IcpModel;
 use timesift_change::m3c2::{Aggregation, M3c2Params};
 
@@ -193,7 +194,7 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Compare(args) => compare(*args)?,
         Command::Demo { dir } => {
             let dir = dir.unwrap_or_else(|| PathBuf::from("timesift-demo"));
-            print!("{}", timesift::demo::demo(&dir)?);
+            print!("{}", timesift::commands::demo::demo(&dir)?);
         }
     }
     Ok(())

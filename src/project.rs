@@ -458,6 +458,11 @@ impl Project {
         })
     }
 
+    /// The paths of the project's work and output files.
+    pub fn layout(&self) -> crate::layout::Layout {
+        crate::layout::Layout::new(&self.dir)
+    }
+
     /// Absolute path of an image.
     pub fn image_path(&self, id: ImageId) -> PathBuf {
         self.dir.join(&self.images[id.index()].name)

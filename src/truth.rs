@@ -9,6 +9,7 @@ use std::path::Path;
 use nalgebra::Vector3;
 use timesift_io::cameras_json::read_cameras_json;
 
+use crate::report::{AlignReport, EpochOrientation, read_json};
 use crate::{Project, ProjectError};
 
 /// One epoch of an orientation against the truth.
@@ -40,7 +41,7 @@ pub struct EpochAccuracy {
 /// points' without check points) over the true focal length: the ground sampling distance where
 /// the check points are, metres.
 pub fn ground_sampling_distance(project: &Project) -> Result<f64, ProjectError> {
-    let truth = read_cameras_json(&project.dir.join("truth/cameras.json"))?;
+    let truth = read_cameras_json(&project.layout().truth_cameras())?;
     let points: Vec<Vector3<f64>> = if project.checkpoints.is_empty() {
         project.gcps.iter().map(|g| g.position).collect()
     } else {
@@ -69,20 +70,13 @@ fn rms3(v: &[Vector3<f64>]) -> Option<[f64; 3]> {
 }
 
 /// Check-point residual vectors of one epoch of report.json, by name.
-fn check_residuals(epoch: &serde_json::Value) -> Vec<(String, Vector3<f64>)> {
-    epoch["check_points"]["points"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|p| {
-                    Some((
-                        p["name"].as_str()?.to_string(),
-                        Vector3::new(p["dE"].as_f64()?, p["dN"].as_f64()?, p["dH"].as_f64()?),
-                    ))
-                })
-                .collect()
-        })
-        .unwrap_or_default()
+fn check_residuals(epoch: &EpochOrientation) -> Vec<(String, Vector3<f64>)> {
+    epoch
+        .check_points
+        .points
+        .iter()
+        .filter_map(|p| Some((p.name.clone(), Vector3::from(p.vector()?))))
+        .collect()
 }
 
 /// Compares the orientation in `out` (a folder holding cameras.json and report.json) of the
@@ -92,18 +86,11 @@ pub fn epoch_accuracy(
     out: &Path,
     gsd: f64,
 ) -> Result<Vec<EpochAccuracy>, ProjectError> {
-    let path = out.join("report.json");
-    let text = std::fs::read_to_string(&path).map_err(|e| timesift_io::IoError::io(&path, e))?;
-    let report: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| ProjectError::Path {
-            path: path.clone(),
-            message: format!("not JSON: {e}"),
-        })?;
+    let report: AlignReport = read_json(&out.join("report.json"))?;
     let ours = read_cameras_json(&out.join("cameras.json"))?;
-    let truth = read_cameras_json(&project.dir.join("truth/cameras.json"))?;
+    let truth = read_cameras_json(&project.layout().truth_cameras())?;
     let reference_name = &project.epochs[project.reference_epoch.index()].name;
-    let empty = serde_json::Map::new();
-    let epochs = report["epochs"].as_object().unwrap_or(&empty);
+    let epochs = &report.epochs;
     let reference = epochs
         .get(reference_name)
         .map(check_residuals)
@@ -126,15 +113,15 @@ pub fn epoch_accuracy(
         let check = rms3(&vectors);
         rows.push(EpochAccuracy {
             epoch: name.clone(),
-            images_given: epoch["images_given"].as_u64().unwrap_or(0),
-            images_oriented: epoch["images_oriented"].as_u64().unwrap_or(0),
-            rms_px: epoch["rms_reprojection_px"].as_f64(),
+            images_given: epoch.images_given as u64,
+            images_oriented: epoch.images_oriented as u64,
+            rms_px: epoch.rms_reprojection_px,
             check_rmse_m: check,
             check_rmse_gsd: check.map(|c| c.map(|v| v / gsd)),
             check_points: vectors.len(),
             disagreement_m: rms3(&disagreement),
             centre_rmse_m: rms3(&centres),
-            inter_epoch_tie_points: epoch["inter_epoch_tie_points"].as_u64().unwrap_or(0),
+            inter_epoch_tie_points: epoch.inter_epoch_tie_points as u64,
         });
     }
     Ok(rows)

@@ -294,7 +294,7 @@ fn run_reports_stages_not_built_yet_and_keeps_inputs() {
     let (ok, _, err) = timesift(&["run", p.path().to_str().unwrap(), "--from", "align"]);
     assert!(!ok);
     assert!(
-        err.contains("align") && err.contains("run the features and match stages first"),
+        err.contains("align") && err.contains("run the features stage first"),
         "{err}"
     );
     let (ok, _, err) = timesift(&[

@@ -73,10 +73,10 @@ pub fn run() -> anyhow::Result<()> {
         Ok(())
     })?;
     let ours_seconds = start.elapsed().as_secs_f64();
-    let ours = read_colmap_text(&dir.join("out/colmap"))?;
+    let layout = timesift::layout::Layout::new(&dir);
+    let ours = read_colmap_text(&layout.colmap_dir())?;
     let (ours_rms, ours_obs) = model_rms(&ours)?;
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("out/report.json"))?)?;
+    let report: timesift::report::AlignReport = timesift::report::read_json(&layout.report_json())?;
     println!("lund, {n} images, {THREADS} threads, images to oriented block");
     println!(
         "  {:<10} {:>9} {:>9} {:>13} {:>9} {:>9}",
@@ -90,8 +90,8 @@ pub fn run() -> anyhow::Result<()> {
         ours_obs,
         ours_rms,
         ours_seconds,
-        report["datum"].as_str().unwrap_or("?"),
-        report["gnss_priors_rejected"]
+        report.datum,
+        report.gnss_priors_rejected
     );
     match colmap(&images, &work) {
         Ok((model, seconds)) => {

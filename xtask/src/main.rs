@@ -21,6 +21,9 @@
 mod bench_align;
 mod bench_bundle;
 mod bench_change;
+mod bench_dense;
+mod bench_dense_lund;
+mod bench_dense_peer;
 mod bench_features;
 mod bench_geometry;
 mod bench_matching;
@@ -127,6 +130,33 @@ enum BenchStage {
     Matching,
     /// Images to oriented block on `lund` against COLMAP's CPU pipeline (2 threads).
     Align,
+    /// Dense clouds of the synth scenes against the truth (true and align-stage cameras) and
+    /// OpenCV's StereoSGBM on the same images; lund's fused points (pip install
+    /// opencv-python-headless).
+    Dense {
+        /// Scenes (default: the seven).
+        #[arg(long, value_delimiter = ',')]
+        scenes: Option<Vec<String>>,
+        /// `[dense] level`.
+        #[arg(long, default_value_t = 2)]
+        level: u32,
+        /// Scene seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder.
+        #[arg(long, default_value = "target/bench-dense")]
+        out: PathBuf,
+        /// Skip OpenCV.
+        #[arg(long)]
+        no_peer: bool,
+        /// Skip lund.
+        #[arg(long)]
+        no_lund: bool,
+        /// Reuse scenes already rendered and oriented in the output folder; skip the
+        /// one-thread timing.
+        #[arg(long)]
+        reuse: bool,
+    },
     /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
     Change {
         /// Core-point spacing for M3C2, metres.
@@ -243,6 +273,39 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,
+        Task::Bench {
+            stage:
+                BenchStage::Dense {
+                    scenes,
+                    level,
+                    seed,
+                    out,
+                    no_peer,
+                    no_lund,
+                    reuse,
+                },
+        } => bench_dense::run_bench(&bench_dense::DenseBench {
+            scenes: scenes.unwrap_or_else(|| {
+                [
+                    "archival",
+                    "glacier",
+                    "orchard",
+                    "shore",
+                    "landslide",
+                    "soil-pit",
+                    "campus",
+                ]
+                .iter()
+                .map(|s| s.to_string())
+                .collect()
+            }),
+            level,
+            seed,
+            out,
+            peer: !no_peer,
+            lund: !no_lund,
+            reuse,
+        })?,
         Task::BenchMethods {
             scenes,
             methods,

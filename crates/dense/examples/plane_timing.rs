@@ -9,7 +9,10 @@ use std::time::Instant;
 use timesift_dense::{DenseOptions, reconstruct_epoch};
 
 fn main() {
-    let level: u32 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(1);
+    let level: u32 = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(1);
     let scene = common::plane(320, 240);
     let views = scene.views();
     let masks = vec![None; views.len()];
@@ -18,7 +21,12 @@ fn main() {
     let start = Instant::now();
     let result = reconstruct_epoch(&scene.input, &views, &masks, &options).expect("dense");
     let seconds = start.elapsed().as_secs_f64();
-    let pixels: usize = result.plan.views.iter().map(|v| v.camera.width * v.camera.height).sum();
+    let pixels: usize = result
+        .plan
+        .views
+        .iter()
+        .map(|v| v.camera.width * v.camera.height)
+        .sum();
     println!(
         "{} views, {:.2} s, {:.2} µs per working pixel, {} fused points",
         views.len(),

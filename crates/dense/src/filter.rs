@@ -81,29 +81,77 @@ pub(crate) struct Agreement {
     pub normal: Vector3<f64>,
 }
 
+/// Tolerances of the agreement between a depth and a neighbour's map.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Tolerances {
+    /// Largest forward–backward reprojection error, pixels.
+    pub max_px: f64,
+    /// Largest relative depth difference.
+    pub max_rel: f64,
+    /// Least cosine between the normals.
+    pub min_cos: f64,
+}
+
 impl Neighbour<'_> {
     /// Whether the neighbour's map agrees with the reference point `x` (reference frame) seen at
-    /// reference pixel (u, v) with normal `n`: the neighbour's depth at the projection of `x`,
-    /// lifted and projected back, lands within `max_px` of (u, v), its depth along the reference
-    /// ray is within `max_rel` of the reference depth, and the normals within `min_cos`.
-    #[allow(clippy::too_many_arguments)]
+    /// reference pixel (u, v) with normal `n`: the neighbour's depth at one of the four pixels
+    /// nearest to the projection of `x` (nearest first, skipping those `skip` refuses), lifted
+    /// and projected back, lands within `max_px` of (u, v), its depth along the reference ray is
+    /// within `max_rel` of the reference depth, and the normals agree.
     pub fn agrees(
         &self,
         ref_camera: &WorkingCamera,
-        u: f64,
-        v: f64,
+        (u, v): (f64, f64),
         x: &Vector3<f64>,
         n: &Vector3<f64>,
-        max_px: f64,
-        max_rel: f64,
-        min_cos: f64,
+        tolerances: &Tolerances,
+        skip: &dyn Fn(usize) -> bool,
     ) -> Option<Agreement> {
         let xo = self.r * x + self.t;
         let p = self.camera.project(&xo)?;
         if !self.camera.contains(p.x, p.y) {
             return None;
         }
-        let (i, j) = (p.x as usize, p.y as usize);
+        // The pixel containing p first, then the other pixels of the 2 × 2 block of centres
+        // around it, by distance.
+        let (i0, j0) = (p.x as i64, p.y as i64);
+        let (di, dj) = (
+            if p.x - i0 as f64 >= 0.5 { 1 } else { -1 },
+            if p.y - j0 as f64 >= 0.5 { 1 } else { -1 },
+        );
+        let (fx, fy) = ((p.x - i0 as f64 - 0.5).abs(), (p.y - j0 as f64 - 0.5).abs());
+        let mut candidates = [(i0, j0), (i0 + di, j0), (i0, j0 + dj), (i0 + di, j0 + dj)];
+        if fy > fx {
+            candidates.swap(1, 2);
+        }
+        candidates.into_iter().find_map(|(i, j)| {
+            if i < 0 || j < 0 || i >= self.map.width as i64 || j >= self.map.height as i64 {
+                return None;
+            }
+            let k = j as usize * self.map.width + i as usize;
+            if skip(k) {
+                return None;
+            }
+            self.check(
+                ref_camera,
+                (u, v),
+                x,
+                n,
+                tolerances,
+                (i as usize, j as usize),
+            )
+        })
+    }
+
+    fn check(
+        &self,
+        ref_camera: &WorkingCamera,
+        (u, v): (f64, f64),
+        x: &Vector3<f64>,
+        n: &Vector3<f64>,
+        tolerances: &Tolerances,
+        (i, j): (usize, usize),
+    ) -> Option<Agreement> {
         let k = j * self.map.width + i;
         let d = self.map.depth[k] as f64;
         if !(d > 0.0) {
@@ -112,15 +160,16 @@ impl Neighbour<'_> {
         let yo = self.camera.pixel_ray(i, j) * d;
         let y = self.r.transpose() * (yo - self.t);
         let back = ref_camera.project(&y)?;
+        let max_px = tolerances.max_px;
         if (back.x - u).powi(2) + (back.y - v).powi(2) > max_px * max_px {
             return None;
         }
-        if ((y.z - x.z) / x.z).abs() > max_rel {
+        if ((y.z - x.z) / x.z).abs() > tolerances.max_rel {
             return None;
         }
         let no = self.map.normal[k];
         let normal = self.r.transpose() * Vector3::new(no[0] as f64, no[1] as f64, no[2] as f64);
-        if normal.dot(n) < min_cos {
+        if normal.dot(n) < tolerances.min_cos {
             return None;
         }
         Some(Agreement {
@@ -194,7 +243,11 @@ pub fn filter_depth_map(
         ));
     }
     let others = neighbours(plan, view, source_maps);
-    let min_cos = options.max_normal_angle_deg.to_radians().cos();
+    let tolerances = Tolerances {
+        max_px: options.max_reprojection_px,
+        max_rel: options.max_relative_depth,
+        min_cos: options.max_normal_angle_deg.to_radians().cos(),
+    };
     let mut out = DepthMap::empty(map.width, map.height);
     for j in 0..map.height {
         for i in 0..map.width {
@@ -210,17 +263,8 @@ pub fn filter_depth_map(
             let agreeing = others
                 .iter()
                 .filter(|o| {
-                    o.agrees(
-                        &camera,
-                        u,
-                        v,
-                        &x,
-                        &n,
-                        options.max_reprojection_px,
-                        options.max_relative_depth,
-                        min_cos,
-                    )
-                    .is_some()
+                    o.agrees(&camera, (u, v), &x, &n, &tolerances, &|_| false)
+                        .is_some()
                 })
                 .count();
             if agreeing >= options.min_views {
@@ -230,7 +274,11 @@ pub fn filter_depth_map(
             }
         }
     }
-    remove_speckles(&mut out, options.min_region, options.max_relative_depth as f32);
+    remove_speckles(
+        &mut out,
+        options.min_region,
+        options.max_relative_depth as f32,
+    );
     Ok(out)
 }
 

@@ -14,7 +14,7 @@ use nalgebra::Vector3;
 
 use crate::DenseError;
 use crate::depth_map::DepthMap;
-use crate::filter::{Neighbour, camera_of_map, neighbours};
+use crate::filter::{Neighbour, Tolerances, camera_of_map, neighbours};
 use crate::plan::EpochPlan;
 
 /// Options of the fusion.
@@ -36,7 +36,7 @@ impl Default for FusionOptions {
             min_images: 3,
             max_reprojection_px: 2.0,
             max_relative_depth: 0.01,
-            max_normal_angle_deg: 10.0,
+            max_normal_angle_deg: 30.0,
         }
     }
 }
@@ -61,6 +61,9 @@ pub struct FusedCloud {
     pub normals: Vec<[f32; 3]>,
     /// Number of images each point was fused from.
     pub images: Vec<u16>,
+    /// Per point, the largest distance between the projection of the fused position into a
+    /// member view and the member pixel's centre, pixels of the maps.
+    pub reprojection_px: Vec<f32>,
 }
 
 impl FusedCloud {
@@ -100,7 +103,10 @@ impl Cache {
     }
 
     fn find(&self, view: usize) -> Option<&FusionView> {
-        self.entries.iter().find(|(v, _)| *v == view).map(|(_, f)| f)
+        self.entries
+            .iter()
+            .find(|(v, _)| *v == view)
+            .map(|(_, f)| f)
     }
 }
 
@@ -118,7 +124,12 @@ pub fn fuse<E: From<DenseError>>(
         )
         .into());
     }
-    let max_sources = plan.views.iter().map(|v| v.sources.len()).max().unwrap_or(0);
+    let max_sources = plan
+        .views
+        .iter()
+        .map(|v| v.sources.len())
+        .max()
+        .unwrap_or(0);
     let mut cache = Cache {
         capacity: 2 * (max_sources + 1),
         entries: VecDeque::new(),
@@ -126,7 +137,11 @@ pub fn fuse<E: From<DenseError>>(
     // Used pixels per view, as bits.
     let mut used: Vec<Vec<u64>> = vec![Vec::new(); plan.views.len()];
     let mut cloud = FusedCloud::default();
-    let min_cos = options.max_normal_angle_deg.to_radians().cos();
+    let tolerances = Tolerances {
+        max_px: options.max_reprojection_px,
+        max_rel: options.max_relative_depth,
+        min_cos: options.max_normal_angle_deg.to_radians().cos(),
+    };
     for view in 0..plan.views.len() {
         let vp = &plan.views[view];
         if vp.sources.is_empty() {
@@ -198,21 +213,12 @@ pub fn fuse<E: From<DenseError>>(
                 let mut sum_n = n;
                 let mut sum_c = reference.rgb[k].map(f64::from);
                 for (o, other) in others.iter().enumerate() {
-                    let Some(a) = other.agrees(
-                        &camera,
-                        u,
-                        v,
-                        &x,
-                        &n,
-                        options.max_reprojection_px,
-                        options.max_relative_depth,
-                        min_cos,
-                    ) else {
+                    let bits = &used[other_view[o]];
+                    let Some(a) =
+                        other.agrees(&camera, (u, v), &x, &n, &tolerances, &|k| is_used(bits, k))
+                    else {
                         continue;
                     };
-                    if is_used(&used[other_view[o]], a.pixel) {
-                        continue;
-                    }
                     members.push((o, a.pixel));
                     sum_x += a.point;
                     sum_n += a.normal;
@@ -229,14 +235,33 @@ pub fn fuse<E: From<DenseError>>(
                     set_used(&mut used[other_view[o]], pixel);
                 }
                 let inv = 1.0 / count as f64;
-                let mean_local = rotation * (sum_x * inv) + world_from_ref.translation;
-                let normal = (rotation * sum_n).try_normalize(1e-12).unwrap_or(rotation * n);
+                let mean_ref = sum_x * inv;
+                let mut worst = camera.project(&mean_ref).map_or(f64::INFINITY, |p| {
+                    ((p.x - u).powi(2) + (p.y - v).powi(2)).sqrt()
+                });
+                for &(o, pixel) in &members {
+                    let other = &others[o];
+                    let (w, _) = (other.map.width, other.map.height);
+                    let (pu, pv) = ((pixel % w) as f64 + 0.5, (pixel / w) as f64 + 0.5);
+                    let e = other
+                        .camera
+                        .project(&(other.r * mean_ref + other.t))
+                        .map_or(f64::INFINITY, |p| {
+                            ((p.x - pu).powi(2) + (p.y - pv).powi(2)).sqrt()
+                        });
+                    worst = worst.max(e);
+                }
+                let mean_local = rotation * mean_ref + world_from_ref.translation;
+                let normal = (rotation * sum_n)
+                    .try_normalize(1e-12)
+                    .unwrap_or(rotation * n);
                 cloud.positions.push(plan.world_from_local(&mean_local));
                 cloud.colors.push(sum_c.map(|c| (c * inv) as f32));
                 cloud
                     .normals
                     .push([normal.x as f32, normal.y as f32, normal.z as f32]);
                 cloud.images.push(count.min(u16::MAX as usize) as u16);
+                cloud.reprojection_px.push(worst as f32);
             }
         }
     }

@@ -95,8 +95,7 @@ pub fn reconstruct_epoch(
     for (index, pass) in passes.iter().enumerate() {
         let mut next = Vec::with_capacity(plan.views.len());
         for (view, vp) in plan.views.iter().enumerate() {
-            let sources: Vec<&WorkingImage> =
-                vp.sources.iter().map(|s| &working[s.view]).collect();
+            let sources: Vec<&WorkingImage> = vp.sources.iter().map(|s| &working[s.view]).collect();
             let source_maps: Vec<Option<&DepthMap>> =
                 vp.sources.iter().map(|s| maps[s.view].as_ref()).collect();
             let pass_input = PassInput {

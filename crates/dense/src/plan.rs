@@ -189,7 +189,10 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
         .map(|v| v.cam_from_world.center())
         .sum::<Vector3<f64>>()
         / n as f64;
-    let world_from_local = Pose::new(UnitQuaternion::identity(), Translation3::from(origin).vector);
+    let world_from_local = Pose::new(
+        UnitQuaternion::identity(),
+        Translation3::from(origin).vector,
+    );
     let poses: Vec<Pose> = input
         .views
         .iter()
@@ -385,7 +388,10 @@ mod tests {
                     .map(|(k, _)| k)
                     .collect();
                 if seen.len() >= 2 {
-                    points.push(SparsePoint { position: p, views: seen });
+                    points.push(SparsePoint {
+                        position: p,
+                        views: seen,
+                    });
                 }
             }
         }

@@ -14,8 +14,15 @@ use crate::DenseError;
 use crate::camera::WorkingCamera;
 use crate::image::{ImageView, Mask, Plane, WorkingImage};
 
-/// The working camera of `camera` at `level`: the original size divided by the level (rounded
-/// down), the focal length divided by the level, the principal point at the centre.
+/// Largest working image relative to the original divided by the level: a lens whose border
+/// unprojects further out (strong fisheye) is cropped to this.
+const MAX_GROWTH: f64 = 1.5;
+
+/// The working camera of `camera` at `level`: focal length divided by the level, and an image
+/// just large enough to hold every original pixel (as COLMAP's undistorter does with
+/// `blank_pixels = 1`): barrel distortion shows more than a pinhole of the original size would,
+/// and cropping it would lose the periphery, where the images of a block overlap least. Working
+/// pixels outside the original image are masked, not matched.
 pub fn working_camera(camera: &Camera, level: u32) -> Result<WorkingCamera, DenseError> {
     if !matches!(level, 1 | 2 | 4 | 8) {
         return Err(DenseError::InvalidOption(format!(
@@ -26,8 +33,38 @@ pub fn working_camera(camera: &Camera, level: u32) -> Result<WorkingCamera, Dens
         Camera::Brown(c) => c.f,
         Camera::Pinhole(c) => c.f,
     };
-    let width = camera.width() as usize / level as usize;
-    let height = camera.height() as usize / level as usize;
+    let fw = f / level as f64;
+    let (ow, oh) = (camera.width() as f64, camera.height() as f64);
+    // Normalised coordinates of the original border (pixel edges, every pixel).
+    let (mut x0, mut x1, mut y0, mut y1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    let mut border = Vec::new();
+    for i in 0..=camera.width() {
+        border.push((i as f64, 0.0));
+        border.push((i as f64, oh));
+    }
+    for j in 0..=camera.height() {
+        border.push((0.0, j as f64));
+        border.push((ow, j as f64));
+    }
+    for (u, v) in border {
+        if let Ok(r) = camera.unproject(&nalgebra::Vector2::new(u, v)) {
+            x0 = x0.min(r.x);
+            x1 = x1.max(r.x);
+            y0 = y0.min(r.y);
+            y1 = y1.max(r.y);
+        }
+    }
+    let (max_w, max_h) = (
+        MAX_GROWTH * ow / level as f64,
+        MAX_GROWTH * oh / level as f64,
+    );
+    let (width, cx) = extent(x0, x1, fw, max_w, ow / level as f64);
+    let (height, cy) = extent(y0, y1, fw, max_h, oh / level as f64);
     if width < 8 || height < 8 {
         return Err(DenseError::InvalidOption(format!(
             "level = {level} leaves a {width} × {height} image: too small to match"
@@ -36,10 +73,29 @@ pub fn working_camera(camera: &Camera, level: u32) -> Result<WorkingCamera, Dens
     Ok(WorkingCamera {
         width,
         height,
-        f: f / level as f64,
-        cx: 0.5 * width as f64,
-        cy: 0.5 * height as f64,
+        f: fw,
+        cx,
+        cy,
     })
+}
+
+/// Size and principal point along one axis covering normalised coordinates [lo, hi] at focal
+/// length `f`, at most `max` pixels (centred crop beyond); `fallback` pixels when the border
+/// could not be unprojected.
+fn extent(lo: f64, hi: f64, f: f64, max: f64, fallback: f64) -> (usize, f64) {
+    if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+        let n = fallback.floor().max(1.0);
+        return (n as usize, 0.5 * n);
+    }
+    let size = ((hi - lo) * f).ceil();
+    if size <= max {
+        (size as usize, -lo * f)
+    } else {
+        let n = max.floor();
+        // Keep the optical axis where it was relative to the covered range's centre.
+        let centre = -0.5 * (lo + hi) * f;
+        (n as usize, 0.5 * n + centre)
+    }
 }
 
 /// Where every sub-sample of every working pixel falls in the original image.
@@ -68,10 +124,19 @@ impl UndistortMap {
                     let (i, s) = (k / (n * n), k % (n * n));
                     let u = i as f64 + ((s % n) as f64 + 0.5) / n as f64;
                     let v = j as f64 + ((s / n) as f64 + 0.5) / n as f64;
-                    if let Ok(p) = camera.project(&working.ray(u, v)) {
-                        // Inside the band of pixel centres, where bilinear needs no extrapolation.
-                        if p.x >= 0.5 && p.y >= 0.5 && p.x <= ow as f64 - 0.5 && p.y <= oh as f64 - 0.5
-                        {
+                    let ray = working.ray(u, v);
+                    if let Ok(p) = camera.project(&ray) {
+                        // Inside the band of pixel centres, where bilinear needs no extrapolation,
+                        // and on the lens's invertible branch: beyond the fold of a distortion
+                        // polynomial, rays far outside the field project back into the image.
+                        let inside = p.x >= 0.5
+                            && p.y >= 0.5
+                            && p.x <= ow as f64 - 0.5
+                            && p.y <= oh as f64 - 0.5;
+                        let same_ray = camera.unproject(&p).is_ok_and(|back| {
+                            (back.x - ray.x).abs() < 1e-6 && (back.y - ray.y).abs() < 1e-6
+                        });
+                        if inside && same_ray {
                             *out = [p.x as f32, p.y as f32];
                         }
                     }
@@ -157,7 +222,8 @@ impl UndistortMap {
                             ok = false;
                             break;
                         }
-                        let (a, b, cc, d) = (pixel(i0, j0), pixel(i1, j0), pixel(i0, j1), pixel(i1, j1));
+                        let (a, b, cc, d) =
+                            (pixel(i0, j0), pixel(i1, j0), pixel(i0, j1), pixel(i1, j1));
                         for k in 0..3 {
                             let top = a[k] + (b[k] - a[k]) * fx;
                             let bottom = cc[k] + (d[k] - cc[k]) * fx;
@@ -254,7 +320,10 @@ mod tests {
                     checked += 1;
                 }
             }
-            assert!(checked > working.width * working.height * 8 / 10, "{checked}");
+            assert!(
+                checked > working.width * working.height * 8 / 10,
+                "{checked}"
+            );
         }
     }
 
@@ -287,5 +356,32 @@ mod tests {
         };
         assert!(map.apply(&wrong, None, true).is_err());
         assert!(working_camera(&camera, 3).is_err());
+    }
+
+    /// Barrel distortion shows more than a pinhole of the same size: the working image grows to
+    /// keep every original pixel, so each original border pixel has a working pixel.
+    #[test]
+    fn the_working_image_keeps_the_periphery_of_barrel_distortion() {
+        let mut brown = BrownCamera::new(200, 150, 160.0).unwrap();
+        brown.k1 = -0.15;
+        brown.cx = 3.0;
+        let camera = Camera::Brown(brown);
+        let working = working_camera(&camera, 1).unwrap();
+        assert!(working.width > 200 && working.height > 150, "{working:?}");
+        for (u, v) in [
+            (0.5, 0.5),
+            (199.5, 0.5),
+            (0.5, 149.5),
+            (199.5, 149.5),
+            (100.0, 0.5),
+        ] {
+            let ray = camera.unproject(&nalgebra::Vector2::new(u, v)).unwrap();
+            let p = working.project(&ray).unwrap();
+            assert!(working.contains(p.x, p.y), "({u}, {v}) -> {p:?}");
+        }
+        let pinhole = Camera::Pinhole(timesift_core::PinholeCamera::new(200, 150, 160.0).unwrap());
+        let w = working_camera(&pinhole, 2).unwrap();
+        assert_eq!((w.width, w.height), (100, 75));
+        assert!((w.cx - 50.0).abs() < 1e-9 && (w.cy - 37.5).abs() < 1e-9);
     }
 }

@@ -49,9 +49,15 @@ fn map_errors(r: &Rendered, options: &DenseOptions) -> (MapErrors, MapErrors) {
     };
     // Fused points: distance to the true surface in pixel footprints of the nearest camera.
     let f = plan.views[0].camera.f;
-    let mut cloud_errors: Vec<f64> =
-        cloud.positions.iter().map(|p| r.surface_error_px(p, f)).collect();
-    assert!(cloud.images.iter().all(|&n| n >= 3), "points from fewer than 3 images");
+    let mut cloud_errors: Vec<f64> = cloud
+        .positions
+        .iter()
+        .map(|p| r.surface_error_px(p, f))
+        .collect();
+    assert!(
+        cloud.images.iter().all(|&n| n >= 3),
+        "points from fewer than 3 images"
+    );
     let fused = MapErrors {
         median: quantile(&mut cloud_errors, 0.5),
         p90: quantile(&mut cloud_errors, 0.9),

@@ -44,6 +44,31 @@ pub fn write_f32_channels(
     fsutil::commit_temporary(&tmp, path, written)
 }
 
+/// Reads every f32 channel of an EXR file written by [`write_f32_channels`]: the size and the
+/// channels by name (in the file's sorted order). Other sample types are an error naming the
+/// channel.
+pub fn read_f32_channels(
+    path: &Path,
+) -> std::result::Result<(usize, usize, Vec<(String, Vec<f32>)>), IoError> {
+    let image = read_first_flat_layer_from_file(path)
+        .map_err(|e| IoError::invalid(path, format!("cannot read EXR: {e}")))?;
+    let size = image.layer_data.size;
+    let mut channels = Vec::new();
+    for ch in image.layer_data.channel_data.list {
+        let name = ch.name.to_string();
+        match ch.sample_data {
+            FlatSamples::F32(v) => channels.push((name, v)),
+            _ => {
+                return Err(IoError::invalid(
+                    path,
+                    format!("channel {name}: expected 32-bit float samples"),
+                ));
+            }
+        }
+    }
+    Ok((size.width(), size.height(), channels))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -61,5 +86,15 @@ mod tests {
             FlatSamples::F32(v) => assert_eq!(v, &depth),
             other => panic!("unexpected samples {other:?}"),
         }
+        let (w, h, channels) = read_f32_channels(&p).unwrap();
+        assert_eq!((w, h), (4, 3));
+        assert_eq!(channels, vec![("Z".to_string(), depth.clone())]);
+        std::fs::write(&p, b"not exr").unwrap();
+        assert!(
+            read_f32_channels(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("depth.exr")
+        );
     }
 }

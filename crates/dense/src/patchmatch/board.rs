@@ -111,10 +111,7 @@ mod tests {
     fn slots_cover_every_pixel_once() {
         for (w, h) in [(5, 3), (4, 4), (1, 2)] {
             let b = Board::new(w, h);
-            let mut seen = [
-                vec![false; b.half_width * h],
-                vec![false; b.half_width * h],
-            ];
+            let mut seen = [vec![false; b.half_width * h], vec![false; b.half_width * h]];
             for y in 0..h {
                 for x in 0..w {
                     let (c, k) = b.slot(x, y);

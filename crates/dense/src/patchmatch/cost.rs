@@ -87,13 +87,14 @@ impl WindowShape {
     }
 }
 
-/// The reference half of the NCC at one pixel: bilateral weights and centred intensities.
+/// The reference half of the NCC at one pixel: bilateral weights and intensities.
 #[derive(Debug, Clone)]
 pub struct RefWindow {
-    /// Normalised weights (summing to 1; 0 for padding).
+    /// Bilateral weights, normalised to sum to 1 over the samples inside the image (0 for
+    /// samples outside it and for padding).
     pub weight: Vec<f32>,
-    /// Weight × (intensity − weighted mean).
-    pub weighted_centred: Vec<f32>,
+    /// Intensity relative to the window's centre pixel (keeps the sums accurate in f32).
+    pub value: Vec<f32>,
     /// Weighted variance of the reference intensities.
     pub variance: f32,
 }
@@ -103,40 +104,41 @@ impl RefWindow {
     pub fn new(shape: &WindowShape) -> RefWindow {
         RefWindow {
             weight: vec![0.0; shape.len()],
-            weighted_centred: vec![0.0; shape.len()],
+            value: vec![0.0; shape.len()],
             variance: 0.0,
         }
     }
 
-    /// Fills the window at pixel (i, j) of `grey` (samples clamped to the image). Returns
-    /// whether the window has texture enough for NCC.
+    /// Fills the window at pixel (i, j) of `grey`; samples outside the image get no weight
+    /// (the window is truncated at the border rather than filled with repeated edge pixels,
+    /// which would match anything). Returns whether the window has texture enough for NCC.
     pub fn fill(&mut self, shape: &WindowShape, grey: &Plane, i: usize, j: usize) -> bool {
         let centre = grey.at(i, j);
         let (w, h) = (grey.width as i64, grey.height as i64);
         let mut sum_w = 0.0f32;
-        let mut sum_wr = 0.0f32;
         for k in 0..shape.len() {
-            let x = (i as i64 + shape.dx[k] as i64).clamp(0, w - 1) as usize;
-            let y = (j as i64 + shape.dy[k] as i64).clamp(0, h - 1) as usize;
-            // Relative to the centre: keeps the variance accurate in f32.
-            let r = grey.at(x, y) - centre;
+            let x = i as i64 + shape.dx[k] as i64;
+            let y = j as i64 + shape.dy[k] as i64;
+            if x < 0 || y < 0 || x >= w || y >= h {
+                self.weight[k] = 0.0;
+                self.value[k] = 0.0;
+                continue;
+            }
+            let r = grey.at(x as usize, y as usize) - centre;
             let wt = shape.spatial[k] * (-(r * r) * shape.inv_two_sigma_color2).exp();
             self.weight[k] = wt;
-            self.weighted_centred[k] = r;
+            self.value[k] = r;
             sum_w += wt;
-            sum_wr += wt * r;
         }
         let inv = 1.0 / sum_w;
-        let mean = sum_wr * inv;
-        let mut var = 0.0f32;
+        let (mut mean, mut second) = (0.0f32, 0.0f32);
         for k in 0..shape.len() {
             self.weight[k] *= inv;
-            let c = self.weighted_centred[k] - mean;
-            var += self.weight[k] * c * c;
-            self.weighted_centred[k] = self.weight[k] * c;
+            mean += self.weight[k] * self.value[k];
+            second += self.weight[k] * self.value[k] * self.value[k];
         }
-        self.variance = var;
-        var > MIN_VARIANCE
+        self.variance = second - mean * mean;
+        self.variance > MIN_VARIANCE
     }
 }
 
@@ -247,8 +249,7 @@ pub fn ncc_cost(
     let cu = (h[0] * u + h[1] * v + h[2]) / z;
     let cv = (h[3] * u + h[4] * v + h[5]) / z;
     let (sw, sh) = (src.grey.width as f32, src.grey.height as f32);
-    if !(cu >= 0.0 && cv >= 0.0 && cu < sw && cv < sh) || !src.mask.at(cu as usize, cv as usize)
-    {
+    if !(cu >= 0.0 && cv >= 0.0 && cu < sw && cv < sh) || !src.mask.at(cu as usize, cv as usize) {
         return WORST;
     }
     // The window's corners in front of the source (a plane seen edge-on folds the window).
@@ -259,15 +260,37 @@ pub fn ncc_cost(
     {
         return WORST;
     }
-    let (cov, var_s) = window_moments(shape, window, src.grey, h, u, v);
-    if !(var_s > MIN_VARIANCE) {
+    let m = window_moments(shape, window, src.grey, h, u, v);
+    // Most of the window must land inside the source.
+    if !(m.weight >= MIN_INSIDE) {
         return WORST;
     }
-    let ncc = cov / (window.variance * var_s).sqrt();
+    let inv = 1.0 / m.weight;
+    let (mr, ms) = (m.r * inv, m.s * inv);
+    let var_r = m.rr * inv - mr * mr;
+    let var_s = m.ss * inv - ms * ms;
+    if !(var_s > MIN_VARIANCE) || !(var_r > MIN_VARIANCE) {
+        return WORST;
+    }
+    let ncc = (m.rs * inv - mr * ms) / (var_r * var_s).sqrt();
     (1.0 - ncc).clamp(0.0, WORST)
 }
 
-/// Weighted covariance with the reference and weighted variance of the source samples.
+/// Least share of the reference window's weight that must fall inside the source image.
+const MIN_INSIDE: f32 = 0.5;
+
+/// Weighted sums over the window samples that fall inside the source image.
+#[derive(Debug, Clone, Copy, Default)]
+struct Moments {
+    weight: f32,
+    r: f32,
+    rr: f32,
+    s: f32,
+    ss: f32,
+    rs: f32,
+}
+
+/// The weighted sums of the reference and source samples, over the samples inside the source.
 #[inline]
 fn window_moments(
     shape: &WindowShape,
@@ -276,7 +299,7 @@ fn window_moments(
     h: &[f32; 9],
     u: f32,
     v: f32,
-) -> (f32, f32) {
+) -> Moments {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU supports AVX2 and FMA, checked just above.
@@ -294,7 +317,7 @@ unsafe fn window_moments_avx2(
     h: &[f32; 9],
     u: f32,
     v: f32,
-) -> (f32, f32) {
+) -> Moments {
     window_moments_portable(shape, window, grey, h, u, v)
 }
 
@@ -310,20 +333,27 @@ fn window_moments_portable(
     h: &[f32; 9],
     u: f32,
     v: f32,
-) -> (f32, f32) {
+) -> Moments {
     let n = shape.len();
     let (dx, dy) = (&shape.dx[..n], &shape.dy[..n]);
     let mut px = [0.0f32; MAX_WINDOW];
     let mut py = [0.0f32; MAX_WINDOW];
-    // Continuous positions relative to the band of pixel centres, clamped into it.
+    let mut inside = [0.0f32; MAX_WINDOW];
+    // Continuous positions relative to the band of pixel centres; samples beyond it are
+    // clamped for the gather and weighted 0.
     let xmax = (grey.width - 1) as f32 - 1e-3;
     let ymax = (grey.height - 1) as f32 - 1e-3;
     for k in 0..n {
         let x = u + dx[k];
         let y = v + dy[k];
         let iz = 1.0 / (h[6] * x + h[7] * y + h[8]);
-        px[k] = ((h[0] * x + h[1] * y + h[2]) * iz - 0.5).clamp(0.0, xmax);
-        py[k] = ((h[3] * x + h[4] * y + h[5]) * iz - 0.5).clamp(0.0, ymax);
+        let sx = (h[0] * x + h[1] * y + h[2]) * iz - 0.5;
+        let sy = (h[3] * x + h[4] * y + h[5]) * iz - 0.5;
+        let cx = sx.clamp(0.0, xmax);
+        let cy = sy.clamp(0.0, ymax);
+        inside[k] = if cx == sx && cy == sy { 1.0 } else { 0.0 };
+        px[k] = cx;
+        py[k] = cy;
     }
     // Integer corners and fractions (vectorised), then the scalar gather of the four corners,
     // then the interpolation (vectorised).
@@ -352,26 +382,32 @@ fn window_moments_portable(
     }
     // Relative to one sample, which keeps the variance accurate in f32.
     let offset = value[shape.samples / 2];
-    let mut s1 = [0.0f32; LANES];
-    let mut s2 = [0.0f32; LANES];
-    let mut sr = [0.0f32; LANES];
+    let mut acc = [[0.0f32; LANES]; 6];
     for k0 in (0..n).step_by(LANES) {
         for l in 0..LANES {
             let k = k0 + l;
+            let w = window.weight[k] * inside[k];
+            let r = window.value[k];
             let s = value[k] - offset;
-            let ws = window.weight[k] * s;
-            s1[l] += ws;
-            s2[l] += ws * s;
-            sr[l] += window.weighted_centred[k] * s;
+            let wr = w * r;
+            let ws = w * s;
+            acc[0][l] += w;
+            acc[1][l] += wr;
+            acc[2][l] += wr * r;
+            acc[3][l] += ws;
+            acc[4][l] += ws * s;
+            acc[5][l] += wr * s;
         }
     }
-    let (mut sum_s, mut sum_ss, mut sum_rs) = (0.0f32, 0.0f32, 0.0f32);
-    for l in 0..LANES {
-        sum_s += s1[l];
-        sum_ss += s2[l];
-        sum_rs += sr[l];
+    let sum = |a: &[f32; LANES]| a.iter().fold(0.0f32, |t, &x| t + x);
+    Moments {
+        weight: sum(&acc[0]),
+        r: sum(&acc[1]),
+        rr: sum(&acc[2]),
+        s: sum(&acc[3]),
+        ss: sum(&acc[4]),
+        rs: sum(&acc[5]),
     }
-    (sum_rs, sum_ss - sum_s * sum_s)
 }
 
 /// The geometric-consistency term (ACMM): the reference pixel (u, v) at depth `depth` is
@@ -515,7 +551,8 @@ mod tests {
         let mut grey = Plane::filled(60, 50, 0.0);
         for j in 0..50 {
             for i in 0..60 {
-                grey.data[j * 60 + i] = 0.5 + 0.2 * ((i as f32 * 0.7).sin() * (j as f32 * 0.45).cos());
+                grey.data[j * 60 + i] =
+                    0.5 + 0.2 * ((i as f32 * 0.7).sin() * (j as f32 * 0.45).cos());
             }
         }
         let mask = Mask::all(60, 50);

@@ -27,8 +27,8 @@ use timesift_core::SeededRng;
 use crate::DenseError;
 use crate::camera::WorkingCamera;
 use crate::depth_map::DepthMap;
-use crate::image::{Mask, Plane, WorkingImage};
 use crate::filter::camera_of_map;
+use crate::image::{Mask, Plane, WorkingImage};
 use crate::plan::EpochPlan;
 use board::{Board, OtherHalf, PixelState};
 use cost::{RefCamera, SourceView, WindowShape};
@@ -433,26 +433,20 @@ fn initialise(ctx: &PassContext<'_>, board: &mut Board, start: &(Vec<f32>, Vec<[
                         }
                         let i = y * width + x;
                         let ray = ctx.k_ref.ray(x as f32 + 0.5, y as f32 + 0.5);
-                        let facing = normal[i][0] * ray[0]
-                            + normal[i][1] * ray[1]
-                            + normal[i][2] * ray[2]
-                            < 0.0;
+                        let facing =
+                            normal[i][0] * ray[0] + normal[i][1] * ray[1] + normal[i][2] * ray[2]
+                                < 0.0;
                         let (d, n) = if depth[i] >= ctx.depth_range.0
                             && depth[i] <= ctx.depth_range.1
                             && facing
                         {
                             (depth[i], normal[i])
                         } else {
-                            let mut rng = SeededRng::new(update::pixel_seed(
-                                ctx.seed,
-                                usize::MAX,
-                                x,
-                                y,
-                            ));
-                            let d = rng.uniform_range(
-                                ctx.depth_range.0 as f64,
-                                ctx.depth_range.1 as f64,
-                            ) as f32;
+                            let mut rng =
+                                SeededRng::new(update::pixel_seed(ctx.seed, usize::MAX, x, y));
+                            let d = rng
+                                .uniform_range(ctx.depth_range.0 as f64, ctx.depth_range.1 as f64)
+                                as f32;
                             (d, random_normal(&mut rng, &ray))
                         };
                         *cell = ctx.initial_state(scratch, x, y, n, d);
@@ -477,19 +471,17 @@ fn half_pass(ctx: &PassContext<'_>, board: &mut Board, colour: usize, iteration:
         half_width,
         cells: theirs,
     };
-    mine.par_chunks_mut(half_width)
-        .enumerate()
-        .for_each_init(
-            || Scratch::new(ctx.shape),
-            |scratch, (y, row)| {
-                for (k, cell) in row.iter_mut().enumerate() {
-                    let x = Board::column(colour, y, k);
-                    if x < width {
-                        ctx.update(&other, scratch, cell, x, y, iteration);
-                    }
+    mine.par_chunks_mut(half_width).enumerate().for_each_init(
+        || Scratch::new(ctx.shape),
+        |scratch, (y, row)| {
+            for (k, cell) in row.iter_mut().enumerate() {
+                let x = Board::column(colour, y, k);
+                if x < width {
+                    ctx.update(&other, scratch, cell, x, y, iteration);
                 }
-            },
-        );
+            }
+        },
+    );
 }
 
 /// Neighbours of ACMH's depth median filter (dx, dy), besides the pixel itself.

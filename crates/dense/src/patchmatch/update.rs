@@ -23,7 +23,15 @@ pub const MAX_SOURCES: usize = 32;
 
 /// Candidate regions: four near "V"s, then four far strips, as (dx, dy) offsets. Every offset
 /// has odd |dx| + |dy|: the other colour.
-const NEAR_UP: [(i64, i64); 7] = [(0, -1), (-1, -2), (1, -2), (-2, -3), (2, -3), (-3, -4), (3, -4)];
+const NEAR_UP: [(i64, i64); 7] = [
+    (0, -1),
+    (-1, -2),
+    (1, -2),
+    (-2, -3),
+    (2, -3),
+    (-3, -4),
+    (3, -4),
+];
 const FAR_LEN: usize = 11;
 
 fn region_offset(region: usize, k: usize) -> Option<(i64, i64)> {
@@ -431,8 +439,8 @@ impl PassContext<'_> {
             let mut sum = 0.0;
             for (j, &w) in weights.iter().enumerate().take(ns) {
                 if w > 0.0 {
-                    sum += w
-                        * (scratch.costs[r][j] + self.geometric_weight * scratch.geometric[r][j]);
+                    sum +=
+                        w * (scratch.costs[r][j] + self.geometric_weight * scratch.geometric[r][j]);
                 }
             }
             let f = sum / total;
@@ -454,8 +462,7 @@ impl PassContext<'_> {
             let d_rand = rng.uniform_range(lo as f64, hi as f64) as f32;
             let n_rand = random_normal(&mut rng, &ray);
             let rho = self.depth_perturbation;
-            let d_pert =
-                current.depth * (1.0 + rng.uniform_range(-1.0, 1.0) as f32 * rho);
+            let d_pert = current.depth * (1.0 + rng.uniform_range(-1.0, 1.0) as f32 * rho);
             let n_pert = perturb_normal(&mut rng, &current.n, &ray, self.normal_perturbation);
             let base = current;
             let trials = [

@@ -51,8 +51,8 @@ pub fn upsample(
                     }
                     let n = coarse.normal[k];
                     let cray = coarse_camera.ray(i as f32 + 0.5, j as f32 + 0.5);
-                    let w_plane = -(n[0] * cray[0] + n[1] * cray[1] + n[2] * cray[2])
-                        * coarse.depth[k];
+                    let w_plane =
+                        -(n[0] * cray[0] + n[1] * cray[1] + n[2] * cray[2]) * coarse.depth[k];
                     let d = plane_depth(&n, w_plane, &ray);
                     if !(d > 0.0) {
                         continue;
@@ -119,7 +119,10 @@ mod tests {
                 let ray = fine_cam.ray(i as f32 + 0.5, j as f32 + 0.5);
                 let expected = plane_depth(&n, w, &ray);
                 let got = depth[j * 80 + i];
-                assert!((got - expected).abs() < 1e-3 * expected, "{i} {j}: {got} {expected}");
+                assert!(
+                    (got - expected).abs() < 1e-3 * expected,
+                    "{i} {j}: {got} {expected}"
+                );
                 assert!((normal[j * 80 + i][2] - n[2]).abs() < 1e-5);
             }
         }

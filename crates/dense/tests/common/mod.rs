@@ -125,10 +125,9 @@ fn render_all(
                     let pc = v.cam_from_world.transform_point(x);
                     let centre = v.cam_from_world.center();
                     pc.z > 0.0
-                        && timesift_core::project_world(&v.camera, &v.cam_from_world, x)
-                            .is_ok_and(|p| {
-                                p.x > 0.0 && p.y > 0.0 && p.x < w as f64 && p.y < h as f64
-                            })
+                        && timesift_core::project_world(&v.camera, &v.cam_from_world, x).is_ok_and(
+                            |p| p.x > 0.0 && p.y > 0.0 && p.x < w as f64 && p.y < h as f64,
+                        )
                         && scene.sees(&centre, x, 1e-3)
                 })
                 .map(|(k, _)| k)
@@ -167,8 +166,13 @@ pub fn plane(width: u32, height: u32) -> Rendered {
             Vector3::new(x, y, z(x, y))
         })
         .collect();
-    let scene = Scene::new(&vertices, &[[0, 1, 2], [0, 2, 3]], vec![0, 0], vec![cover(11)])
-        .expect("scene");
+    let scene = Scene::new(
+        &vertices,
+        &[[0, 1, 2], [0, 2, 3]],
+        vec![0, 0],
+        vec![cover(11)],
+    )
+    .expect("scene");
     let f = 0.8 * width as f64;
     let cam = camera(width, height, f);
     let mut poses = Vec::new();
@@ -190,9 +194,7 @@ pub fn plane(width: u32, height: u32) -> Rendered {
         }
     }
     let normal = Vector3::new(-slope, 0.05, 1.0).normalize();
-    let distance = Box::new(move |p: &Vector3<f64>| {
-        (p.z - z(p.x, p.y)).abs() * normal.z
-    });
+    let distance = Box::new(move |p: &Vector3<f64>| (p.z - z(p.x, p.y)).abs() * normal.z);
     render_all(scene, cam, poses, points, distance, Box::new(|_| true))
 }
 
@@ -223,7 +225,11 @@ pub fn sphere(width: u32, height: u32) -> Rendered {
             vertices.push(
                 centre
                     + radius
-                        * Vector3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()),
+                        * Vector3::new(
+                            theta.sin() * phi.cos(),
+                            theta.sin() * phi.sin(),
+                            theta.cos(),
+                        ),
             );
         }
     }
@@ -251,8 +257,13 @@ pub fn sphere(width: u32, height: u32) -> Rendered {
     if let Material::Cover { scale, .. } = &mut sphere_cover {
         *scale = 0.5;
     }
-    let scene = Scene::new(&vertices, &triangles, materials, vec![sphere_cover, cover(22)])
-        .expect("scene");
+    let scene = Scene::new(
+        &vertices,
+        &triangles,
+        materials,
+        vec![sphere_cover, cover(22)],
+    )
+    .expect("scene");
     let f = 0.9 * width as f64;
     let cam = camera(width, height, f);
     let poses: Vec<Pose> = (0..12)
@@ -268,9 +279,8 @@ pub fn sphere(width: u32, height: u32) -> Rendered {
         let v = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
         points.push(centre + radius * v);
     }
-    let distance = Box::new(move |p: &Vector3<f64>| {
-        ((p - centre).norm() - radius).abs().min(p.z.abs())
-    });
+    let distance =
+        Box::new(move |p: &Vector3<f64>| ((p - centre).norm() - radius).abs().min(p.z.abs()));
     let object = Box::new(move |p: &Vector3<f64>| ((p - centre).norm() - radius).abs() < 0.01);
     render_all(scene, cam, poses, points, distance, object)
 }

@@ -612,7 +612,7 @@ pub fn change_stage(project: &crate::Project) -> Result<Vec<PathBuf>, ProjectErr
     let names: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
     if names.len() < 2 {
         return Err(ProjectError::Path {
-            path: project.dir.join("project.toml"),
+            path: project.layout().project_toml(),
             message: format!("the change stage needs two epochs; {} given", names.len()),
         });
     }
@@ -632,19 +632,12 @@ pub fn change_stage(project: &crate::Project) -> Result<Vec<PathBuf>, ProjectErr
         .as_ref()
         .map(|s| project.dir.join(s))
         .or_else(|| Some(project.dir.join("stable.csv")).filter(|p| p.is_file()));
-    let epoch_dir = |e: &str| project.dir.join("out").join("epochs").join(e);
+    let layout = project.layout();
     let mut written = Vec::new();
     for (a, b) in pairs {
-        let out = project
-            .dir
-            .join("out")
-            .join("change")
-            .join(format!("{a}__{b}"));
-        let (dem_a, dem_b) = (epoch_dir(a).join("dem.tif"), epoch_dir(b).join("dem.tif"));
-        let (laz_a, laz_b) = (
-            epoch_dir(a).join("dense.laz"),
-            epoch_dir(b).join("dense.laz"),
-        );
+        let out = layout.change_dir(a, b);
+        let (dem_a, dem_b) = (layout.dem(a), layout.dem(b));
+        let (laz_a, laz_b) = (layout.dense_cloud(a), layout.dense_cloud(b));
         let have_dems = dem_a.is_file() && dem_b.is_file();
         let have_clouds = laz_a.is_file() && laz_b.is_file();
         if !have_dems && !have_clouds {

@@ -66,7 +66,7 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
         "(in GSD)",
         "camera centres dE/dN/dH (mm)"
     ));
-    for row in epoch_accuracy(&project, &dir.join("out"), gsd)? {
+    for row in epoch_accuracy(&project, &project.layout().out_dir(), gsd)? {
         let mm = |v: Option<[f64; 3]>| v.map(|v| v.map(|x| x * 1000.0));
         text.push_str(&format!(
             "{:<18} {:>9} {:>8} {:>30} {:>22} {:>30}\n",

@@ -1,6 +1,24 @@
-//! The stages of `timesift run`, in order, and the runner that walks a range of them.
+//! The stages of `timesift run`, in order, behind one abstraction ([`PipelineStage`]: what a
+//! stage reads, what it writes, how it runs), and the runner that walks a range of them.
+//!
+//! Every stage resumes: work files under `work/` record the settings they were made with
+//! ([`cache`]), and a stage skips what is up to date. A failed stage leaves the outputs of
+//! earlier stages intact.
+
+mod align;
+mod cache;
+mod change;
+mod dense;
+mod features;
+mod matching;
 
 use std::fmt;
+use std::path::PathBuf;
+
+pub use align::align_stage;
+pub use dense::{dense_input, dense_stage};
+pub use features::features_stage;
+pub use matching::match_stage;
 
 use crate::{Project, ProjectError};
 
@@ -51,12 +69,37 @@ impl Stage {
             Stage::Report => "report",
         }
     }
+
+    /// The implementation of the stage; `None` for stages not built yet.
+    pub fn implementation(self) -> Option<&'static dyn PipelineStage> {
+        match self {
+            Stage::Features => Some(&features::FeaturesStage),
+            Stage::Match => Some(&matching::MatchStage),
+            Stage::Align => Some(&align::AlignStage),
+            Stage::Dense => Some(&dense::DenseStage),
+            Stage::Change => Some(&change::ChangeStage),
+            Stage::Dem | Stage::Ortho | Stage::Report => None,
+        }
+    }
 }
 
 impl fmt::Display for Stage {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
     }
+}
+
+/// One stage of `timesift run`.
+pub trait PipelineStage: Sync {
+    /// Which stage this is.
+    fn stage(&self) -> Stage;
+    /// Files of earlier stages it reads; the runner checks them before running, so a missing
+    /// one is an error naming it and the stage that makes it.
+    fn inputs(&self, project: &Project) -> Vec<(PathBuf, Stage)>;
+    /// The products it writes (under `out/`).
+    fn outputs(&self, project: &Project) -> Vec<PathBuf>;
+    /// Runs it (resuming from its cache); returns a one-line summary for the log.
+    fn run(&self, project: &Project) -> Result<String, ProjectError>;
 }
 
 /// The stages from `from` to `to` inclusive (defaults: first and last).
@@ -75,36 +118,25 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
         .collect())
 }
 
-/// Runs one stage on a validated project. Stages whose crates are not built yet fail with
+/// Runs one stage on a validated project. Stages not built yet fail with
 /// [`ProjectError::StageNotAvailable`], leaving earlier outputs untouched.
 pub fn run_stage(project: &Project, stage: Stage) -> Result<(), ProjectError> {
-    match stage {
-        Stage::Features => {
-            crate::matching_stages::features_stage(project)?;
-            Ok(())
-        }
-        Stage::Match => {
-            let summary = crate::matching_stages::match_stage(project)?;
-            tracing::info!(%summary, "match stage done");
-            Ok(())
-        }
-        Stage::Align => {
-            let report = crate::align_stage::align_stage(project)?;
-            tracing::info!(
-                oriented = %report["images_oriented"],
-                rms_px = %report["rms_reprojection_px"],
-                "align stage done"
-            );
-            Ok(())
-        }
-        Stage::Change => {
-            for dir in crate::compare::change_stage(project)? {
-                tracing::info!(out = %dir.display(), "change products written");
-            }
-            Ok(())
-        }
-        other => Err(ProjectError::StageNotAvailable(other.name())),
+    let imp = stage
+        .implementation()
+        .ok_or(ProjectError::StageNotAvailable(stage.name()))?;
+    if let Some((path, maker)) = imp.inputs(project).into_iter().find(|(p, _)| !p.exists()) {
+        return Err(ProjectError::Path {
+            path,
+            message: format!(
+                "missing; stage {} reads it (run the {} stage first)",
+                stage.name(),
+                maker.name()
+            ),
+        });
     }
+    let summary = imp.run(project)?;
+    tracing::info!(stage = stage.name(), "{summary}");
+    Ok(())
 }
 
 /// Runs the stages from `from` to `to` in order, stopping at the first failure.

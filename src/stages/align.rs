@@ -21,10 +21,49 @@ use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
 use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
+use super::{PipelineStage, Stage};
 use crate::config::AlignMethod;
+use crate::layout::Layout;
 use crate::project::GivenFocal;
+use crate::report::{
+    AlignReport, EpochOrientation, PointResidual as ResidualRow, PointResiduals, Rmse, write_json,
+};
 use crate::stable_matcher::FeatureFileMatcher;
 use crate::{Project, ProjectError};
+
+/// The `align` stage.
+pub(super) struct AlignStage;
+
+impl PipelineStage for AlignStage {
+    fn stage(&self) -> Stage {
+        Stage::Align
+    }
+    fn inputs(&self, project: &Project) -> Vec<(PathBuf, Stage)> {
+        let layout = project.layout();
+        (0..project.images.len())
+            .map(|i| (layout.feature_file(i), Stage::Features))
+            .chain(std::iter::once((layout.matches_dir(), Stage::Match)))
+            .collect()
+    }
+    fn outputs(&self, project: &Project) -> Vec<PathBuf> {
+        let layout = project.layout();
+        vec![
+            layout.cameras_json(),
+            layout.colmap_dir(),
+            layout.tiepoints_ply(),
+            layout.report_json(),
+        ]
+    }
+    fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        let report = align_stage(project)?;
+        Ok(format!(
+            "{} of {} images oriented, RMS {:.3} px",
+            report.images_oriented,
+            report.images_given,
+            report.rms_reprojection_px.unwrap_or(f64::NAN)
+        ))
+    }
+}
 
 /// Default standard deviations of control points that give none (m): RTK GNSS or total station.
 const DEFAULT_GCP_SIGMA: (f64, f64) = (0.02, 0.03);
@@ -41,7 +80,7 @@ fn stage_error(message: String) -> ProjectError {
 }
 
 /// Orients the block by the configured strategy and writes the outputs. Returns the report.
-pub fn align_stage(project: &Project) -> Result<serde_json::Value, ProjectError> {
+pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     let start = Instant::now();
     let input = load_input(project)?;
     let frame = LocalFrame::of(project)?;
@@ -54,7 +93,7 @@ pub fn align_stage(project: &Project) -> Result<serde_json::Value, ProjectError>
     tracing::debug!(cameras = ?input.cameras, "initial cameras");
     let name = method_name(project.config.align.method);
     let matcher = FeatureFileMatcher {
-        features_dir: project.dir.join("work/features"),
+        features_dir: project.layout().features_dir(),
         seed: options.seed,
     };
     let strategy = timesift_align::strategy(name, &matcher).ok_or_else(|| {
@@ -100,17 +139,17 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
     let keypoints = (0..n)
         .into_par_iter()
         .map(|i| {
-            let path = project.dir.join("work/features").join(format!("{i}.feat"));
+            let path = project.layout().feature_file(i);
             read_features(&path)
                 .map(|(k, _)| k.iter().map(|k| Vector2::new(k.x, k.y)).collect::<Vec<_>>())
         })
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| stage_error(format!("{e} (run the features and match stages first)")))?;
-    let pairs = match_files(&project.dir.join("work/matches"))?;
+    let pairs = match_files(&project.layout().matches_dir())?;
     if pairs.is_empty() {
         return Err(stage_error(format!(
             "{}: no match files (run the match stage first)",
-            project.dir.join("work/matches").display()
+            project.layout().matches_dir().display()
         )));
     }
     let verified = pairs
@@ -181,7 +220,7 @@ fn match_files(dir: &Path) -> Result<Vec<(usize, usize, PathBuf)>, ProjectError>
     let mut files = Vec::new();
     for entry in entries.flatten() {
         let path = entry.path();
-        if let Some((a, b)) = crate::matching_stages::match_file_pair(&path) {
+        if let Some((a, b)) = Layout::match_file_pair(&path) {
             files.push((a, b, path));
         }
     }
@@ -313,8 +352,8 @@ fn write_outputs(
     frame: &LocalFrame,
     block: &Georeferenced,
     seconds: f64,
-) -> Result<serde_json::Value, ProjectError> {
-    let out = project.dir.join("out");
+) -> Result<AlignReport, ProjectError> {
+    let layout = project.layout();
     let rec = &block.reconstruction;
     let crs = if block.datum == Datum::Local {
         "local".to_string()
@@ -356,7 +395,7 @@ fn write_outputs(
             })
             .collect(),
     };
-    timesift_io::cameras_json::write_cameras_json(&out.join("cameras.json"), &file)?;
+    timesift_io::cameras_json::write_cameras_json(&layout.cameras_json(), &file)?;
     // COLMAP text model with the tie points.
     let mut model = timesift_io::colmap::from_reconstruction(&file)
         .map_err(|e| stage_error(format!("COLMAP export: {e}")))?;
@@ -388,7 +427,7 @@ fn write_outputs(
             },
         );
     }
-    timesift_io::colmap::write_colmap_text(&out.join("colmap"), &model)?;
+    timesift_io::colmap::write_colmap_text(&layout.colmap_dir(), &model)?;
     // Tie points with their epochs.
     let epoch_of: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
     let tiepoints: Vec<timesift_io::ply::TiePoint> = rec
@@ -404,36 +443,36 @@ fn write_outputs(
         })
         .collect();
     let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
-    timesift_io::ply::write_tiepoints(&out.join("tiepoints.ply"), &epoch_names, &tiepoints)?;
+    timesift_io::ply::write_tiepoints(&layout.tiepoints_ply(), &epoch_names, &tiepoints)?;
     let report = report(project, input, geo, block, &tiepoints, seconds);
-    let text = serde_json::to_string_pretty(&report).unwrap_or_default();
-    let path = out.join("report.json");
-    timesift_io::fsutil::write_atomically(&path, |w| {
-        use std::io::Write;
-        w.write_all(text.as_bytes())
-            .map_err(|e| timesift_io::IoError::io(&path, e))
-    })?;
+    write_json(&layout.report_json(), &report)?;
     Ok(report)
 }
 
-fn residual_json(residuals: &[PointResidual], check: bool) -> serde_json::Value {
+fn residuals_of(residuals: &[PointResidual], check: bool) -> PointResiduals {
     let rows: Vec<&PointResidual> = residuals.iter().filter(|r| r.check == check).collect();
     let measured: Vec<Vector3<f64>> = rows.iter().filter_map(|r| r.residual).collect();
     let rmse = |k: usize| {
         (measured.iter().map(|d| d[k] * d[k]).sum::<f64>() / measured.len() as f64).sqrt()
     };
-    serde_json::json!({
-        "points": rows.iter().map(|r| serde_json::json!({
-            "name": r.name,
-            "images": r.images,
-            "dE": r.residual.map(|d| d.x),
-            "dN": r.residual.map(|d| d.y),
-            "dH": r.residual.map(|d| d.z),
-        })).collect::<Vec<_>>(),
-        "rmse": if measured.is_empty() { serde_json::Value::Null } else {
-            serde_json::json!({"dE": rmse(0), "dN": rmse(1), "dH": rmse(2), "n": measured.len()})
-        },
-    })
+    PointResiduals {
+        points: rows
+            .iter()
+            .map(|r| ResidualRow {
+                name: r.name.clone(),
+                images: r.images,
+                de: r.residual.map(|d| d.x),
+                dn: r.residual.map(|d| d.y),
+                dh: r.residual.map(|d| d.z),
+            })
+            .collect(),
+        rmse: (!measured.is_empty()).then(|| Rmse {
+            de: rmse(0),
+            dn: rmse(1),
+            dh: rmse(2),
+            n: measured.len(),
+        }),
+    }
 }
 
 fn report(
@@ -443,9 +482,9 @@ fn report(
     block: &Georeferenced,
     tiepoints: &[timesift_io::ply::TiePoint],
     seconds: f64,
-) -> serde_json::Value {
+) -> AlignReport {
     let rec = &block.reconstruction;
-    let mut epochs = serde_json::Map::new();
+    let mut epochs = BTreeMap::new();
     let residuals: Vec<(timesift_core::TrackElement, f64)> = rec.residuals(input).collect();
     for (e, epoch) in project.epochs.iter().enumerate() {
         let in_epoch = |i: usize| project.images[i].epoch.index() == e;
@@ -474,36 +513,44 @@ fn report(
         };
         epochs.insert(
             epoch.name.clone(),
-            serde_json::json!({
-                "images_given": given,
-                "images_oriented": oriented,
-                "rms_reprojection_px": if errors.is_empty() { None } else { Some(rms) },
-                "observations": errors.len(),
-                "tie_points": tie,
-                "inter_epoch_tie_points": inter,
-                "control_points": residual_json(&per_epoch, false),
-                "check_points": residual_json(&per_epoch, true),
-            }),
+            EpochOrientation {
+                images_given: given,
+                images_oriented: oriented,
+                rms_reprojection_px: (!errors.is_empty()).then_some(rms),
+                observations: errors.len(),
+                tie_points: tie,
+                inter_epoch_tie_points: inter,
+                control_points: residuals_of(&per_epoch, false),
+                check_points: residuals_of(&per_epoch, true),
+            },
         );
     }
-    serde_json::json!({
-        "method": method_name(project.config.align.method),
-        "datum": format!("{:?}", block.datum),
-        "images_given": project.images.len(),
-        "images_oriented": rec.num_oriented(),
-        "rms_reprojection_px": block.rms_px,
-        "tie_points": rec.points.len(),
-        "inter_epoch_ties_split_as_moved": block.moved_ties_split,
-        "observation_bound_px": block.observation_bound_px,
-        "components_dropped": block.dropped_components,
-        "gnss_priors_rejected": block.rejected_priors,
-        "focal_length_held": block.focal_held,
-        "cameras": rec.cameras.iter().map(|c| {
-            let mut p = vec![0.0; c.num_params()];
-            c.params(&mut p);
-            c.param_names().iter().copied().zip(p).collect::<BTreeMap<_, _>>()
-        }).collect::<Vec<_>>(),
-        "seconds": seconds,
-        "epochs": epochs,
-    })
+    AlignReport {
+        method: method_name(project.config.align.method).to_string(),
+        datum: format!("{:?}", block.datum),
+        images_given: project.images.len(),
+        images_oriented: rec.num_oriented(),
+        rms_reprojection_px: block.rms_px.is_finite().then_some(block.rms_px),
+        tie_points: rec.points.len(),
+        inter_epoch_ties_split_as_moved: block.moved_ties_split,
+        observation_bound_px: block.observation_bound_px,
+        components_dropped: block.dropped_components,
+        gnss_priors_rejected: block.rejected_priors,
+        focal_length_held: block.focal_held.clone(),
+        cameras: rec
+            .cameras
+            .iter()
+            .map(|c| {
+                let mut p = vec![0.0; c.num_params()];
+                c.params(&mut p);
+                c.param_names()
+                    .iter()
+                    .map(|n| n.to_string())
+                    .zip(p)
+                    .collect::<BTreeMap<_, _>>()
+            })
+            .collect(),
+        seconds,
+        epochs,
+    }
 }

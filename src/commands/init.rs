@@ -150,6 +150,34 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     let _ = writeln!(text, "# tie_point_accuracy_px = 1.0");
     let _ = writeln!(text, "# marker_accuracy_px = 0.5");
     let _ = writeln!(text, "# gcps_in_all_epochs = false\n");
+    let _ = writeln!(text, "[dense]");
+    let _ = writeln!(
+        text,
+        "# level = 2            # 1 full resolution, 2 half (default), 4, 8"
+    );
+    let _ = writeln!(text, "# max_sources = 8      # source views per image");
+    let _ = writeln!(
+        text,
+        "# min_views = 2        # sources that must agree with a depth"
+    );
+    let _ = writeln!(text, "# min_images = 3       # images per fused point");
+    let _ = writeln!(
+        text,
+        "# window_radius = 5    # matching window half-size, pixels"
+    );
+    let _ = writeln!(
+        text,
+        "# iterations = 3       # PatchMatch iterations per pass"
+    );
+    let _ = writeln!(text, "# geometric_iterations = 2");
+    let _ = writeln!(
+        text,
+        "# max_cost = 0.6       # largest 1 - NCC of a kept depth"
+    );
+    let _ = writeln!(
+        text,
+        "# black_is_nodata = true  # pure black pixels (scan borders) give no depth\n"
+    );
     let _ = writeln!(text, "[gnss]");
     let _ = writeln!(
         text,

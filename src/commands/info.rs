@@ -163,36 +163,18 @@ pub fn info(project: &Project) -> Result<InfoReport, ProjectError> {
         });
     }
 
-    let mut outputs = Vec::new();
-    let mut candidates: Vec<String> = [
-        "out/cameras.json",
-        "out/colmap/cameras.txt",
-        "out/colmap/images.txt",
-        "out/colmap/points3D.txt",
-        "out/tiepoints.ply",
-        "out/report.json",
-        "out/report.html",
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
-    for e in &project.epochs {
-        for f in ["dense.laz", "dem.tif", "ortho.tif"] {
-            candidates.push(format!("out/epochs/{}/{f}", e.name));
-        }
-    }
-    for a in &project.epochs {
-        for b in &project.epochs {
-            for f in ["dod.tif", "m3c2.laz", "stats.json"] {
-                candidates.push(format!("out/change/{}__{}/{f}", a.name, b.name));
-            }
-        }
-    }
-    for c in candidates {
-        if project.dir.join(&c).is_file() {
-            outputs.push(c);
-        }
-    }
+    let epoch_names: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
+    let outputs: Vec<String> = project
+        .layout()
+        .outputs(&epoch_names)
+        .into_iter()
+        .filter(|f| f.is_file())
+        .filter_map(|f| {
+            f.strip_prefix(&project.dir)
+                .ok()
+                .map(|r| r.to_string_lossy().replace('\\', "/"))
+        })
+        .collect();
 
     Ok(InfoReport {
         project: project.dir.display().to_string(),

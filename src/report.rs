@@ -1,0 +1,195 @@
+//! The JSON reports timesift writes, as typed structs shared by their writers, their readers
+//! (`truth`, `timesift demo`, the benches, tests) and their documentation: `out/report.json` of
+//! the align stage, `work/matches/summary.json` of the match stage, `out/dense.json` of the
+//! dense stage. Field names are the JSON keys.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::ProjectError;
+
+/// `out/report.json`: the orientation, per block and per epoch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AlignReport {
+    /// Strategy (`[align] method`).
+    pub method: String,
+    /// What fixed the datum (`Local`, `Gnss…`, `ControlPoints…`).
+    pub datum: String,
+    /// Images in the project.
+    pub images_given: usize,
+    /// Images oriented.
+    pub images_oriented: usize,
+    /// RMS reprojection error of the block, pixels.
+    pub rms_reprojection_px: Option<f64>,
+    /// Tie points.
+    pub tie_points: usize,
+    /// Inter-epoch tie points split by epoch because their surface moved.
+    pub inter_epoch_ties_split_as_moved: usize,
+    /// Observations beyond this reprojection error were outliers, pixels.
+    pub observation_bound_px: Option<f64>,
+    /// Reconstructed components that could not be placed.
+    pub components_dropped: usize,
+    /// GNSS priors rejected as outliers.
+    pub gnss_priors_rejected: usize,
+    /// Whether a known focal length was held.
+    pub focal_length_held: Vec<bool>,
+    /// Intrinsics per camera group, by parameter name.
+    pub cameras: Vec<BTreeMap<String, f64>>,
+    /// Wall time of the stage, seconds.
+    pub seconds: f64,
+    /// Per epoch, by name.
+    pub epochs: BTreeMap<String, EpochOrientation>,
+}
+
+/// One epoch of [`AlignReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochOrientation {
+    /// Images of the epoch.
+    pub images_given: usize,
+    /// Images oriented.
+    pub images_oriented: usize,
+    /// RMS reprojection error of the epoch's observations, pixels.
+    pub rms_reprojection_px: Option<f64>,
+    /// Observations of the epoch's images.
+    pub observations: usize,
+    /// Tie points observed in the epoch.
+    pub tie_points: usize,
+    /// Tie points observed in the epoch and another.
+    pub inter_epoch_tie_points: usize,
+    /// Control-point residuals from this epoch's markers.
+    pub control_points: PointResiduals,
+    /// Check-point residuals from this epoch's markers.
+    pub check_points: PointResiduals,
+}
+
+/// Residuals of ground points (intersected from markers − surveyed), metres.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PointResiduals {
+    /// Per point.
+    pub points: Vec<PointResidual>,
+    /// RMSE over the measured points, `None` when none was measured.
+    pub rmse: Option<Rmse>,
+}
+
+/// One ground point's residual.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PointResidual {
+    /// Point name.
+    pub name: String,
+    /// Images whose markers measured it.
+    pub images: usize,
+    /// East residual, `None` when it could not be intersected.
+    #[serde(rename = "dE")]
+    pub de: Option<f64>,
+    /// North residual.
+    #[serde(rename = "dN")]
+    pub dn: Option<f64>,
+    /// Height residual.
+    #[serde(rename = "dH")]
+    pub dh: Option<f64>,
+}
+
+impl PointResidual {
+    /// The residual vector, when measured.
+    pub fn vector(&self) -> Option<[f64; 3]> {
+        Some([self.de?, self.dn?, self.dh?])
+    }
+}
+
+/// RMSE per component.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Rmse {
+    /// East.
+    #[serde(rename = "dE")]
+    pub de: f64,
+    /// North.
+    #[serde(rename = "dN")]
+    pub dn: f64,
+    /// Height.
+    #[serde(rename = "dH")]
+    pub dh: f64,
+    /// Points.
+    pub n: usize,
+}
+
+/// `work/matches/summary.json`: what the match stage verified.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MatchSummary {
+    /// Pairs the policy proposed.
+    pub candidate_pairs: usize,
+    /// Pairs matched (after preselection).
+    pub pairs: usize,
+    /// Pairs with verified matches.
+    pub verified_pairs: usize,
+    /// Verified pairs per epoch pair (`<a>__<b>`).
+    pub verified_pairs_per_epoch_pair: BTreeMap<String, usize>,
+    /// Tracks built.
+    pub tracks: usize,
+    /// Matches dropped as conflicting.
+    pub conflicting_matches: usize,
+    /// Tracks per length.
+    pub track_lengths: BTreeMap<usize, usize>,
+}
+
+impl std::fmt::Display for MatchSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} of {} pairs verified, {} tracks",
+            self.verified_pairs, self.pairs, self.tracks
+        )
+    }
+}
+
+/// `out/dense.json`: what the dense stage did, per epoch.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DenseReport {
+    /// Per epoch, by name.
+    pub epochs: BTreeMap<String, EpochDense>,
+}
+
+/// One epoch of [`DenseReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochDense {
+    /// Oriented images of the epoch.
+    pub images: usize,
+    /// Images that had source views (and so a depth map).
+    pub images_with_sources: usize,
+    /// Level (1 full resolution, 2 half, …).
+    pub level: u32,
+    /// PatchMatch passes (coarse to fine).
+    pub passes: usize,
+    /// Depth maps computed in this run (the rest came from the cache).
+    pub depth_maps_computed: usize,
+    /// Fused points.
+    pub points: usize,
+    /// Mean images per fused point.
+    pub mean_images_per_point: f64,
+    /// Wall time of the epoch in this run, seconds.
+    pub seconds: f64,
+}
+
+/// Writes a report as pretty JSON, atomically.
+pub fn write_json<T: Serialize>(path: &Path, report: &T) -> Result<(), ProjectError> {
+    let text = serde_json::to_string_pretty(report).map_err(|e| ProjectError::Path {
+        path: path.to_path_buf(),
+        message: format!("cannot serialise: {e}"),
+    })?;
+    timesift_io::fsutil::write_atomically(path, |w| {
+        use std::io::Write;
+        w.write_all(text.as_bytes())
+            .map_err(|e| timesift_io::IoError::io(path, e))
+    })?;
+    Ok(())
+}
+
+/// Reads a report written by [`write_json`]; the error names the file and what is wrong.
+pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ProjectError> {
+    let text = timesift_io::fsutil::read_text(path)?;
+    serde_json::from_str(&text).map_err(|e| ProjectError::Path {
+        path: path.to_path_buf(),
+        message: format!("not the expected report: {e}"),
+    })
+}

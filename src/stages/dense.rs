@@ -1,0 +1,715 @@
+//! The `dense` stage: per epoch, multi-view stereo on the frozen orientation of `out/cameras.json`
+//! with the sparse points of `out/colmap/`, into `out/epochs/<epoch>/dense.laz`.
+//!
+//! Work files (`work/dense/<epoch>/`): the depth, normal and cost maps of every image after every
+//! PatchMatch pass (`pass<k>/<n>.exr`), the filtered maps (`filtered/<n>.exr`), and
+//! `settings.json`, which records what the maps depend on — the `[dense]` options that change
+//! them and a fingerprint of the epoch's cameras and poses. A run resumes image by image: only
+//! missing maps are computed, and since every result is deterministic, recomputing one gives
+//! the same bits. Options that only change filtering and fusion (`min_views`, `min_images`,
+//! `max_cost`) keep the maps and redo the cloud.
+//!
+//! Memory: one reference image with its sources (decoded and resampled, in a small cache) and
+//! their maps at a time.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::Vector3;
+use timesift_core::{Camera, CameraModel};
+use timesift_dense::{
+    DenseError, DenseOptions, DepthMap, EpochInput, EpochPlan, FusionView, ImageView, Pass,
+    PassInput, SparsePoint, UndistortMap, View, WorkingImage, colours_at, filter_depth_map, fuse,
+    plan_epoch, plan_schedule, run_pass,
+};
+use timesift_io::cameras_json::{Reconstruction, read_cameras_json};
+use timesift_io::colmap::{ColmapModel, read_colmap_text};
+use timesift_io::coords::Crs;
+use timesift_io::pointcloud::{
+    AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, write_las,
+};
+
+use super::cache::stage_error;
+use super::{PipelineStage, Stage};
+use crate::layout::Layout;
+use crate::report::{DenseReport, EpochDense, read_json, write_json};
+use crate::{Project, ProjectError};
+
+/// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
+/// makes a resumed run redo them.
+const DENSE_ALGORITHM: u32 = 1;
+
+/// The `dense` stage.
+pub(super) struct DenseStage;
+
+impl PipelineStage for DenseStage {
+    fn stage(&self) -> Stage {
+        Stage::Dense
+    }
+    fn inputs(&self, project: &Project) -> Vec<(PathBuf, Stage)> {
+        let layout = project.layout();
+        vec![
+            (layout.cameras_json(), Stage::Align),
+            (layout.colmap_dir().join("images.txt"), Stage::Align),
+            (layout.colmap_dir().join("points3D.txt"), Stage::Align),
+        ]
+    }
+    fn outputs(&self, project: &Project) -> Vec<PathBuf> {
+        let layout = project.layout();
+        project
+            .epochs
+            .iter()
+            .map(|e| layout.dense_cloud(&e.name))
+            .chain(std::iter::once(layout.dense_report()))
+            .collect()
+    }
+    fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        let report = dense_stage(project)?;
+        let points: usize = report.epochs.values().map(|e| e.points).sum();
+        Ok(format!(
+            "dense clouds of {} epochs, {points} points",
+            report.epochs.len()
+        ))
+    }
+}
+
+fn dense_error(epoch: &str, e: DenseError) -> ProjectError {
+    stage_error("dense", format!("epoch \"{epoch}\": {e}"))
+}
+
+/// Runs the dense stage on every epoch; returns (and writes) `out/dense.json`.
+pub fn dense_stage(project: &Project) -> Result<DenseReport, ProjectError> {
+    let layout = project.layout();
+    let cameras = read_cameras_json(&layout.cameras_json())?;
+    let model = read_colmap_text(&layout.colmap_dir())?;
+    let crs: Crs = cameras
+        .crs
+        .parse()
+        .map_err(|e: String| ProjectError::Path {
+            path: layout.cameras_json(),
+            message: format!("crs: {e}"),
+        })?;
+    let oriented = match_orientation(project, &cameras)?;
+    let options = project.config.dense.options();
+    let mut report = if layout.dense_report().is_file() {
+        read_json::<DenseReport>(&layout.dense_report()).unwrap_or_default()
+    } else {
+        DenseReport::default()
+    };
+    report
+        .epochs
+        .retain(|name, _| project.epochs.iter().any(|e| &e.name == name));
+    for (e, epoch) in project.epochs.iter().enumerate() {
+        let summary = dense_epoch(project, e, &cameras, &model, &oriented, crs, &options)?;
+        tracing::info!(
+            epoch = %epoch.name,
+            points = summary.points,
+            seconds = summary.seconds,
+            "dense cloud"
+        );
+        report.epochs.insert(epoch.name.clone(), summary);
+        write_json(&layout.dense_report(), &report)?;
+    }
+    Ok(report)
+}
+
+/// For every project image, its index in `cameras.json`; errors name the first image that
+/// does not belong (cameras.json of another project) or is missing.
+fn match_orientation(
+    project: &Project,
+    cameras: &Reconstruction,
+) -> Result<Vec<Option<usize>>, ProjectError> {
+    let path = project.layout().cameras_json();
+    let by_name: BTreeMap<&str, usize> = cameras
+        .images
+        .iter()
+        .enumerate()
+        .map(|(k, im)| (im.name.as_str(), k))
+        .collect();
+    if let Some(stranger) = cameras
+        .images
+        .iter()
+        .find(|im| !project.images.iter().any(|p| p.name == im.name))
+    {
+        return Err(ProjectError::Path {
+            path,
+            message: format!(
+                "image \"{}\" is not in this project (cameras.json of another project? run the align stage)",
+                stranger.name
+            ),
+        });
+    }
+    let mut out = Vec::with_capacity(project.images.len());
+    for image in &project.images {
+        let Some(&k) = by_name.get(image.name.as_str()) else {
+            return Err(ProjectError::Path {
+                path,
+                message: format!(
+                    "image \"{}\" of the project is missing (run the align stage)",
+                    image.name
+                ),
+            });
+        };
+        let epoch = &project.epochs[image.epoch.index()].name;
+        if &cameras.images[k].epoch != epoch {
+            return Err(ProjectError::Path {
+                path,
+                message: format!(
+                    "image \"{}\" is in epoch \"{}\" there, \"{epoch}\" in the project (run the align stage)",
+                    image.name, cameras.images[k].epoch
+                ),
+            });
+        }
+        out.push(cameras.images[k].pose.map(|_| k));
+    }
+    Ok(out)
+}
+
+/// The oriented views of `epoch` (project image indices) and its dense input, from
+/// `out/cameras.json` and the sparse points of `out/colmap/`: what the dense stage starts from
+/// (benches use it to run peers on the same views).
+pub fn dense_input(
+    project: &Project,
+    epoch: usize,
+) -> Result<(Vec<usize>, EpochInput), ProjectError> {
+    let layout = project.layout();
+    let cameras = read_cameras_json(&layout.cameras_json())?;
+    let model = read_colmap_text(&layout.colmap_dir())?;
+    let oriented = match_orientation(project, &cameras)?;
+    epoch_input(project, epoch, &cameras, &model, &oriented)
+}
+
+/// The epoch's oriented views (project image indices) and its dense input.
+fn epoch_input(
+    project: &Project,
+    epoch: usize,
+    cameras: &Reconstruction,
+    model: &ColmapModel,
+    oriented: &[Option<usize>],
+) -> Result<(Vec<usize>, EpochInput), ProjectError> {
+    let images: Vec<usize> = project.epochs[epoch]
+        .images
+        .iter()
+        .map(|i| i.index())
+        .filter(|&i| oriented[i].is_some())
+        .collect();
+    let mut views = Vec::with_capacity(images.len());
+    for &i in &images {
+        let entry = &cameras.images[oriented[i].unwrap_or_default()];
+        let camera = cameras
+            .cameras
+            .get(&entry.camera)
+            .ok_or_else(|| ProjectError::Path {
+                path: project.layout().cameras_json(),
+                message: format!(
+                    "image \"{}\" names camera \"{}\", which is not defined",
+                    entry.name, entry.camera
+                ),
+            })?;
+        let pose = entry.pose.ok_or_else(|| {
+            stage_error("dense", format!("image \"{}\" lost its pose", entry.name))
+        })?;
+        views.push(View {
+            camera: camera.clone(),
+            cam_from_world: pose,
+        });
+    }
+    // COLMAP image id → view index in this epoch.
+    let view_of_name: BTreeMap<&str, usize> = images
+        .iter()
+        .enumerate()
+        .map(|(v, &i)| (project.images[i].name.as_str(), v))
+        .collect();
+    let view_of_id: BTreeMap<u32, usize> = model
+        .images
+        .iter()
+        .filter_map(|(id, im)| Some((*id, *view_of_name.get(im.name.as_str())?)))
+        .collect();
+    let points = model
+        .points
+        .values()
+        .filter_map(|p| {
+            let mut seen: Vec<usize> = p
+                .track
+                .iter()
+                .filter_map(|(id, _)| view_of_id.get(id).copied())
+                .collect();
+            seen.sort_unstable();
+            seen.dedup();
+            (!seen.is_empty()).then(|| SparsePoint {
+                position: p.xyz,
+                views: seen,
+            })
+        })
+        .collect();
+    Ok((images, EpochInput { views, points }))
+}
+
+/// A fingerprint (FNV-1a over the bits) of the epoch's cameras and poses.
+fn orientation_fingerprint(input: &EpochInput) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut feed = |v: f64| {
+        for b in v.to_bits().to_le_bytes() {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for v in &input.views {
+        let mut p = vec![0.0; v.camera.num_params()];
+        v.camera.params(&mut p);
+        p.into_iter().for_each(&mut feed);
+        feed(v.camera.width() as f64);
+        feed(v.camera.height() as f64);
+        v.cam_from_world
+            .rotation
+            .coords
+            .iter()
+            .for_each(|&x| feed(x));
+        v.cam_from_world.translation.iter().for_each(|&x| feed(x));
+    }
+    for p in &input.points {
+        p.position.iter().for_each(|&x| feed(x));
+        p.views.iter().for_each(|&x| feed(x as f64));
+    }
+    format!("{h:016x}")
+}
+
+/// What the depth maps depend on.
+fn map_settings(options: &DenseOptions, fingerprint: &str, images: &[usize]) -> serde_json::Value {
+    let pm = &options.patchmatch;
+    serde_json::json!({
+        "algorithm": DENSE_ALGORITHM,
+        "level": options.plan.level,
+        "max_sources": options.plan.max_sources,
+        "window_radius": pm.window_radius,
+        "window_step": pm.window_step,
+        "iterations": pm.photometric_iterations,
+        "geometric_iterations": pm.geometric_iterations,
+        "black_is_nodata": options.black_is_nodata,
+        "orientation": fingerprint,
+        "images": images,
+    })
+}
+
+/// What the cloud depends on besides the maps.
+fn cloud_settings(options: &DenseOptions, maps: &serde_json::Value) -> serde_json::Value {
+    serde_json::json!({
+        "maps": maps,
+        "min_views": options.filter.min_views,
+        "max_cost": options.filter.max_cost,
+        "min_images": options.fusion.min_images,
+    })
+}
+
+fn read_settings(path: &Path) -> Option<serde_json::Value> {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+}
+
+fn write_settings(path: &Path, value: &serde_json::Value) -> Result<(), ProjectError> {
+    write_json(path, value)
+}
+
+/// Decoded and resampled images of an epoch, the most recently used kept.
+struct ImageCache<'a> {
+    project: &'a Project,
+    images: &'a [usize],
+    maps: BTreeMap<String, UndistortMap>,
+    views: &'a [View],
+    plan: &'a EpochPlan,
+    black_is_nodata: bool,
+    level: u32,
+    capacity: usize,
+    entries: VecDeque<(usize, Arc<WorkingImage>)>,
+}
+
+impl ImageCache<'_> {
+    fn get(&mut self, view: usize) -> Result<Arc<WorkingImage>, ProjectError> {
+        if let Some(pos) = self.entries.iter().position(|(v, _)| *v == view) {
+            let entry = self.entries.remove(pos).unwrap_or_else(|| unreachable!());
+            let image = entry.1.clone();
+            self.entries.push_back(entry);
+            return Ok(image);
+        }
+        let image_index = self.images[view];
+        let path = self
+            .project
+            .dir
+            .join(&self.project.images[image_index].name);
+        let decoded = timesift_io::image::read_rgb(&path)?;
+        let camera = &self.views[view].camera;
+        let key = camera_key(camera);
+        let map = self
+            .maps
+            .entry(key)
+            .or_insert_with(|| UndistortMap::new(camera, self.plan.views[view].camera, self.level));
+        let working = map
+            .apply(
+                &ImageView {
+                    width: decoded.width as usize,
+                    height: decoded.height as usize,
+                    channels: decoded.channels as usize,
+                    data: &decoded.data,
+                },
+                None,
+                self.black_is_nodata,
+            )
+            .map_err(|e| {
+                stage_error(
+                    "dense",
+                    format!("{}: {e}", self.project.images[image_index].name),
+                )
+            })?;
+        let working = Arc::new(working);
+        if self.entries.len() >= self.capacity {
+            self.entries.pop_front();
+        }
+        self.entries.push_back((view, working.clone()));
+        Ok(working)
+    }
+}
+
+/// A key telling camera models apart (every parameter's bits).
+fn camera_key(camera: &Camera) -> String {
+    let mut p = vec![0.0; camera.num_params()];
+    camera.params(&mut p);
+    let mut key = format!(
+        "{}:{}x{}",
+        camera.model_name(),
+        camera.width(),
+        camera.height()
+    );
+    for v in p {
+        key.push_str(&format!(":{:x}", v.to_bits()));
+    }
+    key
+}
+
+fn write_map(path: &Path, map: &DepthMap) -> Result<(), ProjectError> {
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| timesift_io::IoError::io(parent, e))?;
+    }
+    let channel = |k: usize| map.normal.iter().map(|n| n[k]).collect::<Vec<f32>>();
+    let (nx, ny, nz) = (channel(0), channel(1), channel(2));
+    timesift_io::exr::write_f32_channels(
+        path,
+        map.width,
+        map.height,
+        &[
+            ("depth", &map.depth),
+            ("nx", &nx),
+            ("ny", &ny),
+            ("nz", &nz),
+            ("cost", &map.cost),
+        ],
+    )?;
+    Ok(())
+}
+
+/// A map written by [`write_map`]; `None` when the file is missing or not such a map (it is then
+/// recomputed).
+fn read_map(path: &Path) -> Option<DepthMap> {
+    let (width, height, channels) = timesift_io::exr::read_f32_channels(path).ok()?;
+    let get = |name: &str| {
+        channels
+            .iter()
+            .find(|(n, v)| n == name && v.len() == width * height)
+            .map(|(_, v)| v)
+    };
+    let (depth, nx, ny, nz, cost) = (
+        get("depth")?,
+        get("nx")?,
+        get("ny")?,
+        get("nz")?,
+        get("cost")?,
+    );
+    Some(DepthMap {
+        width,
+        height,
+        depth: depth.clone(),
+        normal: (0..width * height).map(|k| [nx[k], ny[k], nz[k]]).collect(),
+        cost: cost.clone(),
+    })
+}
+
+fn progress(epoch: &str, total: u64) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(total);
+    if let Ok(style) =
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} depth maps, {eta} left")
+    {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_prefix(format!("dense {epoch}"));
+    bar
+}
+
+#[allow(clippy::too_many_arguments)]
+fn dense_epoch(
+    project: &Project,
+    epoch: usize,
+    cameras: &Reconstruction,
+    model: &ColmapModel,
+    oriented: &[Option<usize>],
+    crs: Crs,
+    options: &DenseOptions,
+) -> Result<EpochDense, ProjectError> {
+    let start = Instant::now();
+    let layout: Layout = project.layout();
+    let name = project.epochs[epoch].name.as_str();
+    let (images, input) = epoch_input(project, epoch, cameras, model, oriented)?;
+    for &i in &images {
+        let path = project.dir.join(&project.images[i].name);
+        if !path.is_file() {
+            return Err(ProjectError::Path {
+                path,
+                message: format!("image of epoch \"{name}\" is missing"),
+            });
+        }
+    }
+    let plan = plan_epoch(&input, &options.plan).map_err(|e| dense_error(name, e))?;
+    let passes = plan_schedule(&plan, &options.patchmatch);
+    let work = layout.dense_work_dir(name);
+    let maps = map_settings(options, &orientation_fingerprint(&input), &images);
+    let settings_path = Layout::settings_file(&work);
+    if read_settings(&settings_path).as_ref() != Some(&maps) {
+        if work.exists() {
+            std::fs::remove_dir_all(&work).map_err(|e| timesift_io::IoError::io(&work, e))?;
+            tracing::info!(
+                epoch = name,
+                "dense settings or orientation changed: maps redone"
+            );
+        }
+        write_settings(&settings_path, &maps)?;
+    }
+    let cloud_path = layout.dense_cloud(name);
+    let cloud_record = work.join("cloud.json");
+    let last = passes.len() - 1;
+    let final_maps_present =
+        (0..images.len()).all(|v| layout.depth_map_file(name, last, images[v]).is_file());
+    let wanted = cloud_settings(options, &maps);
+    if cloud_path.is_file()
+        && final_maps_present
+        && read_settings(&cloud_record).as_ref() == Some(&wanted)
+        && let Ok(previous) = read_json::<DenseReport>(&layout.dense_report())
+        && let Some(summary) = previous.epochs.get(name)
+    {
+        return Ok(EpochDense {
+            depth_maps_computed: 0,
+            seconds: start.elapsed().as_secs_f64(),
+            ..summary.clone()
+        });
+    }
+    let mut cache = ImageCache {
+        project,
+        images: &images,
+        maps: BTreeMap::new(),
+        views: &input.views,
+        plan: &plan,
+        black_is_nodata: options.black_is_nodata,
+        level: options.plan.level,
+        capacity: 2 * (options.plan.max_sources + 1),
+        entries: VecDeque::new(),
+    };
+    let map_file = |pass: usize, view: usize| layout.depth_map_file(name, pass, images[view]);
+    let bar = progress(name, (passes.len() * images.len()) as u64);
+    let mut computed = 0;
+    for (k, pass) in passes.iter().enumerate() {
+        for view in 0..images.len() {
+            if read_map(&map_file(k, view)).is_some() {
+                bar.inc(1);
+                continue;
+            }
+            let map = compute_map(&plan, &mut cache, &map_file, view, k, pass, options)?;
+            write_map(&map_file(k, view), &map)?;
+            computed += 1;
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    // Filtering, then fusion.
+    let final_map = |view: usize| {
+        read_map(&map_file(last, view)).ok_or_else(|| {
+            stage_error(
+                "dense",
+                format!("{}: unreadable depth map", map_file(last, view).display()),
+            )
+        })
+    };
+    let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
+    for (view, vp) in plan.views.iter().enumerate() {
+        let own = final_map(view)?;
+        let sources = vp
+            .sources
+            .iter()
+            .map(|s| final_map(s.view))
+            .collect::<Result<Vec<_>, _>>()?;
+        let refs: Vec<Option<&DepthMap>> = sources.iter().map(Some).collect();
+        let filtered = filter_depth_map(&plan, view, &own, &refs, &options.filter)
+            .map_err(|e| dense_error(name, e))?;
+        write_map(&filtered_file(view), &filtered)?;
+    }
+    let cloud = fuse(&plan, &options.fusion, &mut |view: usize| {
+        let map = read_map(&filtered_file(view)).ok_or_else(|| {
+            stage_error(
+                "dense",
+                format!("{}: unreadable depth map", filtered_file(view).display()),
+            )
+        })?;
+        let image = cache.get(view)?;
+        let rgb = colours_at(&image, map.width, map.height);
+        Ok::<_, FusionError>(FusionView { map, rgb })
+    })
+    .map_err(|e| match e {
+        FusionError::Project(p) => p,
+        FusionError::Dense(d) => dense_error(name, d),
+    })?;
+    write_cloud(&cloud_path, &cloud, crs)?;
+    write_settings(&cloud_record, &wanted)?;
+    let mean_images = if cloud.is_empty() {
+        0.0
+    } else {
+        cloud.images.iter().map(|&n| n as f64).sum::<f64>() / cloud.len() as f64
+    };
+    Ok(EpochDense {
+        images: images.len(),
+        images_with_sources: plan.views.iter().filter(|v| !v.sources.is_empty()).count(),
+        level: options.plan.level,
+        passes: passes.len(),
+        depth_maps_computed: computed,
+        points: cloud.len(),
+        mean_images_per_point: mean_images,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Errors inside fusion's loader.
+enum FusionError {
+    Project(ProjectError),
+    Dense(DenseError),
+}
+
+impl From<DenseError> for FusionError {
+    fn from(e: DenseError) -> Self {
+        FusionError::Dense(e)
+    }
+}
+
+impl From<ProjectError> for FusionError {
+    fn from(e: ProjectError) -> Self {
+        FusionError::Project(e)
+    }
+}
+
+/// One view's map of pass `k`, reading the maps of pass `k − 1` it needs.
+fn compute_map(
+    plan: &EpochPlan,
+    cache: &mut ImageCache<'_>,
+    map_file: &dyn Fn(usize, usize) -> PathBuf,
+    view: usize,
+    k: usize,
+    pass: &Pass,
+    options: &DenseOptions,
+) -> Result<DepthMap, ProjectError> {
+    let vp = &plan.views[view];
+    let reference = cache.get(view)?;
+    let sources = vp
+        .sources
+        .iter()
+        .map(|s| cache.get(s.view))
+        .collect::<Result<Vec<_>, _>>()?;
+    let previous_map = |v: usize| -> Result<Option<DepthMap>, ProjectError> {
+        if k == 0 {
+            return Ok(None);
+        }
+        read_map(&map_file(k - 1, v)).map(Some).ok_or_else(|| {
+            stage_error(
+                "dense",
+                format!("{}: unreadable depth map", map_file(k - 1, v).display()),
+            )
+        })
+    };
+    let previous = previous_map(view)?;
+    let geometric = pass.kind == timesift_dense::PassKind::Geometric;
+    let source_maps: Vec<Option<DepthMap>> = if geometric {
+        vp.sources
+            .iter()
+            .map(|s| previous_map(s.view))
+            .collect::<Result<_, _>>()?
+    } else {
+        Vec::new()
+    };
+    let source_refs: Vec<&WorkingImage> = sources.iter().map(|s| s.as_ref()).collect();
+    let map_refs: Vec<Option<&DepthMap>> = source_maps.iter().map(Option::as_ref).collect();
+    let input = PassInput {
+        reference: &reference,
+        sources: &source_refs,
+        previous: previous.as_ref(),
+        source_maps: &map_refs,
+    };
+    let name = cache.project.images[cache.images[view]].name.clone();
+    run_pass(plan, view, k, pass, &input, &options.patchmatch)
+        .map_err(|e| stage_error("dense", format!("{name}: {e}")))
+}
+
+/// Writes the fused cloud as LAS 1.4/LAZ: RGB; the normal, the largest reprojection error of
+/// its pixels (working-image pixels) and the number of images as extra attributes; the CRS in
+/// the header.
+fn write_cloud(
+    path: &Path,
+    cloud: &timesift_dense::FusedCloud,
+    crs: Crs,
+) -> Result<(), ProjectError> {
+    let normal = |k: usize| AttributeValues::F32(cloud.normals.iter().map(|n| n[k]).collect());
+    let las = PointCloud {
+        positions: cloud
+            .positions
+            .iter()
+            .map(|p: &Vector3<f64>| [p.x, p.y, p.z])
+            .collect(),
+        colors: Some(
+            cloud
+                .colors
+                .iter()
+                .map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16))
+                .collect(),
+        ),
+        attributes: vec![
+            ExtraAttribute {
+                name: "normal_x".into(),
+                values: normal(0),
+            },
+            ExtraAttribute {
+                name: "normal_y".into(),
+                values: normal(1),
+            },
+            ExtraAttribute {
+                name: "normal_z".into(),
+                values: normal(2),
+            },
+            ExtraAttribute {
+                name: "reprojection_px".into(),
+                values: AttributeValues::F32(cloud.reprojection_px.clone()),
+            },
+            ExtraAttribute {
+                name: "images".into(),
+                values: AttributeValues::U8(
+                    cloud.images.iter().map(|&n| n.min(255) as u8).collect(),
+                ),
+            },
+        ],
+        crs,
+    };
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| timesift_io::IoError::io(parent, e))?;
+    }
+    write_las(path, &las, &LasWriteOptions::default())?;
+    Ok(())
+}

@@ -1,0 +1,102 @@
+//! The `features` stage: keypoints and descriptors of every image, one file per image under
+//! `work/features/`, so that a run resumes where it stopped and memory holds one image's
+//! features per thread.
+
+use rayon::prelude::*;
+use timesift_features::{
+    DetectorOptions, FeatureExtractor, KeypointLimit, LdbExtractor, SiftExtractor,
+    SiftNormalization,
+};
+use timesift_matching::storage::{read_features, write_features};
+
+use super::cache::{stage_error, start_with_settings};
+use super::{PipelineStage, Stage};
+use crate::config::FeatureMethod;
+use crate::{Project, ProjectError};
+
+/// The `features` stage.
+pub(super) struct FeaturesStage;
+
+impl PipelineStage for FeaturesStage {
+    fn stage(&self) -> Stage {
+        Stage::Features
+    }
+    fn inputs(&self, _: &Project) -> Vec<(std::path::PathBuf, Stage)> {
+        Vec::new()
+    }
+    fn outputs(&self, project: &Project) -> Vec<std::path::PathBuf> {
+        (0..project.images.len())
+            .map(|i| project.layout().feature_file(i))
+            .collect()
+    }
+    fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        let extracted = features_stage(project)?;
+        Ok(format!(
+            "features of {extracted} images extracted ({} cached)",
+            project.images.len() - extracted
+        ))
+    }
+}
+
+/// Extracts the features of every image whose feature file is missing or unreadable.
+pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
+    let detector = DetectorOptions {
+        limit: Some(KeypointLimit::spread(project.config.align.max_keypoints)),
+        // COLMAP's peak threshold: more keypoints in weak texture, which epochs years apart need.
+        contrast_threshold: 0.02,
+        ..DetectorOptions::default()
+    };
+    let extractor: Box<dyn FeatureExtractor> = match project.config.align.features {
+        FeatureMethod::Sift => Box::new(SiftExtractor {
+            detector,
+            normalization: SiftNormalization::Root,
+        }),
+        FeatureMethod::Ldb => Box::new(LdbExtractor { detector }),
+    };
+    let settings = serde_json::json!({
+        "features": project.config.align.features,
+        "max_keypoints": project.config.align.max_keypoints,
+        "contrast_threshold": detector.contrast_threshold,
+    });
+    let layout = project.layout();
+    let (features_dir, matches_dir) = (layout.features_dir(), layout.matches_dir());
+    start_with_settings(
+        "features",
+        &features_dir,
+        "feat",
+        &settings,
+        &[(&matches_dir, "match")],
+    )?;
+    let todo: Vec<usize> = (0..project.images.len())
+        .filter(|&i| read_features(&layout.feature_file(i)).is_err())
+        .collect();
+    let failures: Vec<String> = todo
+        .par_iter()
+        .filter_map(|&i| {
+            let image = project.dir.join(&project.images[i].name);
+            let result = timesift_features::files::extract_file(&image, extractor.as_ref())
+                .map_err(|e| format!("{}: {e}", project.images[i].name))
+                .and_then(|f| {
+                    write_features(&layout.feature_file(i), &f.keypoints, &f.descriptors)
+                        .map_err(|e| e.to_string())
+                });
+            result.err()
+        })
+        .collect();
+    if let Some(first) = failures.first() {
+        return Err(stage_error(
+            "features",
+            format!(
+                "{} of {} images failed; first: {first}",
+                failures.len(),
+                todo.len()
+            ),
+        ));
+    }
+    tracing::info!(
+        extracted = todo.len(),
+        total = project.images.len(),
+        "features"
+    );
+    Ok(todo.len())
+}

@@ -1,0 +1,182 @@
+//! The `match` stage of `timesift run`: epoch-aware pairs, matching, verification, guided
+//! matching and tracks, one file per pair under `work/matches/` so that a run resumes where it
+//! stopped, and `work/matches/summary.json` ([`MatchSummary`]).
+
+use std::collections::BTreeMap;
+
+use rayon::prelude::*;
+use timesift_core::{EpochId, ImageId};
+use timesift_matching::guided::{GuidedOptions, grow_verified};
+use timesift_matching::pairs::{PairPolicy, epoch_aware};
+use timesift_matching::preselect::{PreselectOptions, coarse_matches, preselect};
+use timesift_matching::storage::{read_features, read_matches, write_matches};
+use timesift_matching::tracks::{PairMatches, build_tracks};
+use timesift_matching::verify::{VerifyOptions, verify_pair};
+use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
+
+use super::cache::{stage_error, start_with_settings};
+use super::{PipelineStage, Stage};
+use crate::config::PairSelection;
+use crate::layout::Layout;
+use crate::report::{MatchSummary, write_json};
+use crate::{Project, ProjectError};
+
+/// The `match` stage.
+pub(super) struct MatchStage;
+
+impl PipelineStage for MatchStage {
+    fn stage(&self) -> Stage {
+        Stage::Match
+    }
+    fn inputs(&self, project: &Project) -> Vec<(std::path::PathBuf, Stage)> {
+        (0..project.images.len())
+            .map(|i| (project.layout().feature_file(i), Stage::Features))
+            .collect()
+    }
+    fn outputs(&self, project: &Project) -> Vec<std::path::PathBuf> {
+        vec![project.layout().match_summary()]
+    }
+    fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        Ok(match_stage(project)?.to_string())
+    }
+}
+
+/// Neighbours of each image within its epoch, by prior camera centre.
+const WITHIN_EPOCH_NEIGHBOURS: usize = 20;
+/// Nearest images of every other epoch matched with each image.
+const ACROSS_EPOCH_NEIGHBOURS: usize = 5;
+
+/// Version of the match stage's algorithm, part of its settings: a change that alters the
+/// verified matches (such as guided matching, version 2) makes a resumed run redo them.
+const MATCH_ALGORITHM: u32 = 2;
+
+/// Removes the match files of pairs not in `pairs` (sorted), left by a run with another pair
+/// selection: the align stage reads every match file, and its tracks should be this run's.
+fn remove_unselected(dir: &std::path::Path, pairs: &[(usize, usize)]) -> Result<(), ProjectError> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let file = entry.path();
+        if let Some(pair) = Layout::match_file_pair(&file) {
+            if pairs.binary_search(&pair).is_err() {
+                std::fs::remove_file(&file).map_err(|e| {
+                    stage_error("match", format!("{}: cannot remove: {e}", file.display()))
+                })?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Matches and verifies the epoch-aware pairs whose match file is missing, then builds tracks
+/// over all verified pairs and writes the summary.
+pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
+    let n = project.images.len();
+    let layout = project.layout();
+    let features = (0..n)
+        .into_par_iter()
+        .map(|i| read_features(&layout.feature_file(i)))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))?;
+    let priors = project.camera_priors()?;
+    let positions: Vec<Option<[f64; 3]>> = priors
+        .iter()
+        .map(|p| {
+            p.as_ref()
+                .map(|p| [p.position.x, p.position.y, p.position.z])
+        })
+        .collect();
+    let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
+    let selection = project.config.align.pair_selection;
+    let positions = if selection == PairSelection::Exhaustive {
+        vec![None; n]
+    } else {
+        positions
+    };
+    let within = if positions.iter().all(Option::is_some) {
+        PairPolicy::Spatial {
+            neighbours: WITHIN_EPOCH_NEIGHBOURS,
+            max_distance: None,
+        }
+    } else {
+        PairPolicy::Exhaustive
+    };
+    let candidates = epoch_aware(&epoch_of, &positions, within, ACROSS_EPOCH_NEIGHBOURS);
+    // A pair's matches do not depend on which other pairs are selected: only the algorithm.
+    let settings = serde_json::json!({ "algorithm": MATCH_ALGORITHM });
+    start_with_settings("match", &layout.matches_dir(), "match", &settings, &[])?;
+    let candidate_count = candidates.len();
+    let pairs = if selection == PairSelection::Preselect {
+        let options = PreselectOptions::default();
+        let views: Vec<_> = features.iter().map(|(k, d)| (k.as_slice(), d)).collect();
+        let coarse = coarse_matches(&views, &candidates, &options)
+            .map_err(|e| stage_error("match", format!("preselection: {e}")))?;
+        preselect(&coarse, &epoch_of, &options)
+    } else {
+        candidates
+    };
+    remove_unselected(&layout.matches_dir(), &pairs)?;
+    let options = MatchOptions {
+        ratio_on: FloatDistance::Angle,
+        ..MatchOptions::default()
+    };
+    let verify = VerifyOptions::default();
+    let guided = GuidedOptions::default();
+    let results: Vec<Result<Vec<timesift_matching::Match>, String>> = pairs
+        .par_iter()
+        .map(|&(a, b)| {
+            let path = layout.match_file(a, b);
+            if let Ok(done) = read_matches(&path) {
+                return Ok(done);
+            }
+            let (ka, da) = &features[a];
+            let (kb, db) = &features[b];
+            let putative = match_descriptors(da, db, &options).map_err(|e| e.to_string())?;
+            let inliers =
+                match verify_pair(ka, kb, &putative, None, &verify).map_err(|e| e.to_string())? {
+                    Some(verified) => grow_verified(ka, da, kb, db, &verified, &guided)
+                        .map_err(|e| e.to_string())?,
+                    None => Vec::new(),
+                };
+            write_matches(&path, &inliers).map_err(|e| e.to_string())?;
+            Ok(inliers)
+        })
+        .collect();
+    let mut verified = Vec::new();
+    for (&(a, b), result) in pairs.iter().zip(results) {
+        let matches = result.map_err(|e| stage_error("match", e))?;
+        if !matches.is_empty() {
+            verified.push(PairMatches {
+                a: ImageId::from(a),
+                b: ImageId::from(b),
+                matches,
+            });
+        }
+    }
+    let counts: Vec<usize> = features.iter().map(|f| f.0.len()).collect();
+    let tracks =
+        build_tracks(&counts, &verified).map_err(|e| stage_error("match", e.to_string()))?;
+    let mut per_epoch_pair: BTreeMap<String, usize> = BTreeMap::new();
+    for p in &verified {
+        let (ea, eb) = (epoch_of[p.a.index()], epoch_of[p.b.index()]);
+        let (ea, eb) = (ea.min(eb), ea.max(eb));
+        let key = format!(
+            "{}__{}",
+            project.epochs[ea.index()].name,
+            project.epochs[eb.index()].name
+        );
+        *per_epoch_pair.entry(key).or_insert(0) += 1;
+    }
+    let summary = MatchSummary {
+        candidate_pairs: candidate_count,
+        pairs: pairs.len(),
+        verified_pairs: verified.len(),
+        verified_pairs_per_epoch_pair: per_epoch_pair,
+        tracks: tracks.tracks.len(),
+        conflicting_matches: tracks.conflicts,
+        track_lengths: tracks.length_histogram(),
+    };
+    write_json(&layout.match_summary(), &summary)?;
+    Ok(summary)
+}
