@@ -16,6 +16,7 @@ pub mod project;
 pub mod report;
 pub mod stable_matcher;
 pub mod stages;
+pub mod true_scene;
 pub mod truth;
 
 pub use error::ProjectError;

@@ -240,7 +240,7 @@ fn epoch_input(
                 .collect();
             seen.sort_unstable();
             seen.dedup();
-            (!seen.is_empty()).then(|| SparsePoint {
+            (!seen.is_empty()).then_some(SparsePoint {
                 position: p.xyz,
                 views: seen,
             })
@@ -414,26 +414,22 @@ fn write_map(path: &Path, map: &DepthMap) -> Result<(), ProjectError> {
 /// A map written by [`write_map`]; `None` when the file is missing or not such a map (it is then
 /// recomputed).
 fn read_map(path: &Path) -> Option<DepthMap> {
-    let (width, height, channels) = timesift_io::exr::read_f32_channels(path).ok()?;
-    let get = |name: &str| {
-        channels
-            .iter()
-            .find(|(n, v)| n == name && v.len() == width * height)
-            .map(|(_, v)| v)
-    };
+    let read = timesift_io::exr::read_f32_channels(path).ok()?;
     let (depth, nx, ny, nz, cost) = (
-        get("depth")?,
-        get("nx")?,
-        get("ny")?,
-        get("nz")?,
-        get("cost")?,
+        read.channel("depth")?,
+        read.channel("nx")?,
+        read.channel("ny")?,
+        read.channel("nz")?,
+        read.channel("cost")?,
     );
     Some(DepthMap {
-        width,
-        height,
-        depth: depth.clone(),
-        normal: (0..width * height).map(|k| [nx[k], ny[k], nz[k]]).collect(),
-        cost: cost.clone(),
+        width: read.width,
+        height: read.height,
+        depth: depth.to_vec(),
+        normal: (0..read.width * read.height)
+            .map(|k| [nx[k], ny[k], nz[k]])
+            .collect(),
+        cost: cost.to_vec(),
     })
 }
 

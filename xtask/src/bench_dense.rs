@@ -16,17 +16,15 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use timesift::Project;
 use timesift::stages::{Stage, run, run_stage};
-use timesift_core::{CameraModel, Pose, project_world};
-use timesift_io::cameras_json::{Reconstruction, read_cameras_json, write_cameras_json};
-use timesift_io::colmap::{ColmapPoint, from_reconstruction, write_colmap_text};
-use timesift_synth::render::{Material, Scene};
-use timesift_synth::scene::{Frame, SceneSpec};
-use timesift_synth::terrain::Heightfield;
+use timesift::true_scene::{TrueEpoch, focal, write_true_orientation};
+use timesift_io::cameras_json::{Reconstruction, read_cameras_json};
+use timesift_synth::render::Material;
+use timesift_synth::scene::SceneSpec;
 
 /// What to run.
 pub struct DenseBench {
@@ -229,12 +227,11 @@ fn set_level(dir: &Path, level: u32) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A copy of the project (images linked) whose orientation is the truth: `out/cameras.json`
-/// from `truth/cameras.json`, and `out/colmap/` with sparse points sampled on the true surface
-/// (one every 15 GSD), each observed by the images that see it.
+/// A copy of the project (images linked) whose orientation is the truth (sparse points on
+/// the true surface every 15 GSD).
 fn truth_copy(spec: &SceneSpec, dir: &Path, truth_dir: &Path) -> anyhow::Result<Project> {
     let _ = std::fs::remove_dir_all(truth_dir);
-    std::fs::create_dir_all(truth_dir.join("out"))?;
+    std::fs::create_dir_all(truth_dir)?;
     for entry in ["images", "truth"] {
         std::os::unix::fs::symlink(
             std::fs::canonicalize(dir.join(entry))?,
@@ -242,70 +239,14 @@ fn truth_copy(spec: &SceneSpec, dir: &Path, truth_dir: &Path) -> anyhow::Result<
         )?;
     }
     std::fs::copy(dir.join("project.toml"), truth_dir.join("project.toml"))?;
-    let truth = read_cameras_json(&dir.join("truth/cameras.json"))?;
-    write_cameras_json(&truth_dir.join("out/cameras.json"), &truth)?;
-    let mut model = from_reconstruction(&truth).map_err(|e| anyhow::anyhow!(e))?;
-    let ids: Vec<(u32, usize)> = truth
-        .images
-        .iter()
-        .enumerate()
-        .map(|(k, _)| (k as u32 + 1, k))
-        .collect();
-    let mut next = 1u64;
-    for (e, epoch) in spec.epochs.iter().enumerate() {
-        let t = Truth::new(spec, e, &truth, &epoch.name)?;
-        let step = 15.0 * t.gsd;
-        let (x0, y0, cell, nx, ny) = spec.grid;
-        let (w, h) = ((nx - 1) as f64 * cell, (ny - 1) as f64 * cell);
-        let mut g2 = y0 + 0.5 * step;
-        while g2 < y0 + h {
-            let mut g1 = x0 + 0.5 * step;
-            while g1 < x0 + w {
-                if let Some(x) = t.surface_point(g1, g2) {
-                    let seen = t.seeing(&x);
-                    if seen.len() >= 2 {
-                        let mut track = Vec::new();
-                        for &k in &seen {
-                            let (id, image) = ids[t.images[k]];
-                            let pixel = t.pixel(k, &x).unwrap_or_default();
-                            if let Some(im) = model.images.get_mut(&id) {
-                                track.push((id, im.points2d.len() as u32));
-                                im.points2d.push((pixel.x, pixel.y, next as i64));
-                            }
-                            let _ = image;
-                        }
-                        model.points.insert(
-                            next,
-                            ColmapPoint {
-                                xyz: x + spec.origin,
-                                rgb: [128, 128, 128],
-                                error: 0.0,
-                                track,
-                            },
-                        );
-                        next += 1;
-                    }
-                }
-                g1 += step;
-            }
-            g2 += step;
-        }
-    }
-    write_colmap_text(&truth_dir.join("out/colmap"), &model)?;
+    write_true_orientation(truth_dir, spec, 15.0)?;
     Ok(Project::load(truth_dir)?)
 }
 
-/// The truth of one epoch of a scene, in the scene's local frame.
+/// The truth of one epoch of a scene, with what scoring needs.
 pub struct Truth<'a> {
-    spec: &'a SceneSpec,
-    epoch: usize,
-    field: Heightfield,
-    scene: Scene,
-    /// Indices into the truth cameras' images of this epoch.
-    images: Vec<usize>,
-    cameras: Vec<(timesift_core::Camera, Pose)>,
-    /// Ground sampling distance, metres: the median over the images of the range of the
-    /// central ray over the focal length.
+    epoch: TrueEpoch<'a>,
+    /// Ground sampling distance, metres (see [`TrueEpoch::gsd`]).
     pub gsd: f64,
     /// The ground sampling distance where the images see the surface from furthest: the 90th
     /// percentile over the surface of the finest image's GSD there. Completeness cells are
@@ -320,63 +261,22 @@ impl<'a> Truth<'a> {
         truth: &Reconstruction,
         name: &str,
     ) -> anyhow::Result<Truth<'a>> {
-        let field = spec.heightfield(epoch);
-        let scene = spec.scene(&field, epoch)?;
-        let images: Vec<usize> = truth
-            .images
-            .iter()
-            .enumerate()
-            .filter(|(_, im)| im.epoch == name && im.pose.is_some())
-            .map(|(k, _)| k)
-            .collect();
-        if images.is_empty() {
-            bail!("no true camera of epoch {name}");
-        }
-        let world_from_local = Pose::new(nalgebra::UnitQuaternion::identity(), spec.origin);
-        let cameras: Vec<(timesift_core::Camera, Pose)> = images
-            .iter()
-            .map(|&k| {
-                let im = &truth.images[k];
-                let camera = truth.cameras[&im.camera].clone();
-                let pose = im.pose.unwrap_or_default() * world_from_local;
-                (camera, pose)
-            })
-            .collect();
-        let mut ranges: Vec<f64> = cameras
-            .iter()
-            .filter_map(|(camera, pose)| {
-                let mut p = vec![0.0; camera.num_params()];
-                camera.params(&mut p);
-                let centre = Vector3::new(camera.width() as f64, camera.height() as f64, 0.0) * 0.5;
-                let ray = camera.unproject(&centre.xy()).ok()?;
-                let dir = (pose.rotation.inverse() * ray).normalize();
-                let hit = scene.hit(&pose.center(), &dir)?;
-                Some((hit - pose.center()).norm() / p[0])
-            })
-            .collect();
-        if ranges.is_empty() {
-            bail!("no image of epoch {name} sees the scene");
-        }
-        ranges.sort_by(f64::total_cmp);
-        let gsd = ranges[ranges.len() / 2];
-        let mut truth = Truth {
-            spec,
+        let epoch = TrueEpoch::new(spec, epoch, truth, name)?;
+        let gsd = epoch.gsd;
+        let mut t = Truth {
             epoch,
-            field,
-            scene,
-            images,
-            cameras,
             gsd,
             gsd_far: gsd,
         };
-        truth.gsd_far = truth.far_gsd();
-        Ok(truth)
+        t.gsd_far = t.far_gsd();
+        Ok(t)
     }
 
     /// The 90th percentile over surface samples (every 10 GSD) of the finest GSD of the
     /// images seeing each.
     fn far_gsd(&self) -> f64 {
-        let (x0, y0, gcell, nx, ny) = self.spec.grid;
+        let e = &self.epoch;
+        let (x0, y0, gcell, nx, ny) = e.spec.grid;
         let step = 10.0 * self.gsd;
         let (cw, ch) = (
             ((nx - 1) as f64 * gcell / step) as usize,
@@ -389,14 +289,12 @@ impl<'a> Truth<'a> {
                     x0 + ((k % cw) as f64 + 0.5) * step,
                     y0 + ((k / cw) as f64 + 0.5) * step,
                 );
-                let x = self.surface_point(g1, g2)?;
-                self.seeing(&x)
+                let x = e.surface_point(g1, g2)?;
+                e.seeing(&x)
                     .into_iter()
                     .map(|v| {
-                        let (camera, pose) = &self.cameras[v];
-                        let mut p = vec![0.0; camera.num_params()];
-                        camera.params(&mut p);
-                        (x - pose.center()).norm() / p[0]
+                        let (camera, pose) = &e.cameras[v];
+                        (x - pose.center()).norm() / focal(camera)
                     })
                     .min_by(f64::total_cmp)
             })
@@ -408,70 +306,21 @@ impl<'a> Truth<'a> {
         local[(local.len() - 1) * 9 / 10]
     }
 
-    /// (g₁, g₂, h) of a local point.
-    fn grid_of(&self, p: &Vector3<f64>) -> (f64, f64, f64) {
-        match self.spec.frame {
-            Frame::Ground => (p.x, p.y, p.z),
-            Frame::Wall => (p.x, p.z, p.y),
-        }
-    }
-
-    fn surface_height(&self, g1: f64, g2: f64) -> Option<f64> {
-        self.spec.surface(&self.field, self.epoch, g1, g2)
-    }
-
-    fn surface_point(&self, g1: f64, g2: f64) -> Option<Vector3<f64>> {
-        Some(
-            self.spec
-                .frame
-                .to_local(g1, g2, self.surface_height(g1, g2)?),
-        )
-    }
-
     /// Textured land: a land cover of full contrast, away from blocks (3 GSD).
     fn textured(&self, g1: f64, g2: f64) -> bool {
-        let m = (self.spec.cover)(self.epoch, g1, g2);
-        let textured = match self.spec.materials.get(m) {
+        let e = &self.epoch;
+        let m = (e.spec.cover)(e.epoch, g1, g2);
+        let textured = match e.spec.materials.get(m) {
             Some(Material::Cover { contrast, .. }) => *contrast >= 1.0,
             Some(Material::Flat(_)) | None => false,
             Some(_) => true,
         };
         textured
-            && !self
+            && !e
                 .spec
                 .blocks
                 .iter()
-                .any(|b| b.epochs.contains(&self.epoch) && b.block.covers(g1, g2, 3.0 * self.gsd))
-    }
-
-    fn pixel(&self, k: usize, x: &Vector3<f64>) -> Option<nalgebra::Vector2<f64>> {
-        let (camera, pose) = &self.cameras[k];
-        let p = project_world(camera, pose, x).ok()?;
-        // On the lens's invertible branch (beyond the fold of the distortion polynomial, points
-        // far outside the field project back into the image).
-        let ray = pose.transform_point(x);
-        let back = camera.unproject(&p).ok()?;
-        if (back.x - ray.x / ray.z).abs() > 1e-6 || (back.y - ray.y / ray.z).abs() > 1e-6 {
-            return None;
-        }
-        let margin = 4.0;
-        (p.x > margin
-            && p.y > margin
-            && p.x < camera.width() as f64 - margin
-            && p.y < camera.height() as f64 - margin)
-            .then_some(p)
-    }
-
-    /// The epoch's views (indices into `cameras`) that see local point `x`.
-    fn seeing(&self, x: &Vector3<f64>) -> Vec<usize> {
-        (0..self.cameras.len())
-            .filter(|&k| {
-                self.pixel(k, x).is_some()
-                    && self
-                        .scene
-                        .sees(&self.cameras[k].1.center(), x, 2.0 * self.gsd)
-            })
-            .collect()
+                .any(|b| b.epochs.contains(&e.epoch) && b.block.covers(g1, g2, 3.0 * self.gsd))
     }
 
     /// Scores a cloud (world coordinates) made at `level`.
@@ -483,14 +332,15 @@ impl<'a> Truth<'a> {
     /// filled eligible cells green, empty ones red, ineligible ones grey (not textured) or black
     /// (seen by fewer than three images).
     pub fn score_with_map(&self, cloud: &[Vector3<f64>], level: u32, png: Option<&Path>) -> Score {
-        let (x0, y0, gcell, nx, ny) = self.spec.grid;
+        let e = &self.epoch;
+        let (x0, y0, gcell, nx, ny) = e.spec.grid;
         let (w, h) = ((nx - 1) as f64 * gcell, (ny - 1) as f64 * gcell);
         let cell = 2.0 * level as f64 * self.gsd_far;
         let (cw, ch) = ((w / cell) as usize, (h / cell) as usize);
         let mut hit = vec![false; cw * ch];
         let mut errors = Vec::new();
         for p in cloud {
-            let (g1, g2, z) = self.grid_of(&(p - self.spec.origin));
+            let (g1, g2, z) = e.grid_of(&(p - e.spec.origin));
             let (i, j) = ((g1 - x0) / cell, (g2 - y0) / cell);
             if i < 0.0 || j < 0.0 || i >= cw as f64 || j >= ch as f64 {
                 continue;
@@ -499,7 +349,7 @@ impl<'a> Truth<'a> {
             if !self.textured(g1, g2) {
                 continue;
             }
-            if let Some(t) = self.surface_height(g1, g2) {
+            if let Some(t) = e.surface_height(g1, g2) {
                 errors.push((z - t).abs() / self.gsd);
             }
         }
@@ -513,9 +363,9 @@ impl<'a> Truth<'a> {
                 );
                 if !self.textured(g1, g2) {
                     0
-                } else if self
+                } else if e
                     .surface_point(g1, g2)
-                    .is_some_and(|x| self.seeing(&x).len() >= 3)
+                    .is_some_and(|x| e.seeing(&x).len() >= 3)
                 {
                     2
                 } else {

@@ -3,10 +3,13 @@
 //! orientation and the sparse points.
 //!
 //! Source views (per reference view, from the same epoch only — the caller passes one epoch):
-//! every other view that shares sparse points is scored as OpenMVS does, per shared point, by a
-//! triangulation-angle weight (full between 5° and 45°, penalised below and above) times a scale
-//! weight (the ratio of the two views' ground footprints, full between 1 and 1.6), the sum
-//! multiplied by the fraction of the reference image those shared points cover (16 × 16 cells).
+//! every other view is scored as OpenMVS does, per shared sparse point, by a triangulation-angle
+//! weight (full between 5° and 45°, penalised below and above) times a scale weight (the ratio
+//! of the two views' ground footprints, full between 1 and 1.6), the sum multiplied by the
+//! fraction of the reference image those points cover (16 × 16 cells). Besides the shared tie
+//! points, a 16 × 16 grid of the reference's rays at the median depth of its sparse points
+//! counts as points seen by every view they project into: blocks with few tie points between
+//! neighbours (film scans) keep every overlapping neighbour.
 //! Views with fewer than 3 shared points or whose 75th-percentile triangulation angle is below
 //! 1° (COLMAP's rule) are never sources. The best `max_sources` whose score is at least 3 % of
 //! the best are kept.
@@ -216,8 +219,17 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
     }
     let views = (0..n)
         .map(|a| {
-            let depth_range = depth_range(a, &poses[a], &points_of[a], &points)?;
-            let sources = select_sources(a, input, &poses, &centres, &cameras, &points, options);
+            let (depth_range, median_depth) = depth_range(a, &poses[a], &points_of[a], &points)?;
+            let sources = select_sources(
+                a,
+                input,
+                &poses,
+                &centres,
+                &cameras,
+                &points,
+                median_depth,
+                options,
+            );
             Ok(ViewPlan {
                 camera: cameras[a],
                 cam_from_local: poses[a],
@@ -238,7 +250,7 @@ fn depth_range(
     pose: &Pose,
     point_ids: &[usize],
     points: &[Vector3<f64>],
-) -> Result<(f64, f64), DenseError> {
+) -> Result<((f64, f64), f64), DenseError> {
     let mut depths: Vec<f64> = point_ids
         .iter()
         .map(|&k| pose.transform_point(&points[k]).z)
@@ -253,8 +265,11 @@ fn depth_range(
     depths.sort_by(f64::total_cmp);
     let at = |q: f64| depths[((depths.len() as f64 * q) as usize).min(depths.len() - 1)];
     Ok((
-        at(DEPTH_PERCENTILES.0) * DEPTH_MARGIN.0,
-        at(DEPTH_PERCENTILES.1) * DEPTH_MARGIN.1,
+        (
+            at(DEPTH_PERCENTILES.0) * DEPTH_MARGIN.0,
+            at(DEPTH_PERCENTILES.1) * DEPTH_MARGIN.1,
+        ),
+        at(0.5),
     ))
 }
 
@@ -265,6 +280,11 @@ struct Candidate {
     cells: Vec<bool>,
 }
 
+/// Samples of the reference image's field for the overlap term: a grid of this many rays per
+/// side, at the median depth of the view's sparse points.
+const OVERLAP_SAMPLES: usize = 16;
+
+#[allow(clippy::too_many_arguments)]
 fn select_sources(
     a: usize,
     input: &EpochInput,
@@ -272,50 +292,71 @@ fn select_sources(
     centres: &[Vector3<f64>],
     cameras: &[WorkingCamera],
     points: &[Vector3<f64>],
+    median_depth: f64,
     options: &PlanOptions,
 ) -> Vec<Source> {
     let n = input.views.len();
     let mut candidates: Vec<Option<Candidate>> = (0..n).map(|_| None).collect();
     let cam_a = &cameras[a];
+    let local_from_a = poses[a].inverse();
+    // One observation of local point `x` by view `b` besides `a`.
+    let mut observe = |b: usize, x: &Vector3<f64>, cell: Option<usize>| {
+        let in_a = poses[a].transform_point(x);
+        let in_b = poses[b].transform_point(x);
+        if !(in_b.z > 0.0) || !(in_a.z > 0.0) {
+            return;
+        }
+        let angle = (centres[a] - x).angle(&(centres[b] - x));
+        // Footprint of a pixel on the surface: depth / focal.
+        let ratio = (in_b.z / cameras[b].f) / (in_a.z / cam_a.f);
+        let c = candidates[b].get_or_insert_with(|| Candidate {
+            score: 0.0,
+            angles: Vec::new(),
+            cells: vec![false; COVERAGE_CELLS * COVERAGE_CELLS],
+        });
+        // The footprint ratio as OpenMVS defines it: reference over source resolution.
+        c.score += angle_weight(angle).max(0.1) * scale_weight(1.0 / ratio);
+        c.angles.push(angle);
+        if let Some(cell) = cell {
+            c.cells[cell] = true;
+        }
+    };
+    let cell_of = |u: f64, v: f64| -> Option<usize> {
+        if !cam_a.contains(u, v) {
+            return None;
+        }
+        let ci = (u / cam_a.width as f64 * COVERAGE_CELLS as f64) as usize;
+        let cj = (v / cam_a.height as f64 * COVERAGE_CELLS as f64) as usize;
+        Some(cj.min(COVERAGE_CELLS - 1) * COVERAGE_CELLS + ci.min(COVERAGE_CELLS - 1))
+    };
+    // Shared sparse points.
     for (k, p) in input.points.iter().enumerate() {
         if !p.views.contains(&a) {
             continue;
         }
         let x = &points[k];
-        let in_a = poses[a].transform_point(x);
-        let Some(pixel) = cam_a.project(&in_a) else {
+        let Some(pixel) = cam_a.project(&poses[a].transform_point(x)) else {
             continue;
         };
-        let cell = if cam_a.contains(pixel.x, pixel.y) {
-            let ci = (pixel.x / cam_a.width as f64 * COVERAGE_CELLS as f64) as usize;
-            let cj = (pixel.y / cam_a.height as f64 * COVERAGE_CELLS as f64) as usize;
-            Some(cj.min(COVERAGE_CELLS - 1) * COVERAGE_CELLS + ci.min(COVERAGE_CELLS - 1))
-        } else {
-            None
-        };
-        let ray_a = centres[a] - x;
-        for &b in &p.views {
-            if b == a {
-                continue;
-            }
-            let in_b = poses[b].transform_point(x);
-            if !(in_b.z > 0.0) {
-                continue;
-            }
-            let ray_b = centres[b] - x;
-            let angle = ray_a.angle(&ray_b);
-            // Footprint of a pixel on the ground: depth / focal.
-            let ratio = (in_b.z / cameras[b].f) / (in_a.z / cam_a.f);
-            let c = candidates[b].get_or_insert_with(|| Candidate {
-                score: 0.0,
-                angles: Vec::new(),
-                cells: vec![false; COVERAGE_CELLS * COVERAGE_CELLS],
-            });
-            // The footprint ratio as OpenMVS defines it: reference over source resolution.
-            c.score += angle_weight(angle).max(0.1) * scale_weight(1.0 / ratio);
-            c.angles.push(angle);
-            if let Some(cell) = cell {
-                c.cells[cell] = true;
+        let cell = cell_of(pixel.x, pixel.y);
+        for &b in p.views.iter().filter(|&&b| b != a) {
+            observe(b, x, cell);
+        }
+    }
+    // Overlap: the reference's field at its median depth, seen by the other views. Blocks with
+    // few tie points (film scans decades apart) still find every overlapping neighbour.
+    for j in 0..OVERLAP_SAMPLES {
+        for i in 0..OVERLAP_SAMPLES {
+            let u = (i as f64 + 0.5) / OVERLAP_SAMPLES as f64 * cam_a.width as f64;
+            let v = (j as f64 + 0.5) / OVERLAP_SAMPLES as f64 * cam_a.height as f64;
+            let x = local_from_a.transform_point(&(cam_a.ray(u, v) * median_depth));
+            for b in (0..n).filter(|&b| b != a) {
+                let seen = cameras[b]
+                    .project(&poses[b].transform_point(&x))
+                    .is_some_and(|p| cameras[b].contains(p.x, p.y));
+                if seen {
+                    observe(b, &x, cell_of(u, v));
+                }
             }
         }
     }
@@ -410,6 +451,36 @@ mod tests {
         assert!(near < 98.0 * 0.8 && far > 100.0 * 1.2, "{near} {far}");
         // The plan's local frame has small numbers.
         assert!(plan.views[0].cam_from_local.center().norm() < 100.0);
+    }
+
+    /// With tie points shared by two views only (few matches between film scans), the other
+    /// overlapping views still become sources through the overlap term.
+    #[test]
+    fn overlapping_views_are_sources_without_shared_points() {
+        let mut input = strip(&[0.0, 25.0, 50.0]);
+        for p in &mut input.points {
+            p.views.retain(|&v| v != 2);
+        }
+        // View 2 keeps a few points of its own, for its depth range.
+        let own: Vec<SparsePoint> = input
+            .points
+            .iter()
+            .take(5)
+            .map(|p| SparsePoint {
+                position: p.position,
+                views: vec![2],
+            })
+            .collect();
+        input.points.extend(own);
+        let plan = plan_epoch(&input, &PlanOptions::default()).unwrap();
+        let sources =
+            |v: usize| -> Vec<usize> { plan.views[v].sources.iter().map(|s| s.view).collect() };
+        assert!(sources(0).contains(&2), "{:?}", sources(0));
+        assert!(
+            sources(2).contains(&0) && sources(2).contains(&1),
+            "{:?}",
+            sources(2)
+        );
     }
 
     #[test]

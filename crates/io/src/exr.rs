@@ -44,12 +44,30 @@ pub fn write_f32_channels(
     fsutil::commit_temporary(&tmp, path, written)
 }
 
-/// Reads every f32 channel of an EXR file written by [`write_f32_channels`]: the size and the
-/// channels by name (in the file's sorted order). Other sample types are an error naming the
-/// channel.
-pub fn read_f32_channels(
-    path: &Path,
-) -> std::result::Result<(usize, usize, Vec<(String, Vec<f32>)>), IoError> {
+/// The f32 channels of one image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct F32Channels {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Channels by name (in the file's sorted order), `width * height` row-major values each.
+    pub channels: Vec<(String, Vec<f32>)>,
+}
+
+impl F32Channels {
+    /// The channel called `name`, when it has one value per pixel.
+    pub fn channel(&self, name: &str) -> Option<&[f32]> {
+        self.channels
+            .iter()
+            .find(|(n, v)| n == name && v.len() == self.width * self.height)
+            .map(|(_, v)| v.as_slice())
+    }
+}
+
+/// Reads every f32 channel of an EXR file written by [`write_f32_channels`]. Other sample
+/// types are an error naming the channel.
+pub fn read_f32_channels(path: &Path) -> std::result::Result<F32Channels, IoError> {
     let image = read_first_flat_layer_from_file(path)
         .map_err(|e| IoError::invalid(path, format!("cannot read EXR: {e}")))?;
     let size = image.layer_data.size;
@@ -66,7 +84,11 @@ pub fn read_f32_channels(
             }
         }
     }
-    Ok((size.width(), size.height(), channels))
+    Ok(F32Channels {
+        width: size.width(),
+        height: size.height(),
+        channels,
+    })
 }
 
 #[cfg(test)]
@@ -86,9 +108,10 @@ mod tests {
             FlatSamples::F32(v) => assert_eq!(v, &depth),
             other => panic!("unexpected samples {other:?}"),
         }
-        let (w, h, channels) = read_f32_channels(&p).unwrap();
-        assert_eq!((w, h), (4, 3));
-        assert_eq!(channels, vec![("Z".to_string(), depth.clone())]);
+        let read = read_f32_channels(&p).unwrap();
+        assert_eq!((read.width, read.height), (4, 3));
+        assert_eq!(read.channel("Z"), Some(depth.as_slice()));
+        assert_eq!(read.channel("Y"), None);
         std::fs::write(&p, b"not exr").unwrap();
         assert!(
             read_f32_channels(&p)

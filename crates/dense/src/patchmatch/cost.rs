@@ -249,7 +249,7 @@ pub fn ncc_cost(
     let cu = (h[0] * u + h[1] * v + h[2]) / z;
     let cv = (h[3] * u + h[4] * v + h[5]) / z;
     let (sw, sh) = (src.grey.width as f32, src.grey.height as f32);
-    if !(cu >= 0.0 && cv >= 0.0 && cu < sw && cv < sh) || !src.mask.at(cu as usize, cv as usize) {
+    if !(cu >= 0.0 && cv >= 0.0 && cu < sw && cv < sh && src.mask.at(cu as usize, cv as usize)) {
         return WORST;
     }
     // The window's corners in front of the source (a plane seen edge-on folds the window).

@@ -9,6 +9,11 @@ use timesift_dense::{EpochInput, ImageView, SparsePoint, View, WorkingCamera};
 use timesift_synth::noise::Noise;
 use timesift_synth::render::{Material, RenderOptions, Scene, render};
 
+/// Distance of a world point to the true surface, metres.
+pub type DistanceFn = Box<dyn Fn(&Vector3<f64>) -> f64>;
+/// Whether a true surface point belongs to the object under test.
+pub type ObjectFn = Box<dyn Fn(&Vector3<f64>) -> bool>;
+
 /// A rendered epoch: views, sparse points, images (RGB interleaved) and the scene for truth.
 pub struct Rendered {
     pub input: EpochInput,
@@ -16,9 +21,9 @@ pub struct Rendered {
     pub size: (usize, usize),
     pub scene: Scene,
     /// Distance of a world point to the true surface, metres.
-    pub distance: Box<dyn Fn(&Vector3<f64>) -> f64>,
+    pub distance: DistanceFn,
     /// Whether a true surface point belongs to the object under test.
-    pub object: Box<dyn Fn(&Vector3<f64>) -> bool>,
+    pub object: ObjectFn,
 }
 
 impl Rendered {
@@ -85,8 +90,8 @@ fn render_all(
     camera: Camera,
     poses: Vec<Pose>,
     points: Vec<Vector3<f64>>,
-    distance: Box<dyn Fn(&Vector3<f64>) -> f64>,
-    object: Box<dyn Fn(&Vector3<f64>) -> bool>,
+    distance: DistanceFn,
+    object: ObjectFn,
 ) -> Rendered {
     let (w, h) = match &camera {
         Camera::Brown(b) => (b.width as usize, b.height as usize),
@@ -103,7 +108,7 @@ fn render_all(
             let img = render(&scene, &camera, w, h, pose, &options).expect("render");
             img.data
                 .iter()
-                .flat_map(|p| p.iter().map(|&c| c))
+                .flat_map(|p| p.iter().copied())
                 .map(|c| (c + 0.004 * rng.normal() as f32).clamp(0.0, 1.0))
                 .collect::<Vec<f32>>()
         })
@@ -132,7 +137,7 @@ fn render_all(
                 })
                 .map(|(k, _)| k)
                 .collect();
-            (seen.len() >= 2).then(|| SparsePoint {
+            (seen.len() >= 2).then_some(SparsePoint {
                 position: *x,
                 views: seen,
             })
