@@ -41,7 +41,10 @@ use crate::{Project, ProjectError};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
-const DENSE_ALGORITHM: u32 = 1;
+const DENSE_ALGORITHM: u32 = 3;
+
+/// Version of filtering and fusion, part of the cloud's settings.
+const FUSION_ALGORITHM: u32 = 1;
 
 /// The `dense` stage.
 pub(super) struct DenseStage;
@@ -298,6 +301,7 @@ fn map_settings(options: &DenseOptions, fingerprint: &str, images: &[usize]) -> 
 /// What the cloud depends on besides the maps.
 fn cloud_settings(options: &DenseOptions, maps: &serde_json::Value) -> serde_json::Value {
     serde_json::json!({
+        "algorithm": FUSION_ALGORITHM,
         "maps": maps,
         "min_views": options.filter.min_views,
         "max_cost": options.filter.max_cost,
@@ -511,7 +515,14 @@ fn dense_epoch(
         plan: &plan,
         black_is_nodata: options.black_is_nodata,
         level: options.plan.level,
-        capacity: 2 * (options.plan.max_sources + 1),
+        capacity: 2
+            * (plan
+                .views
+                .iter()
+                .map(|v| v.neighbours.len())
+                .max()
+                .unwrap_or(0)
+                + 1),
         entries: VecDeque::new(),
     };
     let map_file = |pass: usize, view: usize| layout.depth_map_file(name, pass, images[view]);
@@ -542,12 +553,12 @@ fn dense_epoch(
     let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
     for (view, vp) in plan.views.iter().enumerate() {
         let own = final_map(view)?;
-        let sources = vp
-            .sources
+        let neighbours = vp
+            .neighbours
             .iter()
-            .map(|s| final_map(s.view))
+            .map(|&s| final_map(s))
             .collect::<Result<Vec<_>, _>>()?;
-        let refs: Vec<Option<&DepthMap>> = sources.iter().map(Some).collect();
+        let refs: Vec<Option<&DepthMap>> = neighbours.iter().map(Some).collect();
         let filtered = filter_depth_map(&plan, view, &own, &refs, &options.filter)
             .map_err(|e| dense_error(name, e))?;
         write_map(&filtered_file(view), &filtered)?;

@@ -187,7 +187,15 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
             scene: scene.to_string(),
             epoch: epoch.name.clone(),
             gsd_m: truth.gsd,
-            truth: truth.score(&cloud(&truth_project)?, bench.level),
+            truth: truth.score_with_map(
+                &cloud(&truth_project)?,
+                bench.level,
+                Some(
+                    &bench
+                        .out
+                        .join(format!("{scene}-{}-completeness-truth.png", epoch.name)),
+                ),
+            ),
             align: truth.score_with_map(
                 &cloud(&project)?,
                 bench.level,

@@ -1,5 +1,5 @@
-//! Filtering of a view's final depth map: a depth survives where at least `min_views` sources
-//! agree with it (forward–backward reprojection through their maps within a pixel tolerance,
+//! Filtering of a view's final depth map: a depth survives where at least `min_views`
+//! neighbours (its sources and the views that have it as a source) agree with it (forward–backward reprojection through their maps within a pixel tolerance,
 //! relative depth and normal tolerances), its matching cost is good, and it is not part of an
 //! isolated speckle (a small connected region of similar depths).
 
@@ -13,7 +13,7 @@ use crate::plan::EpochPlan;
 /// Options of the filter.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FilterOptions {
-    /// Least number of sources that must agree with a depth.
+    /// Least number of neighbours that must agree with a depth.
     pub min_views: usize,
     /// Largest forward–backward reprojection error, pixels of the map.
     pub max_reprojection_px: f64,
@@ -79,6 +79,8 @@ pub(crate) struct Agreement {
     pub point: Vector3<f64>,
     /// The neighbour's normal, reference frame.
     pub normal: Vector3<f64>,
+    /// How much coarser the neighbour sees the surface there than the reference (≥ 1).
+    pub coarser: f64,
 }
 
 /// Tolerances of the agreement between a depth and a neighbour's map.
@@ -96,8 +98,9 @@ impl Neighbour<'_> {
     /// Whether the neighbour's map agrees with the reference point `x` (reference frame) seen at
     /// reference pixel (u, v) with normal `n`: the neighbour's depth at one of the four pixels
     /// nearest to the projection of `x` (nearest first, skipping those `skip` refuses), lifted
-    /// and projected back, lands within `max_px` of (u, v), its depth along the reference ray is
-    /// within `max_rel` of the reference depth, and the normals agree.
+    /// and projected back, lands within `max_px` pixels of the coarser of the two views of
+    /// (u, v), its depth along the reference ray is within `max_rel` of the reference depth,
+    /// and the normals agree.
     pub fn agrees(
         &self,
         ref_camera: &WorkingCamera,
@@ -132,17 +135,15 @@ impl Neighbour<'_> {
             if skip(k) {
                 return None;
             }
-            self.check(
-                ref_camera,
-                (u, v),
-                x,
-                n,
-                tolerances,
-                (i as usize, j as usize),
-            )
+            self.check(ref_camera, (u, v), x, n, tolerances, (p.x, p.y), k)
         })
     }
 
+    /// The check of [`Neighbour::agrees`] with the neighbour's pixel `k`, its depth lifted at
+    /// the projection `(pu, pv)` itself (as ACMM's geometric cost does) rather than at the pixel's
+    /// centre: a neighbour seeing the surface at a coarser scale would otherwise miss by a
+    /// fraction of its own pixel, several of the reference's.
+    #[allow(clippy::too_many_arguments)]
     fn check(
         &self,
         ref_camera: &WorkingCamera,
@@ -150,17 +151,20 @@ impl Neighbour<'_> {
         x: &Vector3<f64>,
         n: &Vector3<f64>,
         tolerances: &Tolerances,
-        (i, j): (usize, usize),
+        (pu, pv): (f64, f64),
+        k: usize,
     ) -> Option<Agreement> {
-        let k = j * self.map.width + i;
         let d = self.map.depth[k] as f64;
         if !(d > 0.0) {
             return None;
         }
-        let yo = self.camera.pixel_ray(i, j) * d;
+        let yo = self.camera.ray(pu, pv) * d;
         let y = self.r.transpose() * (yo - self.t);
         let back = ref_camera.project(&y)?;
-        let max_px = tolerances.max_px;
+        // Pixels of the coarser of the two views: a neighbour that sees the surface from twice
+        // as far places it to within its own pixel, two of the reference's.
+        let coarser = ((yo.z / self.camera.f) / (x.z / ref_camera.f)).max(1.0);
+        let max_px = tolerances.max_px * coarser;
         if (back.x - u).powi(2) + (back.y - v).powi(2) > max_px * max_px {
             return None;
         }
@@ -176,6 +180,7 @@ impl Neighbour<'_> {
             pixel: k,
             point: y,
             normal,
+            coarser,
         })
     }
 }
@@ -191,7 +196,7 @@ pub(crate) fn camera_of_map(
         .find(|c| c.width == width && c.height == height)
 }
 
-/// Neighbours of `view` from its sources' maps (`None` entries are skipped).
+/// Neighbours of `view` from its neighbours' maps (`None` entries are skipped).
 pub(crate) fn neighbours<'a>(
     plan: &EpochPlan,
     view: usize,
@@ -199,12 +204,12 @@ pub(crate) fn neighbours<'a>(
 ) -> Vec<Neighbour<'a>> {
     let vp = &plan.views[view];
     let local_from_ref = vp.cam_from_local.inverse();
-    vp.sources
+    vp.neighbours
         .iter()
         .zip(maps)
-        .filter_map(|(s, m)| {
+        .filter_map(|(&s, m)| {
             let m = (*m)?;
-            let sp = &plan.views[s.view];
+            let sp = &plan.views[s];
             let camera = camera_of_map(&sp.camera, m.width, m.height)?;
             let other_from_ref = sp.cam_from_local * local_from_ref;
             Some(Neighbour {
@@ -217,13 +222,13 @@ pub(crate) fn neighbours<'a>(
         .collect()
 }
 
-/// The filtered map of `view`, checked against its sources' maps (`source_maps` in the order
-/// of the plan's sources; a missing one counts as disagreeing).
+/// The filtered map of `view`, checked against its neighbours' maps (`neighbour_maps` in the
+/// order of [`crate::plan::ViewPlan::neighbours`]; a missing one counts as disagreeing).
 pub fn filter_depth_map(
     plan: &EpochPlan,
     view: usize,
     map: &DepthMap,
-    source_maps: &[Option<&DepthMap>],
+    neighbour_maps: &[Option<&DepthMap>],
     options: &FilterOptions,
 ) -> Result<DepthMap, DenseError> {
     options.validate()?;
@@ -242,7 +247,7 @@ pub fn filter_depth_map(
             "a depth map's channels differ in length".into(),
         ));
     }
-    let others = neighbours(plan, view, source_maps);
+    let others = neighbours(plan, view, neighbour_maps);
     let tolerances = Tolerances {
         max_px: options.max_reprojection_px,
         max_rel: options.max_relative_depth,

@@ -1,6 +1,6 @@
 //! Fusion of the filtered depth maps of an epoch into one coloured cloud, in the manner of
-//! COLMAP's stereo fusion: every pixel not yet used starts a point; the sources whose depth at
-//! its projection agrees (reprojection, relative depth and normal tolerances) join it; a point
+//! COLMAP's stereo fusion: every pixel not yet used starts a point; the neighbours (sources, and
+//! views that have this one as a source) whose depth at its projection agrees (reprojection, relative depth and normal tolerances) join it; a point
 //! needs at least `min_images` images (never one) and becomes the mean of its members —
 //! position, colour and normal — with the number of images. Every member pixel is used once.
 //!
@@ -40,6 +40,10 @@ impl Default for FusionOptions {
         }
     }
 }
+
+/// A neighbour's pixel may join several points when it sees the surface this much coarser than
+/// the reference.
+const SHARED_COARSER: f64 = 1.5;
 
 /// What fusion reads of a view: its filtered map and the colours of its working image.
 #[derive(Debug, Clone, PartialEq)]
@@ -124,14 +128,14 @@ pub fn fuse<E: From<DenseError>>(
         )
         .into());
     }
-    let max_sources = plan
+    let max_neighbours = plan
         .views
         .iter()
-        .map(|v| v.sources.len())
+        .map(|v| v.neighbours.len())
         .max()
         .unwrap_or(0);
     let mut cache = Cache {
-        capacity: 2 * (max_sources + 1),
+        capacity: 2 * (max_neighbours + 1),
         entries: VecDeque::new(),
     };
     // Used pixels per view, as bits.
@@ -147,7 +151,7 @@ pub fn fuse<E: From<DenseError>>(
         if vp.sources.is_empty() {
             continue;
         }
-        for s in std::iter::once(view).chain(vp.sources.iter().map(|s| s.view)) {
+        for s in std::iter::once(view).chain(vp.neighbours.iter().copied()) {
             cache.get(s, load)?;
         }
         let reference = cache.find(view).expect("just loaded");
@@ -165,21 +169,21 @@ pub fn fuse<E: From<DenseError>>(
             ))
         })?;
         let source_views: Vec<&FusionView> = vp
-            .sources
+            .neighbours
             .iter()
-            .map(|s| cache.find(s.view).expect("just loaded"))
+            .map(|&s| cache.find(s).expect("just loaded"))
             .collect();
         let maps: Vec<Option<&DepthMap>> = source_views.iter().map(|f| Some(&f.map)).collect();
         let others: Vec<Neighbour<'_>> = neighbours(plan, view, &maps);
-        // Source index of each neighbour (neighbours skip maps of no scale of their view).
+        // View of each neighbour (neighbours skip maps of no scale of their view).
         let other_view: Vec<usize> = vp
-            .sources
+            .neighbours
             .iter()
             .zip(&source_views)
             .filter(|(s, f)| {
-                camera_of_map(&plan.views[s.view].camera, f.map.width, f.map.height).is_some()
+                camera_of_map(&plan.views[**s].camera, f.map.width, f.map.height).is_some()
             })
-            .map(|(s, _)| s.view)
+            .map(|(s, _)| *s)
             .collect();
         let other_rgb: Vec<&[[f32; 3]]> = other_view
             .iter()
@@ -214,8 +218,16 @@ pub fn fuse<E: From<DenseError>>(
                 let mut sum_c = reference.rgb[k].map(f64::from);
                 for (o, other) in others.iter().enumerate() {
                     let bits = &used[other_view[o]];
-                    let Some(a) =
-                        other.agrees(&camera, (u, v), &x, &n, &tolerances, &|k| is_used(bits, k))
+                    // A pixel of a view that sees the surface much coarser spans several of the
+                    // reference's: it may join each of their points (lifted where each projects),
+                    // or fusion would leave one point per coarse pixel.
+                    let Some(a) = other
+                        .agrees(&camera, (u, v), &x, &n, &tolerances, &|k| is_used(bits, k))
+                        .or_else(|| {
+                            other
+                                .agrees(&camera, (u, v), &x, &n, &tolerances, &|_| false)
+                                .filter(|a| a.coarser >= SHARED_COARSER)
+                        })
                     else {
                         continue;
                     };

@@ -125,9 +125,9 @@ pub fn reconstruct_epoch(
         .iter()
         .enumerate()
         .map(|(view, vp)| {
-            let source_maps: Vec<Option<&DepthMap>> =
-                vp.sources.iter().map(|s| Some(&finals[s.view])).collect();
-            filter_depth_map(&plan, view, &finals[view], &source_maps, &options.filter)
+            let neighbour_maps: Vec<Option<&DepthMap>> =
+                vp.neighbours.iter().map(|&s| Some(&finals[s])).collect();
+            filter_depth_map(&plan, view, &finals[view], &neighbour_maps, &options.filter)
         })
         .collect::<Result<_, _>>()?;
     let cloud = fuse(&plan, &options.fusion, &mut |view: usize| {

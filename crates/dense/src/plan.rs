@@ -14,8 +14,9 @@
 //! 1° (COLMAP's rule) are never sources. The best `max_sources` whose score is at least 3 % of
 //! the best are kept.
 //!
-//! Depth range (COLMAP's rule): the 1st and 99th percentiles of the depths of the view's sparse
-//! points, widened by 25 %.
+//! Depth range (COLMAP's rule, over more points): the 1st and 99th percentiles of the depths of
+//! the sparse points in the view's field — its own and those of its co-visible views that
+//! project into its image —, widened by 25 %.
 
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use timesift_core::{Camera, Pose};
@@ -91,6 +92,10 @@ pub struct ViewPlan {
     pub cam_from_local: Pose,
     /// Source views, best first; empty when no view qualifies (the view gets no depth map).
     pub sources: Vec<Source>,
+    /// The views whose depth maps are checked against this one's (filtering, fusion): its
+    /// sources, then every view that has it among its sources. Symmetric, so that two views
+    /// that match each other in one direction only still confirm each other's depths.
+    pub neighbours: Vec<usize>,
     /// Depth range (min, max), metres along the optical axis.
     pub depth_range: (f64, f64),
 }
@@ -219,7 +224,15 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
     }
     let views = (0..n)
         .map(|a| {
-            let (depth_range, median_depth) = depth_range(a, &poses[a], &points_of[a], &points)?;
+            let field = field_points(
+                a,
+                &points_of,
+                &input.points,
+                &poses[a],
+                &cameras[a],
+                &points,
+            );
+            let (depth_range, median_depth) = depth_range(a, &poses[a], &field, &points)?;
             let sources = select_sources(
                 a,
                 input,
@@ -234,15 +247,64 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
                 camera: cameras[a],
                 cam_from_local: poses[a],
                 sources,
+                neighbours: Vec::new(),
                 depth_range,
             })
         })
         .collect::<Result<Vec<_>, DenseError>>()?;
+    let mut views = views;
+    let mut reverse: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (a, v) in views.iter().enumerate() {
+        for s in &v.sources {
+            reverse[s.view].push(a);
+        }
+    }
+    for (a, v) in views.iter_mut().enumerate() {
+        let mut neighbours: Vec<usize> = v.sources.iter().map(|s| s.view).collect();
+        for &b in &reverse[a] {
+            if !neighbours.contains(&b) {
+                neighbours.push(b);
+            }
+        }
+        v.neighbours = neighbours;
+    }
     Ok(EpochPlan {
         origin,
         views,
         level: options.level,
     })
+}
+
+/// The sparse points in view `a`'s field: its own, and those of the views that share a point
+/// with it which project into its image in front of it. An oblique view's own tie points may
+/// all lie in the near part of its field; its neighbours' reach the far part.
+fn field_points(
+    a: usize,
+    points_of: &[Vec<usize>],
+    sparse: &[SparsePoint],
+    pose: &Pose,
+    camera: &WorkingCamera,
+    points: &[Vector3<f64>],
+) -> Vec<usize> {
+    let mut covisible: Vec<usize> = points_of[a]
+        .iter()
+        .flat_map(|&k| sparse[k].views.iter().copied())
+        .collect();
+    covisible.sort_unstable();
+    covisible.dedup();
+    let mut field: Vec<usize> = covisible
+        .iter()
+        .flat_map(|&b| points_of[b].iter().copied())
+        .filter(|&k| {
+            camera
+                .project(&pose.transform_point(&points[k]))
+                .is_some_and(|p| camera.contains(p.x, p.y))
+        })
+        .chain(points_of[a].iter().copied())
+        .collect();
+    field.sort_unstable();
+    field.dedup();
+    field
 }
 
 fn depth_range(
@@ -446,6 +508,14 @@ mod tests {
         let input = strip(&[0.0, 2.0, 25.0, 80.0]);
         let plan = plan_epoch(&input, &PlanOptions::default()).unwrap();
         let first: Vec<usize> = plan.views[0].sources.iter().map(|s| s.view).collect();
+        for (a, v) in plan.views.iter().enumerate() {
+            for &b in &v.neighbours {
+                assert!(
+                    plan.views[b].neighbours.contains(&a),
+                    "neighbours are symmetric"
+                );
+            }
+        }
         assert_eq!(first[0], 2, "{:?}", plan.views[0].sources);
         let (near, far) = plan.views[0].depth_range;
         assert!(near < 98.0 * 0.8 && far > 100.0 * 1.2, "{near} {far}");
