@@ -44,7 +44,7 @@ use crate::{Project, ProjectError};
 const DENSE_ALGORITHM: u32 = 3;
 
 /// Version of filtering and fusion, part of the cloud's settings.
-const FUSION_ALGORITHM: u32 = 1;
+const FUSION_ALGORITHM: u32 = 3;
 
 /// The `dense` stage.
 pub(super) struct DenseStage;

@@ -281,15 +281,23 @@ pub fn filter_depth_map(
     }
     remove_speckles(
         &mut out,
+        &camera,
         options.min_region,
         options.max_relative_depth as f32,
     );
     Ok(out)
 }
 
-/// Removes connected regions (4-neighbourhood, neighbours within `max_rel` relative depth) of
-/// fewer than `min_region` pixels.
-pub fn remove_speckles(map: &mut DepthMap, min_region: usize, max_rel: f32) {
+/// Removes connected regions of fewer than `min_region` pixels. Two 4-neighbours are connected
+/// when the depth of one is within `max_rel` of the depth the other's plane predicts there: on
+/// ground seen at a grazing angle, depth changes by more than that from pixel to pixel, and a
+/// plain depth difference would cut a smooth surface into speckles. `camera` is the map's.
+pub fn remove_speckles(
+    map: &mut DepthMap,
+    camera: &WorkingCamera,
+    min_region: usize,
+    max_rel: f32,
+) {
     if min_region <= 1 {
         return;
     }
@@ -308,10 +316,21 @@ pub fn remove_speckles(map: &mut DepthMap, min_region: usize, max_rel: f32) {
         while let Some(k) = stack.pop() {
             members.push(k);
             let (x, y) = (k % w, k / w);
-            let d = map.depth[k];
+            let d = map.depth[k] as f64;
+            let n = map.normal[k].map(f64::from);
+            let n = Vector3::new(n[0], n[1], n[2]);
+            // The plane n·X = c through this pixel's point.
+            let c = n.dot(&(camera.pixel_ray(x, y) * d));
             let mut visit = |q: usize| {
                 let e = map.depth[q];
-                if e > 0.0 && label[q] == u32::MAX && (e - d).abs() <= max_rel * d {
+                if !(e > 0.0) || label[q] != u32::MAX {
+                    return;
+                }
+                let ray = camera.pixel_ray(q % w, q / w);
+                let denom = n.dot(&ray);
+                let predicted = if denom.abs() > 1e-9 { c / denom } else { d };
+                let predicted = if predicted > 0.0 { predicted } else { d };
+                if (e as f64 - predicted).abs() <= max_rel as f64 * predicted {
                     label[q] = next;
                     stack.push(q);
                 }
@@ -354,7 +373,17 @@ mod tests {
         }
         map.depth[8 * 10 + 8] = 10.0;
         map.depth[8 * 10 + 9] = 10.02;
-        remove_speckles(&mut map, 4, 0.01);
+        let camera = WorkingCamera {
+            width: 10,
+            height: 10,
+            f: 10.0,
+            cx: 5.0,
+            cy: 5.0,
+        };
+        for n in map.normal.iter_mut() {
+            *n = [0.0, 0.0, -1.0];
+        }
+        remove_speckles(&mut map, &camera, 4, 0.01);
         assert_eq!(map.valid_count(), 25);
         assert_eq!(map.depth[88], 0.0);
     }

@@ -43,7 +43,7 @@ impl Default for FusionOptions {
 
 /// A neighbour's pixel may join several points when it sees the surface this much coarser than
 /// the reference.
-const SHARED_COARSER: f64 = 1.5;
+const SHARED_COARSER: f64 = 1.1;
 
 /// What fusion reads of a view: its filtered map and the colours of its working image.
 #[derive(Debug, Clone, PartialEq)]
