@@ -1,6 +1,6 @@
 //! GeoTIFF rasters: float32 single band (DEMs, differences) and RGB(A) u8 (orthomosaics), written
 //! with ModelPixelScale, ModelTiepoint, GeoKeyDirectory (EPSG code, pixel-is-area) and GDAL's nodata
-//! tag, and read back from any north-up GeoTIFF with one band of a common numeric type or three/four
+//! tag in the cloud-optimised layout of [`crate::tiled_tiff`], and read back from any north-up GeoTIFF with one band of a common numeric type or three/four
 //! u8 bands, striped or tiled, compressed or not.
 //!
 //! Not supported, with an error naming the file: rotated or sheared grids (ModelTransformation or
@@ -11,11 +11,11 @@ use std::io::BufReader;
 use std::path::Path;
 
 use tiff::decoder::{Decoder, DecodingResult, Limits};
-use tiff::encoder::{Compression, DeflateLevel, TiffEncoder, colortype};
 use tiff::tags::Tag;
 use tiff::{ColorType, TiffError};
 
 use crate::coords::Crs;
+use crate::tiled_tiff::{Entry, Pixels, TiledError, write_tiled};
 use crate::{IoError, fsutil};
 
 /// A north-up affine grid, GDAL geotransform style.
@@ -90,6 +90,7 @@ const GEOGRAPHIC_TYPE: u16 = 2048;
 const PROJECTED_CS_TYPE: u16 = 3072;
 const MODEL_TRANSFORMATION_TAG: u16 = 34264;
 const USER_DEFINED: u16 = 32767;
+const GDAL_NODATA_TAG: u16 = 42113;
 
 fn geokey_directory(georef: &GeoReference) -> Vec<u16> {
     let mut keys: Vec<[u16; 4]> = Vec::new();
@@ -124,50 +125,58 @@ fn format_nodata(v: f64) -> String {
     format!("{v}")
 }
 
-macro_rules! write_with_georef {
-    ($path:expr, $raster:expr, $color:ty, $alpha:expr) => {{
-        let path: &Path = $path;
-        let raster = $raster;
-        let georef = &raster.georef;
-        let t = &georef.transform;
-        if !(t.pixel_width > 0.0 && t.pixel_height < 0.0) {
-            return Err(IoError::unsupported(
+/// The GeoTIFF tags of a raster: pixel scale, tie point, GeoKey directory.
+fn georef_entries(georef: &GeoReference) -> Vec<Entry> {
+    let t = &georef.transform;
+    let shift = if georef.pixel_is_point { 0.5 } else { 0.0 };
+    let (tx, ty) = t.pixel_to_world(shift, shift);
+    vec![
+        Entry::doubles(33550, &[t.pixel_width, -t.pixel_height, 0.0]),
+        Entry::doubles(33922, &[0.0, 0.0, 0.0, tx, ty, 0.0]),
+        Entry::shorts(34735, &geokey_directory(georef)),
+    ]
+}
+
+/// Writes `pixels` as a tiled, compressed GeoTIFF with overviews, atomically.
+fn write_geotiff(
+    path: &Path,
+    width: usize,
+    height: usize,
+    pixels: Pixels<'_>,
+    georef: &GeoReference,
+) -> Result<(), IoError> {
+    let t = &georef.transform;
+    if !(t.pixel_width > 0.0 && t.pixel_height < 0.0) {
+        return Err(IoError::unsupported(
+            path,
+            "grid",
+            "only north-up rasters (pixel width > 0, pixel height < 0) are written",
+        ));
+    }
+    let nodata = georef
+        .nodata
+        .map(|v| Entry::ascii(GDAL_NODATA_TAG, &format_nodata(v)));
+    fsutil::write_atomically(path, |w| {
+        write_tiled(
+            w,
+            width,
+            height,
+            pixels,
+            &georef_entries(georef),
+            nodata.as_ref(),
+        )
+        .map_err(|e| match e {
+            TiledError::Io(e) => IoError::io(path, e),
+            TiledError::TooLarge(bytes) => IoError::unsupported(
                 path,
-                "grid",
-                "only north-up rasters (pixel width > 0, pixel height < 0) are written",
-            ));
-        }
-        fsutil::write_atomically(path, |w| {
-            let err = |e| tiff_err(path, e);
-            let mut encoder = TiffEncoder::new(w)
-                .map_err(err)?
-                .with_compression(Compression::Deflate(DeflateLevel::Balanced));
-            let mut image = encoder
-                .new_image::<$color>(raster.width as u32, raster.height as u32)
-                .map_err(err)?;
-            let shift = if georef.pixel_is_point { 0.5 } else { 0.0 };
-            let (tx, ty) = t.pixel_to_world(shift, shift);
-            let dir = image.encoder();
-            dir.write_tag(
-                Tag::ModelPixelScaleTag,
-                &[t.pixel_width, -t.pixel_height, 0.0][..],
-            )
-            .map_err(err)?;
-            dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, tx, ty, 0.0][..])
-                .map_err(err)?;
-            dir.write_tag(Tag::GeoKeyDirectoryTag, &geokey_directory(georef)[..])
-                .map_err(err)?;
-            if let Some(nodata) = georef.nodata {
-                dir.write_tag(Tag::GdalNodata, &format_nodata(nodata)[..])
-                    .map_err(err)?;
-            }
-            if $alpha {
-                // Unassociated alpha, so GDAL reads band 4 as alpha.
-                dir.write_tag(Tag::ExtraSamples, &[2u16][..]).map_err(err)?;
-            }
-            image.write_data(&raster.data).map_err(err)
+                "GeoTIFF size",
+                format!(
+                    "{bytes} bytes compressed exceed the 4 GiB of a classic TIFF (BigTIFF is not \
+                     written); use a coarser cell or a smaller extent"
+                ),
+            ),
         })
-    }};
+    })
 }
 
 fn check_size<T>(path: &Path, raster: &GeoRaster<T>, bands: &[usize]) -> Result<(), IoError> {
@@ -193,20 +202,25 @@ fn check_size<T>(path: &Path, raster: &GeoRaster<T>, bands: &[usize]) -> Result<
     Ok(())
 }
 
-/// Writes a single-band float32 GeoTIFF (Deflate-compressed), atomically.
+/// Writes a single-band float32 GeoTIFF (tiled, Deflate-compressed, with overviews), atomically.
 pub fn write_f32(path: &Path, raster: &GeoRaster<f32>) -> Result<(), IoError> {
     check_size(path, raster, &[1])?;
-    write_with_georef!(path, raster, colortype::Gray32Float, false)
+    let pixels = Pixels::F32 {
+        data: &raster.data,
+        nodata: raster.georef.nodata.map(|v| v as f32),
+    };
+    write_geotiff(path, raster.width, raster.height, pixels, &raster.georef)
 }
 
-/// Writes an RGB or RGBA u8 GeoTIFF (band 4 marked as alpha), atomically.
+/// Writes an RGB or RGBA u8 GeoTIFF (band 4 marked as alpha; tiled, compressed, with overviews),
+/// atomically.
 pub fn write_rgb8(path: &Path, raster: &GeoRaster<u8>) -> Result<(), IoError> {
     check_size(path, raster, &[3, 4])?;
-    if raster.bands == 3 {
-        write_with_georef!(path, raster, colortype::RGB8, false)
-    } else {
-        write_with_georef!(path, raster, colortype::RGBA8, true)
-    }
+    let pixels = Pixels::U8 {
+        data: &raster.data,
+        bands: raster.bands,
+    };
+    write_geotiff(path, raster.width, raster.height, pixels, &raster.georef)
 }
 
 /// The decoded samples of a GeoTIFF before conversion.
@@ -474,6 +488,7 @@ pub fn read_rgb8(path: &Path) -> Result<GeoRaster<u8>, IoError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tiff::encoder::{TiffEncoder, colortype};
 
     fn georef() -> GeoReference {
         GeoReference {

@@ -24,6 +24,7 @@ pub mod image;
 pub mod libmv;
 pub mod ply;
 pub mod pointcloud;
+pub mod tiled_tiff;
 pub mod wkt;
 
 pub use error::IoError;

@@ -1,5 +1,24 @@
-//! DEM gridding of dense clouds and orthomosaics on the DEM grid.
+//! Rasters of an epoch on the project's one lattice: the lattice itself ([`plan_grid`]: cell size
+//! from the epochs' ground sample distances, extent from their footprints, edges on cell
+//! multiples), DEM gridding of any point cloud ([`grid_cloud`]: median, max or inverse distance
+//! per cell, counts and spread beside the heights, small holes filled and marked), true
+//! orthomosaics sampled from the original images through the camera model ([`ortho`]), and
+//! hillshade previews.
 //!
-//! Invariants (once built): works in the project's projected frame relative to the recorded origin
-//! offset; knows nothing of cameras beyond their poses and models. Not implemented yet: this crate
-//! holds only its charter.
+//! Invariants: works in the world frame in f64 and stores heights as f32; reads and writes no
+//! file (the root does, through `timesift-io`) and knows no file format; never changes an
+//! orientation; knows nothing of epochs, projects or stages — one call grids one cloud or mosaics
+//! one set of views; every bad input is a [`RasterError`], never NaN in a valid cell.
+
+mod dem;
+mod error;
+mod fill;
+mod hillshade;
+mod lattice;
+
+pub use dem::{CellHeight, Dem, DemOptions, grid_cloud};
+pub use error::RasterError;
+pub use hillshade::hillshade;
+pub use lattice::{
+    Bounds, EpochFootprint, ExtentRule, GridOptions, Lattice, ProjectGrid, plan_grid, tidy_cell,
+};
