@@ -2,7 +2,7 @@
 //! from the epochs' ground sample distances, extent from their footprints, edges on cell
 //! multiples), DEM gridding of any point cloud ([`grid_cloud`]: median, max or inverse distance
 //! per cell, counts and spread beside the heights, small holes filled and marked), true
-//! orthomosaics sampled from the original images through the camera model ([`ortho`]), and
+//! orthomosaics sampled from the original images through the camera model ([`orthomosaic`]), and
 //! hillshade previews.
 //!
 //! Invariants: works in the world frame in f64 and stores heights as f32; reads and writes no
@@ -15,6 +15,7 @@ mod error;
 mod fill;
 mod hillshade;
 mod lattice;
+mod ortho;
 
 pub use dem::{CellHeight, Dem, DemOptions, grid_cloud};
 pub use error::RasterError;
@@ -22,3 +23,4 @@ pub use hillshade::hillshade;
 pub use lattice::{
     Bounds, EpochFootprint, ExtentRule, GridOptions, Lattice, ProjectGrid, plan_grid, tidy_cell,
 };
+pub use ortho::{Ortho, OrthoOptions, OrthoStats, OrthoView, RgbImage, ViewImages, orthomosaic};
