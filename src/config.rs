@@ -29,6 +29,9 @@ pub struct ProjectConfig {
     /// Dense-matching options.
     #[serde(default)]
     pub dense: DenseConfig,
+    /// DEM and orthomosaic options.
+    #[serde(default)]
+    pub raster: RasterConfig,
     /// Change-detection options.
     #[serde(default)]
     pub change: ChangeConfig,
@@ -348,6 +351,237 @@ impl DenseConfig {
     }
 }
 
+/// A cell size: `"auto"` or metres.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(try_from = "toml::Value", into = "toml::Value")]
+pub enum CellSize {
+    /// Derived from the epochs' ground sample distances.
+    #[default]
+    Auto,
+    /// Metres.
+    Metres(f64),
+}
+
+impl TryFrom<toml::Value> for CellSize {
+    type Error = String;
+    fn try_from(v: toml::Value) -> Result<Self, String> {
+        match v {
+            toml::Value::String(s) if s == "auto" => Ok(CellSize::Auto),
+            toml::Value::Float(m) if m > 0.0 && m.is_finite() => Ok(CellSize::Metres(m)),
+            toml::Value::Integer(m) if m > 0 => Ok(CellSize::Metres(m as f64)),
+            other => Err(format!(
+                "expected \"auto\" or a positive number of metres, found {other}"
+            )),
+        }
+    }
+}
+
+impl From<CellSize> for toml::Value {
+    fn from(c: CellSize) -> toml::Value {
+        match c {
+            CellSize::Auto => toml::Value::String("auto".into()),
+            CellSize::Metres(m) => toml::Value::Float(m),
+        }
+    }
+}
+
+impl CellSize {
+    /// Metres, `None` for `auto`.
+    pub fn metres(self) -> Option<f64> {
+        match self {
+            CellSize::Auto => None,
+            CellSize::Metres(m) => Some(m),
+        }
+    }
+}
+
+/// The extent of the project's lattice.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(try_from = "toml::Value", into = "toml::Value")]
+pub enum Extent {
+    /// Everything any epoch covers.
+    #[default]
+    Union,
+    /// What every epoch covers.
+    Intersection,
+    /// `[xmin, ymin, xmax, ymax]` in the project's CRS.
+    Bounds([f64; 4]),
+}
+
+impl TryFrom<toml::Value> for Extent {
+    type Error = String;
+    fn try_from(v: toml::Value) -> Result<Self, String> {
+        let expected = "expected \"union\", \"intersection\" or [xmin, ymin, xmax, ymax]";
+        match v {
+            toml::Value::String(s) if s == "union" => Ok(Extent::Union),
+            toml::Value::String(s) if s == "intersection" => Ok(Extent::Intersection),
+            toml::Value::Array(a) if a.len() == 4 => {
+                let mut b = [0.0; 4];
+                for (k, x) in a.iter().enumerate() {
+                    b[k] = match x {
+                        toml::Value::Float(f) => *f,
+                        toml::Value::Integer(i) => *i as f64,
+                        _ => return Err(format!("{expected}, found {x}")),
+                    };
+                }
+                if !(b.iter().all(|v| v.is_finite()) && b[2] > b[0] && b[3] > b[1]) {
+                    return Err(format!("{expected} with xmin < xmax and ymin < ymax"));
+                }
+                Ok(Extent::Bounds(b))
+            }
+            other => Err(format!("{expected}, found {other}")),
+        }
+    }
+}
+
+impl From<Extent> for toml::Value {
+    fn from(e: Extent) -> toml::Value {
+        match e {
+            Extent::Union => toml::Value::String("union".into()),
+            Extent::Intersection => toml::Value::String("intersection".into()),
+            Extent::Bounds(b) => toml::Value::Array(b.iter().map(|v| (*v).into()).collect()),
+        }
+    }
+}
+
+/// How a DEM cell's height is made from the dense cloud's points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DemMethod {
+    /// Median of the cell's points (the default).
+    #[default]
+    Median,
+    /// Highest point: a surface model of tall objects.
+    Max,
+    /// Inverse-distance mean within `idw_radius`.
+    Idw,
+}
+
+/// `[raster]`: the project's lattice, the `dem` and `ortho` stages.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RasterConfig {
+    /// DEM cell, m, or `"auto"` (default): 2 × the coarsest epoch's GSD, rounded to 1, 2, 2.5
+    /// or 5 × 10ⁿ.
+    #[serde(default)]
+    pub dem_cell: CellSize,
+    /// Ortho cell, m, or `"auto"` (default): the finest epoch's GSD as an integer fraction of
+    /// the DEM cell.
+    #[serde(default)]
+    pub ortho_cell: CellSize,
+    /// `"union"` (default), `"intersection"` or `[xmin, ymin, xmax, ymax]`.
+    #[serde(default)]
+    pub extent: Extent,
+    /// `median` (default), `max` or `idw`.
+    #[serde(default)]
+    pub dem_method: DemMethod,
+    /// Search radius of `idw`, in DEM cells. Default 1.5.
+    #[serde(default = "default_idw_radius")]
+    pub idw_radius: f64,
+    /// Least points per cell (or within the `idw` radius). Default 1.
+    #[serde(default = "default_min_points")]
+    pub min_points: usize,
+    /// Holes up to this many cells across are interpolated (and marked in `dem_filled.tif`).
+    /// Default 4.
+    #[serde(default = "default_max_gap")]
+    pub max_gap: usize,
+    /// Feathering half-width across ortho seams, DEM cells. Default 2.
+    #[serde(default = "default_feather")]
+    pub feather: usize,
+    /// Sweeps that move ortho seams to where the images agree. Default 3.
+    #[serde(default = "default_seam_sweeps")]
+    pub seam_sweeps: usize,
+    /// Per-image gains fitted on the overlaps. Default `true`.
+    #[serde(default = "yes")]
+    pub gain_compensation: bool,
+}
+
+fn default_idw_radius() -> f64 {
+    1.5
+}
+fn default_min_points() -> usize {
+    1
+}
+fn default_max_gap() -> usize {
+    4
+}
+fn default_feather() -> usize {
+    2
+}
+fn default_seam_sweeps() -> usize {
+    3
+}
+
+impl Default for RasterConfig {
+    fn default() -> Self {
+        RasterConfig {
+            dem_cell: CellSize::Auto,
+            ortho_cell: CellSize::Auto,
+            extent: Extent::Union,
+            dem_method: DemMethod::Median,
+            idw_radius: default_idw_radius(),
+            min_points: default_min_points(),
+            max_gap: default_max_gap(),
+            feather: default_feather(),
+            seam_sweeps: default_seam_sweeps(),
+            gain_compensation: true,
+        }
+    }
+}
+
+impl RasterConfig {
+    /// The lattice options.
+    pub fn grid_options(
+        &self,
+    ) -> Result<timesift_raster::GridOptions, timesift_raster::RasterError> {
+        let extent = match self.extent {
+            Extent::Union => timesift_raster::ExtentRule::Union,
+            Extent::Intersection => timesift_raster::ExtentRule::Intersection,
+            Extent::Bounds(b) => timesift_raster::ExtentRule::Explicit(
+                timesift_raster::Bounds::new(b[0], b[1], b[2], b[3])?,
+            ),
+        };
+        Ok(timesift_raster::GridOptions {
+            dem_cell: self.dem_cell.metres(),
+            ortho_cell: self.ortho_cell.metres(),
+            extent,
+        })
+    }
+
+    /// The gridding options for a DEM of `cell` metres.
+    pub fn dem_options(&self, cell: f64) -> timesift_raster::DemOptions {
+        let height = match self.dem_method {
+            DemMethod::Median => timesift_raster::CellHeight::Median,
+            DemMethod::Max => timesift_raster::CellHeight::Max,
+            DemMethod::Idw => timesift_raster::CellHeight::InverseDistance {
+                radius: self.idw_radius * cell,
+                power: 2.0,
+            },
+        };
+        timesift_raster::DemOptions {
+            height,
+            min_points: self.min_points,
+            max_gap: self.max_gap,
+        }
+    }
+
+    /// The orthomosaic options for `factor` ortho cells per DEM cell.
+    pub fn ortho_options(
+        &self,
+        factor: usize,
+        black_is_nodata: bool,
+    ) -> timesift_raster::OrthoOptions {
+        timesift_raster::OrthoOptions {
+            factor,
+            feather: self.feather,
+            seam_sweeps: self.seam_sweeps,
+            gain_compensation: self.gain_compensation,
+            black_is_nodata,
+            ..timesift_raster::OrthoOptions::default()
+        }
+    }
+}
+
 /// Which epochs the `change` stage compares.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -523,6 +757,35 @@ impl ProjectConfig {
                 format!("expected a cost in (0, 2], found {}", dense.max_cost),
             ));
         }
+        let raster = &config.raster;
+        if !(raster.idw_radius > 0.0 && raster.idw_radius.is_finite()) {
+            return Err(ProjectError::config(
+                path,
+                "raster.idw_radius",
+                format!(
+                    "expected a positive number of cells, found {}",
+                    raster.idw_radius
+                ),
+            ));
+        }
+        for (key, value, range) in [
+            ("raster.min_points", raster.min_points, 1..=10_000),
+            ("raster.max_gap", raster.max_gap, 0..=1000),
+            ("raster.feather", raster.feather, 0..=50),
+            ("raster.seam_sweeps", raster.seam_sweeps, 0..=50),
+        ] {
+            if !range.contains(&value) {
+                return Err(ProjectError::config(
+                    path,
+                    key,
+                    format!(
+                        "expected {} to {}, found {value}",
+                        range.start(),
+                        range.end()
+                    ),
+                ));
+            }
+        }
         if config.align.max_keypoints == 0 {
             return Err(ProjectError::config(
                 path,
@@ -537,5 +800,47 @@ impl ProjectConfig {
     pub fn read(path: &Path) -> Result<Self, ProjectError> {
         let text = timesift_io::fsutil::read_text(path)?;
         Self::parse(path, &text)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(raster: &str) -> Result<ProjectConfig, ProjectError> {
+        let text =
+            format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[raster]\n{raster}\n");
+        ProjectConfig::parse(Path::new("project.toml"), &text)
+    }
+
+    #[test]
+    fn raster_keys_as_init_documents_them_are_the_defaults() {
+        // The commented [raster] lines `timesift init` writes, uncommented.
+        let documented = "dem_cell = \"auto\"\northo_cell = \"auto\"\nextent = \"union\"\n\
+                          dem_method = \"median\"\nidw_radius = 1.5\nmin_points = 1\n\
+                          max_gap = 4\nfeather = 2\nseam_sweeps = 3\ngain_compensation = true";
+        assert_eq!(parse(documented).unwrap().raster, RasterConfig::default());
+        let c = parse("dem_cell = 0.5\northo_cell = 0.1\nextent = [0, 1, 10.5, 20]").unwrap();
+        assert_eq!(c.raster.dem_cell, CellSize::Metres(0.5));
+        assert_eq!(c.raster.ortho_cell, CellSize::Metres(0.1));
+        assert_eq!(c.raster.extent, Extent::Bounds([0.0, 1.0, 10.5, 20.0]));
+    }
+
+    #[test]
+    fn bad_raster_values_name_their_key() {
+        for (line, key, what) in [
+            ("dem_cell = \"fine\"", "dem_cell", "auto"),
+            ("dem_cell = -1.0", "dem_cell", "positive"),
+            ("extent = [3, 0, 1, 5]", "extent", "xmin < xmax"),
+            ("extent = \"all\"", "extent", "intersection"),
+            ("dem_method = \"mean\"", "dem_method", "median"),
+            ("max_gap = 5000", "raster.max_gap", "0 to 1000"),
+            ("idw_radius = 0.0", "raster.idw_radius", "positive"),
+            ("cell = 1.0", "cell", "unknown field"),
+        ] {
+            let e = parse(line).unwrap_err().to_string();
+            assert!(e.contains(key) && e.contains(what), "{line}: {e}");
+            assert!(!e.contains('\n'), "{e}");
+        }
     }
 }

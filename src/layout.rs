@@ -97,6 +97,14 @@ impl Layout {
             .join(format!("{image}.exr"))
     }
 
+    /// `work/raster/<epoch>.dem.json` and `.ortho.json`: what an epoch's DEM or ortho was made
+    /// from, so a resumed run redoes only what changed.
+    pub fn raster_settings(&self, epoch: &str, product: &str) -> PathBuf {
+        self.work_dir()
+            .join("raster")
+            .join(format!("{epoch}.{product}.json"))
+    }
+
     /// The file in which a folder of `work/` records the settings its results were made with.
     pub fn settings_file(dir: &Path) -> PathBuf {
         dir.join("settings.json")
@@ -139,6 +147,16 @@ impl Layout {
         self.out_dir().join("dense.json")
     }
 
+    /// `out/grid.json`: the one raster lattice of the project.
+    pub fn grid_json(&self) -> PathBuf {
+        self.out_dir().join("grid.json")
+    }
+
+    /// `out/raster.json`: what the dem and ortho stages did per epoch.
+    pub fn raster_report(&self) -> PathBuf {
+        self.out_dir().join("raster.json")
+    }
+
     /// `out/epochs/<epoch>/`.
     pub fn epoch_dir(&self, epoch: &str) -> PathBuf {
         self.out_dir().join("epochs").join(epoch)
@@ -154,9 +172,34 @@ impl Layout {
         self.epoch_dir(epoch).join("dem.tif")
     }
 
+    /// `out/epochs/<epoch>/dem_count.tif`: points per DEM cell.
+    pub fn dem_count(&self, epoch: &str) -> PathBuf {
+        self.epoch_dir(epoch).join("dem_count.tif")
+    }
+
+    /// `out/epochs/<epoch>/dem_std.tif`: standard deviation of the heights in each DEM cell.
+    pub fn dem_std(&self, epoch: &str) -> PathBuf {
+        self.epoch_dir(epoch).join("dem_std.tif")
+    }
+
+    /// `out/epochs/<epoch>/dem_filled.tif`: 1 where a DEM height was interpolated over a gap.
+    pub fn dem_filled(&self, epoch: &str) -> PathBuf {
+        self.epoch_dir(epoch).join("dem_filled.tif")
+    }
+
+    /// `out/epochs/<epoch>/dem.png`: hillshade preview.
+    pub fn dem_preview(&self, epoch: &str) -> PathBuf {
+        self.epoch_dir(epoch).join("dem.png")
+    }
+
     /// `out/epochs/<epoch>/ortho.tif`.
     pub fn ortho(&self, epoch: &str) -> PathBuf {
         self.epoch_dir(epoch).join("ortho.tif")
+    }
+
+    /// `out/epochs/<epoch>/ortho.png`: downscaled preview.
+    pub fn ortho_preview(&self, epoch: &str) -> PathBuf {
+        self.epoch_dir(epoch).join("ortho.png")
     }
 
     /// `out/change/<a>__<b>/`.
@@ -175,6 +218,7 @@ impl Layout {
             self.tiepoints_ply(),
             self.report_json(),
             self.report_html(),
+            self.grid_json(),
         ];
         for e in epochs {
             files.extend([self.dense_cloud(e), self.dem(e), self.ortho(e)]);

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use timesift::commands::init::InitOptions;
-use timesift::commands::{compare, features, info, init};
+use timesift::commands::{compare, dem, features, info, init};
 use timesift::config::Coregistration;
 use timesift::stages::Stage;
 use timesift::{Project, stages};
@@ -57,6 +57,8 @@ enum Command {
     },
     /// Keypoints and descriptors of one image, written in the text format of DESIGN.md.
     Features(features::FeaturesRequest),
+    /// Grid any point cloud (LAS/LAZ) into a DEM GeoTIFF, on a cell size or another raster's grid.
+    Dem(dem::DemRequest),
     /// Render a small two-epoch synthetic project, run the pipeline so far on it and print each
     /// epoch's orientation accuracy against the truth.
     Demo {
@@ -190,6 +192,21 @@ fn run(command: Command) -> anyhow::Result<()> {
                 request.out.display(),
                 start.elapsed().as_secs_f64()
             );
+        }
+        Command::Dem(request) => {
+            let r = dem::dem(&request)?;
+            println!(
+                "{} points -> {} × {} cells, {} with a height ({} filled), gridded in {:.3} s",
+                r.points,
+                r.size.0,
+                r.size.1,
+                r.cells_with_height,
+                r.cells_filled,
+                r.gridding_seconds
+            );
+            for f in &r.outputs {
+                println!("wrote {}", f.display());
+            }
         }
         Command::Compare(args) => compare(*args)?,
         Command::Demo { dir } => {

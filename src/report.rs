@@ -1,7 +1,8 @@
 //! The JSON reports timesift writes, as typed structs shared by their writers, their readers
 //! (`truth`, `timesift demo`, the benches, tests) and their documentation: `out/report.json` of
 //! the align stage, `work/matches/summary.json` of the match stage, `out/dense.json` of the
-//! dense stage. Field names are the JSON keys.
+//! dense stage, `out/grid.json` (the project's lattice) and `out/raster.json` of the dem and
+//! ortho stages. Field names are the JSON keys.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -192,4 +193,56 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, Project
         path: path.to_path_buf(),
         message: format!("not the expected report: {e}"),
     })
+}
+
+/// `out/grid.json`: the one raster lattice of the project, used by every epoch's DEM and ortho.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GridFile {
+    /// CRS of the coordinates (`"EPSG:<code>"` or `"local"`).
+    pub crs: String,
+    /// (x, y) of the north-west corner of the north-west cell.
+    pub origin: [f64; 2],
+    /// DEM cell, metres.
+    pub dem_cell: f64,
+    /// Ortho cell, metres (the DEM cell divided by `ortho_factor`).
+    pub ortho_cell: f64,
+    /// Ortho cells per DEM cell along each axis.
+    pub ortho_factor: usize,
+    /// DEM lattice size (columns, rows).
+    pub size: [usize; 2],
+    /// Ortho lattice size (columns, rows).
+    pub ortho_size: [usize; 2],
+    /// Median ground sample distance of each epoch's images, metres.
+    pub epoch_gsd: BTreeMap<String, f64>,
+    /// What the lattice was derived from (`[raster]` lattice keys and the epochs); a resumed
+    /// run keeps the lattice while these are unchanged.
+    pub made_from: serde_json::Value,
+}
+
+/// `out/raster.json`: the dem and ortho stages per epoch.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct RasterReport {
+    /// Per epoch, by name.
+    pub epochs: BTreeMap<String, EpochRaster>,
+}
+
+/// One epoch of [`RasterReport`].
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct EpochRaster {
+    /// Points of the dense cloud.
+    pub cloud_points: usize,
+    /// DEM cells with a height, measured or filled.
+    pub dem_cells: usize,
+    /// DEM cells filled by interpolation.
+    pub dem_cells_filled: usize,
+    /// Time to grid the DEM, seconds.
+    pub dem_seconds: f64,
+    /// Fraction of the DEM's cells with a height whose ortho cells are painted.
+    pub ortho_painted_fraction: Option<f64>,
+    /// Mean absolute colour step (0–255) across ortho seams.
+    pub seam_jump: Option<f64>,
+    /// The same between neighbouring ortho cells away from seams (texture contrast).
+    pub interior_jump: Option<f64>,
+    /// Time to mosaic the ortho, seconds.
+    pub ortho_seconds: Option<f64>,
 }

@@ -178,6 +178,44 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         text,
         "# black_is_nodata = true  # pure black pixels (scan borders) give no depth\n"
     );
+    let _ = writeln!(text, "[raster]");
+    let _ = writeln!(
+        text,
+        "# dem_cell = \"auto\"      # m; auto = 2 x the coarsest epoch's GSD, rounded"
+    );
+    let _ = writeln!(
+        text,
+        "# ortho_cell = \"auto\"    # m; auto = the finest GSD, dividing dem_cell"
+    );
+    let _ = writeln!(
+        text,
+        "# extent = \"union\"       # union | intersection | [xmin, ymin, xmax, ymax]"
+    );
+    let _ = writeln!(
+        text,
+        "# dem_method = \"median\"  # median | max (surface of tall objects) | idw"
+    );
+    let _ = writeln!(
+        text,
+        "# idw_radius = 1.5       # idw search radius, DEM cells"
+    );
+    let _ = writeln!(text, "# min_points = 1         # points a DEM cell needs");
+    let _ = writeln!(
+        text,
+        "# max_gap = 4            # holes up to this many cells are interpolated"
+    );
+    let _ = writeln!(
+        text,
+        "# feather = 2            # ortho seam blending, DEM cells"
+    );
+    let _ = writeln!(
+        text,
+        "# seam_sweeps = 3        # moves seams to where the images agree"
+    );
+    let _ = writeln!(
+        text,
+        "# gain_compensation = true  # per-image gains from the overlaps\n"
+    );
     let _ = writeln!(text, "[gnss]");
     let _ = writeln!(
         text,

@@ -1,6 +1,7 @@
 //! The commands of the CLI besides `run` (which is [`crate::stages`]), one module each.
 
 pub mod compare;
+pub mod dem;
 pub mod demo;
 pub mod features;
 pub mod info;

@@ -8,17 +8,21 @@
 mod align;
 mod cache;
 mod change;
+mod dem;
 mod dense;
 mod features;
 mod matching;
+mod ortho;
 
 use std::fmt;
 use std::path::PathBuf;
 
 pub use align::align_stage;
+pub use dem::{DEM_NODATA, dem_stage, epoch_ground_sample_distance, georeference, write_dem_files};
 pub use dense::{dense_input, dense_stage};
 pub use features::features_stage;
 pub use matching::match_stage;
+pub use ortho::ortho_stage;
 
 use crate::{Project, ProjectError};
 
@@ -77,8 +81,10 @@ impl Stage {
             Stage::Match => Some(&matching::MatchStage),
             Stage::Align => Some(&align::AlignStage),
             Stage::Dense => Some(&dense::DenseStage),
+            Stage::Dem => Some(&dem::DemStage),
+            Stage::Ortho => Some(&ortho::OrthoStage),
             Stage::Change => Some(&change::ChangeStage),
-            Stage::Dem | Stage::Ortho | Stage::Report => None,
+            Stage::Report => None,
         }
     }
 }

@@ -223,6 +223,17 @@ pub fn write_rgb8(path: &Path, raster: &GeoRaster<u8>) -> Result<(), IoError> {
     write_geotiff(path, raster.width, raster.height, pixels, &raster.georef)
 }
 
+/// Writes a single-band u8 GeoTIFF (masks, flags; tiled, compressed, with overviews),
+/// atomically.
+pub fn write_u8(path: &Path, raster: &GeoRaster<u8>) -> Result<(), IoError> {
+    check_size(path, raster, &[1])?;
+    let pixels = Pixels::U8 {
+        data: &raster.data,
+        bands: 1,
+    };
+    write_geotiff(path, raster.width, raster.height, pixels, &raster.georef)
+}
+
 /// The decoded samples of a GeoTIFF before conversion.
 struct Decoded {
     width: usize,

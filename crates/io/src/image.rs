@@ -68,6 +68,47 @@ pub fn read_rgb(path: &Path) -> Result<ImageF32, IoError> {
     })
 }
 
+/// Reads an image as 8-bit RGB (16-bit images are scaled down, grey ones replicated): what
+/// orthomosaics sample.
+pub fn read_rgb8(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
+    let img = decode(path)?.to_rgb8();
+    Ok((img.width(), img.height(), img.into_raw()))
+}
+
+/// Writes an 8-bit PNG of 1 (grey), 2 (grey + alpha), 3 (RGB) or 4 (RGBA) channels, atomically.
+pub fn write_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: u8,
+    data: &[u8],
+) -> Result<(), IoError> {
+    let colour = match channels {
+        1 => image::ExtendedColorType::L8,
+        2 => image::ExtendedColorType::La8,
+        3 => image::ExtendedColorType::Rgb8,
+        4 => image::ExtendedColorType::Rgba8,
+        _ => {
+            return Err(IoError::invalid(
+                path,
+                format!("{channels} channels; a PNG has 1 to 4"),
+            ));
+        }
+    };
+    if data.len() != width as usize * height as usize * channels as usize {
+        return Err(IoError::invalid(
+            path,
+            format!("{} bytes for {width} × {height} × {channels}", data.len()),
+        ));
+    }
+    crate::fsutil::write_atomically(path, |w| {
+        use image::ImageEncoder;
+        image::codecs::png::PngEncoder::new(w)
+            .write_image(data, width, height, colour)
+            .map_err(|e| IoError::invalid(path, format!("cannot encode PNG: {e}")))
+    })
+}
+
 /// Width and height of an image, reading only its header.
 pub fn dimensions(path: &Path) -> Result<(u32, u32), IoError> {
     ImageReader::open(path)

@@ -80,11 +80,11 @@ pub enum Pixels<'a> {
         /// The declared nodata value.
         nodata: Option<f32>,
     },
-    /// 8-bit RGB (3 bands) or RGBA (4, band 4 unassociated alpha), interleaved.
+    /// 8-bit grey (1 band), RGB (3) or RGBA (4, band 4 unassociated alpha), interleaved.
     U8 {
         /// Row-major interleaved samples.
         data: &'a [u8],
-        /// 3 or 4.
+        /// 1, 3 or 4.
         bands: usize,
     },
 }
@@ -368,6 +368,7 @@ fn halve_f32(v: &[f32], w: usize, h: usize, nodata: Option<f32>) -> Vec<f32> {
 
 fn halve_u8(v: &[u8], w: usize, h: usize, bands: usize) -> Vec<u8> {
     let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+    let colours = bands.min(3);
     let mut out = vec![0u8; w2 * h2 * bands];
     for r in 0..h2 {
         for c in 0..w2 {
@@ -382,7 +383,7 @@ fn halve_u8(v: &[u8], w: usize, h: usize, bands: usize) -> Vec<u8> {
                 let px = &v[(y * w + x) * bands..(y * w + x + 1) * bands];
                 // Colours weighted by alpha, so transparent pixels do not darken the edges.
                 let a = if bands == 4 { px[3] as u32 } else { 1 };
-                for b in 0..3 {
+                for b in 0..colours {
                     sum[b] += a * px[b] as u32;
                 }
                 if bands == 4 {
@@ -392,7 +393,7 @@ fn halve_u8(v: &[u8], w: usize, h: usize, bands: usize) -> Vec<u8> {
                 n += 1;
             }
             let o = &mut out[(r * w2 + c) * bands..(r * w2 + c + 1) * bands];
-            for b in 0..3 {
+            for b in 0..colours {
                 if let Some(v) = (sum[b] + weight / 2).checked_div(weight) {
                     o[b] = v as u8;
                 }

@@ -228,7 +228,7 @@ fn inverse_distance(
     power: f64,
 ) -> (f64, usize) {
     let (cx, cy) = lattice.cell_center(col, row);
-    let reach = (radius / lattice.cell()).ceil() as usize;
+    let reach = (radius / lattice.cell_width().min(lattice.cell_height())).ceil() as usize;
     let (c0, c1) = (
         col.saturating_sub(reach),
         (col + reach).min(lattice.width() - 1),

@@ -61,19 +61,21 @@ impl Bounds {
     }
 }
 
-/// A north-up lattice of square cells: cell (col, row) spans
-/// `[west + col·cell, west + (col+1)·cell] × [north − (row+1)·cell, north − row·cell]`.
+/// A north-up lattice: cell (col, row) spans `[west + col·cw, west + (col+1)·cw] ×
+/// [north − (row+1)·ch, north − row·ch]`. The project's lattices have square cells (cw = ch);
+/// rasters made elsewhere may not.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Lattice {
     west: f64,
     north: f64,
-    cell: f64,
+    cell_width: f64,
+    cell_height: f64,
     width: usize,
     height: usize,
 }
 
 impl Lattice {
-    /// A lattice from its north-west corner, cell size and size in cells.
+    /// A lattice of square cells from its north-west corner, cell size and size in cells.
     pub fn new(
         west: f64,
         north: f64,
@@ -81,11 +83,27 @@ impl Lattice {
         width: usize,
         height: usize,
     ) -> Result<Lattice, RasterError> {
-        if !(cell > 0.0 && cell.is_finite() && west.is_finite() && north.is_finite()) {
+        Lattice::with_cells(west, north, cell, cell, width, height)
+    }
+
+    /// A lattice of `cell_width` × `cell_height` cells (the grid of a raster made elsewhere).
+    pub fn with_cells(
+        west: f64,
+        north: f64,
+        cell_width: f64,
+        cell_height: f64,
+        width: usize,
+        height: usize,
+    ) -> Result<Lattice, RasterError> {
+        let positive = |c: f64| c > 0.0 && c.is_finite();
+        if !(positive(cell_width) && positive(cell_height) && west.is_finite() && north.is_finite())
+        {
             return Err(RasterError::InvalidGrid(format!(
-                "cell size {cell} and corner ({west}, {north}) must be finite with a positive cell"
+                "cell size {cell_width} × {cell_height} and corner ({west}, {north}) must be \
+                 finite with positive cells"
             )));
         }
+        let cell = cell_width;
         if width == 0 || height == 0 || width.saturating_mul(height) > MAX_CELLS {
             return Err(RasterError::InvalidGrid(format!(
                 "{width} × {height} cells of {cell} m: a lattice holds 1 to {MAX_CELLS} cells \
@@ -95,7 +113,8 @@ impl Lattice {
         Ok(Lattice {
             west,
             north,
-            cell,
+            cell_width,
+            cell_height,
             width,
             height,
         })
@@ -142,9 +161,17 @@ impl Lattice {
     pub fn north(&self) -> f64 {
         self.north
     }
-    /// Cell size in metres.
+    /// Cell size in metres: the larger side of a cell (the side of the project's square cells).
     pub fn cell(&self) -> f64 {
-        self.cell
+        self.cell_width.max(self.cell_height)
+    }
+    /// East–west size of a cell, metres.
+    pub fn cell_width(&self) -> f64 {
+        self.cell_width
+    }
+    /// North–south size of a cell, metres.
+    pub fn cell_height(&self) -> f64 {
+        self.cell_height
     }
     /// Columns.
     pub fn width(&self) -> usize {
@@ -167,8 +194,8 @@ impl Lattice {
     pub fn bounds(&self) -> Bounds {
         Bounds {
             x_min: self.west,
-            y_min: self.north - self.height as f64 * self.cell,
-            x_max: self.west + self.width as f64 * self.cell,
+            y_min: self.north - self.height as f64 * self.cell_height,
+            x_max: self.west + self.width as f64 * self.cell_width,
             y_max: self.north,
         }
     }
@@ -176,24 +203,24 @@ impl Lattice {
     /// World (x, y) of the centre of cell (col, row).
     pub fn cell_center(&self, col: usize, row: usize) -> (f64, f64) {
         (
-            self.west + (col as f64 + 0.5) * self.cell,
-            self.north - (row as f64 + 0.5) * self.cell,
+            self.west + (col as f64 + 0.5) * self.cell_width,
+            self.north - (row as f64 + 0.5) * self.cell_height,
         )
     }
 
     /// Continuous cell coordinates of a world position: the centre of cell (i, j) maps to (i, j).
     pub fn continuous_index(&self, x: f64, y: f64) -> (f64, f64) {
         (
-            (x - self.west) / self.cell - 0.5,
-            (self.north - y) / self.cell - 0.5,
+            (x - self.west) / self.cell_width - 0.5,
+            (self.north - y) / self.cell_height - 0.5,
         )
     }
 
     /// The cell holding a world position; positions on a shared edge go to the cell east or
     /// south of it. `None` outside.
     pub fn cell_of(&self, x: f64, y: f64) -> Option<(usize, usize)> {
-        let c = ((x - self.west) / self.cell).floor();
-        let r = ((self.north - y) / self.cell).floor();
+        let c = ((x - self.west) / self.cell_width).floor();
+        let r = ((self.north - y) / self.cell_height).floor();
         if c >= 0.0 && r >= 0.0 && c < self.width as f64 && r < self.height as f64 {
             Some((c as usize, r as usize))
         } else {
@@ -206,10 +233,11 @@ impl Lattice {
         if factor == 0 {
             return Err(RasterError::InvalidGrid("subdivision factor 0".into()));
         }
-        Lattice::new(
+        Lattice::with_cells(
             self.west,
             self.north,
-            self.cell / factor as f64,
+            self.cell_width / factor as f64,
+            self.cell_height / factor as f64,
             self.width * factor,
             self.height * factor,
         )

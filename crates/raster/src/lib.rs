@@ -19,7 +19,7 @@ mod ortho;
 
 pub use dem::{CellHeight, Dem, DemOptions, grid_cloud};
 pub use error::RasterError;
-pub use hillshade::hillshade;
+pub use hillshade::{downscale, hillshade};
 pub use lattice::{
     Bounds, EpochFootprint, ExtentRule, GridOptions, Lattice, ProjectGrid, plan_grid, tidy_cell,
 };

@@ -372,7 +372,7 @@ impl Context<'_> {
         if horizontal < 1e-9 {
             return false;
         }
-        let cell = l.cell();
+        let cell = l.cell_width().min(l.cell_height());
         let tolerance = 0.1 * cell;
         let mut s = cell;
         while s < horizontal {
@@ -796,8 +796,8 @@ impl TileData {
                 for sr in 0..f {
                     for sc in 0..f {
                         let (x, y) = (
-                            l.west() + (col as f64 + (sc as f64 + 0.5) * sub) * l.cell(),
-                            l.north() - (row as f64 + (sr as f64 + 0.5) * sub) * l.cell(),
+                            l.west() + (col as f64 + (sc as f64 + 0.5) * sub) * l.cell_width(),
+                            l.north() - (row as f64 + (sr as f64 + 0.5) * sub) * l.cell_height(),
                         );
                         let p = Vector3::new(x, y, ctx.height_at(x, y));
                         let (mut sum, mut wsum) = ([0.0f32; 3], 0.0f32);

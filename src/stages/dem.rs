@@ -1,0 +1,383 @@
+//! The `dem` stage: the project's one lattice (`out/grid.json`), then per epoch the dense cloud
+//! gridded onto it: `dem.tif` with `dem_count.tif`, `dem_std.tif`, `dem_filled.tif` and a
+//! hillshade preview `dem.png`, all on the same cells for every epoch.
+//!
+//! The lattice is made once, from the `[raster]` lattice keys, the epochs' footprints (their
+//! dense clouds' extents) and ground sample distances, and kept while those keys and the epochs
+//! are unchanged, so that products of later runs still stack on earlier ones. An epoch's DEM is
+//! redone only when its cloud, the lattice or the gridding options change
+//! (`work/raster/<epoch>.dem.json`).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use timesift_core::Camera;
+use timesift_io::coords::Crs;
+use timesift_io::geotiff::{GeoRaster, GeoReference, GeoTransform, write_f32, write_u8};
+use timesift_io::pointcloud::read_las;
+use timesift_raster::{Bounds, EpochFootprint, Lattice, ProjectGrid, grid_cloud, plan_grid};
+
+use super::cache::stage_error;
+use super::dense_input;
+use super::{PipelineStage, Stage};
+use crate::report::{GridFile, RasterReport, read_json, write_json};
+use crate::{Project, ProjectError};
+
+/// Version of the gridding, part of each DEM's settings.
+const DEM_ALGORITHM: u32 = 1;
+
+/// Nodata of the DEM GeoTIFFs (DESIGN.md).
+pub const DEM_NODATA: f32 = -32767.0;
+
+/// Fraction of a cloud's points left out on each side of its footprint: a few stray points
+/// (sky, reflections) must not stretch every epoch's lattice.
+const FOOTPRINT_TRIM: f64 = 0.0005;
+
+/// The `dem` stage.
+pub(super) struct DemStage;
+
+impl PipelineStage for DemStage {
+    fn stage(&self) -> Stage {
+        Stage::Dem
+    }
+    fn inputs(&self, project: &Project) -> Vec<(PathBuf, Stage)> {
+        let layout = project.layout();
+        let mut inputs = vec![
+            (layout.cameras_json(), Stage::Align),
+            (layout.colmap_dir().join("points3D.txt"), Stage::Align),
+        ];
+        inputs.extend(
+            project
+                .epochs
+                .iter()
+                .map(|e| (layout.dense_cloud(&e.name), Stage::Dense)),
+        );
+        inputs
+    }
+    fn outputs(&self, project: &Project) -> Vec<PathBuf> {
+        let layout = project.layout();
+        let mut out = vec![layout.grid_json(), layout.raster_report()];
+        for e in &project.epochs {
+            out.extend([
+                layout.dem(&e.name),
+                layout.dem_count(&e.name),
+                layout.dem_std(&e.name),
+                layout.dem_filled(&e.name),
+                layout.dem_preview(&e.name),
+            ]);
+        }
+        out
+    }
+    fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        let report = dem_stage(project)?;
+        let grid = read_json::<GridFile>(&project.layout().grid_json())?;
+        Ok(format!(
+            "DEMs of {} epochs on {} × {} cells of {} m",
+            report.epochs.len(),
+            grid.size[0],
+            grid.size[1],
+            grid.dem_cell
+        ))
+    }
+}
+
+/// The lattice of `grid.json`, with its CRS.
+pub fn project_grid_of(grid: &GridFile) -> Result<(ProjectGrid, Crs), String> {
+    let dem = Lattice::new(
+        grid.origin[0],
+        grid.origin[1],
+        grid.dem_cell,
+        grid.size[0],
+        grid.size[1],
+    )
+    .map_err(|e| e.to_string())?;
+    let crs: Crs = grid.crs.parse()?;
+    Ok((
+        ProjectGrid {
+            dem,
+            ortho_factor: grid.ortho_factor.max(1),
+        },
+        crs,
+    ))
+}
+
+/// GeoTIFF georeferencing of a lattice.
+pub fn georeference(lattice: &Lattice, crs: Crs, nodata: Option<f64>) -> GeoReference {
+    GeoReference {
+        transform: GeoTransform {
+            origin_x: lattice.west(),
+            origin_y: lattice.north(),
+            pixel_width: lattice.cell_width(),
+            pixel_height: -lattice.cell_height(),
+        },
+        crs,
+        nodata,
+        pixel_is_point: false,
+    }
+}
+
+/// Whether a GeoTIFF's grid is exactly `lattice` (to a millionth of a cell).
+pub fn on_lattice(georef: &GeoReference, width: usize, height: usize, lattice: &Lattice) -> bool {
+    let t = &georef.transform;
+    let tol = 1e-6 * lattice.cell();
+    width == lattice.width()
+        && height == lattice.height()
+        && (t.origin_x - lattice.west()).abs() < tol
+        && (t.origin_y - lattice.north()).abs() < tol
+        && (t.pixel_width - lattice.cell_width()).abs() < tol
+        && (t.pixel_height + lattice.cell_height()).abs() < tol
+}
+
+/// Runs the dem stage; returns (and writes) `out/raster.json`.
+pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
+    let layout = project.layout();
+    let grid_file = ensure_grid(project)?;
+    let (grid, crs) = project_grid_of(&grid_file).map_err(|e| ProjectError::Path {
+        path: layout.grid_json(),
+        message: e,
+    })?;
+    let mut report = read_report(project);
+    for epoch in &project.epochs {
+        let name = &epoch.name;
+        let cloud_path = layout.dense_cloud(name);
+        let options = project.config.raster.dem_options(grid.dem.cell());
+        let settings = serde_json::json!({
+            "algorithm": DEM_ALGORITHM,
+            "grid": [grid_file.origin, [grid_file.dem_cell, 0.0], [grid_file.size[0] as f64, grid_file.size[1] as f64]],
+            "options": format!("{options:?}"),
+            "cloud": file_stamp(&cloud_path),
+        });
+        let settings_path = layout.raster_settings(name, "dem");
+        let outputs = [
+            layout.dem(name),
+            layout.dem_count(name),
+            layout.dem_std(name),
+            layout.dem_filled(name),
+        ];
+        let recorded: Option<serde_json::Value> = read_json(&settings_path).ok();
+        if recorded.as_ref() == Some(&settings)
+            && outputs.iter().all(|p| p.is_file())
+            && report.epochs.contains_key(name)
+        {
+            tracing::info!(epoch = %name, "DEM up to date");
+            continue;
+        }
+        let start = Instant::now();
+        let cloud = read_las(&cloud_path)?;
+        let dem = grid_cloud(&cloud.positions, &grid.dem, &options)
+            .map_err(|e| stage_error("dem", format!("epoch \"{name}\": {e}")))?;
+        write_dem_files(&dem, crs, &outputs, &layout.dem_preview(name))?;
+        let entry = report.epochs.entry(name.clone()).or_default();
+        entry.cloud_points = cloud.positions.len();
+        entry.dem_cells = dem.valid_cells();
+        entry.dem_cells_filled = dem.filled.iter().filter(|f| **f).count();
+        entry.dem_seconds = start.elapsed().as_secs_f64();
+        tracing::info!(
+            epoch = %name,
+            cells = entry.dem_cells,
+            filled = entry.dem_cells_filled,
+            seconds = entry.dem_seconds,
+            "DEM"
+        );
+        write_json(&settings_path, &settings)?;
+        write_json(&layout.raster_report(), &report)?;
+    }
+    report
+        .epochs
+        .retain(|name, _| project.epochs.iter().any(|e| &e.name == name));
+    write_json(&layout.raster_report(), &report)?;
+    Ok(report)
+}
+
+/// `out/raster.json` as it stands (empty when missing or unreadable).
+pub(super) fn read_report(project: &Project) -> RasterReport {
+    read_json::<RasterReport>(&project.layout().raster_report()).unwrap_or_default()
+}
+
+/// Size and modification time of a file: enough to notice that an earlier stage rewrote it.
+pub(super) fn file_stamp(path: &Path) -> serde_json::Value {
+    let meta = std::fs::metadata(path).ok();
+    let modified = meta
+        .as_ref()
+        .and_then(|m| m.modified().ok())
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_nanos().to_string());
+    serde_json::json!([meta.map(|m| m.len()), modified])
+}
+
+/// Writes the DEM, its count, spread and filled-cell rasters, and the hillshade preview.
+pub fn write_dem_files(
+    dem: &timesift_raster::Dem,
+    crs: Crs,
+    [dem_path, count_path, std_path, filled_path]: &[PathBuf; 4],
+    preview: &Path,
+) -> Result<(), ProjectError> {
+    let l = &dem.lattice;
+    let nodata = Some(DEM_NODATA as f64);
+    let raster = |data: Vec<f32>, nodata: Option<f64>| GeoRaster {
+        width: l.width(),
+        height: l.height(),
+        bands: 1,
+        data,
+        georef: georeference(l, crs, nodata),
+    };
+    let heights = dem
+        .height
+        .iter()
+        .map(|h| if h.is_finite() { *h } else { DEM_NODATA })
+        .collect();
+    write_f32(dem_path, &raster(heights, nodata))?;
+    write_f32(
+        count_path,
+        &raster(dem.count.iter().map(|n| *n as f32).collect(), None),
+    )?;
+    let spread = dem
+        .spread
+        .iter()
+        .map(|s| if s.is_finite() { *s } else { DEM_NODATA })
+        .collect();
+    write_f32(std_path, &raster(spread, nodata))?;
+    write_u8(
+        filled_path,
+        &GeoRaster {
+            width: l.width(),
+            height: l.height(),
+            bands: 1,
+            data: dem.filled.iter().map(|f| *f as u8).collect(),
+            georef: georeference(l, crs, None),
+        },
+    )?;
+    let shade = timesift_raster::hillshade(&dem.height, l);
+    let (w, h, small) = timesift_raster::downscale(&shade, 2, l.width(), l.height(), 1024);
+    timesift_io::image::write_png(preview, w as u32, h as u32, 2, &small)?;
+    Ok(())
+}
+
+/// `out/grid.json`, made now unless one made from the same keys and epochs is there.
+fn ensure_grid(project: &Project) -> Result<GridFile, ProjectError> {
+    let layout = project.layout();
+    let raster = &project.config.raster;
+    let epochs: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
+    let made_from = serde_json::json!({
+        "dem_cell": toml::Value::from(raster.dem_cell).to_string(),
+        "ortho_cell": toml::Value::from(raster.ortho_cell).to_string(),
+        "extent": toml::Value::from(raster.extent).to_string(),
+        "epochs": epochs,
+    });
+    if let Ok(existing) = read_json::<GridFile>(&layout.grid_json())
+        && existing.made_from == made_from
+    {
+        return Ok(existing);
+    }
+    let cameras = timesift_io::cameras_json::read_cameras_json(&layout.cameras_json())?;
+    let mut footprints = Vec::with_capacity(project.epochs.len());
+    let mut epoch_gsd = std::collections::BTreeMap::new();
+    for (e, epoch) in project.epochs.iter().enumerate() {
+        let cloud = read_las(&layout.dense_cloud(&epoch.name))?;
+        let bounds = footprint(&cloud.positions).ok_or_else(|| {
+            stage_error(
+                "dem",
+                format!(
+                    "epoch \"{}\": {} has too few points for a footprint (run the dense stage)",
+                    epoch.name,
+                    layout.dense_cloud(&epoch.name).display()
+                ),
+            )
+        })?;
+        let gsd = epoch_ground_sample_distance(project, e)?;
+        epoch_gsd.insert(epoch.name.clone(), gsd);
+        footprints.push(EpochFootprint { bounds, gsd });
+    }
+    let options = raster.grid_options().map_err(|e| {
+        ProjectError::config(
+            project.layout().project_toml(),
+            "raster.extent",
+            e.to_string(),
+        )
+    })?;
+    let grid = plan_grid(&footprints, &options).map_err(|e| stage_error("dem", e.to_string()))?;
+    let ortho = grid.ortho();
+    let file = GridFile {
+        crs: cameras.crs.clone(),
+        origin: [grid.dem.west(), grid.dem.north()],
+        dem_cell: grid.dem.cell(),
+        ortho_cell: ortho.cell(),
+        ortho_factor: grid.ortho_factor,
+        size: [grid.dem.width(), grid.dem.height()],
+        ortho_size: [ortho.width(), ortho.height()],
+        epoch_gsd,
+        made_from,
+    };
+    write_json(&layout.grid_json(), &file)?;
+    tracing::info!(
+        cell = file.dem_cell,
+        width = file.size[0],
+        height = file.size[1],
+        "project lattice"
+    );
+    Ok(file)
+}
+
+/// The x and y extent of a cloud without its outermost points on each side.
+fn footprint(points: &[[f64; 3]]) -> Option<Bounds> {
+    if points.len() < 3 {
+        return None;
+    }
+    let trim = (points.len() as f64 * FOOTPRINT_TRIM) as usize;
+    let range = |axis: usize| {
+        let mut v: Vec<f64> = points.iter().map(|p| p[axis]).collect();
+        let (_, lo, _) = v.select_nth_unstable_by(trim, f64::total_cmp);
+        let lo = *lo;
+        let hi_index = v.len() - 1 - trim;
+        let (_, hi, _) = v.select_nth_unstable_by(hi_index, f64::total_cmp);
+        (lo, *hi)
+    };
+    let (x0, x1) = range(0);
+    let (y0, y1) = range(1);
+    Bounds::new(x0, y0, x1, y1).ok()
+}
+
+fn focal_px(camera: &Camera) -> f64 {
+    match camera {
+        Camera::Brown(c) => c.f,
+        Camera::Pinhole(c) => c.f,
+    }
+}
+
+/// Median over the epoch's oriented images of the median depth of the sparse points each
+/// sees, divided by its focal length: the ground sample distance of the original images.
+pub fn epoch_ground_sample_distance(project: &Project, epoch: usize) -> Result<f64, ProjectError> {
+    let (_, input) = dense_input(project, epoch)?;
+    let name = &project.epochs[epoch].name;
+    let mut depths: Vec<Vec<f64>> = vec![Vec::new(); input.views.len()];
+    for p in &input.points {
+        for &v in &p.views {
+            let z = input.views[v].cam_from_world.transform_point(&p.position).z;
+            if z > 0.0 {
+                depths[v].push(z);
+            }
+        }
+    }
+    let mut gsd: Vec<f64> = depths
+        .iter_mut()
+        .zip(&input.views)
+        .filter(|(d, _)| !d.is_empty())
+        .map(|(d, v)| median(d) / focal_px(&v.camera))
+        .filter(|g| g.is_finite() && *g > 0.0)
+        .collect();
+    if gsd.is_empty() {
+        return Err(stage_error(
+            "dem",
+            format!(
+                "epoch \"{name}\": no oriented image sees a sparse point (run the align stage)"
+            ),
+        ));
+    }
+    Ok(median(&mut gsd))
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    *m
+}

@@ -1,0 +1,213 @@
+//! The `ortho` stage: per epoch, a true orthomosaic of the epoch's images on the project's ortho
+//! lattice (`out/grid.json`), sampled from the original images through the frozen orientation
+//! at the heights of the epoch's own `dem.tif`: `ortho.tif` (RGBA, alpha 0 where no image sees
+//! the ground) and a preview `ortho.png`.
+//!
+//! Images are read on demand through a small cache, so memory holds the images of the tiles in
+//! flight, not the epoch. An epoch's ortho is redone only when its DEM, its orientation or the
+//! ortho options change (`work/raster/<epoch>.ortho.json`).
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use timesift_io::geotiff::{GeoRaster, read_f32, write_rgb8};
+use timesift_raster::{OrthoView, RgbImage, ViewImages, orthomosaic};
+
+use super::cache::stage_error;
+use super::dem::{file_stamp, georeference, on_lattice, project_grid_of, read_report};
+use super::{PipelineStage, Stage, dense_input};
+use crate::report::{GridFile, RasterReport, read_json, write_json};
+use crate::{Project, ProjectError};
+
+/// Version of the mosaicking, part of each ortho's settings.
+const ORTHO_ALGORITHM: u32 = 1;
+
+/// Decoded images kept: enough for the candidate views of the tiles two threads work on.
+const IMAGE_CACHE: usize = 48;
+
+/// The `ortho` stage.
+pub(super) struct OrthoStage;
+
+impl PipelineStage for OrthoStage {
+    fn stage(&self) -> Stage {
+        Stage::Ortho
+    }
+    fn inputs(&self, project: &Project) -> Vec<(PathBuf, Stage)> {
+        let layout = project.layout();
+        let mut inputs = vec![
+            (layout.cameras_json(), Stage::Align),
+            (layout.grid_json(), Stage::Dem),
+        ];
+        inputs.extend(
+            project
+                .epochs
+                .iter()
+                .map(|e| (layout.dem(&e.name), Stage::Dem)),
+        );
+        inputs
+    }
+    fn outputs(&self, project: &Project) -> Vec<PathBuf> {
+        let layout = project.layout();
+        let mut out = vec![layout.raster_report()];
+        for e in &project.epochs {
+            out.extend([layout.ortho(&e.name), layout.ortho_preview(&e.name)]);
+        }
+        out
+    }
+    fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        let report = ortho_stage(project)?;
+        Ok(format!("orthomosaics of {} epochs", report.epochs.len()))
+    }
+}
+
+/// An epoch's images, read on demand, the most recently used kept.
+struct ImageCache {
+    paths: Vec<PathBuf>,
+    entries: Mutex<VecDeque<(usize, Arc<RgbImage>)>>,
+}
+
+impl ViewImages for ImageCache {
+    fn image(&self, view: usize) -> Result<Arc<RgbImage>, String> {
+        if let Ok(mut entries) = self.entries.lock()
+            && let Some(pos) = entries.iter().position(|(v, _)| *v == view)
+            && let Some(entry) = entries.remove(pos)
+        {
+            let image = entry.1.clone();
+            entries.push_back(entry);
+            return Ok(image);
+        }
+        let path = self
+            .paths
+            .get(view)
+            .ok_or_else(|| format!("no image for view {view}"))?;
+        let (width, height, data) =
+            timesift_io::image::read_rgb8(path).map_err(|e| e.to_string())?;
+        let image = Arc::new(RgbImage {
+            width: width as usize,
+            height: height as usize,
+            data,
+        });
+        if let Ok(mut entries) = self.entries.lock() {
+            entries.push_back((view, image.clone()));
+            while entries.len() > IMAGE_CACHE {
+                entries.pop_front();
+            }
+        }
+        Ok(image)
+    }
+}
+
+/// Runs the ortho stage; returns (and writes) `out/raster.json`.
+pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
+    let layout = project.layout();
+    let grid_file = read_json::<GridFile>(&layout.grid_json())?;
+    let (grid, crs) = project_grid_of(&grid_file).map_err(|e| ProjectError::Path {
+        path: layout.grid_json(),
+        message: e,
+    })?;
+    let ortho_lattice = grid.ortho();
+    let mut report = read_report(project);
+    for (e, epoch) in project.epochs.iter().enumerate() {
+        let name = &epoch.name;
+        let dem_path = layout.dem(name);
+        let (images, input) = dense_input(project, e)?;
+        let options = project
+            .config
+            .raster
+            .ortho_options(grid.ortho_factor, project.config.dense.black_is_nodata);
+        let poses: Vec<String> = input
+            .views
+            .iter()
+            .map(|v| format!("{:?}{:?}", v.camera, v.cam_from_world))
+            .collect();
+        let settings = serde_json::json!({
+            "algorithm": ORTHO_ALGORITHM,
+            "dem": file_stamp(&dem_path),
+            "options": format!("{options:?}"),
+            "views": poses,
+        });
+        let settings_path = layout.raster_settings(name, "ortho");
+        let recorded: Option<serde_json::Value> = read_json(&settings_path).ok();
+        if recorded.as_ref() == Some(&settings)
+            && layout.ortho(name).is_file()
+            && report
+                .epochs
+                .get(name)
+                .is_some_and(|r| r.ortho_seconds.is_some())
+        {
+            tracing::info!(epoch = %name, "ortho up to date");
+            continue;
+        }
+        let dem = read_f32(&dem_path)?;
+        if !on_lattice(&dem.georef, dem.width, dem.height, &grid.dem) {
+            return Err(ProjectError::Path {
+                path: dem_path,
+                message: "not on the lattice of out/grid.json (run the dem stage)".into(),
+            });
+        }
+        let nodata = dem.georef.nodata.map(|v| v as f32);
+        let heights: Vec<f32> = dem
+            .data
+            .iter()
+            .map(|h| {
+                if Some(*h) == nodata || !h.is_finite() {
+                    f32::NAN
+                } else {
+                    *h
+                }
+            })
+            .collect();
+        let views: Vec<OrthoView> = input
+            .views
+            .iter()
+            .map(|v| OrthoView {
+                camera: v.camera.clone(),
+                cam_from_world: v.cam_from_world,
+            })
+            .collect();
+        let cache = ImageCache {
+            paths: images
+                .iter()
+                .map(|&i| project.dir.join(&project.images[i].name))
+                .collect(),
+            entries: Mutex::new(VecDeque::new()),
+        };
+        let start = Instant::now();
+        let ortho = orthomosaic(&heights, &grid.dem, &views, &cache, &options)
+            .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
+        let seconds = start.elapsed().as_secs_f64();
+        let l = &ortho_lattice;
+        write_rgb8(
+            &layout.ortho(name),
+            &GeoRaster {
+                width: l.width(),
+                height: l.height(),
+                bands: 4,
+                data: ortho.rgba.clone(),
+                georef: georeference(l, crs, None),
+            },
+        )?;
+        let (w, h, small) = timesift_raster::downscale(&ortho.rgba, 4, l.width(), l.height(), 1024);
+        timesift_io::image::write_png(&layout.ortho_preview(name), w as u32, h as u32, 4, &small)?;
+        let with_height = heights.iter().filter(|h| h.is_finite()).count();
+        let factor2 = (grid.ortho_factor * grid.ortho_factor) as f64;
+        let entry = report.epochs.entry(name.clone()).or_default();
+        entry.ortho_painted_fraction =
+            Some(ortho.stats.painted_cells as f64 / (with_height as f64 * factor2).max(1.0));
+        entry.seam_jump = Some(ortho.stats.seam_jump);
+        entry.interior_jump = Some(ortho.stats.interior_jump);
+        entry.ortho_seconds = Some(seconds);
+        tracing::info!(
+            epoch = %name,
+            painted = entry.ortho_painted_fraction,
+            seam_jump = ortho.stats.seam_jump,
+            seconds,
+            "ortho"
+        );
+        write_json(&settings_path, &settings)?;
+        write_json(&layout.raster_report(), &report)?;
+    }
+    Ok(report)
+}
