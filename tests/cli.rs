@@ -301,12 +301,24 @@ fn run_reports_stages_not_built_yet_and_keeps_inputs() {
         "run",
         p.path().to_str().unwrap(),
         "--from",
+        "report",
+        "--to",
+        "report",
+    ]);
+    assert!(
+        !ok && err.contains("stage report is not available yet"),
+        "{err}"
+    );
+    let (ok, _, err) = timesift(&[
+        "run",
+        p.path().to_str().unwrap(),
+        "--from",
         "dem",
         "--to",
         "ortho",
     ]);
     assert!(
-        !ok && err.contains("stage dem is not available yet"),
+        !ok && err.contains("cameras.json") && err.contains("run the align stage first"),
         "{err}"
     );
     let (ok, _, err) = timesift(&[
