@@ -224,3 +224,55 @@ pub fn write_true_orientation(
     write_colmap_text(&layout.colmap_dir(), &model)?;
     Ok(next as usize - 1)
 }
+
+/// Writes, as each epoch's dense cloud (`out/epochs/<epoch>/dense.laz`), its true surface
+/// sampled at random positions — on average one point per (`spacing_gsd` GSD)², with Gaussian
+/// height noise of `noise_gsd` GSD —: a stand-in for the dense stage with a known error, for
+/// the DEM and ortho stages' tests and benches (ground scenes). Returns each epoch's name and
+/// GSD (metres).
+pub fn write_sampled_clouds(
+    dir: &Path,
+    spec: &SceneSpec,
+    spacing_gsd: f64,
+    noise_gsd: f64,
+    seed: u64,
+) -> Result<Vec<(String, f64)>, ProjectError> {
+    let layout = Layout::new(dir);
+    let truth = read_cameras_json(&layout.truth_cameras())?;
+    let crs: timesift_io::coords::Crs = spec.crs.parse().map_err(synth_error)?;
+    let mut rng = timesift_core::SeededRng::new(seed);
+    let mut out = Vec::new();
+    for (e, epoch) in spec.epochs.iter().enumerate() {
+        let t = TrueEpoch::new(spec, e, &truth, &epoch.name)?;
+        let (x0, y0, cell, nx, ny) = spec.grid;
+        let (w, h) = ((nx - 1) as f64 * cell, (ny - 1) as f64 * cell);
+        let spacing = spacing_gsd * t.gsd;
+        let n = (w * h / (spacing * spacing)) as usize;
+        let mut positions = Vec::with_capacity(n);
+        for _ in 0..n {
+            let g1 = rng.uniform_range(x0, x0 + w);
+            let g2 = rng.uniform_range(y0, y0 + h);
+            let noise = noise_gsd * t.gsd * rng.normal();
+            if let Some(z) = t.surface_height(g1, g2) {
+                let p = spec.frame.to_local(g1, g2, z + noise) + spec.origin;
+                positions.push([p.x, p.y, p.z]);
+            }
+        }
+        let path = layout.dense_cloud(&epoch.name);
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| ProjectError::Path {
+                path: parent.to_path_buf(),
+                message: e.to_string(),
+            })?;
+        }
+        let cloud = timesift_io::pointcloud::PointCloud {
+            positions,
+            colors: None,
+            attributes: Vec::new(),
+            crs,
+        };
+        timesift_io::pointcloud::write_las(&path, &cloud, &Default::default())?;
+        out.push((epoch.name.clone(), t.gsd));
+    }
+    Ok(out)
+}

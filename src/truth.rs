@@ -223,6 +223,100 @@ pub fn locate_target(
     Some((fine.1, fine.2))
 }
 
+/// Height of a DEM raster at a world position, bilinear between cell centres; `None` outside,
+/// or where a neighbouring cell is nodata (the declared value, NaN, or ≤ −10 000).
+pub fn bilinear_height(dem: &timesift_io::geotiff::GeoRaster<f32>, x: f64, y: f64) -> Option<f64> {
+    let (c, r) = dem.georef.transform.world_to_pixel(x, y);
+    let (c, r) = (c - 0.5, r - 0.5);
+    let (c0, r0) = (c.floor(), r.floor());
+    if c0 < 0.0 || r0 < 0.0 || c0 + 1.0 >= dem.width as f64 || r0 + 1.0 >= dem.height as f64 {
+        return None;
+    }
+    let (tx, ty) = (c - c0, r - r0);
+    let nodata = dem.georef.nodata;
+    let at = |dc: usize, dr: usize| {
+        let v = dem.get(c0 as usize + dc, r0 as usize + dr, 0);
+        (v.is_finite() && v > -1e4 && Some(v as f64) != nodata).then_some(v as f64)
+    };
+    let (a, b, cc, d) = (at(0, 0)?, at(1, 0)?, at(0, 1)?, at(1, 1)?);
+    Some((a * (1.0 - tx) + b * tx) * (1.0 - ty) + (cc * (1.0 - tx) + d * tx) * ty)
+}
+
+/// The painted targets of a synthetic project (`truth/points.csv`) located in an RGBA ortho
+/// with [`locate_target`]: how many were found and the RMS distance of the found ones from
+/// their true positions, in ortho cells. `target_radius` is the targets' radius in metres.
+pub fn ortho_target_errors(
+    project_dir: &Path,
+    ortho: &timesift_io::geotiff::GeoRaster<u8>,
+    target_radius: f64,
+) -> Result<(usize, Option<f64>), ProjectError> {
+    let path = project_dir.join("truth/points.csv");
+    let text = timesift_io::fsutil::read_text(&path)?;
+    let header: Vec<&str> = text.lines().next().unwrap_or("").split(',').collect();
+    let col = |k: &str| header.iter().position(|h| *h == k);
+    let (Some(ix), Some(iy)) = (col("x"), col("y")) else {
+        return Err(ProjectError::Path {
+            path,
+            message: "no x and y columns".into(),
+        });
+    };
+    let t = ortho.georef.transform;
+    let radius = target_radius / t.pixel_width;
+    let (mut sq, mut found) = (0.0, 0usize);
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let (Some(x), Some(y)) = (
+            f.get(ix).and_then(|v| v.parse::<f64>().ok()),
+            f.get(iy).and_then(|v| v.parse::<f64>().ok()),
+        ) else {
+            continue;
+        };
+        let near = t.world_to_pixel(x, y);
+        let located = locate_target(
+            &ortho.data,
+            ortho.width,
+            ortho.height,
+            near,
+            radius,
+            0.5 * radius,
+        );
+        if let Some((c, r)) = located {
+            sq += (c - near.0).powi(2) + (r - near.1).powi(2);
+            found += 1;
+        }
+    }
+    Ok((found, (found > 0).then(|| (sq / found as f64).sqrt())))
+}
+
+/// Height errors (DEM − truth, metres) of the measured cells of a DEM (`count` > 0, not
+/// nodata) whose centre `keep` accepts, against a truth DEM sampled bilinearly.
+pub fn dem_height_errors(
+    dem: &timesift_io::geotiff::GeoRaster<f32>,
+    count: &timesift_io::geotiff::GeoRaster<f32>,
+    truth: &timesift_io::geotiff::GeoRaster<f32>,
+    keep: impl Fn(f64, f64) -> bool,
+) -> Vec<f64> {
+    let t = dem.georef.transform;
+    let nodata = dem.georef.nodata.map(|v| v as f32);
+    let mut err = Vec::new();
+    for r in 0..dem.height {
+        for c in 0..dem.width {
+            let h = dem.get(c, r, 0);
+            if Some(h) == nodata || !h.is_finite() || count.get(c, r, 0) == 0.0 {
+                continue;
+            }
+            let (x, y) = t.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
+            if !keep(x, y) {
+                continue;
+            }
+            if let Some(z) = bilinear_height(truth, x, y) {
+                err.push(h as f64 - z);
+            }
+        }
+    }
+    err
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -10,33 +10,12 @@ mod common;
 use std::path::Path;
 
 use common::timesift;
-use timesift::Project;
 use timesift::report::{GridFile, RasterReport, read_json};
-use timesift::stages::epoch_ground_sample_distance;
-use timesift::true_scene::write_true_orientation;
-use timesift::truth::locate_target;
-use timesift_core::SeededRng;
-use timesift_io::geotiff::{GeoRaster, read_f32, read_rgb8};
-use timesift_io::pointcloud::{LasWriteOptions, PointCloud, write_las};
+use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
+use timesift::truth::{dem_height_errors, ortho_target_errors};
+use timesift_io::geotiff::{read_f32, read_rgb8};
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
-
-/// Bilinear height of a truth DEM (pixel-is-area GeoTIFF) at a world position.
-fn truth_height(dem: &GeoRaster<f32>, x: f64, y: f64) -> Option<f64> {
-    let (c, r) = dem.georef.transform.world_to_pixel(x, y);
-    let (c, r) = (c - 0.5, r - 0.5);
-    let (c0, r0) = (c.floor(), r.floor());
-    if c0 < 0.0 || r0 < 0.0 || c0 + 1.0 >= dem.width as f64 || r0 + 1.0 >= dem.height as f64 {
-        return None;
-    }
-    let (tx, ty) = (c - c0, r - r0);
-    let at = |dc: usize, dr: usize| {
-        let v = dem.get(c0 as usize + dc, r0 as usize + dr, 0);
-        (v > -1e4 && v.is_finite()).then_some(v as f64)
-    };
-    let (a, b, cc, d) = (at(0, 0)?, at(1, 0)?, at(0, 1)?, at(1, 1)?);
-    Some((a * (1.0 - tx) + b * tx) * (1.0 - ty) + (cc * (1.0 - tx) + d * tx) * ty)
-}
 
 fn nmad(v: &mut [f64]) -> f64 {
     let med = |v: &mut [f64]| {
@@ -53,37 +32,7 @@ fn project(dir: &Path) -> Vec<(String, f64)> {
     let spec = build("orchard", Scale::Small, 1).expect("scene");
     write_scene(&spec, dir, &WriteOptions::default()).expect("write");
     write_true_orientation(dir, &spec, 15.0).expect("orientation");
-    let project = Project::load(dir).expect("project");
-    let mut rng = SeededRng::new(7);
-    let mut out = Vec::new();
-    for (e, epoch) in project.epochs.iter().enumerate() {
-        let gsd = epoch_ground_sample_distance(&project, e).expect("gsd");
-        let truth = read_f32(&dir.join(format!("truth/dem_{}.tif", epoch.name))).expect("truth");
-        let t = truth.georef.transform;
-        let (x0, y1) = t.pixel_to_world(0.0, 0.0);
-        let (x1, y0) = t.pixel_to_world(truth.width as f64, truth.height as f64);
-        let spacing = 2.0 * gsd;
-        let n = ((x1 - x0) * (y1 - y0) / (spacing * spacing)) as usize;
-        let mut positions = Vec::with_capacity(n);
-        for _ in 0..n {
-            let x = rng.uniform_range(x0, x1);
-            let y = rng.uniform_range(y0, y1);
-            if let Some(z) = truth_height(&truth, x, y) {
-                positions.push([x, y, z + 0.5 * gsd * rng.normal()]);
-            }
-        }
-        let cloud = PointCloud {
-            positions,
-            colors: None,
-            attributes: Vec::new(),
-            crs: truth.georef.crs,
-        };
-        let path = project.layout().dense_cloud(&epoch.name);
-        std::fs::create_dir_all(path.parent().expect("epoch dir")).expect("mkdir");
-        write_las(&path, &cloud, &LasWriteOptions::default()).expect("cloud");
-        out.push((epoch.name.clone(), gsd));
-    }
-    out
+    write_sampled_clouds(dir, &spec, 2.0, 0.5, 7).expect("clouds")
 }
 
 fn run(dir: &Path) -> String {
@@ -164,19 +113,10 @@ fn dems_and_orthos_stack_are_accurate_and_show_the_targets_where_they_are() {
         // DEM accuracy on measured cells against the true surface.
         let truth = read_f32(&dir.join(format!("truth/dem_{name}.tif"))).expect("truth");
         let count = read_f32(&epoch_dir.join("dem_count.tif")).expect("count");
-        let mut err = Vec::new();
-        for r in 0..dem.height {
-            for c in 0..dem.width {
-                let h = dem.get(c, r, 0);
-                if h == -32767.0 || count.get(c, r, 0) == 0.0 {
-                    continue;
-                }
-                let (x, y) = t.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
-                if let Some(z) = truth_height(&truth, x, y) {
-                    err.push((h as f64 - z) / gsd);
-                }
-            }
-        }
+        let mut err: Vec<f64> = dem_height_errors(&dem, &count, &truth, |_, _| true)
+            .into_iter()
+            .map(|e| e / gsd)
+            .collect();
         let mean = err.iter().sum::<f64>() / err.len() as f64;
         let spread = nmad(&mut err);
         println!(
@@ -188,35 +128,12 @@ fn dems_and_orthos_stack_are_accurate_and_show_the_targets_where_they_are() {
         assert!(spread <= 0.5, "{name}: NMAD {spread} GSD");
 
         // Targets in the ortho, against their true positions.
-        let cell = grid.ortho_cell;
-        let points = std::fs::read_to_string(dir.join("truth/points.csv")).expect("points");
-        let header: Vec<&str> = points.lines().next().expect("header").split(',').collect();
-        let col = |k: &str| header.iter().position(|h| *h == k).expect("column");
-        let (ix, iy) = (col("x"), col("y"));
         let radius = build("orchard", Scale::Small, 1)
             .expect("scene")
-            .target_radius
-            / cell;
-        let (mut sq, mut found) = (0.0, 0);
-        for line in points.lines().skip(1) {
-            let f: Vec<&str> = line.split(',').collect();
-            let (x, y): (f64, f64) = (f[ix].parse().expect("x"), f[iy].parse().expect("y"));
-            let ot = ortho.georef.transform;
-            let near = ot.world_to_pixel(x, y);
-            if let Some((c, r)) = locate_target(
-                &ortho.data,
-                ortho.width,
-                ortho.height,
-                near,
-                radius,
-                0.5 * radius,
-            ) {
-                sq += (c - near.0).powi(2) + (r - near.1).powi(2);
-                found += 1;
-            }
-        }
+            .target_radius;
+        let (found, rmse) = ortho_target_errors(dir, &ortho, radius).expect("targets");
         assert!(found >= 4, "{name}: {found} targets inside the ortho");
-        let rmse = (sq / found as f64).sqrt();
+        let rmse = rmse.unwrap_or(f64::INFINITY);
         println!("{name}: {found} targets, RMSE {rmse:.2} ortho cells");
         assert!(rmse <= 1.0, "{name}: targets {rmse} cells off");
         let r = &report.epochs[name];

@@ -87,17 +87,15 @@ pub fn run_bench(bench: &DenseBench) -> anyhow::Result<()> {
     if bench.lund {
         text.push_str(&crate::bench_dense_lund::run(&bench.out, bench.level)?);
     }
-    println!("{text}");
-    std::fs::write(bench.out.join("dense.md"), &text)?;
-    std::fs::write(
-        bench.out.join("dense.json"),
-        serde_json::to_string_pretty(&serde_json::json!({ "rows": rows, "timings": timings }))?,
-    )?;
-    println!("written: {}", bench.out.join("dense.{md,json}").display());
-    Ok(())
+    crate::write_results(
+        &bench.out,
+        "dense",
+        &text,
+        &serde_json::json!({ "rows": rows, "timings": timings }),
+    )
 }
 
-fn pool(threads: usize) -> anyhow::Result<rayon::ThreadPool> {
+pub(crate) fn pool(threads: usize) -> anyhow::Result<rayon::ThreadPool> {
     Ok(rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?)
@@ -312,6 +310,12 @@ impl<'a> Truth<'a> {
         }
         local.sort_by(f64::total_cmp);
         local[(local.len() - 1) * 9 / 10]
+    }
+
+    /// Textured land at a world position of a ground scene.
+    pub fn textured_at(&self, x: f64, y: f64) -> bool {
+        let o = self.epoch.spec.origin;
+        self.textured(x - o.x, y - o.y)
     }
 
     /// Textured land: a land cover of full contrast, away from blocks (3 GSD).

@@ -28,6 +28,7 @@ mod bench_features;
 mod bench_geometry;
 mod bench_matching;
 mod bench_methods;
+mod bench_raster;
 
 use std::path::PathBuf;
 
@@ -157,6 +158,26 @@ enum BenchStage {
         #[arg(long)]
         reuse: bool,
     },
+    /// DEMs and orthos of the synth ground scenes against the truth (sampled clouds, and the
+    /// dense bench's clouds when present), gridding against GDAL's gdal_grid, gdalinfo on the
+    /// products (apt-get install gdal-bin).
+    Raster {
+        /// Scenes (default: the six ground scenes).
+        #[arg(long, value_delimiter = ',')]
+        scenes: Option<Vec<String>>,
+        /// Scene seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder.
+        #[arg(long, default_value = "target/bench-raster")]
+        out: PathBuf,
+        /// Where `cargo xtask bench dense` left its projects; their clouds are gridded too.
+        #[arg(long, default_value = "target/bench-dense")]
+        dense_dir: PathBuf,
+        /// Skip gdal_grid.
+        #[arg(long)]
+        no_peer: bool,
+    },
     /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
     Change {
         /// Core-point spacing for M3C2, metres.
@@ -237,6 +258,26 @@ fn python_json(script: &std::path::Path, args: &[String]) -> anyhow::Result<serd
         .context("the peer's report is not JSON")
 }
 
+/// Prints a bench's table and writes it as `<stem>.md` beside `<stem>.json` in `out`.
+fn write_results(
+    out: &std::path::Path,
+    stem: &str,
+    text: &str,
+    json: &serde_json::Value,
+) -> anyhow::Result<()> {
+    println!("{text}");
+    std::fs::write(out.join(format!("{stem}.md")), text)?;
+    std::fs::write(
+        out.join(format!("{stem}.json")),
+        serde_json::to_string_pretty(json)?,
+    )?;
+    println!(
+        "written: {}",
+        out.join(format!("{stem}.{{md,json}}")).display()
+    );
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     match Cli::parse().task {
         Task::Bench {
@@ -273,6 +314,34 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,
+        Task::Bench {
+            stage:
+                BenchStage::Raster {
+                    scenes,
+                    seed,
+                    out,
+                    dense_dir,
+                    no_peer,
+                },
+        } => bench_raster::run_bench(&bench_raster::RasterBench {
+            scenes: scenes.unwrap_or_else(|| {
+                [
+                    "orchard",
+                    "shore",
+                    "landslide",
+                    "glacier",
+                    "archival",
+                    "campus",
+                ]
+                .iter()
+                .map(|s| s.to_string())
+                .collect()
+            }),
+            seed,
+            out,
+            dense_dir: dense_dir.is_dir().then_some(dense_dir),
+            peer: !no_peer,
+        })?,
         Task::Bench {
             stage:
                 BenchStage::Dense {
