@@ -12,6 +12,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
+use timesift_core::CameraModel;
 use timesift_io::geotiff::{GeoRaster, read_f32, write_rgb8};
 use timesift_raster::{OrthoView, RgbImage, ViewImages, orthomosaic};
 
@@ -65,6 +66,8 @@ impl PipelineStage for OrthoStage {
 /// An epoch's images, read on demand, the most recently used kept.
 struct ImageCache {
     paths: Vec<PathBuf>,
+    /// Width and height of each view's camera, which its image must have.
+    sizes: Vec<(u32, u32)>,
     entries: Mutex<VecDeque<(usize, Arc<RgbImage>)>>,
 }
 
@@ -84,6 +87,14 @@ impl ViewImages for ImageCache {
             .ok_or_else(|| format!("no image for view {view}"))?;
         let (width, height, data) =
             timesift_io::image::read_rgb8(path).map_err(|e| e.to_string())?;
+        if let Some(&(w, h)) = self.sizes.get(view)
+            && (w, h) != (width, height)
+        {
+            return Err(format!(
+                "{}: {width} × {height} pixels, but its camera in out/cameras.json is {w} × {h}",
+                path.display()
+            ));
+        }
         let image = Arc::new(RgbImage {
             width: width as usize,
             height: height as usize,
@@ -171,6 +182,10 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             paths: images
                 .iter()
                 .map(|&i| project.dir.join(&project.images[i].name))
+                .collect(),
+            sizes: views
+                .iter()
+                .map(|v| (v.camera.width(), v.camera.height()))
                 .collect(),
             entries: Mutex::new(VecDeque::new()),
         };

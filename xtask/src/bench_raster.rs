@@ -135,7 +135,7 @@ pub fn run_bench(bench: &RasterBench) -> anyhow::Result<()> {
             }
         }
         if peer_text.is_empty() && bench.peer {
-            peer_text = gdal_grid_comparison(&dir, &gsds[0].0, &bench.out)?;
+            peer_text = gdal_grid_comparison(&spec, &dir, &gsds[0].0, &bench.out)?;
         }
         if let Some(dense) = &bench.dense_dir {
             for (suffix, label) in [
@@ -351,20 +351,35 @@ fn ortho_pngs(dir: &Path, epoch: &str, stem: &Path) -> anyhow::Result<()> {
 /// DEM gridding of one cloud onto one grid: `timesift dem` (end to end, and the gridding alone
 /// in process) against GDAL's `gdal_grid` (moving average in a circle circumscribing the
 /// cell, its closest algorithm to a per-cell statistic; GDAL 3.6 has no median).
-fn gdal_grid_comparison(dir: &Path, epoch: &str, out: &Path) -> anyhow::Result<String> {
-    let cloud_path = dir.join("out/epochs").join(epoch).join("dense.laz");
+fn gdal_grid_comparison(
+    spec: &SceneSpec,
+    dir: &Path,
+    epoch: &str,
+    out: &Path,
+) -> anyhow::Result<String> {
+    // The epoch's surface sampled as a level-1 dense cloud would be (one point per GSD², four
+    // per DEM cell), in a folder of its own beside the scene.
+    let work = out.join("gdal-grid");
+    let _ = std::fs::remove_dir_all(&work);
+    std::fs::create_dir_all(&work)?;
+    std::os::unix::fs::symlink(
+        std::fs::canonicalize(dir.join("truth"))?,
+        work.join("truth"),
+    )?;
+    write_sampled_clouds(&work, spec, 1.0, 0.5, 11)?;
+    let cloud_path = work.join("out/epochs").join(epoch).join("dense.laz");
     let dem_path = dir.join("out/epochs").join(epoch).join("dem.tif");
     let cloud = timesift_io::pointcloud::read_las(&cloud_path)?;
     let like = read_f32(&dem_path)?;
     let t = like.georef.transform;
     let cell = t.pixel_width;
-    let csv = out.join("points.csv");
+    let csv = work.join("points.csv");
     let mut text = String::from("x,y,z\n");
     for p in &cloud.positions {
         text.push_str(&format!("{:.4},{:.4},{:.4}\n", p[0], p[1], p[2]));
     }
     std::fs::write(&csv, text)?;
-    let vrt = out.join("points.vrt");
+    let vrt = work.join("points.vrt");
     std::fs::write(
         &vrt,
         format!(
@@ -377,11 +392,14 @@ fn gdal_grid_comparison(dir: &Path, epoch: &str, out: &Path) -> anyhow::Result<S
     let (x0, y0) = t.pixel_to_world(0.0, 0.0);
     let (x1, y1) = t.pixel_to_world(like.width as f64, like.height as f64);
     let radius = cell * std::f64::consts::FRAC_1_SQRT_2;
-    let gdal_out = out.join("gdal_grid.tif");
+    let gdal_out = work.join("gdal_grid.tif");
     let start = Instant::now();
     let status = Command::new("gdal_grid")
         .args([
             "-q",
+            "--config",
+            "GDAL_NUM_THREADS",
+            "ALL_CPUS",
             "-a",
             &format!("average:radius1={radius}:radius2={radius}:min_points=1:nodata=-32767"),
             "-zfield",
@@ -411,7 +429,7 @@ fn gdal_grid_comparison(dir: &Path, epoch: &str, out: &Path) -> anyhow::Result<S
         cloud: cloud_path.clone(),
         cell: None,
         like: Some(dem_path.clone()),
-        out: out.join("timesift_dem.tif"),
+        out: work.join("timesift_dem.tif"),
         method: timesift::commands::dem::DemMethod::Median,
         idw_radius: 1.5,
         min_points: 1,
