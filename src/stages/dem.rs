@@ -137,7 +137,9 @@ pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
         message: e,
     })?;
     let mut report = read_report(project);
+    let bar = super::progress_bar("dem", "", project.epochs.len() as u64, "epochs");
     for epoch in &project.epochs {
+        bar.inc(1);
         let name = &epoch.name;
         let cloud_path = layout.dense_cloud(name);
         let options = project.config.raster.dem_options(grid.dem.cell());
@@ -182,6 +184,7 @@ pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
         write_json(&settings_path, &settings)?;
         write_json(&layout.raster_report(), &report)?;
     }
+    bar.finish_and_clear();
     report
         .epochs
         .retain(|name, _| project.epochs.iter().any(|e| &e.name == name));

@@ -13,12 +13,10 @@
 //! their maps at a time.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
 use timesift_core::{Camera, CameraModel};
 use timesift_dense::{
@@ -437,20 +435,6 @@ fn read_map(path: &Path) -> Option<DepthMap> {
     })
 }
 
-fn progress(epoch: &str, total: u64) -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(total);
-    if let Ok(style) =
-        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} depth maps, {eta} left")
-    {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    bar.set_prefix(format!("dense {epoch}"));
-    bar
-}
-
 #[allow(clippy::too_many_arguments)]
 fn dense_epoch(
     project: &Project,
@@ -526,7 +510,12 @@ fn dense_epoch(
         entries: VecDeque::new(),
     };
     let map_file = |pass: usize, view: usize| layout.depth_map_file(name, pass, images[view]);
-    let bar = progress(name, (passes.len() * images.len()) as u64);
+    let bar = super::progress_bar(
+        "dense",
+        name,
+        (passes.len() * images.len()) as u64,
+        "depth maps",
+    );
     let mut computed = 0;
     for (k, pass) in passes.iter().enumerate() {
         for view in 0..images.len() {

@@ -15,7 +15,10 @@ mod matching;
 mod ortho;
 
 use std::fmt;
+use std::io::IsTerminal;
 use std::path::PathBuf;
+
+use indicatif::{ProgressBar, ProgressStyle};
 
 pub use align::align_stage;
 pub use dem::{DEM_NODATA, dem_stage, epoch_ground_sample_distance, georeference, write_dem_files};
@@ -122,6 +125,22 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
         .into_iter()
         .filter(|s| *s >= from && *s <= to)
         .collect())
+}
+
+/// A progress bar for one epoch of a stage on a terminal (hidden otherwise): `what` names the
+/// unit counted.
+pub(crate) fn progress_bar(stage: &str, epoch: &str, total: u64, what: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(total);
+    if let Ok(style) = ProgressStyle::with_template(&format!(
+        "{{prefix}} [{{bar:30}}] {{pos}}/{{len}} {what}, {{eta}} left"
+    )) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_prefix(format!("{stage} {epoch}"));
+    bar
 }
 
 /// Runs one stage on a validated project. Stages not built yet fail with

@@ -190,8 +190,14 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             entries: Mutex::new(VecDeque::new()),
         };
         let start = Instant::now();
-        let ortho = orthomosaic(&heights, &grid.dem, &views, &cache, &options)
+        let bar = super::progress_bar("ortho", name, 0, "tiles");
+        let progress = |done: usize, total: usize| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        };
+        let ortho = orthomosaic(&heights, &grid.dem, &views, &cache, &options, &progress)
             .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
+        bar.finish_and_clear();
         let seconds = start.elapsed().as_secs_f64();
         let l = &ortho_lattice;
         write_rgb8(

@@ -15,6 +15,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use nalgebra::{DMatrix, DVector, Vector2, Vector3};
 use rayon::prelude::*;
@@ -138,13 +139,15 @@ struct Context<'a> {
     options: OrthoOptions,
 }
 
-/// Mosaics `views` onto the DEM (`heights` on `lattice`, NaN = none).
+/// Mosaics `views` onto the DEM (`heights` on `lattice`, NaN = none). `progress` is told
+/// (tiles done, tiles to do) as the work goes (the gain fit visits every tile once too).
 pub fn orthomosaic(
     heights: &[f32],
     lattice: &Lattice,
     views: &[OrthoView],
     images: &dyn ViewImages,
     options: &OrthoOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Ortho, RasterError> {
     validate(heights, lattice, views, options)?;
     let finite = heights.iter().filter(|h| h.is_finite());
@@ -169,8 +172,11 @@ pub fn orthomosaic(
         options: *options,
     };
     let tiles = tiles_of(lattice, options.tile);
+    let total = tiles.len() * if options.gain_compensation { 2 } else { 1 };
+    let done = AtomicUsize::new(0);
+    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
     let gains = if options.gain_compensation {
-        fit_gains(&ctx, &tiles, images)?
+        fit_gains(&ctx, &tiles, images, &tick)?
     } else {
         vec![[1.0; 3]; views.len()]
     };
@@ -191,6 +197,7 @@ pub fn orthomosaic(
                 let core = tiles[tile_row * tiles_across + tile_col];
                 let tile = TileData::compute(&ctx, core, images, &gains)?;
                 painted += tile.paint(&ctx, out, tile_row * options.tile * f, &mut jumps);
+                tick();
             }
             Ok((jumps, painted))
         })
@@ -441,6 +448,9 @@ impl Context<'_> {
 /// Bilinear RGB at a pixel position (DESIGN.md pixel convention); `None` where a black pixel
 /// marks no-data.
 fn sample(image: &RgbImage, px: &Vector2<f64>, black_is_nodata: bool) -> Option<[f32; 3]> {
+    if image.width == 0 || image.height == 0 || image.data.len() < 3 * image.width * image.height {
+        return None;
+    }
     let (x, y) = (px.x - 0.5, px.y - 0.5);
     let x0 = (x.floor().max(0.0) as usize).min(image.width.saturating_sub(2));
     let y0 = (y.floor().max(0.0) as usize).min(image.height.saturating_sub(2));
@@ -492,6 +502,7 @@ fn fit_gains(
     ctx: &Context<'_>,
     tiles: &[(usize, usize, usize, usize)],
     images: &dyn ViewImages,
+    tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<[f64; 3]>, RasterError> {
     let l = ctx.lattice;
     // About 40 000 samples over the lattice.
@@ -501,6 +512,7 @@ fn fit_gains(
         .map(|&rect| {
             let mut pairs = BTreeMap::new();
             let cands = ctx.candidates(rect);
+            tick();
             if cands.is_empty() {
                 return Ok(pairs);
             }

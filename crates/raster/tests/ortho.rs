@@ -121,7 +121,7 @@ fn flat_ground_is_reproduced_and_an_overexposed_view_is_compensated() {
         tile: 24,
         ..OrthoOptions::default()
     };
-    let ortho = orthomosaic(&heights, &lattice, &views, &images, &options).unwrap();
+    let ortho = orthomosaic(&heights, &lattice, &views, &images, &options, &|_, _| {}).unwrap();
     let ol = ortho.lattice;
     assert_eq!((ol.width(), ol.height()), (160, 160));
     assert_eq!(ortho.stats.painted_cells, ol.len(), "every cell is seen");
@@ -166,6 +166,7 @@ fn flat_ground_is_reproduced_and_an_overexposed_view_is_compensated() {
             feather: 0,
             ..options
         },
+        &|_, _| {},
     )
     .unwrap();
     assert!(
@@ -180,7 +181,9 @@ fn flat_ground_is_reproduced_and_an_overexposed_view_is_compensated() {
         .num_threads(1)
         .build()
         .unwrap()
-        .install(|| orthomosaic(&heights, &lattice, &views, &images, &options).unwrap());
+        .install(|| {
+            orthomosaic(&heights, &lattice, &views, &images, &options, &|_, _| {}).unwrap()
+        });
     assert_eq!(single, ortho);
 }
 
@@ -218,7 +221,7 @@ fn ground_hidden_by_a_box_is_not_painted_from_the_view_that_cannot_see_it() {
         gain_compensation: false,
         ..OrthoOptions::default()
     };
-    let ortho = orthomosaic(&heights, &lattice, &[view], &images, &options).unwrap();
+    let ortho = orthomosaic(&heights, &lattice, &[view], &images, &options, &|_, _| {}).unwrap();
     // The roof edge (x = 12, 4 m) hides the ground up to where the ray through it lands; within
     // a cell of that line a ground cell's own pixels straddle the edge, which neither the DEM
     // nor the image resolves.
@@ -257,7 +260,9 @@ fn bad_inputs_are_errors() {
     };
     let images = Images(Vec::new());
     let o = OrthoOptions::default();
-    let e = |h: &[f32], v: &[OrthoView]| orthomosaic(h, &lattice, v, &images, &o).unwrap_err();
+    let e = |h: &[f32], v: &[OrthoView]| {
+        orthomosaic(h, &lattice, v, &images, &o, &|_, _| {}).unwrap_err()
+    };
     assert!(
         e(&[0.0; 3], std::slice::from_ref(&view))
             .to_string()
