@@ -1,0 +1,97 @@
+//! The invariants of ARCHITECTURE.md that a machine can check, from `cargo metadata`: which
+//! crate may depend on which.
+
+use std::collections::BTreeMap;
+use std::process::Command;
+
+/// Normal (non-dev, non-build) dependencies of every workspace package, by package name.
+fn dependencies() -> BTreeMap<String, Vec<String>> {
+    let out = Command::new(env!("CARGO"))
+        .args(["metadata", "--format-version", "1", "--no-deps", "--offline"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let mut deps = BTreeMap::new();
+    for p in meta["packages"].as_array().expect("packages") {
+        let names = p["dependencies"]
+            .as_array()
+            .expect("dependencies")
+            .iter()
+            .filter(|d| d["kind"].is_null())
+            .map(|d| d["name"].as_str().expect("name").to_string())
+            .collect();
+        deps.insert(p["name"].as_str().expect("name").to_string(), names);
+    }
+    deps
+}
+
+const STAGE_CRATES: [&str; 6] = [
+    "timesift-features",
+    "timesift-matching",
+    "timesift-align",
+    "timesift-dense",
+    "timesift-raster",
+    "timesift-change",
+];
+
+#[test]
+fn no_stage_crate_depends_on_a_sibling_stage() {
+    let deps = dependencies();
+    for stage in STAGE_CRATES {
+        let d = deps.get(stage).expect("the crate exists");
+        for other in STAGE_CRATES.iter().filter(|s| **s != stage) {
+            assert!(!d.iter().any(|n| n == other), "{stage} depends on {other}");
+        }
+    }
+}
+
+#[test]
+fn core_is_the_vocabulary_and_depends_on_nalgebra_and_thiserror_only() {
+    let deps = dependencies();
+    assert_eq!(deps["timesift-core"], vec!["nalgebra", "thiserror"]);
+}
+
+#[test]
+fn only_the_root_and_the_benches_use_the_pipeline_and_the_scene_generator() {
+    for (name, d) in dependencies() {
+        if name == "timesift" || name == "xtask" {
+            continue;
+        }
+        assert!(
+            !d.iter().any(|n| n == "timesift" || n == "timesift-synth"),
+            "{name}: {d:?}"
+        );
+    }
+}
+
+#[test]
+fn file_formats_are_io_s_and_dense_and_raster_touch_no_file() {
+    let deps = dependencies();
+    for (name, d) in &deps {
+        for format in ["tiff", "exr", "las", "kamadak-exif", "flate2", "csv"] {
+            assert!(
+                name == "timesift-io" || !d.iter().any(|n| n == format),
+                "{name} uses {format}: file formats belong to timesift-io"
+            );
+        }
+        // Stated exceptions: synth renders JPEGs, change draws its maps, the root and the
+        // benches encode PNGs.
+        let image_ok = ["timesift-io", "timesift-synth", "timesift-change", "timesift", "xtask"];
+        assert!(
+            image_ok.contains(&name.as_str()) || !d.iter().any(|n| n == "image"),
+            "{name} uses image"
+        );
+    }
+    for pure in ["timesift-dense", "timesift-raster"] {
+        assert!(
+            !deps[pure].iter().any(|n| n == "timesift-io"),
+            "{pure} depends on timesift-io"
+        );
+    }
+}
