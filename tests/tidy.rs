@@ -7,7 +7,13 @@ use std::process::Command;
 /// Normal (non-dev, non-build) dependencies of every workspace package, by package name.
 fn dependencies() -> BTreeMap<String, Vec<String>> {
     let out = Command::new(env!("CARGO"))
-        .args(["metadata", "--format-version", "1", "--no-deps", "--offline"])
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--no-deps",
+            "--offline",
+        ])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .expect("cargo metadata runs");
@@ -82,7 +88,13 @@ fn file_formats_are_io_s_and_dense_and_raster_touch_no_file() {
         }
         // Stated exceptions: synth renders JPEGs, change draws its maps, the root and the
         // benches encode PNGs.
-        let image_ok = ["timesift-io", "timesift-synth", "timesift-change", "timesift", "xtask"];
+        let image_ok = [
+            "timesift-io",
+            "timesift-synth",
+            "timesift-change",
+            "timesift",
+            "xtask",
+        ];
         assert!(
             image_ok.contains(&name.as_str()) || !d.iter().any(|n| n == "image"),
             "{name} uses image"
