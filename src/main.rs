@@ -196,13 +196,16 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Dem(request) => {
             let r = dem::dem(&request)?;
             println!(
-                "{} points -> {} × {} cells, {} with a height ({} filled), gridded in {:.3} s",
+                "{} points -> {} × {} cells, {} with a height ({} filled), gridded in {:.3} s \
+                 (read in {:.3} s, written in {:.3} s)",
                 r.points,
                 r.size.0,
                 r.size.1,
                 r.cells_with_height,
                 r.cells_filled,
-                r.gridding_seconds
+                r.gridding_seconds,
+                r.reading_seconds,
+                r.writing_seconds
             );
             for f in &r.outputs {
                 println!("wrote {}", f.display());

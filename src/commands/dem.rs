@@ -63,8 +63,12 @@ pub struct DemSummary {
     pub cells_with_height: usize,
     /// Cells filled by interpolation.
     pub cells_filled: usize,
+    /// Seconds spent reading the cloud.
+    pub reading_seconds: f64,
     /// Seconds spent gridding (reading and writing excluded).
     pub gridding_seconds: f64,
+    /// Seconds spent writing the rasters.
+    pub writing_seconds: f64,
     /// Files written.
     pub outputs: Vec<PathBuf>,
 }
@@ -79,7 +83,9 @@ fn beside(out: &Path, suffix: &str, ext: &str) -> PathBuf {
 
 /// Grids the cloud and writes the DEM and its companions.
 pub fn dem(request: &DemRequest) -> Result<DemSummary, ProjectError> {
+    let start = Instant::now();
     let cloud = read_las(&request.cloud)?;
+    let reading_seconds = start.elapsed().as_secs_f64();
     let (lattice, like_crs) = match (&request.like, request.cell) {
         (Some(_), Some(_)) | (None, None) => {
             return Err(ProjectError::Path {
@@ -147,7 +153,9 @@ pub fn dem(request: &DemRequest) -> Result<DemSummary, ProjectError> {
         beside(&request.out, "_filled", "tif"),
     ];
     let preview = beside(&request.out, "", "png");
+    let start = Instant::now();
     write_dem_files(&dem, crs, &outputs, &preview)?;
+    let writing_seconds = start.elapsed().as_secs_f64();
     let mut written = outputs.to_vec();
     written.push(preview);
     Ok(DemSummary {
@@ -155,7 +163,9 @@ pub fn dem(request: &DemRequest) -> Result<DemSummary, ProjectError> {
         size: (lattice.width(), lattice.height()),
         cells_with_height: dem.valid_cells(),
         cells_filled: dem.filled.iter().filter(|f| **f).count(),
+        reading_seconds,
         gridding_seconds,
+        writing_seconds,
         outputs: written,
     })
 }
