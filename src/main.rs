@@ -12,6 +12,21 @@ use timesift::{Project, stages};
 use timesift_change::icp::IcpModel;
 use timesift_change::m3c2::{Aggregation, M3c2Params};
 
+/// Prints a line of a command's result. A closed pipe (`timesift … | head`) ends the program
+/// quietly, as Unix tools do, instead of panicking as `println!` would.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout(), $($arg)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            eprintln!("error: cannot write to standard output: {e}");
+            std::process::exit(1);
+        }
+    }};
+}
+
 #[derive(Parser)]
 #[command(
     name = "timesift",
@@ -161,22 +176,23 @@ fn run(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Init { dir, force } => {
             let summary = init::init(&dir, InitOptions { overwrite: force })?;
-            println!("wrote {}", dir.join("project.toml").display());
+            say!("wrote {}", dir.join("project.toml").display());
             for (name, n) in &summary.epochs {
-                println!("  epoch {name}: {n} images");
+                say!("  epoch {name}: {n} images");
             }
-            println!(
+            say!(
                 "  crs {} ({} images with EXIF GPS)",
-                summary.crs, summary.images_with_gps
+                summary.crs,
+                summary.images_with_gps
             );
         }
         Command::Info { dir, json } => {
             let project = Project::load(&dir)?;
             let report = info::info(&project)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
+                say!("{}", serde_json::to_string_pretty(&report)?);
             } else {
-                print!("{}", report.to_text());
+                say!("{}", report.to_text().trim_end());
             }
         }
         Command::Run { dir, from, to } => {
@@ -186,7 +202,7 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Features(request) => {
             let start = std::time::Instant::now();
             let result = features::features(&request)?;
-            println!(
+            say!(
                 "{} keypoints -> {} in {:.2} s",
                 result.keypoints.len(),
                 request.out.display(),
@@ -195,7 +211,7 @@ fn run(command: Command) -> anyhow::Result<()> {
         }
         Command::Dem(request) => {
             let r = dem::dem(&request)?;
-            println!(
+            say!(
                 "{} points -> {} × {} cells, {} with a height ({} filled), gridded in {:.3} s \
                  (read in {:.3} s, written in {:.3} s)",
                 r.points,
@@ -208,13 +224,13 @@ fn run(command: Command) -> anyhow::Result<()> {
                 r.writing_seconds
             );
             for f in &r.outputs {
-                println!("wrote {}", f.display());
+                say!("wrote {}", f.display());
             }
         }
         Command::Compare(args) => compare(*args)?,
         Command::Demo { dir } => {
             let dir = dir.unwrap_or_else(|| PathBuf::from("timesift-demo"));
-            print!("{}", timesift::commands::demo::demo(&dir)?);
+            say!("{}", timesift::commands::demo::demo(&dir)?.trim_end());
         }
     }
     Ok(())
@@ -270,23 +286,31 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
         };
         let r = compare::compare_clouds(&args.a, &args.b, &args.out, &options)?;
         if let Some(icp) = &r.icp {
-            println!(
+            say!(
                 "ICP: rotation {:.4}°, translation {:.3?} m, scale {:.6}, RMS {:.4} m over {} pairs",
-                icp.rotation_deg, icp.translation, icp.scale, icp.rms, icp.pairs
+                icp.rotation_deg,
+                icp.translation,
+                icp.scale,
+                icp.rms,
+                icp.pairs
             );
         }
-        println!(
+        say!(
             "M3C2: {} core points, {} with a distance, {} significant",
-            r.core_points, r.defined, r.significant
+            r.core_points,
+            r.defined,
+            r.significant
         );
         if let Some(d) = &r.distance {
-            println!(
+            say!(
                 "distance: median {:.4} m, mean {:.4} m, NMAD {:.4} m",
-                d.median, d.mean, d.nmad
+                d.median,
+                d.mean,
+                d.nmad
             );
         }
         for f in &r.outputs {
-            println!("wrote {f}");
+            say!("wrote {f}");
         }
     } else {
         let options = compare::DemCompareOptions {
@@ -309,7 +333,7 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
             eprintln!("warning: {w}");
         }
         if let Some(c) = &r.coregistration {
-            println!(
+            say!(
                 "co-registration: shift east {:.3} m, north {:.3} m ({:.3}, {:.3} px), vertical {:.3} m; stable NMAD {:.4} → {:.4} m",
                 c.shift_east_m,
                 c.shift_north_m,
@@ -321,23 +345,32 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
             );
         }
         let s = &r.all;
-        println!(
+        say!(
             "DoD (b − a): {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, NMAD {:.4} m",
-            s.count, s.mean, s.median, s.std, s.nmad
+            s.count,
+            s.mean,
+            s.median,
+            s.std,
+            s.nmad
         );
         if let Some(s) = &r.stable {
-            println!(
+            say!(
                 "stable: {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
-                s.count, s.mean, s.median, s.std, s.rmse, s.nmad
+                s.count,
+                s.mean,
+                s.median,
+                s.std,
+                s.rmse,
+                s.nmad
             );
         }
         if let Some(l) = r.lod95 {
-            println!("LoD95 {l:.4} m ({})", r.lod_source);
+            say!("LoD95 {l:.4} m ({})", r.lod_source);
         }
         if let Some(reports) = &r.checkpoints {
             for (label, c) in ["a", "b"].iter().zip(reports) {
                 if let Some(h) = &c.height {
-                    println!(
+                    say!(
                         "check points on {label}: {} (missing {}), dH mean {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
                         h.count,
                         c.missing.len(),
@@ -354,18 +387,24 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
         } else {
             " (uncertainty unknown: give --stable or --sigma)".to_string()
         };
-        println!(
+        say!(
             "volumes: cut {:.2} m³, fill {:.2} m³, net {:.2}{uncertainty} m³ over {:.1} m²",
-            v.cut, v.fill, v.net, v.area
+            v.cut,
+            v.fill,
+            v.net,
+            v.area
         );
         if let Some(v) = &r.volumes_beyond_lod {
-            println!(
+            say!(
                 "beyond LoD: cut {:.2} m³, fill {:.2} m³, net {:.2} ± {:.2} m³",
-                v.cut, v.fill, v.net, v.sigma_net
+                v.cut,
+                v.fill,
+                v.net,
+                v.sigma_net
             );
         }
         for f in &r.outputs {
-            println!("wrote {f}");
+            say!("wrote {f}");
         }
     }
     Ok(())

@@ -173,3 +173,31 @@ fn dem_command_errors_name_the_problem() {
         "{stdout}"
     );
 }
+
+#[test]
+fn a_closed_pipe_ends_the_command_quietly() {
+    // `timesift dem … | head -0`: the reader is gone before the summary is printed.
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = dir.path().join("c.laz");
+    let pc = PointCloud {
+        positions: (0..20_000)
+            .map(|i| [(i % 200) as f64 * 0.1, (i / 200) as f64 * 0.1, 1.0])
+            .collect(),
+        colors: None,
+        attributes: Vec::new(),
+        crs: Crs::Local,
+    };
+    write_las(&cloud, &pc, &LasWriteOptions::default()).unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_timesift"))
+        .args(["dem", cloud.to_str().unwrap(), "--cell", "0.2", "--out"])
+        .arg(dir.path().join("dem.tif"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
