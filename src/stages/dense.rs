@@ -42,7 +42,7 @@ use crate::{Project, ProjectError};
 const DENSE_ALGORITHM: u32 = 3;
 
 /// Version of filtering and fusion, part of the cloud's settings.
-const FUSION_ALGORITHM: u32 = 3;
+const FUSION_ALGORITHM: u32 = 4;
 
 /// The `dense` stage.
 pub(super) struct DenseStage;

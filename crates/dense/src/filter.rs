@@ -92,6 +92,11 @@ pub(crate) struct Tolerances {
     pub max_rel: f64,
     /// Least cosine between the normals.
     pub min_cos: f64,
+    /// Farthest a candidate pixel's centre may be from the projection of the reference point,
+    /// neighbour pixels. Filtering takes any of the four nearest pixels (∞); fusion only those
+    /// within a pixel, so that every image a fused point is made from saw it within a pixel of
+    /// where it projects.
+    pub max_centre_px: f64,
 }
 
 impl Neighbour<'_> {
@@ -133,6 +138,10 @@ impl Neighbour<'_> {
             }
             let k = j as usize * self.map.width + i as usize;
             if skip(k) {
+                return None;
+            }
+            let (cu, cv) = (i as f64 + 0.5, j as f64 + 0.5);
+            if (cu - p.x).powi(2) + (cv - p.y).powi(2) > tolerances.max_centre_px.powi(2) {
                 return None;
             }
             self.check(ref_camera, (u, v), x, n, tolerances, (p.x, p.y), k)
@@ -250,6 +259,7 @@ pub fn filter_depth_map(
     let others = neighbours(plan, view, neighbour_maps);
     let tolerances = Tolerances {
         max_px: options.max_reprojection_px,
+        max_centre_px: f64::INFINITY,
         max_rel: options.max_relative_depth,
         min_cos: options.max_normal_angle_deg.to_radians().cos(),
     };

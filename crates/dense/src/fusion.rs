@@ -143,6 +143,9 @@ pub fn fuse<E: From<DenseError>>(
     let mut cloud = FusedCloud::default();
     let tolerances = Tolerances {
         max_px: options.max_reprojection_px,
+        // A member pixel's centre within a pixel of where the point projects: the depth lifted
+        // at the exact projection must not stand for a pixel that saw the surface elsewhere.
+        max_centre_px: 1.0,
         max_rel: options.max_relative_depth,
         min_cos: options.max_normal_angle_deg.to_radians().cos(),
     };
