@@ -700,6 +700,7 @@ impl ProjectConfig {
             ("change.cylinder_radius", config.change.cylinder_radius),
             ("change.max_depth", config.change.max_depth),
             ("change.core_spacing", config.change.core_spacing),
+            ("raster.idw_radius", config.raster.idw_radius),
         ];
         for (key, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
@@ -737,6 +738,10 @@ impl ProjectConfig {
                 dense.geometric_iterations,
                 0..=20,
             ),
+            ("raster.min_points", config.raster.min_points, 1..=10_000),
+            ("raster.max_gap", config.raster.max_gap, 0..=1000),
+            ("raster.feather", config.raster.feather, 0..=50),
+            ("raster.seam_sweeps", config.raster.seam_sweeps, 0..=50),
         ] {
             if !range.contains(&value) {
                 return Err(ProjectError::config(
@@ -756,35 +761,6 @@ impl ProjectConfig {
                 "dense.max_cost",
                 format!("expected a cost in (0, 2], found {}", dense.max_cost),
             ));
-        }
-        let raster = &config.raster;
-        if !(raster.idw_radius > 0.0 && raster.idw_radius.is_finite()) {
-            return Err(ProjectError::config(
-                path,
-                "raster.idw_radius",
-                format!(
-                    "expected a positive number of cells, found {}",
-                    raster.idw_radius
-                ),
-            ));
-        }
-        for (key, value, range) in [
-            ("raster.min_points", raster.min_points, 1..=10_000),
-            ("raster.max_gap", raster.max_gap, 0..=1000),
-            ("raster.feather", raster.feather, 0..=50),
-            ("raster.seam_sweeps", raster.seam_sweeps, 0..=50),
-        ] {
-            if !range.contains(&value) {
-                return Err(ProjectError::config(
-                    path,
-                    key,
-                    format!(
-                        "expected {} to {}, found {value}",
-                        range.start(),
-                        range.end()
-                    ),
-                ));
-            }
         }
         if config.align.max_keypoints == 0 {
             return Err(ProjectError::config(

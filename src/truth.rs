@@ -223,25 +223,6 @@ pub fn locate_target(
     Some((fine.1, fine.2))
 }
 
-/// Height of a DEM raster at a world position, bilinear between cell centres; `None` outside,
-/// or where a neighbouring cell is nodata (the declared value, NaN, or ≤ −10 000).
-pub fn bilinear_height(dem: &timesift_io::geotiff::GeoRaster<f32>, x: f64, y: f64) -> Option<f64> {
-    let (c, r) = dem.georef.transform.world_to_pixel(x, y);
-    let (c, r) = (c - 0.5, r - 0.5);
-    let (c0, r0) = (c.floor(), r.floor());
-    if c0 < 0.0 || r0 < 0.0 || c0 + 1.0 >= dem.width as f64 || r0 + 1.0 >= dem.height as f64 {
-        return None;
-    }
-    let (tx, ty) = (c - c0, r - r0);
-    let nodata = dem.georef.nodata;
-    let at = |dc: usize, dr: usize| {
-        let v = dem.get(c0 as usize + dc, r0 as usize + dr, 0);
-        (v.is_finite() && v > -1e4 && Some(v as f64) != nodata).then_some(v as f64)
-    };
-    let (a, b, cc, d) = (at(0, 0)?, at(1, 0)?, at(0, 1)?, at(1, 1)?);
-    Some((a * (1.0 - tx) + b * tx) * (1.0 - ty) + (cc * (1.0 - tx) + d * tx) * ty)
-}
-
 /// The painted targets of a synthetic project (`truth/points.csv`) located in an RGBA ortho
 /// with [`locate_target`]: how many were found and the RMS distance of the found ones from
 /// their true positions, in ortho cells. `target_radius` is the targets' radius in metres.
@@ -293,7 +274,7 @@ pub fn ortho_target_errors(
 pub fn dem_height_errors(
     dem: &timesift_io::geotiff::GeoRaster<f32>,
     count: &timesift_io::geotiff::GeoRaster<f32>,
-    truth: &timesift_io::geotiff::GeoRaster<f32>,
+    truth: &timesift_change::grid::Dem,
     keep: impl Fn(f64, f64) -> bool,
 ) -> Vec<f64> {
     let t = dem.georef.transform;
@@ -309,7 +290,8 @@ pub fn dem_height_errors(
             if !keep(x, y) {
                 continue;
             }
-            if let Some(z) = bilinear_height(truth, x, y) {
+            let z = truth.bilinear(x, y);
+            if z.is_finite() {
                 err.push(h as f64 - z);
             }
         }

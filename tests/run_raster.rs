@@ -13,19 +13,11 @@ use common::timesift;
 use timesift::report::{GridFile, RasterReport, read_json};
 use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
 use timesift::truth::{dem_height_errors, ortho_target_errors};
+use timesift_change::grid::Dem;
+use timesift_change::stats::nmad;
 use timesift_io::geotiff::{read_f32, read_rgb8};
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
-
-fn nmad(v: &mut [f64]) -> f64 {
-    let med = |v: &mut [f64]| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let m = med(v);
-    let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
-    1.4826 * med(&mut dev)
-}
 
 /// The project with its true orientation and sampled clouds; returns the epochs' GSDs.
 fn project(dir: &Path) -> Vec<(String, f64)> {
@@ -111,7 +103,11 @@ fn dems_and_orthos_stack_are_accurate_and_show_the_targets_where_they_are() {
         }
 
         // DEM accuracy on measured cells against the true surface.
-        let truth = read_f32(&dir.join(format!("truth/dem_{name}.tif"))).expect("truth");
+        let truth = Dem::from_raster(
+            read_f32(&dir.join(format!("truth/dem_{name}.tif"))).expect("truth"),
+            None,
+        )
+        .expect("truth DEM");
         let count = read_f32(&epoch_dir.join("dem_count.tif")).expect("count");
         let mut err: Vec<f64> = dem_height_errors(&dem, &count, &truth, |_, _| true)
             .into_iter()

@@ -11,6 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use timesift_change::grid::DEM_NODATA;
 use timesift_core::Camera;
 use timesift_io::coords::Crs;
 use timesift_io::geotiff::{GeoRaster, GeoReference, GeoTransform, write_f32, write_u8};
@@ -18,16 +19,14 @@ use timesift_io::pointcloud::read_las;
 use timesift_raster::{Bounds, EpochFootprint, Lattice, ProjectGrid, grid_cloud, plan_grid};
 
 use super::cache::stage_error;
-use super::dense_input;
+use super::dense_inputs;
 use super::{PipelineStage, Stage};
 use crate::report::{GridFile, RasterReport, read_json, write_json};
 use crate::{Project, ProjectError};
+use timesift_dense::EpochInput;
 
 /// Version of the gridding, part of each DEM's settings.
 const DEM_ALGORITHM: u32 = 1;
-
-/// Nodata of the DEM GeoTIFFs (DESIGN.md).
-pub const DEM_NODATA: f32 = -32767.0;
 
 /// Fraction of a cloud's points left out on each side of its footprint: a few stray points
 /// (sky, reflections) must not stretch every epoch's lattice.
@@ -273,9 +272,10 @@ fn ensure_grid(project: &Project) -> Result<GridFile, ProjectError> {
         return Ok(existing);
     }
     let cameras = timesift_io::cameras_json::read_cameras_json(&layout.cameras_json())?;
+    let inputs = dense_inputs(project)?;
     let mut footprints = Vec::with_capacity(project.epochs.len());
     let mut epoch_gsd = std::collections::BTreeMap::new();
-    for (e, epoch) in project.epochs.iter().enumerate() {
+    for (epoch, (_, input)) in project.epochs.iter().zip(&inputs) {
         let cloud = read_las(&layout.dense_cloud(&epoch.name))?;
         let bounds = footprint(&cloud.positions).ok_or_else(|| {
             stage_error(
@@ -287,7 +287,7 @@ fn ensure_grid(project: &Project) -> Result<GridFile, ProjectError> {
                 ),
             )
         })?;
-        let gsd = epoch_ground_sample_distance(project, e)?;
+        let gsd = epoch_ground_sample_distance(input, &epoch.name)?;
         epoch_gsd.insert(epoch.name.clone(), gsd);
         footprints.push(EpochFootprint { bounds, gsd });
     }
@@ -349,9 +349,7 @@ fn focal_px(camera: &Camera) -> f64 {
 
 /// Median over the epoch's oriented images of the median depth of the sparse points each
 /// sees, divided by its focal length: the ground sample distance of the original images.
-pub fn epoch_ground_sample_distance(project: &Project, epoch: usize) -> Result<f64, ProjectError> {
-    let (_, input) = dense_input(project, epoch)?;
-    let name = &project.epochs[epoch].name;
+pub fn epoch_ground_sample_distance(input: &EpochInput, name: &str) -> Result<f64, ProjectError> {
     let mut depths: Vec<Vec<f64>> = vec![Vec::new(); input.views.len()];
     for p in &input.points {
         for &v in &p.views {

@@ -184,6 +184,17 @@ pub fn dense_input(
     epoch_input(project, epoch, &cameras, &model, &oriented)
 }
 
+/// [`dense_input`] of every epoch, reading `out/cameras.json` and `out/colmap/` once.
+pub fn dense_inputs(project: &Project) -> Result<Vec<(Vec<usize>, EpochInput)>, ProjectError> {
+    let layout = project.layout();
+    let cameras = read_cameras_json(&layout.cameras_json())?;
+    let model = read_colmap_text(&layout.colmap_dir())?;
+    let oriented = match_orientation(project, &cameras)?;
+    (0..project.epochs.len())
+        .map(|e| epoch_input(project, e, &cameras, &model, &oriented))
+        .collect()
+}
+
 /// The epoch's oriented views (project image indices) and its dense input.
 fn epoch_input(
     project: &Project,

@@ -21,8 +21,8 @@ use std::path::PathBuf;
 use indicatif::{ProgressBar, ProgressStyle};
 
 pub use align::align_stage;
-pub use dem::{DEM_NODATA, dem_stage, epoch_ground_sample_distance, georeference, write_dem_files};
-pub use dense::{dense_input, dense_stage};
+pub use dem::{dem_stage, epoch_ground_sample_distance, georeference, write_dem_files};
+pub use dense::{dense_input, dense_inputs, dense_stage};
 pub use features::features_stage;
 pub use matching::match_stage;
 pub use ortho::ortho_stage;

@@ -18,7 +18,7 @@ use timesift_raster::{OrthoView, RgbImage, ViewImages, orthomosaic};
 
 use super::cache::stage_error;
 use super::dem::{file_stamp, georeference, on_lattice, project_grid_of, read_report};
-use super::{PipelineStage, Stage, dense_input};
+use super::{PipelineStage, Stage, dense_inputs};
 use crate::report::{GridFile, RasterReport, read_json, write_json};
 use crate::{Project, ProjectError};
 
@@ -120,10 +120,10 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
     })?;
     let ortho_lattice = grid.ortho();
     let mut report = read_report(project);
-    for (e, epoch) in project.epochs.iter().enumerate() {
+    let inputs = dense_inputs(project)?;
+    for (epoch, (images, input)) in project.epochs.iter().zip(inputs) {
         let name = &epoch.name;
         let dem_path = layout.dem(name);
-        let (images, input) = dense_input(project, e)?;
         let options = project
             .config
             .raster

@@ -26,7 +26,9 @@ use timesift::Project;
 use timesift::report::{GridFile, RasterReport, read_json};
 use timesift::stages::{Stage, run_stage};
 use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
-use timesift::truth::{bilinear_height, dem_height_errors, ortho_target_errors};
+use timesift::truth::{dem_height_errors, ortho_target_errors};
+use timesift_change::grid::Dem;
+use timesift_change::stats::{median, nmad};
 use timesift_io::cameras_json::read_cameras_json;
 use timesift_io::geotiff::{GeoRaster, read_f32, read_rgb8};
 use timesift_synth::scene::{Frame, SceneSpec};
@@ -188,18 +190,6 @@ fn raster_report(dir: &Path) -> anyhow::Result<RasterReport> {
     Ok(read_json(&dir.join("out/raster.json"))?)
 }
 
-fn nmad(v: &mut [f64]) -> f64 {
-    let mut m = v.to_vec();
-    let med = median(&mut m);
-    let mut dev: Vec<f64> = v.iter().map(|x| (x - med).abs()).collect();
-    1.4826 * median(&mut dev)
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 /// Scores every epoch's DEM (and ortho) of a project on a scene.
 fn score_project(
     spec: &SceneSpec,
@@ -219,7 +209,8 @@ fn score_project(
         let gsd = truth.gsd;
         let dem = read_f32(&project.layout().dem(name))?;
         let count = read_f32(&project.layout().dem_count(name))?;
-        let true_dem = read_f32(&dir.join(format!("truth/dem_{name}.tif")))?;
+        let true_dem =
+            Dem::from_raster(read_f32(&dir.join(format!("truth/dem_{name}.tif")))?, None)?;
         let mut err: Vec<f64> =
             dem_height_errors(&dem, &count, &true_dem, |x, y| truth.textured_at(x, y))
                 .into_iter()
@@ -227,14 +218,10 @@ fn score_project(
                 .collect();
         let cell = grid.dem_cell;
         let gentle = |x: f64, y: f64| {
-            let h = |dx: f64, dy: f64| bilinear_height(&true_dem, x + dx, y + dy);
-            match (h(cell, 0.0), h(-cell, 0.0), h(0.0, cell), h(0.0, -cell)) {
-                (Some(e), Some(w), Some(n), Some(s)) => {
-                    let slope = ((e - w) / (2.0 * cell)).hypot((n - s) / (2.0 * cell));
-                    slope < 20f64.to_radians().tan()
-                }
-                _ => false,
-            }
+            let h = |dx: f64, dy: f64| true_dem.bilinear(x + dx, y + dy);
+            let (e, w, n, s) = (h(cell, 0.0), h(-cell, 0.0), h(0.0, cell), h(0.0, -cell));
+            // NaN (a side without truth) fails the comparison: not gentle.
+            ((e - w) / (2.0 * cell)).hypot((n - s) / (2.0 * cell)) < 20f64.to_radians().tan()
         };
         let mut gentle_err: Vec<f64> = dem_height_errors(&dem, &count, &true_dem, |x, y| {
             truth.textured_at(x, y) && gentle(x, y)
@@ -243,14 +230,13 @@ fn score_project(
         .map(|e| e / gsd)
         .collect();
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-        let spread = |v: &mut [f64]| if v.is_empty() { f64::NAN } else { nmad(v) };
         let mut score = DemScore {
             cells: err.len(),
             mean_gsd: mean(&err),
-            nmad_gsd: spread(&mut err),
+            nmad_gsd: nmad(&mut err),
             gentle_cells: gentle_err.len(),
             gentle_mean_gsd: mean(&gentle_err),
-            gentle_nmad_gsd: spread(&mut gentle_err),
+            gentle_nmad_gsd: nmad(&mut gentle_err),
             ..DemScore::default()
         };
         if let Some(base) = &first {
@@ -484,11 +470,8 @@ fn gdal_grid_comparison(
             }
         }
     }
-    let agreement = if diff.is_empty() {
-        f64::NAN
-    } else {
-        nmad(&mut diff)
-    };
+    let cells_in_both = diff.len();
+    let agreement = nmad(&mut diff);
     Ok(format!(
         "\n## DEM gridding against GDAL (`{}` epoch {epoch}: {} points onto {} × {} cells of {cell} m)\n\n\
          | | seconds | ratio (gdal_grid / timesift) |\n|---|---|---|\n\
@@ -504,7 +487,7 @@ fn gdal_grid_comparison(
         like.height,
         gdal_seconds / ours_seconds,
         gdal_seconds / in_process,
-        diff.len(),
+        cells_in_both,
     ))
 }
 

@@ -145,7 +145,8 @@ pub fn write_tiled(
         .collect::<Result<_, _>>()
         .map_err(TiledError::Io)?;
 
-    // IFD entries per level, with placeholders for the tile offsets.
+    // Each level's IFD. Its TileOffsets (324) holds one offset per tile: their count, not their
+    // values, decides the layout computed next, which then gives them their values.
     let mut ifds: Vec<Vec<Entry>> = Vec::new();
     for (k, (w, h, _)) in levels.iter().enumerate() {
         let n_tiles = tiles[k].len();
@@ -213,6 +214,7 @@ pub fn write_tiled(
         return Err(TiledError::TooLarge(pos));
     }
     for (k, e) in ifds.iter_mut().enumerate() {
+        // The entry was made with one zero per tile; same size, now the positions.
         if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
             *entry = Entry::longs(
                 324,
@@ -221,58 +223,65 @@ pub fn write_tiled(
         }
     }
 
-    // Serialise.
-    let io = TiledError::Io;
-    let mut written: u64 = 0;
-    let mut put = |out: &mut dyn Write, bytes: &[u8]| -> Result<(), TiledError> {
-        out.write_all(bytes).map_err(io)?;
-        written += bytes.len() as u64;
-        Ok(())
-    };
-    put(out, b"II")?;
-    put(out, &42u16.to_le_bytes())?;
-    put(out, &(ifd_pos[0] as u32).to_le_bytes())?;
+    // Serialise, following the layout.
+    let mut out = Positioned { out, at: 0 };
+    out.put(b"II")?;
+    out.put(&42u16.to_le_bytes())?;
+    out.put(&(ifd_pos[0] as u32).to_le_bytes())?;
     for (k, e) in ifds.iter().enumerate() {
-        put(out, &(e.len() as u16).to_le_bytes())?;
+        out.put(&(e.len() as u16).to_le_bytes())?;
         for (entry, &at) in e.iter().zip(&value_pos[k]) {
-            put(out, &entry.tag.to_le_bytes())?;
-            put(out, &entry.kind.to_le_bytes())?;
-            put(out, &entry.count.to_le_bytes())?;
+            out.put(&entry.tag.to_le_bytes())?;
+            out.put(&entry.kind.to_le_bytes())?;
+            out.put(&entry.count.to_le_bytes())?;
             if entry.bytes.len() > 4 {
-                put(out, &(at as u32).to_le_bytes())?;
+                out.put(&(at as u32).to_le_bytes())?;
             } else {
                 let mut inline = [0u8; 4];
                 inline[..entry.bytes.len()].copy_from_slice(&entry.bytes);
-                put(out, &inline)?;
+                out.put(&inline)?;
             }
         }
         let next = ifd_pos.get(k + 1).copied().unwrap_or(0) as u32;
-        put(out, &next.to_le_bytes())?;
+        out.put(&next.to_le_bytes())?;
     }
-    let mut at = ifd_pos.last().copied().unwrap_or(8)
-        + 2
-        + 12 * ifds.last().map(|e| e.len()).unwrap_or(0) as u64
-        + 4;
     for (k, e) in ifds.iter().enumerate() {
-        for (entry, &p) in e.iter().zip(&value_pos[k]) {
+        for (entry, &at) in e.iter().zip(&value_pos[k]) {
             if entry.bytes.len() > 4 {
-                while at < p {
-                    put(out, &[0])?;
-                    at += 1;
-                }
-                put(out, &entry.bytes)?;
-                at += entry.bytes.len() as u64;
+                out.pad_to(at)?;
+                out.put(&entry.bytes)?;
             }
         }
     }
     for k in (0..levels.len()).rev() {
-        for (t, &p) in tiles[k].iter().zip(&tile_pos[k]) {
-            debug_assert_eq!(at, p);
-            put(out, t)?;
-            at += t.len() as u64;
+        for (t, &at) in tiles[k].iter().zip(&tile_pos[k]) {
+            debug_assert_eq!(out.at, at);
+            out.put(t)?;
         }
     }
     Ok(())
+}
+
+/// A writer that knows how many bytes it has written: its position in the file.
+struct Positioned<'a, W: Write> {
+    out: &'a mut W,
+    at: u64,
+}
+
+impl<W: Write> Positioned<'_, W> {
+    fn put(&mut self, bytes: &[u8]) -> Result<(), TiledError> {
+        self.out.write_all(bytes).map_err(TiledError::Io)?;
+        self.at += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Zero bytes up to position `at` (the word alignment of out-of-line values).
+    fn pad_to(&mut self, at: u64) -> Result<(), TiledError> {
+        while self.at < at {
+            self.put(&[0])?;
+        }
+        Ok(())
+    }
 }
 
 /// Cuts a level into tiles (edge tiles padded by repeating nothing: zeros, or nodata for
