@@ -47,9 +47,6 @@ pub enum ProjectError {
         stage: &'static str,
         message: String,
     },
-    /// A stage of `timesift run` is not built yet.
-    #[error("stage {0} is not available yet")]
-    StageNotAvailable(&'static str),
 }
 
 impl ProjectError {

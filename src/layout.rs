@@ -105,6 +105,24 @@ impl Layout {
             .join(format!("{epoch}.{product}.json"))
     }
 
+    /// `work/align.json`: what the orientation was made from.
+    pub fn align_settings(&self) -> PathBuf {
+        self.work_dir().join("align.json")
+    }
+
+    /// `work/change/<a>__<b>.json`: what a pair's change products were made from.
+    pub fn change_settings(&self, a: &str, b: &str) -> PathBuf {
+        self.work_dir()
+            .join("change")
+            .join(format!("{a}__{b}.json"))
+    }
+
+    /// `work/run.json`: the wall time and summary of each stage's latest run (the report's
+    /// time table).
+    pub fn run_log(&self) -> PathBuf {
+        self.work_dir().join("run.json")
+    }
+
     /// The file in which a folder of `work/` records the settings its results were made with.
     pub fn settings_file(dir: &Path) -> PathBuf {
         dir.join("settings.json")
@@ -200,6 +218,22 @@ impl Layout {
     /// `out/epochs/<epoch>/ortho.png`: downscaled preview.
     pub fn ortho_preview(&self, epoch: &str) -> PathBuf {
         self.epoch_dir(epoch).join("ortho.png")
+    }
+
+    /// `out/change/<a>__<b>/stats.json`: the DEM comparison's [`crate::commands::compare::DemReport`].
+    pub fn change_stats(&self, a: &str, b: &str) -> PathBuf {
+        self.change_dir(a, b).join("stats.json")
+    }
+
+    /// `out/change/<a>__<b>/m3c2_stats.json`: the cloud comparison's
+    /// [`crate::commands::compare::CloudReport`].
+    pub fn m3c2_stats(&self, a: &str, b: &str) -> PathBuf {
+        self.change_dir(a, b).join("m3c2_stats.json")
+    }
+
+    /// `out/export/<format>/`: what `timesift export` writes by default.
+    pub fn export_dir(&self, format: &str) -> PathBuf {
+        self.out_dir().join("export").join(format)
     }
 
     /// `out/change/<a>__<b>/`.

@@ -11,6 +11,7 @@
 pub mod commands;
 pub mod config;
 mod error;
+pub mod html;
 pub mod layout;
 pub mod project;
 pub mod report;

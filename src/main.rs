@@ -69,16 +69,30 @@ enum Command {
         /// Last stage to run.
         #[arg(long, value_enum)]
         to: Option<Stage>,
+        /// No progress bars and no per-stage lines; errors still go to standard error.
+        #[arg(long, short)]
+        quiet: bool,
     },
     /// Keypoints and descriptors of one image, written in the text format of DESIGN.md.
     Features(features::FeaturesRequest),
     /// Grid any point cloud (LAS/LAZ) into a DEM GeoTIFF, on a cell size or another raster's grid.
     Dem(dem::DemRequest),
-    /// Render a small two-epoch synthetic project, run the pipeline so far on it and print each
-    /// epoch's orientation accuracy against the truth.
+    /// Render a small synthetic project where the ground changed (landslide), run every stage on
+    /// it and print the orientation, DEM, DoD and volume figures against the truth.
     Demo {
         /// Where to write the project (empty or new). Default: ./timesift-demo.
         dir: Option<PathBuf>,
+    },
+    /// Write the cameras, calibrations and sparse points for Metashape, COLMAP or OpenSfM/ODM.
+    Export {
+        /// Project directory (after the align stage).
+        dir: PathBuf,
+        /// Target format.
+        #[arg(long, value_enum)]
+        format: timesift::commands::export::ExportFormat,
+        /// Output folder. Default: DIR/out/export/<format>/.
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// Compare two DEMs (GeoTIFF: DoD, co-registration, statistics, LoD, volumes) or two point
     /// clouds (LAS/LAZ: ICP, M3C2), made by timesift or any other software.
@@ -195,9 +209,35 @@ fn run(command: Command) -> anyhow::Result<()> {
                 say!("{}", report.to_text().trim_end());
             }
         }
-        Command::Run { dir, from, to } => {
+        Command::Run {
+            dir,
+            from,
+            to,
+            quiet,
+        } => {
             let project = Project::load(&dir)?;
-            stages::run(&project, from, to)?;
+            stages::set_quiet(quiet);
+            let start = std::time::Instant::now();
+            let outcomes = stages::run_with(&project, from, to, &mut |o| {
+                if !quiet {
+                    eprintln!("{:<9} {:>7.1} s  {}", o.stage.name(), o.seconds, o.summary);
+                }
+            })?;
+            if !quiet {
+                say!(
+                    "{} stages in {:.1} s; products:",
+                    outcomes.len(),
+                    start.elapsed().as_secs_f64()
+                );
+                let out_dir = project.layout().out_dir();
+                for o in &outcomes {
+                    for path in o.stage.implementation().outputs(&project) {
+                        if path.starts_with(&out_dir) && path.exists() {
+                            say!("  {:<9} {}", o.stage.name(), path.display());
+                        }
+                    }
+                }
+            }
         }
         Command::Features(request) => {
             let start = std::time::Instant::now();
@@ -228,6 +268,12 @@ fn run(command: Command) -> anyhow::Result<()> {
             }
         }
         Command::Compare(args) => compare(*args)?,
+        Command::Export { dir, format, out } => {
+            let project = Project::load(&dir)?;
+            for path in timesift::commands::export::export(&project, format, out.as_deref())? {
+                say!("wrote {}", path.display());
+            }
+        }
         Command::Demo { dir } => {
             let dir = dir.unwrap_or_else(|| PathBuf::from("timesift-demo"));
             say!("{}", timesift::commands::demo::demo(&dir)?.trim_end());
@@ -362,6 +408,15 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
                 s.std,
                 s.rmse,
                 s.nmad
+            );
+        }
+        if let Some(t) = &r.stable_trend {
+            say!(
+                "stable plane: {:.2} mm/m towards {:.0}°, {:.4} m across {:.0} m",
+                t.slope * 1000.0,
+                t.azimuth_deg,
+                t.gain_m,
+                t.extent_m
             );
         }
         if let Some(l) = r.lod95 {

@@ -246,3 +246,21 @@ pub struct EpochRaster {
     /// Time to mosaic the ortho, seconds.
     pub ortho_seconds: Option<f64>,
 }
+
+/// `work/run.json`: each stage's latest run, for the report's time table.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct RunLog {
+    /// timesift version that ran the stages.
+    pub version: String,
+    /// Per stage name.
+    pub stages: BTreeMap<String, StageRun>,
+}
+
+/// One stage of [`RunLog`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageRun {
+    /// Wall time of its latest run, seconds (short when it found its work up to date).
+    pub seconds: f64,
+    /// Its one-line summary.
+    pub summary: String,
+}

@@ -299,6 +299,141 @@ pub fn dem_height_errors(
     err
 }
 
+/// `truth/change.json` as `synth` writes it: the regions that changed and their true volumes.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+pub struct ChangeTruth {
+    /// Epoch names in order.
+    pub epochs: Vec<String>,
+    /// Changed regions.
+    pub regions: Vec<TrueRegion>,
+}
+
+/// One region of [`ChangeTruth`].
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+pub struct TrueRegion {
+    /// Region name.
+    pub name: String,
+    /// What happens there.
+    #[serde(default)]
+    pub description: String,
+    /// Outline in world coordinates (E, N).
+    pub polygon_wkt: String,
+    /// True volume change between pairs of epochs.
+    pub volumes: Vec<TrueVolume>,
+}
+
+/// The true volume change of a region between two epochs, m³ (positive: material added).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+pub struct TrueVolume {
+    /// Earlier epoch.
+    pub from: String,
+    /// Later epoch.
+    pub to: String,
+    /// Net volume, m³.
+    pub volume_m3: f64,
+}
+
+/// A region's measured volume change next to the true one.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RegionVolume {
+    /// Region name.
+    pub region: String,
+    /// Earlier epoch.
+    pub from: String,
+    /// Later epoch.
+    pub to: String,
+    /// True net volume, m³.
+    pub true_m3: f64,
+    /// Net volume of the DoD of the two epochs' DEMs inside the region, m³.
+    pub measured_m3: f64,
+    /// Its 1-σ uncertainty (random from the stable-area NMAD, systematic from the stable-area
+    /// median), m³.
+    pub sigma_m3: f64,
+    /// Fraction of the region's cells with a difference.
+    pub coverage: f64,
+}
+
+/// Every true volume of `truth/change.json` measured on the project's DEMs (the DoD later −
+/// earlier inside the region's polygon, with the uncertainty model of the change stage).
+pub fn region_volumes(project: &Project) -> Result<Vec<RegionVolume>, ProjectError> {
+    use timesift_change::grid::Dem;
+    use timesift_change::mask::Mask;
+    use timesift_change::volume::{VolumeOptions, volumes};
+    let layout = project.layout();
+    let truth: ChangeTruth = read_json(&layout.truth_dir().join("change.json"))?;
+    let stable_polygons = match crate::stages::stable_file(project) {
+        Some(path) => crate::commands::compare::read_polygons(&path)?,
+        None => Vec::new(),
+    };
+    let change_err = |context: String| move |source| ProjectError::Change { context, source };
+    let load = |epoch: &str| -> Result<Dem, ProjectError> {
+        let path = layout.dem(epoch);
+        let raster = timesift_io::geotiff::read_f32(&path)?;
+        Dem::from_raster(raster, None).map_err(change_err(path.display().to_string()))
+    };
+    let mut rows = Vec::new();
+    for region in &truth.regions {
+        let polygons = timesift_io::wkt::parse_polygons(&region.polygon_wkt).map_err(|e| {
+            ProjectError::Path {
+                path: layout.truth_dir().join("change.json"),
+                message: format!("region {}: {e}", region.name),
+            }
+        })?;
+        for v in &region.volumes {
+            let context = format!("region {} from {} to {}", region.name, v.from, v.to);
+            let dod = timesift_change::dod::dem_of_difference(&load(&v.from)?, &load(&v.to)?)
+                .map_err(change_err(context.clone()))?;
+            let stable = Mask::from_polygons(dod.grid, &stable_polygons);
+            let stable_dz = timesift_change::stats::statistics(
+                dod.values
+                    .iter()
+                    .zip(&stable.cells)
+                    .filter(|(_, s)| **s)
+                    .map(|(v, _)| *v as f64),
+            );
+            let mask = Mask::from_polygons(dod.grid, &polygons);
+            let options = VolumeOptions {
+                threshold: 0.0,
+                sigma_random: stable_dz.map_or(0.0, |s| s.nmad),
+                sigma_systematic: stable_dz.map_or(0.0, |s| s.median.abs()),
+            };
+            let measured = volumes(&dod, Some(&mask), options).map_err(change_err(context))?;
+            let inside = mask.count().max(1);
+            rows.push(RegionVolume {
+                region: region.name.clone(),
+                from: v.from.clone(),
+                to: v.to.clone(),
+                true_m3: v.volume_m3,
+                measured_m3: measured.net,
+                sigma_m3: measured.sigma_net,
+                coverage: measured.cells as f64 / inside as f64,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// An epoch's DEM against its true surface (`truth/dem_<epoch>.tif`) over the cells measured
+/// from the cloud: (cells, mean, median, NMAD), metres.
+pub fn epoch_dem_error(
+    project: &Project,
+    epoch: &str,
+) -> Result<Option<(usize, f64, f64, f64)>, ProjectError> {
+    let layout = project.layout();
+    let truth_path = layout.truth_dir().join(format!("dem_{epoch}.tif"));
+    let truth =
+        timesift_change::grid::Dem::from_raster(timesift_io::geotiff::read_f32(&truth_path)?, None)
+            .map_err(|source| ProjectError::Change {
+                context: truth_path.display().to_string(),
+                source,
+            })?;
+    let dem = timesift_io::geotiff::read_f32(&layout.dem(epoch))?;
+    let count = timesift_io::geotiff::read_f32(&layout.dem_count(epoch))?;
+    let errors = dem_height_errors(&dem, &count, &truth, |_, _| true);
+    Ok(timesift_change::stats::statistics(errors.iter().copied())
+        .map(|s| (s.count, s.mean, s.median, s.nmad)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

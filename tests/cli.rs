@@ -279,7 +279,7 @@ fn corrupt_jpeg_names_the_file() {
 }
 
 #[test]
-fn run_reports_stages_not_built_yet_and_keeps_inputs() {
+fn run_reports_missing_inputs_and_keeps_inputs() {
     let p = small_project();
     let before = std::fs::read(p.path().join("project.toml")).unwrap();
     // The features stage runs, and refuses images too small for a scale space, naming one.
@@ -306,7 +306,7 @@ fn run_reports_stages_not_built_yet_and_keeps_inputs() {
         "report",
     ]);
     assert!(
-        !ok && err.contains("stage report is not available yet"),
+        !ok && err.contains("report.json") && err.contains("run the align stage first"),
         "{err}"
     );
     let (ok, _, err) = timesift(&[

@@ -16,6 +16,7 @@ use timesift_change::maps::{MapOptions, difference_map, histogram};
 use timesift_change::mask::Mask;
 use timesift_change::nuth_kaab::{NuthKaabOptions, NuthKaabResult, nuth_kaab};
 use timesift_change::stats::{Statistics, statistics};
+use timesift_change::trend::{PlaneTrend, plane_trend};
 use timesift_change::volume::{VolumeOptions, Volumes, lod95, significance, volumes};
 use timesift_io::IoError;
 use timesift_io::coords::Crs;
@@ -61,7 +62,7 @@ pub struct CloudCompareOptions {
 }
 
 /// What a DEM comparison found; written as `stats.json`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct DemReport {
     /// The first (earlier) DEM.
     pub a: String,
@@ -75,10 +76,14 @@ pub struct DemReport {
     pub all: Statistics,
     /// Statistics over the stable areas.
     pub stable: Option<Statistics>,
+    /// Least-squares plane of the difference over the stable areas: a tilt between the DEMs
+    /// that the stable median cannot show.
+    #[serde(default)]
+    pub stable_trend: Option<PlaneTrend>,
     /// 95 % level of detection, m.
     pub lod95: Option<f64>,
     /// Where the LoD came from.
-    pub lod_source: &'static str,
+    pub lod_source: String,
     /// Cells with |dz| > LoD95 among valid cells.
     pub significant_cells: Option<usize>,
     /// Volumes over the region, every cell counted.
@@ -94,7 +99,7 @@ pub struct DemReport {
 }
 
 /// What a cloud comparison found; written as `stats.json`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct CloudReport {
     /// The first cloud.
     pub a: String,
@@ -195,7 +200,9 @@ pub fn read_checkpoints(path: &Path) -> Result<Vec<(String, [f64; 3])>, ProjectE
 }
 
 /// Control or check points as (name, position).
-fn named_positions(points: &[timesift_io::csv_inputs::ControlPoint]) -> Vec<(String, [f64; 3])> {
+pub(crate) fn named_positions(
+    points: &[timesift_io::csv_inputs::ControlPoint],
+) -> Vec<(String, [f64; 3])> {
     points
         .iter()
         .map(|c| (c.name.clone(), [c.position.x, c.position.y, c.position.z]))
@@ -287,6 +294,16 @@ pub fn compare_dems(
         ),
         None => None,
     };
+    let stable_trend = match &stable_on_dod {
+        Some(m) => match plane_trend(&dod, Some(m)) {
+            Ok(t) => Some(t),
+            Err(e) => {
+                warnings.push(format!("no plane through the stable areas: {e}"));
+                None
+            }
+        },
+        None => None,
+    };
     let (lod, lod_source) = match (options.sigmas, &stable_stats) {
         (Some((sa, sb)), _) => (Some(lod95(sa, sb)), "sigmas given"),
         (None, Some(s)) => (
@@ -376,8 +393,9 @@ pub fn compare_dems(
         coregistration,
         all,
         stable: stable_stats,
+        stable_trend,
         lod95: lod,
-        lod_source,
+        lod_source: lod_source.to_string(),
         significant_cells,
         volumes: vol,
         volumes_beyond_lod: vol_lod,
@@ -602,78 +620,6 @@ fn grid_points(points: &[[f64; 3]], values: &[f64], cell: f64, crs: Crs) -> Opti
             })
             .collect(),
     })
-}
-
-/// The `change` stage: for each pair of epochs (`[change] pairs`), the DEM comparison of
-/// `out/epochs/<e>/dem.tif` and, when both dense clouds exist, M3C2 of `dense.laz`, into
-/// `out/change/<a>__<b>/`. Stable areas come from the project's stable-area file.
-pub fn change_stage(project: &crate::Project) -> Result<Vec<PathBuf>, ProjectError> {
-    let config = &project.config.change;
-    let names: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
-    if names.len() < 2 {
-        return Err(ProjectError::Path {
-            path: project.layout().project_toml(),
-            message: format!("the change stage needs two epochs; {} given", names.len()),
-        });
-    }
-    let reference = names[project.reference_epoch.0 as usize];
-    let pairs: Vec<(&str, &str)> = match config.pairs {
-        crate::config::ChangePairs::Consecutive => names.windows(2).map(|w| (w[0], w[1])).collect(),
-        crate::config::ChangePairs::Reference => names
-            .iter()
-            .filter(|&&n| n != reference)
-            .map(|&n| (reference, n))
-            .collect(),
-    };
-    let stable_file = project
-        .config
-        .inputs
-        .stable
-        .as_ref()
-        .map(|s| project.dir.join(s))
-        .or_else(|| Some(project.dir.join("stable.csv")).filter(|p| p.is_file()));
-    let layout = project.layout();
-    let mut written = Vec::new();
-    for (a, b) in pairs {
-        let out = layout.change_dir(a, b);
-        let (dem_a, dem_b) = (layout.dem(a), layout.dem(b));
-        let (laz_a, laz_b) = (layout.dense_cloud(a), layout.dense_cloud(b));
-        let have_dems = dem_a.is_file() && dem_b.is_file();
-        let have_clouds = laz_a.is_file() && laz_b.is_file();
-        if !have_dems && !have_clouds {
-            let missing = if dem_a.is_file() { dem_b } else { dem_a };
-            return Err(ProjectError::Path {
-                path: missing,
-                message: "missing; run the dense and dem stages first".into(),
-            });
-        }
-        if have_dems {
-            let options = DemCompareOptions {
-                stable: stable_file.clone(),
-                coregistration: config.coregistration,
-                checkpoints: named_positions(&project.checkpoints),
-                ..Default::default()
-            };
-            compare_dems(&dem_a, &dem_b, &out, &options)?;
-        }
-        if have_clouds {
-            let options = CloudCompareOptions {
-                stable: stable_file.clone(),
-                icp: None,
-                m3c2: M3c2Params {
-                    normal_radii: vec![config.normal_radius],
-                    cylinder_radius: config.cylinder_radius,
-                    max_depth: config.max_depth,
-                    ..M3c2Params::default()
-                },
-                registration_error: Some(config.registration_error),
-                core_spacing: config.core_spacing,
-            };
-            compare_clouds(&laz_a, &laz_b, &out, &options)?;
-        }
-        written.push(out);
-    }
-    Ok(written)
 }
 
 #[cfg(test)]

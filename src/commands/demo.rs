@@ -1,19 +1,25 @@
-//! `timesift demo [DIR]`: renders a small two-epoch synthetic project (the `soil-pit` scene: a
-//! soil wall photographed before and after sampling, GCPs marked in the first epoch only), runs
-//! the pipeline so far on it and prints each epoch's orientation accuracy against the truth.
+//! `timesift demo [DIR]`: renders a small synthetic project where the ground really changed (the
+//! `landslide` scene: three drone surveys of a slope whose scarp lowers and whose toe grows, GCPs
+//! in the first epoch, biased GNSS in all), runs every stage on it and prints what a user would
+//! want to know against the truth: orientation accuracy, each epoch's DEM error, the stable-area
+//! DoD statistics and the measured volume change of every changed region next to the true one.
 
 use std::path::Path;
 use std::time::Instant;
 
-use crate::stages::{Stage, run};
-use crate::truth::{epoch_accuracy, ground_sampling_distance, triple};
+use crate::commands::compare::DemReport;
+use crate::report::read_json;
+use crate::stages::{Stage, epoch_pairs, run};
+use crate::truth::{
+    epoch_accuracy, epoch_dem_error, ground_sampling_distance, region_volumes, triple,
+};
 use crate::{Project, ProjectError};
 
 /// The demo scene.
-pub const DEMO_SCENE: &str = "soil-pit";
+pub const DEMO_SCENE: &str = "landslide";
 
-/// Writes the demo project into `dir` (which must be empty or absent), runs features, match and
-/// align, and returns the printed summary.
+/// Writes the demo project into `dir` (which must be empty or absent), runs every stage and
+/// returns the printed summary.
 pub fn demo(dir: &Path) -> Result<String, ProjectError> {
     if dir.exists()
         && std::fs::read_dir(dir)
@@ -50,13 +56,19 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
     );
     let project = Project::load(dir)?;
     let start = Instant::now();
-    run(&project, Some(Stage::Features), Some(Stage::Align))?;
+    let outcomes = run(&project, Some(Stage::Features), Some(Stage::Report))?;
     let gsd = ground_sampling_distance(&project)?;
+    let times: Vec<String> = outcomes
+        .iter()
+        .map(|o| format!("{} {:.0} s", o.stage.name(), o.seconds))
+        .collect();
     text.push_str(&format!(
-        "features, matching and orientation in {:.0} s; ground sampling distance {:.2} mm\n\n",
+        "every stage in {:.0} s ({}); ground sampling distance {:.1} mm\n\n",
         start.elapsed().as_secs_f64(),
+        times.join(", "),
         gsd * 1000.0
     ));
+    text.push_str("orientation against the true cameras\n");
     text.push_str(&format!(
         "{:<18} {:>9} {:>8} {:>30} {:>22} {:>30}\n",
         "epoch",
@@ -78,9 +90,73 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
             triple(mm(row.centre_rmse_m), 1),
         ));
     }
+    text.push_str(&products_against_truth(&project, gsd)?);
     text.push_str(&format!(
-        "\noutputs: {0}/out/cameras.json, {0}/out/report.json, {0}/out/colmap/, {0}/out/tiepoints.ply\n",
+        "\nreport: {}\nproducts: {}/out/ (cameras.json, epochs/<epoch>/dense.laz, dem.tif, \
+         ortho.tif, change/<a>__<b>/)\n",
+        project.layout().report_html().display(),
         dir.display()
     ));
+    Ok(text)
+}
+
+/// The DEMs, the stable-area DoDs and the volumes against the truth, as printed lines.
+fn products_against_truth(project: &Project, gsd: f64) -> Result<String, ProjectError> {
+    let mut text = format!(
+        "\nDEMs against the true surface (cells measured from the dense cloud)\n{:<18} {:>8} {:>10} {:>10} {:>10} {:>9}\n",
+        "epoch", "cells", "mean mm", "median mm", "NMAD mm", "NMAD GSD"
+    );
+    for e in &project.epochs {
+        if let Some((n, mean, median, nmad)) = epoch_dem_error(project, &e.name)? {
+            text.push_str(&format!(
+                "{:<18} {:>8} {:>10.1} {:>10.1} {:>10.1} {:>9.2}\n",
+                e.name,
+                n,
+                mean * 1000.0,
+                median * 1000.0,
+                nmad * 1000.0,
+                nmad / gsd
+            ));
+        }
+    }
+    text.push_str(&format!(
+        "\nDoDs over the stable areas (no co-registration step)\n{:<26} {:>8} {:>10} {:>9} {:>14} {:>9}\n",
+        "pair", "cells", "median mm", "NMAD mm", "plane mm/m", "LoD95 mm"
+    ));
+    let layout = project.layout();
+    for (a, b) in epoch_pairs(project) {
+        let stats: DemReport = read_json(&layout.change_stats(&a, &b))?;
+        if let Some(s) = &stats.stable {
+            text.push_str(&format!(
+                "{:<26} {:>8} {:>10.1} {:>9.1} {:>14} {:>9}\n",
+                format!("{a} → {b}"),
+                s.count,
+                s.median * 1000.0,
+                s.nmad * 1000.0,
+                stats
+                    .stable_trend
+                    .map_or("–".into(), |t| format!("{:.2}", t.slope * 1000.0)),
+                stats
+                    .lod95
+                    .map_or("–".into(), |l| format!("{:.1}", l * 1000.0)),
+            ));
+        }
+    }
+    text.push_str(&format!(
+        "\nvolume change of the changed regions (the DoD inside each region; cells without a height \
+         in both DEMs are not counted)\n{:<10} {:<26} {:>11} {:>18} {:>8} {:>9}\n",
+        "region", "pair", "true m³", "measured m³ ± σ", "error", "covered"
+    ));
+    for v in region_volumes(project)? {
+        text.push_str(&format!(
+            "{:<10} {:<26} {:>11.1} {:>18} {:>7.1}% {:>8.0}%\n",
+            v.region,
+            format!("{} → {}", v.from, v.to),
+            v.true_m3,
+            format!("{:.1} ± {:.1}", v.measured_m3, v.sigma_m3),
+            100.0 * (v.measured_m3 - v.true_m3) / v.true_m3.abs().max(1e-9),
+            100.0 * v.coverage
+        ));
+    }
     Ok(text)
 }

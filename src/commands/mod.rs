@@ -3,6 +3,7 @@
 pub mod compare;
 pub mod dem;
 pub mod demo;
+pub mod export;
 pub mod features;
 pub mod info;
 pub mod init;

@@ -26,7 +26,8 @@ use crate::config::AlignMethod;
 use crate::layout::Layout;
 use crate::project::GivenFocal;
 use crate::report::{
-    AlignReport, EpochOrientation, PointResidual as ResidualRow, PointResiduals, Rmse, write_json,
+    AlignReport, EpochOrientation, PointResidual as ResidualRow, PointResiduals, Rmse, read_json,
+    write_json,
 };
 use crate::stable_matcher::FeatureFileMatcher;
 use crate::{Project, ProjectError};
@@ -55,14 +56,50 @@ impl PipelineStage for AlignStage {
         ]
     }
     fn run(&self, project: &Project) -> Result<String, ProjectError> {
-        let report = align_stage(project)?;
+        let layout = project.layout();
+        let settings = align_settings(project);
+        let record = layout.align_settings();
+        let up_to_date = read_json::<serde_json::Value>(&record).ok().as_ref() == Some(&settings)
+            && self.outputs(project).iter().all(|p| p.exists());
+        let report = match up_to_date {
+            true => read_json::<AlignReport>(&layout.report_json())?,
+            false => {
+                let report = align_stage(project)?;
+                write_json(&record, &settings)?;
+                report
+            }
+        };
         Ok(format!(
-            "{} of {} images oriented, RMS {:.3} px",
+            "{}{} of {} images oriented, RMS {:.3} px",
+            if up_to_date { "up to date: " } else { "" },
             report.images_oriented,
             report.images_given,
             report.rms_reprojection_px.unwrap_or(f64::NAN)
         ))
     }
+}
+
+/// What the orientation is made from: the match files' contents, the images, the ground data
+/// and the settings that steer it. Recorded in `work/align.json` after a run, so an unchanged
+/// project is not oriented again.
+fn align_settings(project: &Project) -> serde_json::Value {
+    let layout = project.layout();
+    let mut matches: Vec<PathBuf> = std::fs::read_dir(layout.matches_dir())
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    matches.sort();
+    let features: Vec<PathBuf> = (0..project.images.len())
+        .map(|i| layout.feature_file(i))
+        .collect();
+    let c = &project.config;
+    serde_json::json!({
+        "matches": super::cache::content_fingerprint(&matches),
+        "features": features.iter().map(|f| super::cache::file_stamp(f)).collect::<Vec<_>>(),
+        "images": project.images.iter().map(|i| &i.name).collect::<Vec<_>>(),
+        "config": format!("{:?}", (&c.crs, &c.epochs, &c.inputs, &c.gnss, &c.align, &c.cameras)),
+        "ground": format!("{:?}", (&project.gcps, &project.checkpoints, &project.markers,
+            &project.gnss, &project.stable_areas, &project.scale_bars, &project.calibrations)),
+    })
 }
 
 /// Default standard deviations of control points that give none (m): RTK GNSS or total station.

@@ -49,6 +49,35 @@ pub(crate) fn start_with_settings(
     Ok(())
 }
 
+/// Size and modification time of a file: enough to notice that an earlier stage rewrote it.
+pub(crate) fn file_stamp(path: &Path) -> serde_json::Value {
+    let meta = std::fs::metadata(path).ok();
+    let modified = meta
+        .as_ref()
+        .and_then(|m| m.modified().ok())
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_nanos().to_string());
+    serde_json::json!([meta.map(|m| m.len()), modified])
+}
+
+/// A fingerprint of the contents of files (FNV-1a over names and bytes, in the order given): what
+/// a stage that reads whole folders records, since a rewrite with the same bytes changes no
+/// result. Missing files count as empty.
+pub(crate) fn content_fingerprint(files: &[std::path::PathBuf]) -> String {
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            hash ^= b as u64;
+            hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    for f in files {
+        eat(f.to_string_lossy().as_bytes());
+        eat(&std::fs::read(f).unwrap_or_default());
+    }
+    format!("{hash:016x}")
+}
+
 /// The error of a stage.
 pub(crate) fn stage_error(stage: &'static str, message: String) -> ProjectError {
     ProjectError::Stage { stage, message }

@@ -1,9 +1,21 @@
 //! The `change` stage: DEM of difference and M3C2 of every pair of epochs (`[change] pairs`),
-//! through the same comparisons as `timesift compare`.
+//! through the same comparisons as `timesift compare`, into `out/change/<a>__<b>/`.
+//!
+//! A pair is redone only when what it was made from changed: `work/change/<a>__<b>.json` records
+//! the `[change]` settings, the stable-area file and the stamps of both epochs' DEMs and clouds,
+//! and is written after the pair's outputs, so an interrupted pair is redone whole.
 
 use std::path::PathBuf;
 
+use timesift_change::m3c2::M3c2Params;
+
+use super::cache::{file_stamp, stage_error};
 use super::{PipelineStage, Stage};
+use crate::commands::compare::{
+    CloudCompareOptions, DemCompareOptions, compare_clouds, compare_dems, named_positions,
+};
+use crate::config::ChangePairs;
+use crate::report::{read_json, write_json};
 use crate::{Project, ProjectError};
 
 /// The `change` stage.
@@ -13,22 +25,141 @@ impl PipelineStage for ChangeStage {
     fn stage(&self) -> Stage {
         Stage::Change
     }
-    fn inputs(&self, _: &Project) -> Vec<(PathBuf, Stage)> {
-        // Either the DEMs or the dense clouds of a pair are enough; the stage checks.
-        Vec::new()
+    fn inputs(&self, project: &Project) -> Vec<(PathBuf, Stage)> {
+        // The DEMs of every compared epoch (the clouds are optional: M3C2 runs when both exist).
+        let layout = project.layout();
+        let mut files = Vec::new();
+        for (a, b) in epoch_pairs(project) {
+            for e in [a, b] {
+                let dem = layout.dem(&e);
+                if !files.iter().any(|(f, _)| f == &dem) {
+                    files.push((dem, Stage::Dem));
+                }
+            }
+        }
+        files
     }
     fn outputs(&self, project: &Project) -> Vec<PathBuf> {
-        let names: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
-        names
-            .windows(2)
-            .map(|w| project.layout().change_dir(w[0], w[1]))
+        epoch_pairs(project)
+            .into_iter()
+            .map(|(a, b)| project.layout().change_dir(&a, &b))
             .collect()
     }
     fn run(&self, project: &Project) -> Result<String, ProjectError> {
-        let dirs = crate::commands::compare::change_stage(project)?;
+        let (done, skipped) = run_change(project)?;
         Ok(format!(
-            "change products of {} epoch pairs written",
-            dirs.len()
+            "change products of {} epoch pairs written, {skipped} up to date",
+            done
         ))
     }
+}
+
+/// The compared pairs (earlier, later), by `[change] pairs`.
+pub fn epoch_pairs(project: &Project) -> Vec<(String, String)> {
+    let names: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
+    let reference = names
+        .get(project.reference_epoch.0 as usize)
+        .copied()
+        .unwrap_or_default();
+    match project.config.change.pairs {
+        ChangePairs::Consecutive => names
+            .windows(2)
+            .map(|w| (w[0].to_string(), w[1].to_string()))
+            .collect(),
+        ChangePairs::Reference => names
+            .iter()
+            .filter(|&&n| n != reference)
+            .map(|&n| {
+                // Earlier epoch first, so positive differences always mean raising ground.
+                let (ia, ib) = (
+                    names.iter().position(|&x| x == reference),
+                    names.iter().position(|&x| x == n),
+                );
+                if ia <= ib {
+                    (reference.to_string(), n.to_string())
+                } else {
+                    (n.to_string(), reference.to_string())
+                }
+            })
+            .collect(),
+    }
+}
+
+/// The project's stable areas: `[inputs] stable`, else `stable.csv` when present.
+pub fn stable_file(project: &Project) -> Option<PathBuf> {
+    project
+        .config
+        .inputs
+        .stable
+        .as_ref()
+        .map(|s| project.dir.join(s))
+        .or_else(|| Some(project.dir.join("stable.csv")).filter(|p| p.is_file()))
+}
+
+/// Compares every pair; returns (pairs computed, pairs up to date).
+fn run_change(project: &Project) -> Result<(usize, usize), ProjectError> {
+    let config = &project.config.change;
+    if project.epochs.len() < 2 {
+        return Err(stage_error(
+            "change",
+            format!(
+                "{}: the change stage needs two epochs; {} given",
+                project.layout().project_toml().display(),
+                project.epochs.len()
+            ),
+        ));
+    }
+    let stable = stable_file(project);
+    let layout = project.layout();
+    let (mut done, mut skipped) = (0, 0);
+    for (a, b) in epoch_pairs(project) {
+        let out = layout.change_dir(&a, &b);
+        let (dem_a, dem_b) = (layout.dem(&a), layout.dem(&b));
+        let (laz_a, laz_b) = (layout.dense_cloud(&a), layout.dense_cloud(&b));
+        let have_clouds = laz_a.is_file() && laz_b.is_file();
+        let settings = serde_json::json!({
+            "change": format!("{config:?}"),
+            "stable": stable.as_ref().map(|p| (p.display().to_string(), file_stamp(p))),
+            "checkpoints": format!("{:?}", project.checkpoints),
+            "dems": [file_stamp(&dem_a), file_stamp(&dem_b)],
+            "clouds": [file_stamp(&laz_a), file_stamp(&laz_b)],
+        });
+        let record = layout.change_settings(&a, &b);
+        let mut expected = vec![layout.change_stats(&a, &b)];
+        if have_clouds {
+            expected.push(layout.m3c2_stats(&a, &b));
+        }
+        if read_json::<serde_json::Value>(&record).ok().as_ref() == Some(&settings)
+            && expected.iter().all(|p| p.is_file())
+        {
+            tracing::info!(pair = %format!("{a}__{b}"), "change up to date");
+            skipped += 1;
+            continue;
+        }
+        let options = DemCompareOptions {
+            stable: stable.clone(),
+            coregistration: config.coregistration,
+            checkpoints: named_positions(&project.checkpoints),
+            ..Default::default()
+        };
+        compare_dems(&dem_a, &dem_b, &out, &options)?;
+        if have_clouds {
+            let options = CloudCompareOptions {
+                stable: stable.clone(),
+                icp: None,
+                m3c2: M3c2Params {
+                    normal_radii: vec![config.normal_radius],
+                    cylinder_radius: config.cylinder_radius,
+                    max_depth: config.max_depth,
+                    ..M3c2Params::default()
+                },
+                registration_error: Some(config.registration_error),
+                core_spacing: config.core_spacing,
+            };
+            compare_clouds(&laz_a, &laz_b, &out, &options)?;
+        }
+        write_json(&record, &settings)?;
+        done += 1;
+    }
+    Ok((done, skipped))
 }

@@ -18,6 +18,7 @@ use timesift_io::geotiff::{GeoRaster, GeoReference, GeoTransform, write_f32, wri
 use timesift_io::pointcloud::read_las;
 use timesift_raster::{Bounds, EpochFootprint, Lattice, ProjectGrid, grid_cloud, plan_grid};
 
+use super::cache::file_stamp;
 use super::cache::stage_error;
 use super::dense_inputs;
 use super::{PipelineStage, Stage};
@@ -194,17 +195,6 @@ pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
 /// `out/raster.json` as it stands (empty when missing or unreadable).
 pub(super) fn read_report(project: &Project) -> RasterReport {
     read_json::<RasterReport>(&project.layout().raster_report()).unwrap_or_default()
-}
-
-/// Size and modification time of a file: enough to notice that an earlier stage rewrote it.
-pub(super) fn file_stamp(path: &Path) -> serde_json::Value {
-    let meta = std::fs::metadata(path).ok();
-    let modified = meta
-        .as_ref()
-        .and_then(|m| m.modified().ok())
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map(|d| d.as_nanos().to_string());
-    serde_json::json!([meta.map(|m| m.len()), modified])
 }
 
 /// Writes the DEM, its count, spread and filled-cell rasters, and the hillshade preview.

@@ -13,20 +13,26 @@ mod dense;
 mod features;
 mod matching;
 mod ortho;
+mod report;
 
 use std::fmt;
 use std::io::IsTerminal;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
 pub use align::align_stage;
+pub use change::{epoch_pairs, stable_file};
 pub use dem::{dem_stage, epoch_ground_sample_distance, georeference, write_dem_files};
 pub use dense::{dense_input, dense_inputs, dense_stage};
 pub use features::features_stage;
 pub use matching::match_stage;
 pub use ortho::ortho_stage;
+pub use report::report_stage;
 
+use crate::report::{RunLog, StageRun, read_json, write_json};
 use crate::{Project, ProjectError};
 
 /// A stage of the pipeline, in execution order.
@@ -77,17 +83,17 @@ impl Stage {
         }
     }
 
-    /// The implementation of the stage; `None` for stages not built yet.
-    pub fn implementation(self) -> Option<&'static dyn PipelineStage> {
+    /// The implementation of the stage.
+    pub fn implementation(self) -> &'static dyn PipelineStage {
         match self {
-            Stage::Features => Some(&features::FeaturesStage),
-            Stage::Match => Some(&matching::MatchStage),
-            Stage::Align => Some(&align::AlignStage),
-            Stage::Dense => Some(&dense::DenseStage),
-            Stage::Dem => Some(&dem::DemStage),
-            Stage::Ortho => Some(&ortho::OrthoStage),
-            Stage::Change => Some(&change::ChangeStage),
-            Stage::Report => None,
+            Stage::Features => &features::FeaturesStage,
+            Stage::Match => &matching::MatchStage,
+            Stage::Align => &align::AlignStage,
+            Stage::Dense => &dense::DenseStage,
+            Stage::Dem => &dem::DemStage,
+            Stage::Ortho => &ortho::OrthoStage,
+            Stage::Change => &change::ChangeStage,
+            Stage::Report => &report::ReportStage,
         }
     }
 }
@@ -127,10 +133,18 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
         .collect())
 }
 
-/// A progress bar for one epoch of a stage on a terminal (hidden otherwise): `what` names the
-/// unit counted.
+/// Set by `--quiet`: no progress bars.
+static QUIET: AtomicBool = AtomicBool::new(false);
+
+/// Hides every progress bar (`timesift run --quiet`); bars are otherwise shown on a terminal.
+pub fn set_quiet(quiet: bool) {
+    QUIET.store(quiet, Ordering::Relaxed);
+}
+
+/// A progress bar for one epoch of a stage on a terminal (hidden otherwise, and with
+/// `--quiet`): `what` names the unit counted.
 pub(crate) fn progress_bar(stage: &str, epoch: &str, total: u64, what: &str) -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
+    if QUIET.load(Ordering::Relaxed) || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(total);
@@ -143,12 +157,21 @@ pub(crate) fn progress_bar(stage: &str, epoch: &str, total: u64, what: &str) -> 
     bar
 }
 
-/// Runs one stage on a validated project. Stages not built yet fail with
-/// [`ProjectError::StageNotAvailable`], leaving earlier outputs untouched.
-pub fn run_stage(project: &Project, stage: Stage) -> Result<(), ProjectError> {
-    let imp = stage
-        .implementation()
-        .ok_or(ProjectError::StageNotAvailable(stage.name()))?;
+/// What one stage of a run did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageOutcome {
+    /// The stage.
+    pub stage: Stage,
+    /// Its wall time, seconds.
+    pub seconds: f64,
+    /// Its one-line summary.
+    pub summary: String,
+}
+
+/// Runs one stage on a validated project: checks its inputs, runs it and records its time and
+/// summary in `work/run.json`. A failed stage leaves earlier outputs untouched.
+pub fn run_stage(project: &Project, stage: Stage) -> Result<StageOutcome, ProjectError> {
+    let imp = stage.implementation();
     if let Some((path, maker)) = imp.inputs(project).into_iter().find(|(p, _)| !p.exists()) {
         return Err(ProjectError::Path {
             path,
@@ -159,16 +182,95 @@ pub fn run_stage(project: &Project, stage: Stage) -> Result<(), ProjectError> {
             ),
         });
     }
+    let start = Instant::now();
     let summary = imp.run(project)?;
-    tracing::info!(stage = stage.name(), "{summary}");
-    Ok(())
+    let outcome = StageOutcome {
+        stage,
+        seconds: start.elapsed().as_secs_f64(),
+        summary,
+    };
+    tracing::info!(stage = stage.name(), "{}", outcome.summary);
+    record_run(project, &outcome)?;
+    Ok(outcome)
 }
 
-/// Runs the stages from `from` to `to` in order, stopping at the first failure.
-pub fn run(project: &Project, from: Option<Stage>, to: Option<Stage>) -> Result<(), ProjectError> {
-    for stage in stage_range(from, to)? {
+/// Adds a stage's outcome to `work/run.json`.
+fn record_run(project: &Project, outcome: &StageOutcome) -> Result<(), ProjectError> {
+    let path = project.layout().run_log();
+    let mut log: RunLog = read_json(&path).unwrap_or_default();
+    log.version = env!("CARGO_PKG_VERSION").to_string();
+    log.stages.insert(
+        outcome.stage.name().to_string(),
+        StageRun {
+            seconds: outcome.seconds,
+            summary: outcome.summary.clone(),
+        },
+    );
+    write_json(&path, &log)
+}
+
+/// Runs the stages from `from` to `to` in order, stopping at the first failure; `on_stage` sees
+/// each stage as it finishes (the CLI prints a line).
+pub fn run_with(
+    project: &Project,
+    from: Option<Stage>,
+    to: Option<Stage>,
+    on_stage: &mut dyn FnMut(&StageOutcome),
+) -> Result<Vec<StageOutcome>, ProjectError> {
+    let stages = stage_range(from, to)?;
+    remove_stale_temporaries(&project.layout().out_dir());
+    remove_stale_temporaries(&project.layout().work_dir());
+    let mut outcomes = Vec::new();
+    for stage in stages {
         tracing::info!(stage = stage.name(), "running stage");
-        run_stage(project, stage)?;
+        let outcome = run_stage(project, stage)?;
+        on_stage(&outcome);
+        outcomes.push(outcome);
     }
-    Ok(())
+    Ok(outcomes)
+}
+
+/// Removes the temporary files (`.<name>.tmp-<pid>…`) that a run killed while writing left
+/// behind, where the process that wrote them is gone. Where processes cannot be checked (no
+/// `/proc`), nothing is removed.
+fn remove_stale_temporaries(dir: &std::path::Path) {
+    let proc = std::path::Path::new("/proc");
+    if !proc.is_dir() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            remove_stale_temporaries(&path);
+            continue;
+        }
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name
+            .strip_prefix('.')
+            .and_then(|n| n.split_once(".tmp-"))
+            .map(|(_, rest)| {
+                rest.chars()
+                    .take_while(char::is_ascii_digit)
+                    .collect::<String>()
+            })
+            .filter(|pid| !pid.is_empty())
+        else {
+            continue;
+        };
+        if pid != std::process::id().to_string() && !proc.join(&pid).exists() {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
+}
+
+/// [`run_with`] without a per-stage callback.
+pub fn run(
+    project: &Project,
+    from: Option<Stage>,
+    to: Option<Stage>,
+) -> Result<Vec<StageOutcome>, ProjectError> {
+    run_with(project, from, to, &mut |_| {})
 }

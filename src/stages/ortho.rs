@@ -16,8 +16,9 @@ use timesift_core::CameraModel;
 use timesift_io::geotiff::{GeoRaster, read_f32, write_rgb8};
 use timesift_raster::{OrthoView, RgbImage, ViewImages, orthomosaic};
 
+use super::cache::file_stamp;
 use super::cache::stage_error;
-use super::dem::{file_stamp, georeference, on_lattice, project_grid_of, read_report};
+use super::dem::{georeference, on_lattice, project_grid_of, read_report};
 use super::{PipelineStage, Stage, dense_inputs};
 use crate::report::{GridFile, RasterReport, read_json, write_json};
 use crate::{Project, ProjectError};

@@ -81,7 +81,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             let result = run_stage(&project, Stage::Align);
             let seconds = start.elapsed().as_secs_f64();
             match result {
-                Ok(()) => {
+                Ok(_) => {
                     let kept = dir.join(format!("out-{name}"));
                     let _ = std::fs::remove_dir_all(&kept);
                     std::fs::rename(dir.join("out"), &kept)?;

@@ -29,6 +29,7 @@ use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
 use timesift::truth::{dem_height_errors, ortho_target_errors};
 use timesift_change::grid::Dem;
 use timesift_change::stats::{median, nmad};
+use timesift_change::trend::plane_trend;
 use timesift_io::cameras_json::read_cameras_json;
 use timesift_io::geotiff::{GeoRaster, read_f32, read_rgb8};
 use timesift_synth::scene::{Frame, SceneSpec};
@@ -294,32 +295,17 @@ fn stable_dod(
     let mut dz: Vec<f64> = samples.iter().map(|s| s.2).collect();
     score.dod_mean_gsd = Some(dz.iter().sum::<f64>() / dz.len() as f64 / gsd);
     score.dod_median_gsd = Some(median(&mut dz) / gsd);
-    // Plane dz = a + b (x − x̄) + c (y − ȳ).
-    let n = samples.len() as f64;
-    let (mx, my) = (
-        samples.iter().map(|s| s.0).sum::<f64>() / n,
-        samples.iter().map(|s| s.1).sum::<f64>() / n,
-    );
-    let (mut sxx, mut sxy, mut syy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    // The stable cells' differences as a grid (NaN elsewhere), for the change crate's plane.
+    let Ok(mut diff) = Dem::from_raster(base.clone(), Some(-32767.0)) else {
+        return;
+    };
+    diff.values.fill(f32::NAN);
     for &(x, y, z) in &samples {
-        let (dx, dy) = (x - mx, y - my);
-        sxx += dx * dx;
-        sxy += dx * dy;
-        syy += dy * dy;
-        sxz += dx * z;
-        syz += dy * z;
-        x0 = x0.min(x);
-        x1 = x1.max(x);
-        y0 = y0.min(y);
-        y1 = y1.max(y);
+        let (c, r) = t.world_to_pixel(x, y);
+        diff.values[r as usize * dem.width + c as usize] = z as f32;
     }
-    let det = sxx * syy - sxy * sxy;
-    if det.abs() > 1e-12 {
-        let b = (syy * sxz - sxy * syz) / det;
-        let c = (sxx * syz - sxy * sxz) / det;
-        let across = (x1 - x0).hypot(y1 - y0);
-        score.dod_tilt_gsd = Some(b.hypot(c) * across / gsd);
+    if let Ok(trend) = plane_trend(&diff, None) {
+        score.dod_tilt_gsd = Some(trend.gain_m / gsd);
     }
 }
 

@@ -1,27 +1,35 @@
 //! Check-point residuals: measured minus reference coordinates per named point (dE, dN, dH), and
 //! DEM heights at check points (dH only), with the summary statistics users publish.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::grid::Dem;
 use crate::stats::{Statistics, statistics};
 
 /// Residual of one check point (measured − reference), m. `d_east`/`d_north` are NaN when only a
 /// height was measured (a DEM).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CheckPointResidual {
     /// Point name.
     pub name: String,
-    /// East residual.
+    /// East residual (NaN, written `null`, for DEM heights).
+    #[serde(deserialize_with = "nan_if_null")]
     pub d_east: f64,
     /// North residual.
+    #[serde(deserialize_with = "nan_if_null")]
     pub d_north: f64,
     /// Height residual.
+    #[serde(deserialize_with = "nan_if_null")]
     pub d_height: f64,
 }
 
+/// JSON has no NaN: serde_json writes it as `null`, read back here as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// Residuals and their statistics per component.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CheckPointReport {
     /// One entry per point that could be evaluated.
     pub points: Vec<CheckPointResidual>,
@@ -102,6 +110,20 @@ mod tests {
     use crate::grid::Grid;
     use timesift_io::coords::Crs;
     use timesift_io::geotiff::GeoTransform;
+
+    #[test]
+    fn dem_height_residuals_survive_json() {
+        let r = CheckPointResidual {
+            name: "CHK1".into(),
+            d_east: f64::NAN,
+            d_north: f64::NAN,
+            d_height: -0.25,
+        };
+        let text = serde_json::to_string(&r).expect("json");
+        assert!(text.contains("\"d_east\":null"), "{text}");
+        let back: CheckPointResidual = serde_json::from_str(&text).expect("read back");
+        assert!(back.d_east.is_nan() && back.d_north.is_nan() && back.d_height == -0.25);
+    }
 
     #[test]
     fn residuals_by_name_and_on_a_dem() {

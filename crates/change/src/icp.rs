@@ -10,14 +10,14 @@
 
 use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, Vector3};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::ChangeError;
 use crate::cloud::{PointIndex, fit_plane};
 use crate::error::positive;
 
 /// What the transform may do.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum IcpModel {
     /// Rotation and translation.
@@ -60,7 +60,7 @@ impl Default for IcpOptions {
 }
 
 /// The estimated transform `target = scale · R · source + translation` and its fit.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IcpResult {
     /// Rotation, row-major.
     pub rotation: [[f64; 3]; 3],

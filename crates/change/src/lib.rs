@@ -18,6 +18,7 @@ pub mod mask;
 pub mod nuth_kaab;
 pub mod stats;
 pub mod terrain;
+pub mod trend;
 pub mod volume;
 
 pub use error::ChangeError;

@@ -10,7 +10,7 @@
 //! reference-grid pixels (columns right, rows down). Slope and aspect come from the reference DEM.
 
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::grid::{Dem, check_same_crs};
 use crate::mask::Mask;
@@ -19,7 +19,7 @@ use crate::terrain::{GradientMethod, gradients};
 use crate::{ChangeError, error::positive};
 
 /// Estimator of the vertical shift.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum VerticalEstimator {
     /// Median of dh (robust; the default).
@@ -55,7 +55,7 @@ pub struct NuthKaabOptions {
 }
 
 /// How the cosine model is fitted to (dh − median) / tan α against aspect.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum NuthKaabFit {
     /// Every cell, Tukey-weighted on dh (the default).
@@ -103,7 +103,7 @@ impl Default for NuthKaabOptions {
 }
 
 /// One iteration of the fit.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct NuthKaabIteration {
     /// Shift after this iteration, east and north, metres.
     pub shift_m: [f64; 2],
@@ -116,7 +116,7 @@ pub struct NuthKaabIteration {
 }
 
 /// The estimated translation and how it was found.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NuthKaabResult {
     /// Translation east, north, metres.
     pub shift_east_m: f64,

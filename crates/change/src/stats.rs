@@ -1,13 +1,13 @@
 //! Summary statistics of height differences, the figures users publish for stable areas: count,
 //! mean, median, standard deviation, RMSE, NMAD, extremes and the 2.5/97.5 % quantiles.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Scale that makes the median absolute deviation a consistent estimator of a normal σ.
 pub const NMAD_SCALE: f64 = 1.4826;
 
 /// Statistics of a set of values (NaN values ignored).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Statistics {
     /// Number of finite values.
     pub count: usize,

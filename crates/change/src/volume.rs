@@ -8,7 +8,7 @@
 //! σ_s common to all cells, giving A·n·σ_s. They add in quadrature. Spatially correlated errors lie
 //! between the two; callers who know the correlation range can pass a larger σ_r.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::ChangeError;
 use crate::grid::Dem;
@@ -56,7 +56,7 @@ impl Default for VolumeOptions {
 }
 
 /// Volumes over a region, in cubic metres (cells in m² even on geographic grids).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Volumes {
     /// Material removed (positive number): Σ |dz|·A over cells with dz < −threshold.
     pub cut: f64,

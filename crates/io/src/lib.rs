@@ -22,9 +22,12 @@ pub mod fsutil;
 pub mod geotiff;
 pub mod image;
 pub mod libmv;
+pub mod metashape;
+pub mod opensfm;
 pub mod ply;
 pub mod pointcloud;
 pub mod tiled_tiff;
+pub mod topocentric;
 pub mod wkt;
 
 pub use error::IoError;

@@ -150,7 +150,7 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
     };
     let camera_seed = rng.next_u64();
     let flight = match scale {
-        Scale::Small => nadir((60.0, 40.0), (240.0, 200.0), 150.0, 45.0, (0.55, 0.45), 1.0),
+        Scale::Small => nadir((60.0, 40.0), (240.0, 200.0), 150.0, 45.0, (0.6, 0.55), 1.0),
         Scale::Full => nadir((20.0, 20.0), (280.0, 220.0), 150.0, 45.0, (0.8, 0.7), 1.0),
     };
     let names = ["2023-06-15", "2023-08-16", "2023-10-17"];
