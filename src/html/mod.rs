@@ -114,7 +114,7 @@ pub fn build_report(project: &Project) -> Result<ReportPage, ProjectError> {
             settings_section(project, &inputs),
         ),
     ];
-    let summary = summary_section(project, &inputs, &warnings);
+    let summary = summary_section(&inputs, &warnings);
     let mut ids = vec!["summary"];
     let _ = write!(
         body,
@@ -192,7 +192,7 @@ fn map_frame(inputs: &Inputs) -> Option<MapFrame> {
     ))
 }
 
-fn summary_section(project: &Project, inputs: &Inputs, warnings: &[String]) -> String {
+fn summary_section(inputs: &Inputs, warnings: &[String]) -> String {
     let a = &inputs.align;
     let mut s = format!(
         "<p>{} of {} images oriented in one run of the <b>{}</b> strategy; datum: {}; RMS \
@@ -225,7 +225,6 @@ fn summary_section(project: &Project, inputs: &Inputs, warnings: &[String]) -> S
             let _ = write!(s, "<div class=\"warn\">{}</div>", esc(w));
         }
     }
-    let _ = project;
     s
 }
 

@@ -4,6 +4,10 @@
 //! strategy and epoch, images oriented, check-point RMSE (dE, dN, dH) in metres and in ground
 //! sampling distances, camera-centre RMSE, reprojection RMS, inter-epoch tie points, the
 //! disagreement of check points between each epoch and the reference epoch, and wall time.
+//! Then, per strategy, the products users look at: the dense, dem and change stages on that
+//! orientation, and between consecutive epochs the stable-area DoD (mean, median, and the gain of
+//! its plane across the stable area — a tilt check points along a corridor cannot see) and the
+//! volume change of every region of `truth/change.json` against the true volume.
 //! Written as `methods.md` and `methods.json` in the output folder and printed.
 
 use std::path::{Path, PathBuf};
@@ -11,9 +15,13 @@ use std::time::Instant;
 
 use anyhow::Context;
 use timesift::Project;
+use timesift::commands::compare::DemReport;
 use timesift::config::AlignMethod;
+use timesift::report::read_json;
 use timesift::stages::{Stage, run, run_stage};
-use timesift::truth::{EpochAccuracy, epoch_accuracy, ground_sampling_distance, triple};
+use timesift::truth::{
+    EpochAccuracy, epoch_accuracy, ground_sampling_distance, region_volumes, triple,
+};
 
 /// The strategies, in the papers' order.
 const METHODS: [(&str, AlignMethod); 5] = [
@@ -31,6 +39,33 @@ pub struct MethodsBench {
     pub scale: String,
     pub seed: u64,
     pub out: PathBuf,
+    /// Run dense, dem and change per strategy and score the products.
+    pub products: bool,
+}
+
+/// The stable-area DoD of one pair of consecutive epochs, metres.
+#[derive(Debug, Clone, serde::Serialize)]
+struct PairProduct {
+    pair: String,
+    stable_mean: f64,
+    stable_median: f64,
+    plane_gain: Option<f64>,
+    lod95: Option<f64>,
+}
+
+/// The products of one strategy on one scene.
+#[derive(Debug, Clone, serde::Serialize)]
+struct ProductRow {
+    scene: String,
+    method: String,
+    /// Per consecutive epoch pair.
+    pairs: Vec<PairProduct>,
+    /// Σ |measured − true| / Σ |true| over every region and pair of `truth/change.json`.
+    volume_relative_error: Option<f64>,
+    /// Σ |measured − true| over them, m³.
+    volume_abs_error_m3: Option<f64>,
+    seconds: f64,
+    error: Option<String>,
 }
 
 /// One strategy on one epoch of one scene (or its failure).
@@ -51,6 +86,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
         .map_err(|e: String| anyhow::anyhow!("--scale: {e}"))?;
     std::fs::create_dir_all(&bench.out).with_context(|| bench.out.display().to_string())?;
     let mut rows = Vec::new();
+    let mut product_rows = Vec::new();
     for scene in &bench.scenes {
         let dir = bench.out.join(scene);
         let _ = std::fs::remove_dir_all(&dir);
@@ -82,6 +118,9 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             let seconds = start.elapsed().as_secs_f64();
             match result {
                 Ok(_) => {
+                    if bench.products {
+                        product_rows.push(products(scene, name, &project));
+                    }
                     let kept = dir.join(format!("out-{name}"));
                     let _ = std::fs::remove_dir_all(&kept);
                     std::fs::rename(dir.join("out"), &kept)?;
@@ -97,12 +136,18 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             }
         }
     }
-    let markdown = table(&rows) + &findings(&rows);
+    let mut markdown = table(&rows) + &findings(&rows);
+    if bench.products {
+        markdown.push_str(&product_table(&product_rows));
+    }
     println!("{markdown}");
     std::fs::write(bench.out.join("methods.md"), &markdown)?;
     std::fs::write(
         bench.out.join("methods.json"),
-        serde_json::to_string_pretty(&rows)?,
+        serde_json::to_string_pretty(&serde_json::json!({
+            "orientation": rows,
+            "products": product_rows,
+        }))?,
     )?;
     println!("written: {}", bench.out.join("methods.{md,json}").display());
     Ok(())
@@ -274,5 +319,142 @@ fn findings(rows: &[Row]) -> String {
         "timesift",
         |(_, apart)| apart,
     );
+    s
+}
+
+/// The dense, dem and change stages on the current orientation, scored against the truth.
+fn products(scene: &str, method: &str, project: &Project) -> ProductRow {
+    let start = Instant::now();
+    let mut row = ProductRow {
+        scene: scene.to_string(),
+        method: method.to_string(),
+        pairs: Vec::new(),
+        volume_relative_error: None,
+        volume_abs_error_m3: None,
+        seconds: 0.0,
+        error: None,
+    };
+    let result = (|| -> anyhow::Result<()> {
+        for stage in [Stage::Dense, Stage::Dem, Stage::Change] {
+            run_stage(project, stage)?;
+        }
+        let layout = project.layout();
+        for (a, b) in timesift::stages::epoch_pairs(project) {
+            let stats: DemReport = read_json(&layout.change_stats(&a, &b))?;
+            if let Some(s) = &stats.stable {
+                row.pairs.push(PairProduct {
+                    pair: format!("{a}__{b}"),
+                    stable_mean: s.mean,
+                    stable_median: s.median,
+                    plane_gain: stats.stable_trend.map(|t| t.gain_m),
+                    lod95: stats.lod95,
+                });
+            }
+        }
+        if layout.truth_dir().join("change.json").is_file() {
+            let volumes = region_volumes(project)?;
+            let wrong: f64 = volumes
+                .iter()
+                .map(|v| (v.measured_m3 - v.true_m3).abs())
+                .sum();
+            let truth: f64 = volumes.iter().map(|v| v.true_m3.abs()).sum();
+            if truth > 0.0 {
+                row.volume_abs_error_m3 = Some(wrong);
+                row.volume_relative_error = Some(wrong / truth);
+            }
+        }
+        Ok(())
+    })();
+    row.error = result.err().map(|e| e.to_string());
+    row.seconds = start.elapsed().as_secs_f64();
+    println!(
+        "{scene} {method}: products in {:.0} s{}",
+        row.seconds,
+        row.error
+            .as_ref()
+            .map_or(String::new(), |e| format!(" (failed: {e})"))
+    );
+    row
+}
+
+/// Mean over the pairs of |stable-area DoD mean| and of the plane's gain, m.
+fn pair_means(r: &ProductRow) -> (Option<f64>, Option<f64>) {
+    let n = r.pairs.len() as f64;
+    let gains: Vec<f64> = r.pairs.iter().filter_map(|p| p.plane_gain).collect();
+    (
+        (n > 0.0).then(|| r.pairs.iter().map(|p| p.stable_mean.abs()).sum::<f64>() / n),
+        (!gains.is_empty()).then(|| gains.iter().sum::<f64>() / gains.len() as f64),
+    )
+}
+
+fn product_table(rows: &[ProductRow]) -> String {
+    let cell =
+        |v: Option<f64>, digits: usize| v.map_or("–".to_string(), |v| format!("{v:.digits$}"));
+    let mut s = String::from(
+        "\n## Products: stable-area DoD between consecutive epochs and volumes against the truth\n\n\
+         | scene | method | mean \\|stable DoD mean\\| m | mean plane gain m | pairs (mean / median / gain / LoD95, m) | volume error | Σ\\|error\\| m³ | s |\n\
+         |---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let (mean, gain) = pair_means(r);
+        let pairs: Vec<String> = r
+            .pairs
+            .iter()
+            .map(|p| {
+                format!(
+                    "{}: {:.3} / {:.3} / {} / {}",
+                    p.pair,
+                    p.stable_mean,
+                    p.stable_median,
+                    cell(p.plane_gain, 3),
+                    cell(p.lod95, 3)
+                )
+            })
+            .collect();
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {:.0} |\n",
+            r.scene,
+            r.method,
+            cell(mean, 4),
+            cell(gain, 3),
+            r.error.clone().unwrap_or_else(|| pairs.join("<br>")),
+            r.volume_relative_error
+                .map_or("–".into(), |v| format!("{:.0} %", 100.0 * v)),
+            cell(r.volume_abs_error_m3, 0),
+            r.seconds
+        ));
+    }
+    // The papers' ordering on the products: the single block and msfm co-register the epochs
+    // better than independent blocks on biased GNSS.
+    for (better, worse) in [("timesift", "independent"), ("msfm", "independent")] {
+        let mut verdicts = Vec::new();
+        for scene in rows
+            .iter()
+            .map(|r| r.scene.as_str())
+            .collect::<std::collections::BTreeSet<_>>()
+        {
+            let find = |m: &str| rows.iter().find(|r| r.scene == scene && r.method == m);
+            if let (Some(a), Some(b)) = (find(better), find(worse)) {
+                let ((ma, ga), (mb, gb)) = (pair_means(a), pair_means(b));
+                verdicts.push(format!(
+                    "{scene}: |mean| {} vs {} m, gain {} vs {} m, volume error {} vs {}",
+                    cell(ma, 4),
+                    cell(mb, 4),
+                    cell(ga, 3),
+                    cell(gb, 3),
+                    a.volume_relative_error
+                        .map_or("–".into(), |v| format!("{:.0} %", 100.0 * v)),
+                    b.volume_relative_error
+                        .map_or("–".into(), |v| format!("{:.0} %", 100.0 * v)),
+                ));
+            }
+        }
+        if !verdicts.is_empty() {
+            s.push_str(&format!(
+                "\n- `{better}` against `{worse}` on the products: {}\n",
+                verdicts.join("; ")
+            ));
+        }
+    }
     s
 }

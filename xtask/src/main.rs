@@ -14,9 +14,10 @@
 //! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
 //!   with its ground truth (`timesift-synth`).
 //!
-//! - `bench-methods [--scenes a,b] [--methods m,n] [--scale small|full] [--out DIR]`: every
-//!   synthetic scene × every co-registration strategy, compared with the truth (tables as
-//!   markdown and JSON).
+//! - `bench-methods [--scenes a,b] [--methods m,n] [--scale small|full] [--out DIR]
+//!   [--no-products]`: every synthetic scene × every co-registration strategy, compared with the
+//!   truth: orientation, and (unless `--no-products`) the stable-area DoDs between epochs and
+//!   the volume change of the true regions (tables as markdown and JSON).
 
 mod bench_align;
 mod bench_bundle;
@@ -80,6 +81,10 @@ enum Task {
         /// Output folder (scenes, outputs per strategy, methods.md, methods.json).
         #[arg(long, default_value = "target/bench-methods")]
         out: PathBuf,
+        /// Orientation only: skip the dense, dem and change stages per strategy (and so the
+        /// stable-area DoDs and volumes).
+        #[arg(long)]
+        no_products: bool,
     },
     /// Stage benchmarks against peers, printing time ratios.
     Bench {
@@ -381,7 +386,9 @@ fn main() -> anyhow::Result<()> {
             scale,
             seed,
             out,
+            no_products,
         } => bench_methods::run_bench(&bench_methods::MethodsBench {
+            products: !no_products,
             scenes: scenes.unwrap_or_else(|| {
                 timesift_synth::scenes::SCENES
                     .iter()

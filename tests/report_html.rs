@@ -1,0 +1,94 @@
+//! The report stage on a project where only the orientation report exists: every section is on
+//! the page, the missing products say what is missing instead of failing the stage, and the
+//! warnings about the orientation reach the summary. A stats.json that cannot be read is a
+//! warning naming the file, not a silent gap.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use common::timesift;
+use timesift::report::{AlignReport, EpochOrientation, PointResiduals, write_json};
+
+fn project(dir: &Path) {
+    for epoch in ["2018", "2019"] {
+        let folder = dir.join("images").join(epoch);
+        std::fs::create_dir_all(&folder).expect("dir");
+        for i in 0..2 {
+            image::GrayImage::from_fn(16, 12, |x, y| image::Luma([(x * 10 + y + i) as u8]))
+                .save(folder.join(format!("img{i}.png")))
+                .expect("png");
+        }
+    }
+    std::fs::write(
+        dir.join("project.toml"),
+        "crs = \"local\"\n[[epoch]]\nname = \"2018\"\n[[epoch]]\nname = \"2019\"\n",
+    )
+    .expect("toml");
+    let epoch = |oriented| EpochOrientation {
+        images_given: 2,
+        images_oriented: oriented,
+        rms_reprojection_px: Some(0.4),
+        observations: 100,
+        tie_points: 50,
+        inter_epoch_tie_points: 10,
+        control_points: PointResiduals::default(),
+        check_points: PointResiduals::default(),
+    };
+    let report = AlignReport {
+        method: "timesift".into(),
+        datum: "Local".into(),
+        images_given: 4,
+        images_oriented: 3,
+        rms_reprojection_px: Some(0.4),
+        tie_points: 90,
+        inter_epoch_ties_split_as_moved: 0,
+        observation_bound_px: Some(2.0),
+        components_dropped: 0,
+        gnss_priors_rejected: 0,
+        focal_length_held: vec![false],
+        cameras: Vec::new(),
+        seconds: 1.0,
+        epochs: BTreeMap::from([("2018".into(), epoch(2)), ("2019".into(), epoch(1))]),
+    };
+    write_json(&dir.join("out/report.json"), &report).expect("report.json");
+}
+
+#[test]
+fn a_report_of_the_orientation_alone_has_every_section_and_says_what_is_missing() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    project(dir);
+    let d = dir.to_str().expect("utf-8");
+    let (ok, _, err) = timesift(&["run", d, "--from", "report", "--to", "report"]);
+    assert!(ok, "{err}");
+    assert!(err.contains("1 warnings"), "{err}");
+    let html = std::fs::read_to_string(dir.join("out/report.html")).expect("html");
+    for id in [
+        "summary",
+        "orientation",
+        "connectivity",
+        "products",
+        "change",
+        "settings",
+    ] {
+        assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
+    }
+    assert!(html.contains("epoch 2019: 1 of 2 images could not be oriented"));
+    assert!(html.contains("out/tiepoints.ply is missing"));
+    assert!(html.contains("Not computed (change stage)"));
+    assert!(!html.contains("src=\"http"), "no network resource");
+
+    // A stats.json that is not a DEM comparison: named in a warning.
+    let stats = dir.join("out/change/2018__2019/stats.json");
+    std::fs::create_dir_all(stats.parent().expect("parent")).expect("dir");
+    std::fs::write(&stats, "{\"a\": 1}").expect("stats");
+    let (ok, _, err) = timesift(&["run", d, "--from", "report", "--to", "report"]);
+    assert!(ok, "{err}");
+    let html = std::fs::read_to_string(dir.join("out/report.html")).expect("html");
+    assert!(
+        html.contains("stats.json") && html.contains("not the expected report"),
+        "{html}"
+    );
+}
