@@ -65,14 +65,7 @@ fn a_report_of_the_orientation_alone_has_every_section_and_says_what_is_missing(
     assert!(ok, "{err}");
     assert!(err.contains("1 warnings"), "{err}");
     let html = std::fs::read_to_string(dir.join("out/report.html")).expect("html");
-    for id in [
-        "summary",
-        "orientation",
-        "connectivity",
-        "products",
-        "change",
-        "settings",
-    ] {
+    for id in timesift::html::SECTIONS {
         assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
     }
     assert!(html.contains("epoch 2019: 1 of 2 images could not be oriented"));

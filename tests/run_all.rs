@@ -399,14 +399,7 @@ fn check_in_browser(report: &Path, tmp: &Path) {
         return;
     };
     let html = std::fs::read_to_string(report).expect("report");
-    for id in [
-        "summary",
-        "orientation",
-        "connectivity",
-        "products",
-        "change",
-        "settings",
-    ] {
+    for id in timesift::html::SECTIONS {
         assert!(
             html.contains(&format!("<section id=\"{id}\">")),
             "section {id}"

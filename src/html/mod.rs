@@ -35,6 +35,16 @@ use figures::{Footprint, OVERLAP_LEGEND, overlap_colour};
 use page::{esc, img, mm, num, table};
 use svg::MapFrame;
 
+/// The page's sections (HTML ids), in order.
+pub const SECTIONS: [&str; 6] = [
+    "summary",
+    "orientation",
+    "connectivity",
+    "products",
+    "change",
+    "settings",
+];
+
 /// An epoch tied to the others by fewer inter-epoch tie points than this is flagged.
 pub const FEW_INTER_EPOCH_TIES: usize = 100;
 
@@ -150,6 +160,7 @@ pub fn build_report(project: &Project) -> Result<ReportPage, ProjectError> {
         m = esc(&inputs.align.method),
         n = project.epochs.len(),
     );
+    debug_assert_eq!(ids, SECTIONS);
     Ok(ReportPage {
         html,
         warnings,
