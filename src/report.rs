@@ -178,11 +178,7 @@ pub fn write_json<T: Serialize>(path: &Path, report: &T) -> Result<(), ProjectEr
         path: path.to_path_buf(),
         message: format!("cannot serialise: {e}"),
     })?;
-    timesift_io::fsutil::write_atomically(path, |w| {
-        use std::io::Write;
-        w.write_all(text.as_bytes())
-            .map_err(|e| timesift_io::IoError::io(path, e))
-    })?;
+    timesift_io::fsutil::write_bytes_atomically(path, text.as_bytes())?;
     Ok(())
 }
 

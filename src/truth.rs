@@ -356,6 +356,7 @@ pub struct RegionVolume {
 /// Every true volume of `truth/change.json` measured on the project's DEMs (the DoD later −
 /// earlier inside the region's polygon, with the uncertainty model of the change stage).
 pub fn region_volumes(project: &Project) -> Result<Vec<RegionVolume>, ProjectError> {
+    use std::collections::BTreeMap;
     use timesift_change::grid::Dem;
     use timesift_change::mask::Mask;
     use timesift_change::volume::{VolumeOptions, volumes};
@@ -366,11 +367,10 @@ pub fn region_volumes(project: &Project) -> Result<Vec<RegionVolume>, ProjectErr
         None => Vec::new(),
     };
     let change_err = |context: String| move |source| ProjectError::Change { context, source };
-    let load = |epoch: &str| -> Result<Dem, ProjectError> {
-        let path = layout.dem(epoch);
-        let raster = timesift_io::geotiff::read_f32(&path)?;
-        Dem::from_raster(raster, None).map_err(change_err(path.display().to_string()))
-    };
+    // Each epoch's DEM read once, each pair's DoD and uncertainty made once: the regions share
+    // them.
+    let mut dems: BTreeMap<String, Dem> = BTreeMap::new();
+    let mut dods: BTreeMap<(String, String), (Dem, VolumeOptions)> = BTreeMap::new();
     let mut rows = Vec::new();
     for region in &truth.regions {
         let polygons = timesift_io::wkt::parse_polygons(&region.polygon_wkt).map_err(|e| {
@@ -381,23 +381,34 @@ pub fn region_volumes(project: &Project) -> Result<Vec<RegionVolume>, ProjectErr
         })?;
         for v in &region.volumes {
             let context = format!("region {} from {} to {}", region.name, v.from, v.to);
-            let dod = timesift_change::dod::dem_of_difference(&load(&v.from)?, &load(&v.to)?)
-                .map_err(change_err(context.clone()))?;
-            let stable = Mask::from_polygons(dod.grid, &stable_polygons);
-            let stable_dz = timesift_change::stats::statistics(
-                dod.values
-                    .iter()
-                    .zip(&stable.cells)
-                    .filter(|(_, s)| **s)
-                    .map(|(v, _)| *v as f64),
-            );
+            let key = (v.from.clone(), v.to.clone());
+            if !dods.contains_key(&key) {
+                for epoch in [&v.from, &v.to] {
+                    if !dems.contains_key(epoch) {
+                        let path = layout.dem(epoch);
+                        let raster = timesift_io::geotiff::read_f32(&path)?;
+                        let dem = Dem::from_raster(raster, None)
+                            .map_err(change_err(path.display().to_string()))?;
+                        dems.insert(epoch.clone(), dem);
+                    }
+                }
+                let dod = timesift_change::dod::dem_of_difference(&dems[&v.from], &dems[&v.to])
+                    .map_err(change_err(context.clone()))?;
+                let stable = Mask::from_polygons(dod.grid, &stable_polygons);
+                let stable_dz = timesift_change::stats::statistics(
+                    dod.values
+                        .iter()
+                        .zip(&stable.cells)
+                        .filter(|(_, s)| **s)
+                        .map(|(v, _)| *v as f64),
+                );
+                let options = stable_dz
+                    .map_or_else(VolumeOptions::default, |s| VolumeOptions::from_stable(&s));
+                dods.insert(key.clone(), (dod, options));
+            }
+            let (dod, options) = &dods[&key];
             let mask = Mask::from_polygons(dod.grid, &polygons);
-            let options = VolumeOptions {
-                threshold: 0.0,
-                sigma_random: stable_dz.map_or(0.0, |s| s.nmad),
-                sigma_systematic: stable_dz.map_or(0.0, |s| s.median.abs()),
-            };
-            let measured = volumes(&dod, Some(&mask), options).map_err(change_err(context))?;
+            let measured = volumes(dod, Some(&mask), *options).map_err(change_err(context))?;
             let inside = mask.count().max(1);
             rows.push(RegionVolume {
                 region: region.name.clone(),

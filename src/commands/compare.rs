@@ -28,6 +28,7 @@ use timesift_io::wkt::Polygon;
 
 use crate::ProjectError;
 use crate::config::Coregistration;
+use crate::report::write_json;
 
 /// Options of a DEM comparison.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -181,13 +182,6 @@ fn write_png(path: &Path, img: &image::RgbImage) -> Result<(), ProjectError> {
     Ok(())
 }
 
-fn write_json(path: &Path, value: &impl Serialize) -> Result<(), ProjectError> {
-    let text = serde_json::to_string_pretty(value)
-        .map_err(|e| IoError::invalid(path, format!("JSON encoding failed: {e}")))?;
-    timesift_io::fsutil::write_bytes_atomically(path, text.as_bytes())?;
-    Ok(())
-}
-
 fn create_dir(out: &Path) -> Result<(), ProjectError> {
     std::fs::create_dir_all(out).map_err(|e| IoError::io(out, e).into())
 }
@@ -316,16 +310,14 @@ pub fn compare_dems(
         Some(path) => Some(load_mask(path, dod.grid)?),
         None => None,
     };
-    let sigma_random = match (options.sigmas, &stable_stats) {
-        (Some((sa, sb)), _) => sa.hypot(sb),
-        (None, Some(s)) => s.nmad,
-        (None, None) => 0.0,
-    };
-    let sigma_systematic = stable_stats.as_ref().map_or(0.0, |s| s.median.abs());
-    let volume_options = VolumeOptions {
-        threshold: 0.0,
-        sigma_random,
-        sigma_systematic,
+    let volume_options = match (options.sigmas, &stable_stats) {
+        (Some((sa, sb)), _) => VolumeOptions {
+            threshold: 0.0,
+            sigma_random: sa.hypot(sb),
+            sigma_systematic: stable_stats.as_ref().map_or(0.0, |s| s.median.abs()),
+        },
+        (None, Some(s)) => VolumeOptions::from_stable(s),
+        (None, None) => VolumeOptions::default(),
     };
     let vol = volumes(&dod, region.as_ref(), volume_options)
         .map_err(change_err(format!("volumes of {pair}")))?;

@@ -55,10 +55,9 @@ pub fn export(
         });
     }
     let recon = read_cameras_json(&cameras)?;
-    let model = read_colmap_text(&layout.colmap_dir())?;
     match format {
         ExportFormat::Colmap => {
-            write_colmap_text(&folder, &model)?;
+            write_colmap_text(&folder, &read_colmap_text(&layout.colmap_dir())?)?;
             Ok(["cameras.txt", "images.txt", "points3D.txt"]
                 .iter()
                 .map(|f| folder.join(f))
@@ -66,6 +65,7 @@ pub fn export(
         }
         ExportFormat::Opensfm => {
             let frame = export_frame(project, &recon)?;
+            let model = read_colmap_text(&layout.colmap_dir())?;
             Ok(timesift_io::opensfm::write_opensfm(
                 &folder,
                 &recon,

@@ -32,7 +32,7 @@ use crate::report::{
 use crate::stages::{Stage, epoch_pairs};
 use crate::{Project, ProjectError};
 use figures::{Footprint, OVERLAP_LEGEND, overlap_colour};
-use page::{esc, img, mm, num, table};
+use page::{esc, figure_row, img, mm, num, table};
 use svg::MapFrame;
 
 /// The page's sections (HTML ids), in order.
@@ -73,11 +73,28 @@ struct Inputs {
     dense: Option<DenseReport>,
     raster: Option<RasterReport>,
     run: RunLog,
+    /// Each epoch's hillshade preview as a data URI, read once: several maps draw over it.
+    hillshades: BTreeMap<String, Option<String>>,
 }
 
 impl Inputs {
-    fn read(layout: &Layout) -> Result<Inputs, ProjectError> {
+    /// The hillshade of an epoch, when its DEM exists.
+    fn hillshade(&self, epoch: &str) -> Option<&str> {
+        self.hillshades.get(epoch).and_then(|u| u.as_deref())
+    }
+
+    fn read(project: &Project, layout: &Layout) -> Result<Inputs, ProjectError> {
         Ok(Inputs {
+            hillshades: project
+                .epochs
+                .iter()
+                .map(|e| {
+                    (
+                        e.name.clone(),
+                        page::png_file_uri(&layout.dem_preview(&e.name)),
+                    )
+                })
+                .collect(),
             align: read_json(&layout.report_json())?,
             recon: read_cameras_json(&layout.cameras_json()).ok(),
             colmap: read_colmap_text(&layout.colmap_dir()).ok(),
@@ -93,7 +110,7 @@ impl Inputs {
 /// Builds the report page of a project whose align stage has run.
 pub fn build_report(project: &Project) -> Result<ReportPage, ProjectError> {
     let layout = project.layout();
-    let inputs = Inputs::read(&layout)?;
+    let inputs = Inputs::read(project, &layout)?;
     let mut warnings = Vec::new();
     let frame = map_frame(&inputs);
     let mut body = String::new();
@@ -427,7 +444,6 @@ fn orientation_section(
     frame: Option<MapFrame>,
     warnings: &mut Vec<String>,
 ) -> String {
-    let layout = project.layout();
     let a = &inputs.align;
     let mut rows = Vec::new();
     for e in &project.epochs {
@@ -482,7 +498,7 @@ fn orientation_section(
     };
     for (k, e) in project.epochs.iter().enumerate() {
         let _ = write!(s, "<h3>Epoch {}</h3><div class=\"row\">", esc(&e.name));
-        let background = page::png_file_uri(&layout.dem_preview(&e.name));
+        let background = inputs.hillshade(&e.name);
         if let (Some(frame), Some(recon)) = (frame, &inputs.recon) {
             let prints = figures::footprints(recon, &e.name, ground_height(inputs, k));
             let _ = write!(
@@ -490,7 +506,7 @@ fn orientation_section(
                 "<figure>{}<figcaption>{} camera positions (orange) and image footprints on the \
                  plane of the median tie-point height, over the DEM hillshade.</figcaption>\
                  </figure>",
-                frame.svg(background.as_deref(), &footprint_overlay(&frame, &prints)),
+                frame.svg(background, &footprint_overlay(&frame, &prints)),
                 prints.len()
             );
         }
@@ -526,7 +542,7 @@ fn orientation_section(
             && let Some(fig) = residual_map(
                 project,
                 &frame,
-                background.as_deref(),
+                background,
                 &r.control_points,
                 &r.check_points,
             )
@@ -650,13 +666,13 @@ fn connectivity_section(
             .get(project.reference_epoch.0 as usize)
             .map(|e| e.name.clone())
             .unwrap_or_default();
-        let background = page::png_file_uri(&project.layout().dem_preview(&reference));
+        let background = inputs.hillshade(&reference);
         let _ = write!(
             s,
             "<div class=\"row\"><figure>{}<figcaption>Where the epochs are tied: the {} tie points \
              seen in two (yellow), three (orange) or more (red) epochs, over the hillshade of the \
              reference epoch {}.</figcaption></figure></div>",
-            frame.svg(background.as_deref(), &overlay),
+            frame.svg(background, &overlay),
             inter.len(),
             esc(&reference)
         );
@@ -683,13 +699,12 @@ fn products_section(project: &Project, inputs: &Inputs) -> String {
         let name = &e.name;
         let dense = inputs.dense.as_ref().and_then(|d| d.epochs.get(name));
         let raster = inputs.raster.as_ref().and_then(|r| r.epochs.get(name));
+        let ortho = page::png_file_uri(&layout.ortho_preview(name));
         let _ = write!(
             s,
             "<h3>Epoch {}</h3><p>{} dense points (mean {} images per point); {} DEM cells with \
              a height ({} filled); ortho painted over {} % of them, colour step across seams {} \
-             against {} within images.</p><div class=\"row\"><figure>{}<figcaption>DEM \
-             hillshade</figcaption></figure><figure>{}<figcaption>Orthomosaic</figcaption>\
-             </figure></div>",
+             against {} within images.</p>{}",
             esc(name),
             dense.map_or("–".into(), |d| d.points.to_string()),
             num(dense.map(|d| d.mean_images_per_point), 1),
@@ -703,16 +718,20 @@ fn products_section(project: &Project, inputs: &Inputs) -> String {
             ),
             num(raster.and_then(|r| r.seam_jump), 1),
             num(raster.and_then(|r| r.interior_jump), 1),
-            img(
-                page::png_file_uri(&layout.dem_preview(name)).as_deref(),
-                &format!("DEM hillshade of {name}"),
-                "thumb"
-            ),
-            img(
-                page::png_file_uri(&layout.ortho_preview(name)).as_deref(),
-                &format!("orthomosaic of {name}"),
-                "thumb"
-            ),
+            figure_row(&[
+                (
+                    inputs.hillshade(name),
+                    &format!("DEM hillshade of {name}"),
+                    "thumb",
+                    "DEM hillshade"
+                ),
+                (
+                    ortho.as_deref(),
+                    &format!("orthomosaic of {name}"),
+                    "thumb",
+                    "Orthomosaic"
+                ),
+            ]),
         );
     }
     s
@@ -811,22 +830,24 @@ fn change_section(project: &Project, warnings: &mut Vec<String>) -> String {
             ],
             &vrows,
         ));
-        let _ = write!(
-            s,
-            "<div class=\"row\"><figure>{}<figcaption>DEM of difference, LoD95 mask in grey\
-             </figcaption></figure><figure>{}<figcaption>Histogram of the difference\
-             </figcaption></figure></div>",
-            img(
-                page::png_file_uri(&dir.join("dod.png")).as_deref(),
-                "DoD map",
-                "map"
-            ),
-            img(
-                page::png_file_uri(&dir.join("histogram.png")).as_deref(),
-                "DoD histogram",
-                "plot"
-            ),
+        let (map, hist) = (
+            page::png_file_uri(&dir.join("dod.png")),
+            page::png_file_uri(&dir.join("histogram.png")),
         );
+        s.push_str(&figure_row(&[
+            (
+                map.as_deref(),
+                "DoD map",
+                "map",
+                "DEM of difference, LoD95 mask in grey",
+            ),
+            (
+                hist.as_deref(),
+                "DoD histogram",
+                "plot",
+                "Histogram of the difference",
+            ),
+        ]));
         for w in &dem.warnings {
             warnings.push(format!("{a} → {b}: {w}"));
         }
@@ -835,26 +856,22 @@ fn change_section(project: &Project, warnings: &mut Vec<String>) -> String {
                 let _ = write!(
                     s,
                     "<p>M3C2 between the dense clouds: {} core points, {} with a distance, {} with \
-                     significant change; distance median {} m, NMAD {} m; median LoD95 {} m.</p>\
-                     <div class=\"row\"><figure>{}<figcaption>M3C2 distances</figcaption></figure>\
-                     <figure>{}<figcaption>M3C2 histogram</figcaption></figure></div>",
+                     significant change; distance median {} m, NMAD {} m; median LoD95 {} m.</p>",
                     c.core_points,
                     c.defined,
                     c.significant,
                     num(c.distance.map(|d| d.median), 3),
                     num(c.distance.map(|d| d.nmad), 3),
                     num(c.lod95.map(|d| d.median), 3),
-                    img(
-                        page::png_file_uri(&dir.join("m3c2.png")).as_deref(),
-                        "M3C2 map",
-                        "map"
-                    ),
-                    img(
-                        page::png_file_uri(&dir.join("m3c2_histogram.png")).as_deref(),
-                        "M3C2 histogram",
-                        "plot"
-                    ),
                 );
+                let (map, hist) = (
+                    page::png_file_uri(&dir.join("m3c2.png")),
+                    page::png_file_uri(&dir.join("m3c2_histogram.png")),
+                );
+                s.push_str(&figure_row(&[
+                    (map.as_deref(), "M3C2 map", "map", "M3C2 distances"),
+                    (hist.as_deref(), "M3C2 histogram", "plot", "M3C2 histogram"),
+                ]));
             }
             Err(_) => {
                 s.push_str("<p class=\"missing\">M3C2: not computed (needs both dense clouds).</p>")

@@ -45,6 +45,25 @@ pub fn img(uri: Option<&str>, alt: &str, class: &str) -> String {
     }
 }
 
+/// One figure of a [`figure_row`]: image (data URI, when present), alternative text, CSS
+/// class, caption.
+pub type Figure<'a> = (Option<&'a str>, &'a str, &'a str, &'a str);
+
+/// Images side by side, each with its caption.
+pub fn figure_row(figures: &[Figure<'_>]) -> String {
+    let mut out = String::from("<div class=\"row\">");
+    for (uri, alt, class, caption) in figures {
+        let _ = write!(
+            out,
+            "<figure>{}<figcaption>{}</figcaption></figure>",
+            img(*uri, alt, class),
+            esc(caption)
+        );
+    }
+    out.push_str("</div>");
+    out
+}
+
 /// A table of already escaped (or numeric) cells; the first column is a row header.
 pub fn table(headers: &[&str], rows: &[Vec<String>]) -> String {
     let mut out = String::from("<table><thead><tr>");

@@ -41,11 +41,7 @@ pub(crate) fn start_with_settings(
         tracing::info!(stage, "settings changed: earlier results removed");
     }
     let text = serde_json::to_string_pretty(settings).unwrap_or_default();
-    timesift_io::fsutil::write_atomically(&path, |w| {
-        use std::io::Write;
-        w.write_all(text.as_bytes())
-            .map_err(|e| timesift_io::IoError::io(&path, e))
-    })?;
+    timesift_io::fsutil::write_bytes_atomically(&path, text.as_bytes())?;
     Ok(())
 }
 
@@ -60,22 +56,43 @@ pub(crate) fn file_stamp(path: &Path) -> serde_json::Value {
     serde_json::json!([meta.map(|m| m.len()), modified])
 }
 
-/// A fingerprint of the contents of files (FNV-1a over names and bytes, in the order given): what
-/// a stage that reads whole folders records, since a rewrite with the same bytes changes no
-/// result. Missing files count as empty.
-pub(crate) fn content_fingerprint(files: &[std::path::PathBuf]) -> String {
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |bytes: &[u8]| {
-        for &b in bytes {
-            hash ^= b as u64;
-            hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    };
-    for f in files {
-        eat(f.to_string_lossy().as_bytes());
-        eat(&std::fs::read(f).unwrap_or_default());
+/// FNV-1a, 64 bit: the fingerprints of what cached work was made from (not a checksum against
+/// tampering, only a cheap way to notice a change).
+pub(crate) struct Fnv1a(u64);
+
+impl Fnv1a {
+    pub(crate) fn new() -> Self {
+        Fnv1a(0xcbf2_9ce4_8422_2325)
     }
-    format!("{hash:016x}")
+
+    pub(crate) fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+
+    /// Feeds the bits of a number.
+    pub(crate) fn write_f64(&mut self, v: f64) {
+        self.write(&v.to_bits().to_le_bytes());
+    }
+
+    /// The hash as 16 hex digits.
+    pub(crate) fn hex(&self) -> String {
+        format!("{:016x}", self.0)
+    }
+}
+
+/// A fingerprint of the contents of files (names and bytes, in the order given): what a stage
+/// that reads whole folders records, since a rewrite with the same bytes changes no result.
+/// Missing files count as empty.
+pub(crate) fn content_fingerprint(files: &[std::path::PathBuf]) -> String {
+    let mut hash = Fnv1a::new();
+    for f in files {
+        hash.write(f.to_string_lossy().as_bytes());
+        hash.write(&std::fs::read(f).unwrap_or_default());
+    }
+    hash.hex()
 }
 
 /// The error of a stage.

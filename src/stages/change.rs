@@ -57,30 +57,18 @@ impl PipelineStage for ChangeStage {
 /// The compared pairs (earlier, later), by `[change] pairs`.
 pub fn epoch_pairs(project: &Project) -> Vec<(String, String)> {
     let names: Vec<&str> = project.epochs.iter().map(|e| e.name.as_str()).collect();
-    let reference = names
-        .get(project.reference_epoch.0 as usize)
-        .copied()
-        .unwrap_or_default();
+    let reference = project.reference_epoch.0 as usize;
     match project.config.change.pairs {
         ChangePairs::Consecutive => names
             .windows(2)
             .map(|w| (w[0].to_string(), w[1].to_string()))
             .collect(),
-        ChangePairs::Reference => names
-            .iter()
-            .filter(|&&n| n != reference)
-            .map(|&n| {
-                // Earlier epoch first, so positive differences always mean raising ground.
-                let (ia, ib) = (
-                    names.iter().position(|&x| x == reference),
-                    names.iter().position(|&x| x == n),
-                );
-                if ia <= ib {
-                    (reference.to_string(), n.to_string())
-                } else {
-                    (n.to_string(), reference.to_string())
-                }
-            })
+        // Earlier epoch first (epochs are in chronological order), so positive differences
+        // always mean raising ground.
+        ChangePairs::Reference => (0..names.len())
+            .filter(|&k| k != reference && reference < names.len())
+            .map(|k| (k.min(reference), k.max(reference)))
+            .map(|(a, b)| (names[a].to_string(), names[b].to_string()))
             .collect(),
     }
 }

@@ -263,31 +263,28 @@ fn epoch_input(
 
 /// A fingerprint (FNV-1a over the bits) of the epoch's cameras and poses.
 fn orientation_fingerprint(input: &EpochInput) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut feed = |v: f64| {
-        for b in v.to_bits().to_le_bytes() {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x0100_0000_01b3);
-        }
-    };
+    let mut hash = super::cache::Fnv1a::new();
     for v in &input.views {
         let mut p = vec![0.0; v.camera.num_params()];
         v.camera.params(&mut p);
-        p.into_iter().for_each(&mut feed);
-        feed(v.camera.width() as f64);
-        feed(v.camera.height() as f64);
+        p.into_iter().for_each(|x| hash.write_f64(x));
+        hash.write_f64(v.camera.width() as f64);
+        hash.write_f64(v.camera.height() as f64);
         v.cam_from_world
             .rotation
             .coords
             .iter()
-            .for_each(|&x| feed(x));
-        v.cam_from_world.translation.iter().for_each(|&x| feed(x));
+            .for_each(|&x| hash.write_f64(x));
+        v.cam_from_world
+            .translation
+            .iter()
+            .for_each(|&x| hash.write_f64(x));
     }
     for p in &input.points {
-        p.position.iter().for_each(|&x| feed(x));
-        p.views.iter().for_each(|&x| feed(x as f64));
+        p.position.iter().for_each(|&x| hash.write_f64(x));
+        p.views.iter().for_each(|&x| hash.write_f64(x as f64));
     }
-    format!("{h:016x}")
+    hash.hex()
 }
 
 /// What the depth maps depend on.

@@ -248,19 +248,10 @@ fn remove_stale_temporaries(dir: &std::path::Path) {
             continue;
         }
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(pid) = name
-            .strip_prefix('.')
-            .and_then(|n| n.split_once(".tmp-"))
-            .map(|(_, rest)| {
-                rest.chars()
-                    .take_while(char::is_ascii_digit)
-                    .collect::<String>()
-            })
-            .filter(|pid| !pid.is_empty())
-        else {
+        let Some(pid) = timesift_io::fsutil::temporary_owner(&name) else {
             continue;
         };
-        if pid != std::process::id().to_string() && !proc.join(&pid).exists() {
+        if pid != std::process::id() && !proc.join(pid.to_string()).exists() {
             let _ = std::fs::remove_file(&path);
         }
     }

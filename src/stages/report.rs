@@ -36,10 +36,6 @@ impl PipelineStage for ReportStage {
 pub fn report_stage(project: &Project) -> Result<crate::html::ReportPage, ProjectError> {
     let page = crate::html::build_report(project)?;
     let path = project.layout().report_html();
-    timesift_io::fsutil::write_atomically(&path, |w| {
-        use std::io::Write;
-        w.write_all(page.html.as_bytes())
-            .map_err(|e| timesift_io::IoError::io(&path, e))
-    })?;
+    timesift_io::fsutil::write_bytes_atomically(&path, page.html.as_bytes())?;
     Ok(page)
 }

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::ChangeError;
 use crate::grid::Dem;
 use crate::mask::Mask;
+use crate::stats::Statistics;
 
 /// 95 % level of detection from the σ of two DEMs.
 pub fn lod95(sigma_a: f64, sigma_b: f64) -> f64 {
@@ -51,6 +52,19 @@ impl Default for VolumeOptions {
             threshold: 0.0,
             sigma_random: 0.0,
             sigma_systematic: 0.0,
+        }
+    }
+}
+
+impl VolumeOptions {
+    /// Every cell counted, the uncertainty judged from the DoD's stable areas: the per-cell
+    /// random σ is their NMAD, the systematic σ the magnitude of their median (an offset left
+    /// between the DEMs).
+    pub fn from_stable(stable: &Statistics) -> VolumeOptions {
+        VolumeOptions {
+            threshold: 0.0,
+            sigma_random: stable.nmad,
+            sigma_systematic: stable.median.abs(),
         }
     }
 }

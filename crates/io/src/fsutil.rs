@@ -15,6 +15,15 @@ fn temporary_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
+/// The process that was writing a file, when `file_name` is one of the temporary names of
+/// [`write_atomically`] or [`temporary_sibling`] (`.<name>.tmp-<pid>[.<ext>]`): lets a later run
+/// remove what a killed one left behind.
+pub fn temporary_owner(file_name: &str) -> Option<u32> {
+    let (_, rest) = file_name.strip_prefix('.')?.split_once(".tmp-")?;
+    let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
+    digits.parse().ok()
+}
+
 /// Writes a file atomically: `write` fills a buffered writer on a temporary file beside `path`, which
 /// is renamed to `path` only when everything succeeded. On failure the temporary file is removed and
 /// an existing `path` is left untouched.
@@ -90,4 +99,23 @@ pub fn read_text(path: &Path) -> Result<String, IoError> {
         Some(rest) => rest.to_string(),
         None => text,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temporary_names_know_their_writer() {
+        let me = std::process::id();
+        for tmp in [
+            temporary_path(Path::new("/p/out/dem.tif")),
+            temporary_sibling(Path::new("/p/out/dense.laz")),
+        ] {
+            let name = tmp.file_name().unwrap().to_string_lossy().into_owned();
+            assert_eq!(temporary_owner(&name), Some(me), "{name}");
+        }
+        assert_eq!(temporary_owner("dem.tif"), None);
+        assert_eq!(temporary_owner(".dem.tif.tmp-"), None);
+    }
 }

@@ -186,11 +186,7 @@ pub fn write_metashape_xml(
     crs_wkt: Option<&str>,
 ) -> Result<(), IoError> {
     let text = to_metashape_xml(recon, frame, crs_wkt)?;
-    fsutil::write_atomically(path, |w| {
-        use std::io::Write;
-        w.write_all(text.as_bytes())
-            .map_err(|e| IoError::io(path, e))
-    })
+    fsutil::write_bytes_atomically(path, text.as_bytes())
 }
 
 #[cfg(test)]

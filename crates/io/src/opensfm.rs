@@ -131,11 +131,7 @@ pub fn write_opensfm(
 fn write_json(path: &Path, value: &Value) -> Result<(), IoError> {
     let text =
         serde_json::to_string_pretty(value).map_err(|e| IoError::invalid(path, e.to_string()))?;
-    fsutil::write_atomically(path, |w| {
-        use std::io::Write;
-        w.write_all(text.as_bytes())
-            .map_err(|e| IoError::io(path, e))
-    })
+    fsutil::write_bytes_atomically(path, text.as_bytes())
 }
 
 /// Pixel position (our convention) of a normalised OpenSfM `brown` projection of a point given
