@@ -8,19 +8,19 @@ use image::ImageEncoder;
 use serde::Serialize;
 use timesift_change::ChangeError;
 use timesift_change::checkpoints::{CheckPointReport, dem_residuals};
-use timesift_change::dod::dem_of_difference;
 use timesift_change::grid::{Dem, Grid, check_same_crs};
 use timesift_change::icp::{IcpModel, IcpOptions, IcpResult, icp, select};
 use timesift_change::m3c2::{M3c2Params, M3c2Point, m3c2, subsample_core_points};
 use timesift_change::maps::{MapOptions, difference_map, histogram};
 use timesift_change::mask::Mask;
-use timesift_change::nuth_kaab::{NuthKaabOptions, NuthKaabResult, nuth_kaab};
+use timesift_change::nuth_kaab::{NuthKaabOptions, NuthKaabResult};
+use timesift_change::pair::{PairOptions, analyse_pair};
 use timesift_change::stats::{Statistics, statistics};
-use timesift_change::trend::{PlaneTrend, plane_trend};
-use timesift_change::volume::{VolumeOptions, Volumes, lod95, significance, volumes};
+use timesift_change::trend::PlaneTrend;
+use timesift_change::volume::Volumes;
 use timesift_io::IoError;
 use timesift_io::coords::Crs;
-use timesift_io::geotiff::{GeoTransform, read_f32, write_f32};
+use timesift_io::geotiff::{read_f32, write_f32};
 use timesift_io::pointcloud::{
     AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, write_las,
 };
@@ -220,129 +220,42 @@ pub fn compare_dems(
         Some(path) => Some(load_mask(path, dem_a.grid)?),
         None => None,
     };
-    create_dir(out)?;
-    let mut outputs = Vec::new();
-    let mut warnings = Vec::new();
-    if stable.is_none() && options.coregistration != Coregistration::None {
-        warnings.push(
-            "co-registration used every cell: without stable areas, real change biases the shift"
-                .to_string(),
-        );
-    }
-
-    let coregistration = match options.coregistration {
-        Coregistration::None => None,
-        mode => {
-            let nk_options = NuthKaabOptions {
+    let region = match &options.region {
+        Some(path) => Some(load_mask(path, dem_a.grid)?),
+        None => None,
+    };
+    let pair_options = PairOptions {
+        coregistration: match options.coregistration {
+            Coregistration::None => None,
+            mode => Some(NuthKaabOptions {
                 horizontal: mode == Coregistration::NuthKaab,
                 ..Default::default()
-            };
-            Some(
-                nuth_kaab(&dem_a, &dem_b, stable.as_ref(), &nk_options)
-                    .map_err(change_err(format!("co-registration of {pair}")))?,
-            )
-        }
+            }),
+        },
+        sigmas: options.sigmas,
     };
-    if let Some(r) = &coregistration {
-        if !(r.nmad_after < r.nmad_before) {
-            warnings.push(format!(
-                "co-registration did not lower the stable-area NMAD ({:.4} → {:.4} m): the DEMs \
-                 were probably aligned already, or the stable areas changed",
-                r.nmad_before, r.nmad_after
-            ));
-        }
-        if !r.converged {
-            warnings.push("co-registration stopped at its iteration limit".to_string());
-        }
+    let analysis = analyse_pair(
+        &dem_a,
+        &dem_b,
+        stable.as_ref(),
+        region.as_ref(),
+        &pair_options,
+    )
+    .map_err(change_err(pair.clone()))?;
+    create_dir(out)?;
+    let mut outputs = Vec::new();
+    if analysis.coregistration.is_some() {
+        let path = out.join("coregistered.tif");
+        write_f32(&path, &analysis.later.to_raster())?;
+        outputs.push(path.display().to_string());
     }
-    let dem_b = match &coregistration {
-        Some(r) => {
-            let moved = r.apply(&dem_b);
-            let path = out.join("coregistered.tif");
-            write_f32(&path, &moved.to_raster())?;
-            outputs.push(path.display().to_string());
-            moved
-        }
-        None => dem_b,
-    };
-    let dod = dem_of_difference(&dem_a, &dem_b).map_err(change_err(pair.clone()))?;
-    let values = || dod.values.iter().map(|&v| v as f64);
-    let all = statistics(values()).ok_or_else(|| ProjectError::Change {
-        context: pair.clone(),
-        source: ChangeError::NoOverlap("no cell holds a height in both DEMs".into()),
-    })?;
-    let stable_on_dod = match &stable {
-        Some(m) => Some(m.onto(&dod.grid).map_err(change_err(pair.clone()))?),
-        None => None,
-    };
-    let stable_stats = match &stable_on_dod {
-        Some(m) => Some(
-            statistics(values().zip(&m.cells).filter(|(_, s)| **s).map(|(v, _)| v)).ok_or_else(
-                || ProjectError::Change {
-                    context: pair.clone(),
-                    source: ChangeError::EmptyStable(
-                        "no stable cell holds a height in both DEMs".into(),
-                    ),
-                },
-            )?,
-        ),
-        None => None,
-    };
-    let stable_trend = match &stable_on_dod {
-        Some(m) => match plane_trend(&dod, Some(m)) {
-            Ok(t) => Some(t),
-            Err(e) => {
-                warnings.push(format!("no plane through the stable areas: {e}"));
-                None
-            }
-        },
-        None => None,
-    };
-    let (lod, lod_source) = match (options.sigmas, &stable_stats) {
-        (Some((sa, sb)), _) => (Some(lod95(sa, sb)), "sigmas given"),
-        (None, Some(s)) => (
-            Some(1.96 * s.nmad),
-            "1.96 × stable-area NMAD of the difference",
-        ),
-        (None, None) => (None, "none (no stable area and no sigma given)"),
-    };
-    let region = match &options.region {
-        Some(path) => Some(load_mask(path, dod.grid)?),
-        None => None,
-    };
-    let volume_options = match (options.sigmas, &stable_stats) {
-        (Some((sa, sb)), _) => VolumeOptions {
-            threshold: 0.0,
-            sigma_random: sa.hypot(sb),
-            sigma_systematic: stable_stats.as_ref().map_or(0.0, |s| s.median.abs()),
-        },
-        (None, Some(s)) => VolumeOptions::from_stable(s),
-        (None, None) => VolumeOptions::default(),
-    };
-    let vol = volumes(&dod, region.as_ref(), volume_options)
-        .map_err(change_err(format!("volumes of {pair}")))?;
-    let vol_lod = match lod {
-        Some(l) => Some(
-            volumes(
-                &dod,
-                region.as_ref(),
-                VolumeOptions {
-                    threshold: l,
-                    ..volume_options
-                },
-            )
-            .map_err(change_err(format!("volumes of {pair}")))?,
-        ),
-        None => None,
-    };
-    let significant_cells = lod.map(|l| significance(&dod, l).iter().filter(|&&f| f == 1).count());
-
+    let dod = &analysis.dod;
+    let lod = analysis.lod95;
     let dod_path = out.join("dod.tif");
     write_f32(&dod_path, &dod.to_raster())?;
     outputs.push(dod_path.display().to_string());
-    if let Some(l) = lod {
+    if let Some(flags) = analysis.significance() {
         // 1 significant, 0 not, nodata where the DoD has none.
-        let flags = significance(&dod, l);
         let mask = Dem {
             grid: dod.grid,
             values: flags
@@ -361,7 +274,7 @@ pub fn compare_dems(
     };
     let title = format!("{} - {}", name(b), name(a));
     let map = difference_map(
-        &dod,
+        dod,
         &MapOptions {
             title: title.clone(),
             lod,
@@ -371,7 +284,7 @@ pub fn compare_dems(
     let map_path = out.join("dod.png");
     write_png(&map_path, &map)?;
     outputs.push(map_path.display().to_string());
-    let hist_values: Vec<f64> = values().collect();
+    let hist_values: Vec<f64> = dod.values.iter().map(|&v| v as f64).collect();
     let hist = histogram(&hist_values, &title, "m", None, lod);
     let hist_path = out.join("histogram.png");
     write_png(&hist_path, &hist)?;
@@ -382,22 +295,22 @@ pub fn compare_dems(
         a: a.display().to_string(),
         b: b.display().to_string(),
         crs: dod.grid.crs.to_string(),
-        coregistration,
-        all,
-        stable: stable_stats,
-        stable_trend,
-        lod95: lod,
-        lod_source: lod_source.to_string(),
-        significant_cells,
-        volumes: vol,
-        volumes_beyond_lod: vol_lod,
         checkpoints: (!options.checkpoints.is_empty()).then(|| {
             [
                 dem_residuals(&dem_a, &options.checkpoints),
-                dem_residuals(&dem_b, &options.checkpoints),
+                dem_residuals(&analysis.later, &options.checkpoints),
             ]
         }),
-        warnings,
+        coregistration: analysis.coregistration,
+        all: analysis.all,
+        stable: analysis.stable,
+        stable_trend: analysis.stable_trend,
+        lod95: lod,
+        lod_source: analysis.lod_source.to_string(),
+        significant_cells: analysis.significant_cells,
+        volumes: analysis.volumes,
+        volumes_beyond_lod: analysis.volumes_beyond_lod,
+        warnings: analysis.warnings,
         outputs,
     };
     write_json(&stats_path, &report)?;
@@ -489,7 +402,9 @@ pub fn compare_clouds(
         &histogram(&distances, title, "m", None, median_lod),
     )?;
     outputs.push(hist_path.display().to_string());
-    if let Some(grid_dem) = grid_points(&core, &distances, options.core_spacing, cloud_a.crs) {
+    if let Some(grid_dem) =
+        Dem::mean_of_points(&core, &distances, options.core_spacing, cloud_a.crs)
+    {
         let map_path = out.join("m3c2.png");
         let map = difference_map(
             &grid_dem,
@@ -551,96 +466,5 @@ fn m3c2_cloud(core: &[[f64; 3]], results: &[M3c2Point], crs: Crs) -> PointCloud 
             },
         ],
         crs,
-    }
-}
-
-/// Values at points averaged on a north-up grid of `cell` metres, for a map.
-fn grid_points(points: &[[f64; 3]], values: &[f64], cell: f64, crs: Crs) -> Option<Dem> {
-    let (mut xmin, mut ymin, mut xmax, mut ymax) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-    for (p, v) in points.iter().zip(values) {
-        if v.is_finite() {
-            xmin = xmin.min(p[0]);
-            ymin = ymin.min(p[1]);
-            xmax = xmax.max(p[0]);
-            ymax = ymax.max(p[1]);
-        }
-    }
-    if xmin > xmax {
-        return None;
-    }
-    // Cells centred on the spacing lattice through (xmin, ymax).
-    let width = ((xmax - xmin) / cell).round() as usize + 1;
-    let height = ((ymax - ymin) / cell).round() as usize + 1;
-    if width.checked_mul(height).is_none_or(|n| n > 50_000_000) {
-        return None;
-    }
-    let grid = Grid {
-        transform: GeoTransform {
-            origin_x: xmin - 0.5 * cell,
-            origin_y: ymax + 0.5 * cell,
-            pixel_width: cell,
-            pixel_height: -cell,
-        },
-        width,
-        height,
-        crs,
-    };
-    let mut sum = vec![0.0f64; grid.len()];
-    let mut count = vec![0u32; grid.len()];
-    for (p, v) in points.iter().zip(values) {
-        if v.is_finite() {
-            let (c, r) = grid.transform.world_to_pixel(p[0], p[1]);
-            let (c, r) = (
-                (c.floor().max(0.0) as usize).min(width - 1),
-                (r.floor().max(0.0) as usize).min(height - 1),
-            );
-            sum[r * width + c] += v;
-            count[r * width + c] += 1;
-        }
-    }
-    Some(Dem {
-        grid,
-        values: sum
-            .iter()
-            .zip(&count)
-            .map(|(&s, &n)| {
-                if n > 0 {
-                    (s / n as f64) as f32
-                } else {
-                    f32::NAN
-                }
-            })
-            .collect(),
-    })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn gridded_points_keep_one_cell_each() {
-        // A 3 × 2 lattice of points 10 m apart: six cells, one value each, north row first.
-        let points: Vec<[f64; 3]> = [
-            (0.0, 0.0),
-            (10.0, 0.0),
-            (20.0, 0.0),
-            (0.0, 10.0),
-            (10.0, 10.0),
-            (20.0, 10.0),
-        ]
-        .iter()
-        .map(|&(x, y)| [x, y, 0.0])
-        .collect();
-        let values = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
-        let dem = grid_points(&points, &values, 10.0, Crs::Local).expect("grid");
-        assert_eq!((dem.grid.width, dem.grid.height), (3, 2));
-        assert_eq!(dem.values, vec![4.0, 5.0, 6.0, 1.0, 2.0, 3.0]);
-        let (x, y) = dem.grid.cell_center(0, 0);
-        assert_eq!((x, y), (0.0, 10.0));
-        assert!(
-            grid_points(&points, &values, 1e-9, Crs::Local).is_none(),
-            "absurd sizes refused"
-        );
     }
 }

@@ -133,27 +133,48 @@ fn focal_px(camera: &dyn CameraModel) -> f64 {
 /// initialisation the same way): sequences of close-range photos rarely see 4° at first.
 const RELAXATIONS: u32 = 3;
 
+/// Batches of `init_max_trials` pairs evaluated after the first when none has passed the full
+/// thresholds yet.
+const EXTRA_BATCHES: usize = 7;
+
 /// Chooses and orients the initial pair, triangulates its tracks and adjusts the two images.
-/// The most connected pairs are evaluated once; the one with the most inliers among those that
-/// pass the thresholds starts, the thresholds halving up to [`RELAXATIONS`] times when none does.
+/// The most connected pairs are evaluated once, in batches of `init_max_trials` until one passes
+/// the full thresholds; the one with the most inliers among those that pass starts, the
+/// thresholds halving up to [`RELAXATIONS`] times when none does.
 /// Returns the pair.
 pub(crate) fn initialise(state: &mut State<'_>) -> Result<(usize, usize), AlignError> {
     let options = state.options;
     let pairs = pair_counts(state);
     let min_shared = (options.init_min_inliers >> RELAXATIONS).max(15);
-    let evaluated: Vec<((usize, usize), Candidate)> = pairs
+    // The most connected pairs are often the worst starts: in a repeated survey the same
+    // waypoint flown at two epochs shares the most tracks and almost no baseline. So pairs are
+    // evaluated in batches, most connected first, until one passes the full thresholds (or
+    // EXTRA_BATCHES more batches found none); the relaxations below then choose among all
+    // evaluated.
+    let mut evaluated: Vec<((usize, usize), Candidate)> = Vec::new();
+    let connected: Vec<(usize, usize)> = pairs
         .iter()
         .take_while(|(_, shared)| *shared >= min_shared)
-        .take(options.init_max_trials)
-        .filter_map(|&((a, b), _)| {
+        .map(|&(pair, _)| pair)
+        .collect();
+    let batch = options.init_max_trials.max(1);
+    for chunk in connected.chunks(batch).take(1 + EXTRA_BATCHES) {
+        evaluated.extend(chunk.iter().filter_map(|&(a, b)| {
             let seed = options.seed ^ ((a as u64) << 32 | b as u64);
             let c = evaluate(state, a, b, seed, min_shared);
             if c.is_none() {
                 tracing::debug!(a, b, "initial pair: too few essential inliers");
             }
             c.map(|c| ((a, b), c))
-        })
-        .collect();
+        }));
+        let passes_in_full = evaluated.iter().any(|(_, c)| {
+            c.inliers >= options.init_min_inliers
+                && c.median_angle_deg >= options.init_min_angle_deg
+        });
+        if passes_in_full {
+            break;
+        }
+    }
     for level in 0..=RELAXATIONS {
         let min_inliers = (options.init_min_inliers >> level).max(15);
         let min_angle = options.init_min_angle_deg / f64::from(1u32 << level);

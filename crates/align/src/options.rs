@@ -38,7 +38,8 @@ pub struct SfmOptions {
     pub init_min_inliers: usize,
     /// Smallest median triangulation angle of the initial pair, degrees.
     pub init_min_angle_deg: f64,
-    /// Most candidate pairs tried for initialisation (by number of shared tracks).
+    /// Candidate pairs evaluated at a time for initialisation, most shared tracks first; further
+    /// batches (up to eight in all) only while none passes the full thresholds.
     pub init_max_trials: usize,
     /// Inlier threshold of the two-view and absolute-pose RANSACs, pixels (COLMAP: 4 and 12; the
     /// absolute pose is scored on reprojections of points that carry their own error).

@@ -273,6 +273,59 @@ fn bad_input_names_what_is_wrong() {
     assert!(err.contains("max_reprojection_px"), "{err}");
 }
 
+/// A survey flown twice over the same waypoints (a few centimetres apart): the most connected
+/// pairs are the repeated waypoints, with no baseline to start from. With only a few pairs
+/// evaluated at a time, the reconstruction must go on to pairs with a baseline, not give up or
+/// start from a degenerate pair, and recover the block exactly.
+#[test]
+fn repeated_waypoints_do_not_start_the_reconstruction() {
+    let first = scene(11, 0.0, 900);
+    let n = first.poses.len();
+    let mut poses = first.poses.clone();
+    poses.extend(first.poses.iter().map(|p| {
+        let centre = p.center() + Vector3::new(0.02, -0.01, 0.01);
+        Pose::from_rotation_and_center(p.rotation, &centre)
+    }));
+    let camera = camera();
+    let mut keypoints: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); poses.len()];
+    let mut tracks = Vec::new();
+    for x in &first.points {
+        let mut elements = Vec::new();
+        for (i, pose) in poses.iter().enumerate() {
+            let Ok(u) = project_world(&camera, pose, x) else {
+                continue;
+            };
+            if u.x < 0.0 || u.y < 0.0 || u.x > 1000.0 || u.y > 800.0 {
+                continue;
+            }
+            elements.push(TrackElement {
+                image: ImageId::from(i),
+                feature: FeatureIndex::from(keypoints[i].len()),
+            });
+            keypoints[i].push(u);
+        }
+        tracks.push(Track { elements });
+    }
+    let mut start = BrownCamera::new(1000, 800, 850.0).unwrap();
+    start.cx = 0.0;
+    let twice = Scene {
+        input: one_camera_input(Camera::Brown(start), keypoints, tracks),
+        poses,
+        points: first.points.clone(),
+    };
+    let options = SfmOptions {
+        init_max_trials: 5,
+        ..SfmOptions::default()
+    };
+    let components = reconstruct(&twice.input, &options).unwrap();
+    assert_eq!(components[0].num_oriented(), 2 * n);
+    let (centre, point_median) = errors_after_similarity(&components[0], &twice);
+    assert!(
+        centre < 1e-3 && point_median < 1e-3,
+        "{centre} {point_median}"
+    );
+}
+
 /// A rotation about the centre (no baseline) cannot start a reconstruction.
 #[test]
 fn pure_rotation_has_no_initial_pair() {

@@ -314,6 +314,74 @@ impl Dem {
             })
             .collect()
     }
+
+    /// Values at scattered points averaged on a north-up grid of `cell` units whose cell
+    /// centres lie on the lattice through the westmost and northmost finite points (core points
+    /// subsampled at `cell` land one per cell): the map of a per-point quantity such as an M3C2
+    /// distance. Points with a non-finite value are left out; cells without a point are nodata.
+    ///
+    /// `None` when no value is finite, or the grid would exceed 50 million cells (a spacing far
+    /// too small for the points' extent).
+    pub fn mean_of_points(points: &[[f64; 3]], values: &[f64], cell: f64, crs: Crs) -> Option<Dem> {
+        if !(cell.is_finite() && cell > 0.0) {
+            return None;
+        }
+        let finite = || {
+            points
+                .iter()
+                .zip(values)
+                .filter(|(_, v)| v.is_finite())
+                .map(|(p, &v)| (p[0], p[1], v))
+        };
+        let (mut xmin, mut ymin, mut xmax, mut ymax) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for (x, y, _) in finite() {
+            xmin = xmin.min(x);
+            ymin = ymin.min(y);
+            xmax = xmax.max(x);
+            ymax = ymax.max(y);
+        }
+        if xmin > xmax {
+            return None;
+        }
+        let width = ((xmax - xmin) / cell).round() + 1.0;
+        let height = ((ymax - ymin) / cell).round() + 1.0;
+        if !(width * height <= 5e7) {
+            return None;
+        }
+        let (width, height) = (width as usize, height as usize);
+        let grid = Grid {
+            transform: GeoTransform {
+                origin_x: xmin - 0.5 * cell,
+                origin_y: ymax + 0.5 * cell,
+                pixel_width: cell,
+                pixel_height: -cell,
+            },
+            width,
+            height,
+            crs,
+        };
+        let mut sum = vec![0.0f64; grid.len()];
+        let mut count = vec![0u32; grid.len()];
+        for (x, y, v) in finite() {
+            let (c, r) = grid.transform.world_to_pixel(x, y);
+            let c = (c.floor().max(0.0) as usize).min(width - 1);
+            let r = (r.floor().max(0.0) as usize).min(height - 1);
+            sum[r * width + c] += v;
+            count[r * width + c] += 1;
+        }
+        let values = sum
+            .iter()
+            .zip(&count)
+            .map(|(&s, &n)| {
+                if n > 0 {
+                    (s / n as f64) as f32
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect();
+        Some(Dem { grid, values })
+    }
 }
 
 /// Fails unless the two CRSs are the same.
@@ -407,5 +475,36 @@ mod tests {
         assert_eq!((c0, r0, c.width, c.height), (3, 2, 4, 3));
         b.transform.origin_x = 500.0;
         assert!(a.crop_to(&b).is_none());
+    }
+
+    #[test]
+    fn points_averaged_one_cell_each_north_row_first() {
+        // A 3 × 2 lattice of points 10 m apart: six cells, one value each, north row first.
+        let points: Vec<[f64; 3]> = [
+            (0.0, 0.0),
+            (10.0, 0.0),
+            (20.0, 0.0),
+            (0.0, 10.0),
+            (10.0, 10.0),
+            (20.0, 10.0),
+        ]
+        .iter()
+        .map(|&(x, y)| [x, y, 0.0])
+        .collect();
+        let values = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        let dem = Dem::mean_of_points(&points, &values, 10.0, Crs::Local).expect("grid");
+        assert_eq!((dem.grid.width, dem.grid.height), (3, 2));
+        assert_eq!(dem.values, vec![4.0, 5.0, 6.0, 1.0, 2.0, 3.0]);
+        assert_eq!(dem.grid.cell_center(0, 0), (0.0, 10.0));
+        // Two points in one cell average; a NaN value is left out.
+        let two = [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 2.0, 0.0]];
+        let dem = Dem::mean_of_points(&two, &[1.0, 3.0, f64::NAN], 10.0, Crs::Local).expect("grid");
+        assert_eq!(dem.values, vec![2.0]);
+        assert!(
+            Dem::mean_of_points(&points, &values, 1e-9, Crs::Local).is_none(),
+            "absurd sizes refused"
+        );
+        assert!(Dem::mean_of_points(&points, &[f64::NAN; 6], 10.0, Crs::Local).is_none());
+        assert!(Dem::mean_of_points(&points, &values, 0.0, Crs::Local).is_none());
     }
 }

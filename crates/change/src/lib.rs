@@ -16,6 +16,7 @@ pub mod m3c2;
 pub mod maps;
 pub mod mask;
 pub mod nuth_kaab;
+pub mod pair;
 pub mod stats;
 pub mod terrain;
 pub mod trend;

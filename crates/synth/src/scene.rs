@@ -20,6 +20,10 @@ use crate::shapes::{Block, Bump, Ridge};
 use crate::terrain::Heightfield;
 use timesift_io::wkt::ring_contains;
 
+/// How far the skirt around a scene's grid drops under the grid's interior, metres: below any
+/// change a scene makes.
+const APRON_DROP: f64 = 500.0;
+
 /// How the grid frame sits in the local frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Frame {
@@ -330,17 +334,30 @@ impl SceneSpec {
         let swap_yz = self.frame == Frame::Wall;
         builder.add_field(field.clone(), swap_yz, FieldMaterial::Cover);
         if self.apron > 0.0 {
-            // A coarse skirt of the stable surface, 5 cm below the grid's surface.
+            // A coarse skirt of the stable surface around the grid, 5 cm below the grid's
+            // surface at its edge. Under the grid's interior it drops far down: there it must
+            // never show through the grid, neither where the ground was lowered (a scarp, a
+            // pit, thinning ice: a skirt at the stable height would hide the change from the
+            // cameras while the truth DEM holds it) nor where the coarse skirt cuts above the
+            // fine surface between its nodes. Every triangle touching a dropped node lies
+            // inside the grid's footprint, so no hole opens beside the grid.
             let (x0, y0, cell, nx, ny) = self.grid;
+            let (x1, y1) = (x0 + (nx - 1) as f64 * cell, y0 + (ny - 1) as f64 * cell);
             let coarse = (cell * 8.0).max(self.apron / 40.0);
             let n = |len: f64| ((len + 2.0 * self.apron) / coarse).ceil() as usize + 1;
+            let under_grid = |x: f64, y: f64| {
+                x - coarse > x0 && x + coarse < x1 && y - coarse > y0 && y + coarse < y1
+            };
             builder.add_field(
                 Heightfield::from_fn(
                     (x0 - self.apron, y0 - self.apron),
                     coarse,
                     n((nx - 1) as f64 * cell),
                     n((ny - 1) as f64 * cell),
-                    |x, y| (self.base)(x, y) - 0.05,
+                    |x, y| {
+                        let drop = if under_grid(x, y) { APRON_DROP } else { 0.05 };
+                        (self.base)(x, y) - drop
+                    },
                 ),
                 swap_yz,
                 FieldMaterial::Cover,
