@@ -344,10 +344,11 @@ pub struct RegionVolume {
     pub to: String,
     /// True net volume, m³.
     pub true_m3: f64,
-    /// Net volume of the DoD of the two epochs' DEMs inside the region, m³.
+    /// Net volume of the DoD of the two epochs' DEMs inside the region, m³; NaN when no cell of
+    /// the region has a height in both DEMs (`coverage` 0).
     pub measured_m3: f64,
     /// Its 1-σ uncertainty (random from the stable-area NMAD, systematic from the stable-area
-    /// median), m³.
+    /// median), m³; NaN with the volume.
     pub sigma_m3: f64,
     /// Fraction of the region's cells with a difference.
     pub coverage: f64,
@@ -402,14 +403,32 @@ pub fn region_volumes(project: &Project) -> Result<Vec<RegionVolume>, ProjectErr
                         .filter(|(_, s)| **s)
                         .map(|(v, _)| *v as f64),
                 );
-                let options = stable_dz
-                    .map_or_else(VolumeOptions::default, |s| VolumeOptions::from_stable(&s));
+                let options = timesift_change::pair::volume_uncertainty(None, stable_dz.as_ref());
                 dods.insert(key.clone(), (dod, options));
             }
             let (dod, options) = &dods[&key];
             let mask = Mask::from_polygons(dod.grid, &polygons);
-            let measured = volumes(dod, Some(&mask), *options).map_err(change_err(context))?;
             let inside = mask.count().max(1);
+            let measured_cells = mask
+                .cells
+                .iter()
+                .zip(&dod.values)
+                .filter(|(m, v)| **m && v.is_finite())
+                .count();
+            if measured_cells == 0 {
+                // The region lies outside what both DEMs cover: nothing measured, said so.
+                rows.push(RegionVolume {
+                    region: region.name.clone(),
+                    from: v.from.clone(),
+                    to: v.to.clone(),
+                    true_m3: v.volume_m3,
+                    measured_m3: f64::NAN,
+                    sigma_m3: f64::NAN,
+                    coverage: 0.0,
+                });
+                continue;
+            }
+            let measured = volumes(dod, Some(&mask), *options).map_err(change_err(context))?;
             rows.push(RegionVolume {
                 region: region.name.clone(),
                 from: v.from.clone(),

@@ -64,6 +64,9 @@ struct ProductRow {
     volume_relative_error: Option<f64>,
     /// Σ |measured − true| over them, m³.
     volume_abs_error_m3: Option<f64>,
+    /// Regions × pairs measured (some cell with a difference) and in `truth/change.json`: the
+    /// errors above are over the measured ones.
+    regions_measured: (usize, usize),
     seconds: f64,
     error: Option<String>,
 }
@@ -331,6 +334,7 @@ fn products(scene: &str, method: &str, project: &Project) -> ProductRow {
         pairs: Vec::new(),
         volume_relative_error: None,
         volume_abs_error_m3: None,
+        regions_measured: (0, 0),
         seconds: 0.0,
         error: None,
     };
@@ -352,7 +356,9 @@ fn products(scene: &str, method: &str, project: &Project) -> ProductRow {
             }
         }
         if layout.truth_dir().join("change.json").is_file() {
-            let volumes = region_volumes(project)?;
+            let all = region_volumes(project)?;
+            let volumes: Vec<_> = all.iter().filter(|v| v.measured_m3.is_finite()).collect();
+            row.regions_measured = (volumes.len(), all.len());
             let wrong: f64 = volumes
                 .iter()
                 .map(|v| (v.measured_m3 - v.true_m3).abs())
@@ -392,8 +398,8 @@ fn product_table(rows: &[ProductRow]) -> String {
         |v: Option<f64>, digits: usize| v.map_or("–".to_string(), |v| format!("{v:.digits$}"));
     let mut s = String::from(
         "\n## Products: stable-area DoD between consecutive epochs and volumes against the truth\n\n\
-         | scene | method | mean \\|stable DoD mean\\| m | mean plane gain m | pairs (mean / median / gain / LoD95, m) | volume error | Σ\\|error\\| m³ | s |\n\
-         |---|---|---|---|---|---|---|---|\n",
+         | scene | method | mean \\|stable DoD mean\\| m | mean plane gain m | pairs (mean / median / gain / LoD95, m) | volume error | Σ\\|error\\| m³ | regions measured | s |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let (mean, gain) = pair_means(r);
@@ -412,7 +418,7 @@ fn product_table(rows: &[ProductRow]) -> String {
             })
             .collect();
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.0} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} of {} | {:.0} |\n",
             r.scene,
             r.method,
             cell(mean, 4),
@@ -421,6 +427,8 @@ fn product_table(rows: &[ProductRow]) -> String {
             r.volume_relative_error
                 .map_or("–".into(), |v| format!("{:.0} %", 100.0 * v)),
             cell(r.volume_abs_error_m3, 0),
+            r.regions_measured.0,
+            r.regions_measured.1,
             r.seconds
         ));
     }

@@ -191,6 +191,7 @@ impl State<'_> {
                     position: prior.position,
                     sigma_xy: prior.sigma_xy,
                     sigma_z: prior.sigma_z,
+                    offset: None,
                 });
             }
         }

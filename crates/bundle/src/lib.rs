@@ -3,7 +3,8 @@
 //! fixed poses and points (issue "Bundle adjustment").
 //!
 //! Built so far: reprojection residuals through any `CameraModel` with per-observation sigmas,
-//! camera-centre (GNSS) and control-point priors with horizontal/vertical sigmas,
+//! camera-centre (GNSS) and control-point priors with horizontal/vertical sigmas, offsets shared by
+//! centre priors (a GNSS bias per flight) estimated with their own prior,
 //! Huber/Cauchy/soft-L1 losses, dense and sparse (faer, symbolic analysis once per solve) Schur
 //! paths, Ceres-like trust-region control and
 //! termination, the BAL problem conversion, and `precision`: residual statistics per kind, group
@@ -27,7 +28,9 @@ pub mod solver;
 
 pub use error::BundleError;
 pub use loss::Loss;
-pub use problem::{BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior, ScaleBar};
+pub use problem::{
+    BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior, PriorOffset, ScaleBar,
+};
 pub use solver::{
     BundleOptions, BundleReport, Elimination, LinearSolver, Termination, cost, gradient,
     num_parameters, perturbed, solve,

@@ -46,7 +46,8 @@ pub struct ResidualStatistics {
     pub per_group: Vec<Rms>,
     /// The same per image.
     pub per_image: Vec<Rms>,
-    /// Camera centre minus GNSS prior: RMS east, north, up (m), and count.
+    /// Camera centre minus GNSS prior (less its offset, when it has one): RMS east, north, up
+    /// (m), and count.
     pub center_priors: Option<([f64; 3], usize)>,
     /// Adjusted minus surveyed control-point coordinates: RMS east, north, up (m), and count.
     pub point_priors: Option<([f64; 3], usize)>,
@@ -110,7 +111,10 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
         p.center_priors
             .iter()
             .map(|c| {
-                let d = p.images[c.image].pose.center() - c.position;
+                let offset = c
+                    .offset
+                    .map_or_else(nalgebra::Vector3::zeros, |o| p.prior_offsets[o].value);
+                let d = p.images[c.image].pose.center() - c.position + offset;
                 (
                     d,
                     nalgebra::Vector3::new(1.0 / c.sigma_xy, 1.0 / c.sigma_xy, 1.0 / c.sigma_z),
@@ -130,6 +134,12 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
             })
             .collect(),
     );
+    // The free offsets' zero-mean priors are residuals too (not in `center_priors`' RMS).
+    for o in p.prior_offsets.iter().filter(|o| !o.fixed) {
+        let scale = crate::solver::offset_prior_scale(o);
+        normalised_sq += o.value.component_mul(&scale).norm_squared();
+        components += 3;
+    }
     let scale_bars = (!p.scale_bars.is_empty()).then(|| {
         let mut sq = 0.0;
         for bar in &p.scale_bars {
@@ -184,12 +194,19 @@ pub struct Precision {
     /// Per camera group: (parameter index in the camera model, standard deviation) of each free
     /// intrinsic.
     pub intrinsics: Vec<Vec<(usize, f64)>>,
+    /// Covariance of each free prior offset (m²), world axes.
+    pub offsets: Vec<Option<Matrix3<f64>>>,
 }
 
 impl Precision {
     /// Standard deviations (east, north, up) of an image's camera centre.
     pub fn center_std(&self, image: usize) -> Option<[f64; 3]> {
         self.centers[image].map(|c| [c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()])
+    }
+
+    /// Standard deviations (east, north, up) of a prior offset, when free.
+    pub fn offset_std(&self, offset: usize) -> Option<[f64; 3]> {
+        self.offsets[offset].map(|c| [c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()])
     }
 
     /// Standard deviation of intrinsic `param` (camera-model index) of `group`, when free.
@@ -235,6 +252,9 @@ pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision,
             blocks.push((*off, layout.group_free[g].len()));
         }
     }
+    for off in layout.bias_offset.iter().flatten() {
+        blocks.push((*off, 3));
+    }
     let inverse = s.inverse_diagonal_blocks(&blocks).ok_or_else(singular)?;
     let factor = match scale {
         CovarianceScale::Prior => 1.0,
@@ -269,10 +289,18 @@ pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision,
             .map(|(q, &param)| (param, (block[(q, q)] * factor).sqrt()))
             .collect();
     }
+    let mut offsets = vec![None; p.prior_offsets.len()];
+    for (o, off) in layout.bias_offset.iter().enumerate() {
+        if off.is_some() {
+            offsets[o] = Some(Matrix3::from_fn(|r, c| inverse[k][(r, c)] * factor));
+            k += 1;
+        }
+    }
     Ok(Precision {
         scale: factor,
         centers,
         poses,
         intrinsics,
+        offsets,
     })
 }

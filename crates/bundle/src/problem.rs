@@ -92,6 +92,27 @@ pub struct CenterPrior {
     pub sigma_xy: f64,
     /// Vertical standard deviation, metres.
     pub sigma_z: f64,
+    /// The offset (index into [`BundleProblem::prior_offsets`]) this measurement carries, if
+    /// any: the measurement is the true centre plus the offset, so the residual is
+    /// `C − (position − offset)`.
+    pub offset: Option<usize>,
+}
+
+/// An unknown constant offset shared by several camera-centre priors: the bias of one GNSS
+/// receiver over one flight (metres, the same for every image of it), which consumer receivers
+/// carry at the metre level while their flight-internal noise is centimetres. Estimated with a
+/// zero-mean prior of the stated σ (as OpenSfM's GPS-bias compensation and Metashape's per-group
+/// location offsets do), or held fixed (e.g. at zero for a flight whose offset is the datum).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PriorOffset {
+    /// Current estimate (E, N, H), metres.
+    pub value: Vector3<f64>,
+    /// Horizontal standard deviation of the zero-mean prior, metres.
+    pub sigma_xy: f64,
+    /// Vertical standard deviation of the zero-mean prior, metres.
+    pub sigma_z: f64,
+    /// Hold the offset at `value`.
+    pub fixed: bool,
 }
 
 /// A prior on a point's object coordinates (a ground control point measured by markers).
@@ -133,6 +154,8 @@ pub struct BundleProblem {
     pub observations: Vec<Observation>,
     /// Camera-centre priors (GNSS).
     pub center_priors: Vec<CenterPrior>,
+    /// Offsets shared by camera-centre priors (GNSS bias per flight).
+    pub prior_offsets: Vec<PriorOffset>,
     /// Object-coordinate priors of control points.
     pub point_priors: Vec<PointPrior>,
     /// Distances between pairs of points.
@@ -197,6 +220,20 @@ impl BundleProblem {
                 return Err(BundleError::InvalidProblem(format!(
                     "centre prior {k}: image {} out of range, non-positive sigma or non-finite position",
                     c.image
+                )));
+            }
+            if c.offset.is_some_and(|o| o >= self.prior_offsets.len()) {
+                return Err(BundleError::InvalidProblem(format!(
+                    "centre prior {k}: offset {:?} of {}",
+                    c.offset,
+                    self.prior_offsets.len()
+                )));
+            }
+        }
+        for (k, o) in self.prior_offsets.iter().enumerate() {
+            if !(o.sigma_xy > 0.0 && o.sigma_z > 0.0) || !o.value.iter().all(|v| v.is_finite()) {
+                return Err(BundleError::InvalidProblem(format!(
+                    "prior offset {k}: non-positive sigma or non-finite value"
                 )));
             }
         }

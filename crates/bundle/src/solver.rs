@@ -10,7 +10,7 @@ use nalgebra::{DVector, SMatrix, SVector, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
 use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
 
-use crate::problem::{BundleProblem, CenterPrior, PointPrior, ScaleBar};
+use crate::problem::{BundleProblem, CenterPrior, PointPrior, PriorOffset, ScaleBar};
 use crate::reduced::{Reduced, SparsePattern};
 use crate::{BundleError, Loss};
 
@@ -137,6 +137,8 @@ pub(crate) struct Layout {
     pub(crate) pose_offset: Vec<Option<usize>>,
     /// Reduced-side offset of each group's free intrinsics.
     pub(crate) group_offset: Vec<Option<usize>>,
+    /// Reduced-side offset of each free prior offset (GNSS bias); always on the reduced side.
+    pub(crate) bias_offset: Vec<Option<usize>>,
     pub(crate) group_free: Vec<Vec<usize>>,
     /// Reduced-side offset of each free point (poses elimination only).
     pub(crate) point_offset: Vec<Option<usize>>,
@@ -202,11 +204,12 @@ impl Layout {
         let mut n = 0;
         let mut m = 0;
         let none_i = vec![None; p.images.len()];
-        let (pose_offset, pose_index, point_offset, point_index, group_offset);
+        let (pose_offset, pose_index, point_offset, point_index, group_offset, bias_offset);
         match eliminate {
             Eliminate::Points => {
                 pose_offset = counter(free_poses, &mut n, 6);
                 group_offset = group_offsets(&group_free, &mut n);
+                bias_offset = counter(p.prior_offsets.iter().map(|o| !o.fixed), &mut n, 3);
                 // Ends of scale bars couple two points, so they stay in the reduced system.
                 let mut on_bar = vec![false; p.points.len()];
                 for bar in &p.scale_bars {
@@ -222,6 +225,7 @@ impl Layout {
                 point_offset = counter(free_points, &mut n, 3);
                 let none_p = vec![None; p.points.len()];
                 group_offset = group_offsets(&group_free, &mut n);
+                bias_offset = counter(p.prior_offsets.iter().map(|o| !o.fixed), &mut n, 3);
                 pose_index = counter(free_poses, &mut m, 1);
                 pose_offset = none_i;
                 point_index = none_p;
@@ -231,6 +235,7 @@ impl Layout {
             eliminate,
             pose_offset,
             group_offset,
+            bias_offset,
             group_free,
             point_offset,
             point_index,
@@ -274,6 +279,9 @@ impl Layout {
             if !merged[g] && !cols.is_empty() {
                 blocks.push(cols);
             }
+        }
+        for o in self.bias_offset.iter().flatten() {
+            blocks.push((*o..o + 3).collect());
         }
         blocks
     }
@@ -358,17 +366,19 @@ pub(crate) fn center_jacobian(pose: &timesift_core::Pose) -> SMatrix<f64, 3, 6> 
     j
 }
 
-/// Camera-centre prior residual (sigma-weighted) and its Jacobian (see [`center_jacobian`]).
+/// Camera-centre prior residual (sigma-weighted) and its Jacobian with respect to the pose (see
+/// [`center_jacobian`]); that with respect to the prior's offset, when it has one, is
+/// `diag(1/σ)` ([`center_prior_scale`]).
 pub(crate) fn center_prior_residual(
-    pose: &timesift_core::Pose,
+    p: &BundleProblem,
     prior: &CenterPrior,
 ) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {
-    let inv = Vector3::new(
-        1.0 / prior.sigma_xy,
-        1.0 / prior.sigma_xy,
-        1.0 / prior.sigma_z,
-    );
-    let r = (pose.center() - prior.position).component_mul(&inv);
+    let pose = &p.images[prior.image].pose;
+    let inv = center_prior_scale(prior);
+    let offset = prior
+        .offset
+        .map_or_else(Vector3::zeros, |o| p.prior_offsets[o].value);
+    let r = (pose.center() - prior.position + offset).component_mul(&inv);
     let mut j = center_jacobian(pose);
     for row in 0..3 {
         for c in 0..6 {
@@ -376,6 +386,24 @@ pub(crate) fn center_prior_residual(
         }
     }
     (r, j)
+}
+
+/// `1/σ` per axis of a centre prior.
+pub(crate) fn center_prior_scale(prior: &CenterPrior) -> Vector3<f64> {
+    Vector3::new(
+        1.0 / prior.sigma_xy,
+        1.0 / prior.sigma_xy,
+        1.0 / prior.sigma_z,
+    )
+}
+
+/// `1/σ` per axis of a prior offset's zero-mean prior.
+pub(crate) fn offset_prior_scale(offset: &PriorOffset) -> Vector3<f64> {
+    Vector3::new(
+        1.0 / offset.sigma_xy,
+        1.0 / offset.sigma_xy,
+        1.0 / offset.sigma_z,
+    )
 }
 
 fn point_prior_scale(prior: &PointPrior) -> Vector3<f64> {
@@ -390,11 +418,13 @@ fn prior_cost(p: &BundleProblem) -> f64 {
     let centres: f64 = p
         .center_priors
         .iter()
-        .map(|c| {
-            0.5 * center_prior_residual(&p.images[c.image].pose, c)
-                .0
-                .norm_squared()
-        })
+        .map(|c| 0.5 * center_prior_residual(p, c).0.norm_squared())
+        .sum();
+    let offsets: f64 = p
+        .prior_offsets
+        .iter()
+        .filter(|o| !o.fixed)
+        .map(|o| 0.5 * o.value.component_mul(&offset_prior_scale(o)).norm_squared())
         .sum();
     let points: f64 = p
         .point_priors
@@ -410,7 +440,7 @@ fn prior_cost(p: &BundleProblem) -> f64 {
         .iter()
         .map(|bar| 0.5 * scale_bar_residual(p, bar).0.powi(2))
         .sum();
-    centres + points + bars
+    centres + offsets + points + bars
 }
 
 /// Observations per parallel chunk; fixed so that the summation order, and so the result, does not
@@ -557,11 +587,12 @@ fn linearize<const D: usize>(
         }
     }
     for c in &p.center_priors {
-        let (r, j) = center_prior_residual(&p.images[c.image].pose, c);
+        let (r, j) = center_prior_residual(p, c);
         nm.cost += 0.5 * r.norm_squared();
         let jtj = j.transpose() * j;
         let jtr = j.transpose() * r;
-        if let Some(off) = layout.pose_offset[c.image] {
+        let pose_off = layout.pose_offset[c.image];
+        if let Some(off) = pose_off {
             for a in 0..6 {
                 nm.g_c[off + a] += jtr[a];
                 for b in 0..6 {
@@ -575,6 +606,35 @@ fn linearize<const D: usize>(
                     nm.v[bi][(a, b)] += jtj[(a, b)];
                 }
             }
+        }
+        // The offset's Jacobian is diag(1/σ): its blocks with itself and with the pose.
+        if let Some(bo) = c.offset.and_then(|o| layout.bias_offset[o]) {
+            let scale = center_prior_scale(c);
+            for a in 0..3 {
+                nm.g_c[bo + a] += scale[a] * r[a];
+                nm.u.add(bo + a, bo + a, scale[a] * scale[a]);
+            }
+            if let Some(off) = pose_off {
+                for a in 0..3 {
+                    for b in 0..6 {
+                        let v = scale[a] * j[(a, b)];
+                        nm.u.add(bo + a, off + b, v);
+                        nm.u.add(off + b, bo + a, v);
+                    }
+                }
+            }
+        }
+    }
+    for (o, offset) in p.prior_offsets.iter().enumerate() {
+        let Some(bo) = layout.bias_offset[o] else {
+            continue;
+        };
+        let scale = offset_prior_scale(offset);
+        let r = offset.value.component_mul(&scale);
+        nm.cost += 0.5 * r.norm_squared();
+        for a in 0..3 {
+            nm.g_c[bo + a] += scale[a] * r[a];
+            nm.u.add(bo + a, bo + a, scale[a] * scale[a]);
         }
     }
     for c in &p.point_priors {
@@ -1052,6 +1112,12 @@ fn apply_step<const D: usize>(
             group.camera.set_params(&params[..n]).ok()?;
         }
     }
+    for (o, offset) in q.prior_offsets.iter_mut().enumerate() {
+        if let Some(bo) = layout.bias_offset[o] {
+            offset.value +=
+                Vector3::new(step.cameras[bo], step.cameras[bo + 1], step.cameras[bo + 2]);
+        }
+    }
     for (j, pt) in q.points.iter_mut().enumerate() {
         if let Some(pi) = layout.point_index[j] {
             pt.position += Vector3::new(step.points[pi][0], step.points[pi][1], step.points[pi][2]);
@@ -1078,6 +1144,9 @@ fn parameter_norm(p: &BundleProblem) -> f64 {
     }
     for pt in &p.points {
         s += pt.position.norm_squared();
+    }
+    for o in &p.prior_offsets {
+        s += o.value.norm_squared();
     }
     s.sqrt()
 }
@@ -1130,8 +1199,13 @@ fn reduced_storage(
         groups.push(cols);
     }
     for c in &p.center_priors {
-        if let Some(off) = layout.pose_offset[c.image] {
-            groups.push((off..off + 6).collect());
+        let mut cols: Vec<usize> =
+            layout.pose_offset[c.image].map_or(Vec::new(), |off| (off..off + 6).collect());
+        if let Some(bo) = c.offset.and_then(|o| layout.bias_offset[o]) {
+            cols.extend(bo..bo + 3);
+        }
+        if !cols.is_empty() {
+            groups.push(cols);
         }
     }
     for bar in &p.scale_bars {
@@ -1175,11 +1249,15 @@ pub fn solve(
         return Err(BundleError::NothingToAdjust);
     }
     let by_poses = Layout::with(problem, Eliminate::Poses);
-    let poses = match options.elimination {
-        Elimination::Auto => by_poses.num_camera_params < by_points.num_camera_params,
-        Elimination::Points => false,
-        Elimination::Poses => true,
-    };
+    // A free offset couples the centre priors of many poses; the eliminated blocks must stay
+    // independent, so with one the points are eliminated whatever was asked.
+    let coupled_poses = by_points.bias_offset.iter().any(Option::is_some);
+    let poses = !coupled_poses
+        && match options.elimination {
+            Elimination::Auto => by_poses.num_camera_params < by_points.num_camera_params,
+            Elimination::Points => false,
+            Elimination::Poses => true,
+        };
     if poses {
         run::<6>(problem, &by_poses, options)
     } else {
@@ -1290,8 +1368,8 @@ fn run<const D: usize>(
 }
 
 /// Number of adjusted parameters in the local (update) coordinates used by [`gradient`] and
-/// [`perturbed`]: free poses (6 each), free intrinsics, free points on scale bars (3 each), then
-/// the other free points (3 each).
+/// [`perturbed`]: free poses (6 each), free intrinsics, free prior offsets (3 each), free points
+/// on scale bars (3 each), then the other free points (3 each).
 pub fn num_parameters(problem: &BundleProblem) -> usize {
     let layout = Layout::new(problem);
     layout.num_camera_params + 3 * layout.num_free_points

@@ -91,6 +91,7 @@ fn realisation(t: &Truth, seed: u64) -> BundleProblem {
                 ),
             sigma_xy: 0.02,
             sigma_z: 0.05,
+            offset: None,
         })
         .collect();
     let point_priors = (0..10)
@@ -122,6 +123,7 @@ fn realisation(t: &Truth, seed: u64) -> BundleProblem {
             .collect(),
         observations,
         center_priors,
+        prior_offsets: Vec::new(),
         point_priors,
         scale_bars: Vec::new(),
     }

@@ -206,6 +206,7 @@ fn realisation(b: &Block, seed: u64) -> BundleProblem {
         points,
         observations,
         center_priors: Vec::new(),
+        prior_offsets: Vec::new(),
         point_priors,
         scale_bars: Vec::new(),
     }

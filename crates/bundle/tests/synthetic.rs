@@ -175,6 +175,7 @@ fn georeferenced_block(seed: u64) -> (BundleProblem, Vec<Vector3<f64>>) {
             ),
             sigma_xy: 0.02,
             sigma_z: 0.05,
+            offset: None,
         })
         .collect();
     (p, truth_centres)
@@ -252,6 +253,19 @@ fn analytic_gradient_matches_finite_differences_for_every_residual_type() {
             sigma: 0.005,
         })
         .collect();
+    // Two GNSS offsets away from zero, each carried by half of the centre priors.
+    p.prior_offsets = [Vector3::new(0.3, -0.2, 0.5), Vector3::new(-0.1, 0.4, -0.6)]
+        .iter()
+        .map(|&value| timesift_bundle::PriorOffset {
+            value,
+            sigma_xy: 2.0,
+            sigma_z: 3.0,
+            fixed: false,
+        })
+        .collect();
+    for (i, c) in p.center_priors.iter_mut().enumerate() {
+        c.offset = Some(i / 4);
+    }
     for loss in [
         timesift_bundle::Loss::Trivial,
         timesift_bundle::Loss::Cauchy(2.0),
@@ -263,6 +277,7 @@ fn analytic_gradient_matches_finite_differences_for_every_residual_type() {
         let mut worst = 0.0f64;
         for k in 0..n {
             // Central differences with one Richardson step; steps sized per parameter kind.
+            // Poses, intrinsics, then offsets and points.
             let h = if k < 48 {
                 1e-6
             } else if k < 59 {
@@ -316,4 +331,128 @@ fn gnss_priors_georeference_the_block() {
             "centre off by {d:?}"
         );
     }
+}
+
+/// The block of `georeferenced_block` with control points on ten points, where the last four
+/// images' GNSS carries a common bias `bias`.
+fn biased_flight(seed: u64, bias: Vector3<f64>) -> (BundleProblem, Vec<Vector3<f64>>) {
+    let (mut p, truth) = georeferenced_block(seed);
+    let truth_points: Vec<Vector3<f64>> = {
+        let mut rng = SeededRng::new(seed);
+        (0..150)
+            .map(|_| {
+                Vector3::new(
+                    rng.uniform_range(-10.0, 10.0),
+                    rng.uniform_range(-10.0, 10.0),
+                    rng.uniform_range(-3.0, 3.0),
+                )
+            })
+            .collect()
+    };
+    p.point_priors = (0..10)
+        .map(|j| timesift_bundle::PointPrior {
+            point: j * 15,
+            position: truth_points[j * 15],
+            sigma_xy: 0.005,
+            sigma_z: 0.005,
+        })
+        .collect();
+    for c in p.center_priors.iter_mut().skip(4) {
+        c.position += bias;
+    }
+    (p, truth)
+}
+
+#[test]
+fn a_gnss_bias_per_flight_is_estimated_within_its_precision() {
+    let bias = Vector3::new(1.2, -0.7, 2.5);
+    let options = BundleOptions {
+        function_tolerance: 1e-12,
+        ..BundleOptions::default()
+    };
+    // Without an offset the biased flight drags the block: centres metres off.
+    let (mut plain, truth) = biased_flight(31, bias);
+    solve(&mut plain, &options).unwrap();
+    let worst_plain = plain
+        .images
+        .iter()
+        .zip(&truth)
+        .map(|(im, c)| (im.pose.center() - c).norm())
+        .fold(0.0f64, f64::max);
+    // With one offset for the biased flight (prior σ 10 m around zero), estimated in the block.
+    let (mut p, truth) = biased_flight(31, bias);
+    p.prior_offsets = vec![timesift_bundle::PriorOffset {
+        value: Vector3::zeros(),
+        sigma_xy: 10.0,
+        sigma_z: 10.0,
+        fixed: false,
+    }];
+    for c in p.center_priors.iter_mut().skip(4) {
+        c.offset = Some(0);
+    }
+    solve(&mut p, &options).unwrap();
+    let precision = timesift_bundle::precision::precision(
+        &p,
+        timesift_bundle::precision::CovarianceScale::Posterior,
+    )
+    .unwrap();
+    let std = precision
+        .offset_std(0)
+        .expect("free offset has a covariance");
+    let estimate = p.prior_offsets[0].value;
+    for k in 0..3 {
+        assert!(
+            (estimate[k] - bias[k]).abs() < 3.0 * std[k] && std[k] < 0.05,
+            "axis {k}: estimated {} ± {} for a bias of {}",
+            estimate[k],
+            std[k],
+            bias[k]
+        );
+    }
+    let worst = p
+        .images
+        .iter()
+        .zip(&truth)
+        .map(|(im, c)| (im.pose.center() - c).norm())
+        .fold(0.0f64, f64::max);
+    assert!(
+        worst < 0.05 && worst_plain > 10.0 * worst,
+        "centre errors: {worst} m with the offset, {worst_plain} m without"
+    );
+    // The prior RMS now measures the GNSS noise, not the bias.
+    let stats = timesift_bundle::precision::residual_statistics(&p, 4.0);
+    let (rms, n) = stats.center_priors.unwrap();
+    assert_eq!(n, 8);
+    assert!(rms[0] < 0.05 && rms[2] < 0.15, "{rms:?}");
+}
+
+#[test]
+fn a_fixed_offset_is_applied_and_bad_offsets_are_errors() {
+    let bias = Vector3::new(0.0, 0.0, 1.5);
+    let (mut p, truth) = biased_flight(32, bias);
+    p.prior_offsets = vec![timesift_bundle::PriorOffset {
+        value: bias,
+        sigma_xy: 1.0,
+        sigma_z: 1.0,
+        fixed: true,
+    }];
+    for c in p.center_priors.iter_mut().skip(4) {
+        c.offset = Some(0);
+    }
+    let mut bad = p.clone();
+    solve(&mut p, &BundleOptions::default()).unwrap();
+    assert_eq!(
+        p.prior_offsets[0].value, bias,
+        "a fixed offset does not move"
+    );
+    for (im, c) in p.images.iter().zip(&truth) {
+        assert!((im.pose.center() - c).norm() < 0.05);
+    }
+    bad.center_priors[5].offset = Some(1);
+    let err = solve(&mut bad.clone(), &BundleOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("offset"), "{err}");
+    bad.center_priors[5].offset = Some(0);
+    bad.prior_offsets[0].sigma_z = 0.0;
+    let err = solve(&mut bad, &BundleOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("prior offset 0"), "{err}");
 }
