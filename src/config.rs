@@ -139,6 +139,22 @@ pub struct GnssConfig {
     /// Vertical standard deviation (m) of priors that give none. Default 10 m.
     #[serde(default = "default_sz")]
     pub sz: f64,
+    /// Which unknown offsets the priors carry: `epoch` (the default: one per epoch, as a
+    /// receiver's bias changes from flight to flight) or `none` (priors taken as unbiased).
+    #[serde(default)]
+    pub offsets: GnssOffsets,
+}
+
+/// `[gnss] offsets`: the GNSS bias model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GnssOffsets {
+    /// One offset per epoch, estimated in the adjustment with a zero-mean prior of the epoch's
+    /// stated accuracy.
+    #[default]
+    Epoch,
+    /// No offset: the priors' stated σ must then cover their bias.
+    None,
 }
 
 fn yes() -> bool {
@@ -157,6 +173,7 @@ impl Default for GnssConfig {
             exif: true,
             sxy: default_sxy(),
             sz: default_sz(),
+            offsets: GnssOffsets::default(),
         }
     }
 }

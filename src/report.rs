@@ -63,6 +63,21 @@ pub struct EpochOrientation {
     pub control_points: PointResiduals,
     /// Check-point residuals from this epoch's markers.
     pub check_points: PointResiduals,
+    /// The GNSS offset estimated for the epoch (`[gnss] offsets = "epoch"`).
+    #[serde(default)]
+    pub gnss_offset: Option<GnssOffset>,
+}
+
+/// An epoch's estimated GNSS offset: its receiver's positions minus the true camera centres,
+/// common to the flight, metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GnssOffset {
+    /// East, north, up.
+    pub offset: [f64; 3],
+    /// Standard deviations (east, north, up), when the adjustment's covariance was available.
+    pub std: Option<[f64; 3]>,
+    /// Priors that carried it.
+    pub priors: usize,
 }
 
 /// Residuals of ground points (intersected from markers − surveyed), metres.

@@ -35,6 +35,40 @@ pub struct EpochAccuracy {
     pub centre_rmse_m: Option<[f64; 3]>,
     /// Tie points also observed in another epoch.
     pub inter_epoch_tie_points: u64,
+    /// Estimated minus true GNSS bias (E, N, H), metres, when the epoch's offset was estimated
+    /// and `truth/gnss_bias.csv` exists.
+    pub gnss_offset_error_m: Option<[f64; 3]>,
+    /// The same in the offset's reported standard deviations.
+    pub gnss_offset_error_sigmas: Option<[f64; 3]>,
+}
+
+/// Each epoch's true GNSS bias from `truth/gnss_bias.csv` (`epoch,east,north,up`); empty when
+/// the scene has no GNSS.
+pub fn true_gnss_bias(
+    project: &Project,
+) -> Result<std::collections::BTreeMap<String, [f64; 3]>, ProjectError> {
+    let path = project.layout().truth_dir().join("gnss_bias.csv");
+    let mut biases = std::collections::BTreeMap::new();
+    if !path.is_file() {
+        return Ok(biases);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| timesift_io::IoError::io(&path, e))?;
+    for (k, line) in text.lines().enumerate().skip(1) {
+        let fields: Vec<&str> = line.split(',').collect();
+        let values: Vec<f64> = fields
+            .iter()
+            .skip(1)
+            .filter_map(|v| v.trim().parse().ok())
+            .collect();
+        if fields.len() != 4 || values.len() != 3 {
+            return Err(ProjectError::Path {
+                path: path.clone(),
+                message: format!("line {}: expected epoch,east,north,up", k + 1),
+            });
+        }
+        biases.insert(fields[0].to_string(), [values[0], values[1], values[2]]);
+    }
+    Ok(biases)
 }
 
 /// Mean distance from the true camera centres to the check points' centroid (or the control
@@ -91,6 +125,7 @@ pub fn epoch_accuracy(
     let truth = read_cameras_json(&project.layout().truth_cameras())?;
     let reference_name = &project.epochs[project.reference_epoch.index()].name;
     let epochs = &report.epochs;
+    let biases = true_gnss_bias(project)?;
     let reference = epochs
         .get(reference_name)
         .map(check_residuals)
@@ -111,6 +146,10 @@ pub fn epoch_accuracy(
             .filter_map(|(o, t)| Some(o.pose?.center() - t.pose?.center()))
             .collect();
         let check = rms3(&vectors);
+        let offset_error = match (epoch.gnss_offset, biases.get(name)) {
+            (Some(o), Some(b)) => Some(([0, 1, 2].map(|k| o.offset[k] - b[k]), o.std)),
+            _ => None,
+        };
         rows.push(EpochAccuracy {
             epoch: name.clone(),
             images_given: epoch.images_given as u64,
@@ -122,6 +161,9 @@ pub fn epoch_accuracy(
             disagreement_m: rms3(&disagreement),
             centre_rmse_m: rms3(&centres),
             inter_epoch_tie_points: epoch.inter_epoch_tie_points as u64,
+            gnss_offset_error_m: offset_error.map(|(e, _)| e),
+            gnss_offset_error_sigmas: offset_error
+                .and_then(|(e, std)| std.map(|std| [0, 1, 2].map(|k| e[k] / std[k]))),
         });
     }
     Ok(rows)

@@ -35,6 +35,7 @@ fn project(dir: &Path) {
         inter_epoch_tie_points: 10,
         control_points: PointResiduals::default(),
         check_points: PointResiduals::default(),
+        gnss_offset: None,
     };
     let report = AlignReport {
         method: "timesift".into(),

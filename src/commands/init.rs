@@ -231,6 +231,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     );
     let _ = writeln!(
         text,
+        "# offsets = \"epoch\"  # a GNSS offset per epoch estimated in the block, or \"none\""
+    );
+    let _ = writeln!(
+        text,
         "\n# A known calibration (e.g. a film camera's certificate and the scan resolution):\n\
          # [[camera]]\n\
          # name = {}      # camera group\n\

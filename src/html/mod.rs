@@ -469,6 +469,15 @@ fn orientation_section(
             r.inter_epoch_tie_points.to_string(),
             rmse(&r.control_points),
             rmse(&r.check_points),
+            r.gnss_offset.map_or("–".into(), |o| {
+                let std = o.std.map_or(String::new(), |s| {
+                    format!(" ± {:.2} / {:.2} / {:.2}", s[0], s[1], s[2])
+                });
+                format!(
+                    "{:.2} / {:.2} / {:.2}{std}",
+                    o.offset[0], o.offset[1], o.offset[2]
+                )
+            }),
         ]);
         if r.images_oriented < r.images_given {
             warnings.push(format!(
@@ -489,6 +498,7 @@ fn orientation_section(
             "inter-epoch",
             "control RMSE dE/dN/dH mm",
             "check RMSE dE/dN/dH mm",
+            "GNSS offset E/N/H m",
         ],
         &rows,
     );

@@ -14,7 +14,7 @@ use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
     Block, CentrePrior, Datum, FocalSource, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
-    PointResidual, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
+    OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -22,12 +22,12 @@ use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use super::{PipelineStage, Stage};
-use crate::config::AlignMethod;
+use crate::config::{AlignMethod, GnssOffsets};
 use crate::layout::Layout;
 use crate::project::GivenFocal;
 use crate::report::{
-    AlignReport, EpochOrientation, PointResidual as ResidualRow, PointResiduals, Rmse, read_json,
-    write_json,
+    AlignReport, EpochOrientation, GnssOffset, PointResidual as ResidualRow, PointResiduals, Rmse,
+    read_json, write_json,
 };
 use crate::stable_matcher::FeatureFileMatcher;
 use crate::{Project, ProjectError};
@@ -362,6 +362,28 @@ fn ground_input(project: &Project, frame: &LocalFrame) -> Result<GeoreferenceInp
             });
         }
     }
+    // One GNSS offset per epoch with priors, its prior σ the epoch's mean stated accuracy.
+    let mut prior_offsets = Vec::new();
+    let mut offset_of_epoch = vec![None; project.epochs.len()];
+    if project.config.gnss.offsets == GnssOffsets::Epoch {
+        for (e, epoch) in project.epochs.iter().enumerate() {
+            let stated: Vec<(f64, f64)> = epoch
+                .images
+                .iter()
+                .filter_map(|i| frame.priors[i.index()].as_ref().map(|p| (p.sxy, p.sz)))
+                .collect();
+            if stated.is_empty() {
+                continue;
+            }
+            let n = stated.len() as f64;
+            offset_of_epoch[e] = Some(prior_offsets.len());
+            prior_offsets.push(OffsetPrior {
+                name: epoch.name.clone(),
+                sigma_xy: stated.iter().map(|s| s.0).sum::<f64>() / n,
+                sigma_z: stated.iter().map(|s| s.1).sum::<f64>() / n,
+            });
+        }
+    }
     let centre_priors = frame
         .priors
         .iter()
@@ -372,11 +394,13 @@ fn ground_input(project: &Project, frame: &LocalFrame) -> Result<GeoreferenceInp
                 position: p.position - frame.origin,
                 sigma_xy: p.sxy,
                 sigma_z: p.sz,
+                offset: offset_of_epoch[project.images[i].epoch.index()],
             })
         })
         .collect();
     Ok(GeoreferenceInput {
         centre_priors,
+        prior_offsets,
         points,
         marker_sigma_px: project.config.align.marker_accuracy_px,
     })
@@ -559,6 +583,15 @@ fn report(
                 inter_epoch_tie_points: inter,
                 control_points: residuals_of(&per_epoch, false),
                 check_points: residuals_of(&per_epoch, true),
+                gnss_offset: block
+                    .gnss_offsets
+                    .iter()
+                    .find(|o| o.name == epoch.name && o.priors > 0)
+                    .map(|o| GnssOffset {
+                        offset: [o.value.x, o.value.y, o.value.z],
+                        std: o.std,
+                        priors: o.priors,
+                    }),
             },
         );
     }

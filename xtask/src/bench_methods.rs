@@ -179,13 +179,13 @@ fn evaluate(
 fn table(rows: &[Row]) -> String {
     let mut s = String::from(
         "| scene | method | epoch | oriented | check RMSE dE/dN/dH (m) | (GSD) | epoch − ref. (m) \
-         | centre RMSE (m) | RMS px | inter-epoch ties | s |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+         | centre RMSE (m) | RMS px | inter-epoch ties | GNSS offset − true bias (m) | (σ) | s |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let Some(a) = &r.accuracy else {
             s.push_str(&format!(
-                "| {} | {} | – | failed: {} | | | | | | | {:.1} |\n",
+                "| {} | {} | – | failed: {} | | | | | | | | | {:.1} |\n",
                 r.scene,
                 r.method,
                 r.error.as_deref().unwrap_or("").replace('|', "/"),
@@ -194,7 +194,7 @@ fn table(rows: &[Row]) -> String {
             continue;
         };
         s.push_str(&format!(
-            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
             r.scene,
             r.method,
             a.epoch,
@@ -206,6 +206,8 @@ fn table(rows: &[Row]) -> String {
             triple(a.centre_rmse_m, 3),
             a.rms_px.map_or("–".into(), |v| format!("{v:.3}")),
             a.inter_epoch_tie_points,
+            triple(a.gnss_offset_error_m, 3),
+            triple(a.gnss_offset_error_sigmas, 1),
             r.seconds
         ));
     }

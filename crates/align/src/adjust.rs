@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 use timesift_bundle::problem::{BundleImage, BundlePoint};
 use timesift_bundle::{
     BundleOptions, BundleProblem, BundleReport, CameraGroup, CenterPrior, Loss, Observation,
-    PointPrior,
+    PointPrior, PriorOffset,
 };
 use timesift_core::CameraModel;
 
@@ -24,6 +24,23 @@ pub struct CentrePrior {
     /// Horizontal standard deviation, metres.
     pub sigma_xy: f64,
     /// Vertical standard deviation, metres.
+    pub sigma_z: f64,
+    /// The GNSS offset this prior carries (index into
+    /// [`crate::GeoreferenceInput::prior_offsets`]), estimated in the adjustment; `None`: the
+    /// prior is taken as unbiased.
+    pub offset: Option<usize>,
+}
+
+/// An unknown GNSS offset shared by the centre priors of one flight (an epoch or a camera
+/// group): consumer receivers carry a bias of metres per flight and centimetres of noise within
+/// it. Estimated with a zero-mean prior of these σ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OffsetPrior {
+    /// What it belongs to (an epoch's name), for reports.
+    pub name: String,
+    /// Horizontal standard deviation of the prior, metres.
+    pub sigma_xy: f64,
+    /// Vertical standard deviation of the prior, metres.
     pub sigma_z: f64,
 }
 
@@ -56,6 +73,8 @@ pub(crate) struct Adjustment<'p> {
     pub points: Vec<usize>,
     pub intrinsics: Intrinsics,
     pub priors: &'p [CentrePrior],
+    /// The offsets the priors refer to; their current values are in [`State::offsets`].
+    pub offsets: &'p [OffsetPrior],
     pub marked: &'p [MarkedPoint],
     /// Loss on every reprojection residual (markers included).
     pub loss: Loss,
@@ -72,6 +91,9 @@ pub(crate) struct Adjusted {
     /// Per group: (parameter index, standard deviation) of each free intrinsic, when asked for
     /// and the datum allowed it.
     pub intrinsic_std: Option<Vec<Vec<(usize, f64)>>>,
+    /// Per offset: standard deviations (east, north, up), when asked for and the datum allowed
+    /// it.
+    pub offset_std: Option<Vec<Option<[f64; 3]>>>,
 }
 
 /// Robust loss of tie-point residuals (in sigmas) while the block grows: soft L1 beyond about
@@ -184,6 +206,17 @@ impl State<'_> {
                 });
             }
         }
+        if self.offsets.len() != a.offsets.len() {
+            self.offsets = vec![Vector3::zeros(); a.offsets.len()];
+        }
+        for (o, value) in a.offsets.iter().zip(&self.offsets) {
+            problem.prior_offsets.push(PriorOffset {
+                value: *value,
+                sigma_xy: o.sigma_xy,
+                sigma_z: o.sigma_z,
+                fixed: false,
+            });
+        }
         for prior in a.priors {
             if let Some(&image) = slot.get(&prior.image) {
                 problem.center_priors.push(CenterPrior {
@@ -191,7 +224,7 @@ impl State<'_> {
                     position: prior.position,
                     sigma_xy: prior.sigma_xy,
                     sigma_z: prior.sigma_z,
-                    offset: None,
+                    offset: prior.offset.filter(|&o| o < a.offsets.len()),
                 });
             }
         }
@@ -210,16 +243,24 @@ impl State<'_> {
             ..BundleOptions::default()
         };
         let report = timesift_bundle::solve(&mut problem, &options)?;
-        let intrinsic_std = if a.precision {
+        let precision = if a.precision {
             timesift_bundle::precision::precision(
                 &problem,
                 timesift_bundle::precision::CovarianceScale::Posterior,
             )
             .ok()
-            .map(|p| p.intrinsics)
         } else {
             None
         };
+        let offset_std = precision.as_ref().map(|p| {
+            (0..problem.prior_offsets.len())
+                .map(|o| p.offset_std(o))
+                .collect()
+        });
+        let intrinsic_std = precision.map(|p| p.intrinsics);
+        for (value, offset) in self.offsets.iter_mut().zip(&problem.prior_offsets) {
+            *value = offset.value;
+        }
         for (&i, &s) in &slot {
             self.rec.poses[i] = Some(problem.images[s].pose);
         }
@@ -232,6 +273,7 @@ impl State<'_> {
         Ok(Adjusted {
             report,
             intrinsic_std,
+            offset_std,
         })
     }
 }

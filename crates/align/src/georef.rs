@@ -12,7 +12,7 @@ use timesift_geometry::triangulation::{PixelObservation, intersect_weighted};
 use timesift_bundle::Loss;
 
 use crate::AlignError;
-use crate::adjust::{Adjustment, CentrePrior, Intrinsics, MarkedPoint};
+use crate::adjust::{Adjustment, CentrePrior, Intrinsics, MarkedPoint, OffsetPrior};
 use crate::model::{FocalSource, Reconstruction, SfmInput};
 use crate::options::SfmOptions;
 use crate::state::{State, track_table};
@@ -49,6 +49,8 @@ pub struct GroundPoint {
 pub struct GeoreferenceInput {
     /// GNSS camera-centre priors.
     pub centre_priors: Vec<CentrePrior>,
+    /// The GNSS offsets the priors may carry (one per flight), estimated in the adjustment.
+    pub prior_offsets: Vec<OffsetPrior>,
     /// Control and check points.
     pub points: Vec<GroundPoint>,
     /// Standard deviation of marker measurements, pixels.
@@ -82,6 +84,19 @@ pub struct PointResidual {
     pub residual: Option<Vector3<f64>>,
 }
 
+/// A GNSS offset as estimated: what the receiver's positions of one flight were off by.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EstimatedOffset {
+    /// Its name (the epoch's).
+    pub name: String,
+    /// Measured minus true camera centre, common to the flight (E, N, H), metres.
+    pub value: Vector3<f64>,
+    /// Standard deviations (E, N, H), metres, when the adjustment's covariance was available.
+    pub std: Option<[f64; 3]>,
+    /// Priors that carried it in the final adjustment (0: not estimated).
+    pub priors: usize,
+}
+
 /// The georeferenced block.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Georeferenced {
@@ -107,6 +122,9 @@ pub struct Georeferenced {
     /// the block's own noise, at most the options' threshold; the largest over the parts of a
     /// strategy that georeferences epochs apart. `None` when nothing was georeferenced.
     pub observation_bound_px: Option<f64>,
+    /// The GNSS offsets, index for index with [`GeoreferenceInput::prior_offsets`] (empty when
+    /// none was asked for or nothing was georeferenced).
+    pub gnss_offsets: Vec<EstimatedOffset>,
 }
 
 /// Pairs (block position, world position, threshold) of one component.
@@ -295,6 +313,7 @@ pub fn georeference(
     let nominal = |g: usize| input.focal_source(g) == FocalSource::Nominal;
     let mut focal_fixed: Vec<bool> = input.focal_held_during_sfm();
     let mut bound = None;
+    let mut gnss_offsets = Vec::new();
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
         // First adjustment: every focal length but the calibrated ones free, with its
@@ -306,7 +325,8 @@ pub fn georeference(
         let before = state.rec.cameras.clone();
         // Round 0 settles the focal lengths, round 1 (a consistent block again) measures its
         // noise and drops the outliers beyond it, round 2 adjusts without them.
-        for round in 0..3 {
+        let last = 2;
+        for round in 0..=last {
             let marked = marked_points(input, &state.rec, geo);
             let points = state.live_points();
             let adjusted = state.adjust(&Adjustment {
@@ -314,12 +334,16 @@ pub fn georeference(
                 points: points.clone(),
                 intrinsics: Intrinsics::Final,
                 priors: &priors,
+                offsets: &geo.prior_offsets,
                 marked: &marked,
                 loss: Loss::Trivial,
                 iterations: options.global_iterations,
                 focal_fixed: &focal_fixed,
-                precision: round == 0,
+                precision: round == 0 || (round == last && !geo.prior_offsets.is_empty()),
             })?;
+            if round == last {
+                gnss_offsets = estimated_offsets(geo, &priors, &state.offsets, &adjusted);
+            }
             tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
             if round == 1 {
                 let bound = state.tighten_to_noise();
@@ -365,7 +389,34 @@ pub fn georeference(
         focal_held: focal_fixed,
         moved_ties_split: 0,
         observation_bound_px: bound,
+        gnss_offsets,
     })
+}
+
+/// The offsets of the final adjustment with their precision and the priors that carried them.
+fn estimated_offsets(
+    geo: &GeoreferenceInput,
+    priors: &[CentrePrior],
+    values: &[Vector3<f64>],
+    adjusted: &crate::adjust::Adjusted,
+) -> Vec<EstimatedOffset> {
+    geo.prior_offsets
+        .iter()
+        .enumerate()
+        .map(|(o, spec)| {
+            let carried = priors.iter().filter(|p| p.offset == Some(o)).count();
+            EstimatedOffset {
+                name: spec.name.clone(),
+                value: values.get(o).copied().unwrap_or_else(Vector3::zeros),
+                std: adjusted
+                    .offset_std
+                    .as_ref()
+                    .and_then(|s| s.get(o).copied().flatten())
+                    .filter(|_| carried > 0),
+                priors: carried,
+            }
+        })
+        .collect()
 }
 
 /// A known focal length is held at its known value when the block determines it worse than this

@@ -31,11 +31,11 @@ mod stable;
 mod state;
 mod strategy;
 
-pub use adjust::CentrePrior;
+pub use adjust::{CentrePrior, OffsetPrior};
 pub use error::AlignError;
 pub use georef::{
-    Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker, PointResidual, georeference,
-    ground_point_residuals,
+    Datum, EstimatedOffset, GeoreferenceInput, Georeferenced, GroundPoint, Marker, PointResidual,
+    georeference, ground_point_residuals,
 };
 pub use incremental::reconstruct;
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};

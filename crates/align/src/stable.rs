@@ -125,6 +125,7 @@ impl StableTiePoints<'_> {
         let components = reconstruct(sub, options)?;
         let priors_only = GeoreferenceInput {
             centre_priors: ground.centre_priors.clone(),
+            prior_offsets: ground.prior_offsets.clone(),
             points: Vec::new(),
             marker_sigma_px: ground.marker_sigma_px,
         };
@@ -186,6 +187,7 @@ impl StableTiePoints<'_> {
         }
         let mut controlled = GeoreferenceInput {
             centre_priors: Vec::new(),
+            prior_offsets: Vec::new(),
             points: ground.points.clone(),
             marker_sigma_px: ground.marker_sigma_px,
         };

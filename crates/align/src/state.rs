@@ -52,6 +52,8 @@ pub(crate) struct State<'a> {
     /// Largest reprojection error of a kept observation, pixels: the options' threshold, or
     /// the block's own outlier bound once it is adjusted ([`State::tighten_to_noise`]).
     pub max_error_px: f64,
+    /// Current values of the GNSS offsets of the adjustments (see [`crate::adjust::OffsetPrior`]).
+    pub offsets: Vec<nalgebra::Vector3<f64>>,
 }
 
 impl<'a> State<'a> {
@@ -75,6 +77,7 @@ impl<'a> State<'a> {
             available,
             failed_trials: vec![0; input.images.len()],
             max_error_px: options.max_reprojection_px,
+            offsets: Vec::new(),
         }
     }
 

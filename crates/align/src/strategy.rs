@@ -155,6 +155,7 @@ impl Strategy for ChunkAlignment {
                 focal_held: sub.focal_held_during_sfm(),
                 moved_ties_split: 0,
                 observation_bound_px: None,
+                gnss_offsets: Vec::new(),
             });
         }
         Ok(merge(&block.sfm, parts))
@@ -372,6 +373,7 @@ pub(crate) fn restrict_ground(
             .filter(|p| keep(p.image))
             .copied()
             .collect(),
+        prior_offsets: geo.prior_offsets.clone(),
         points: geo
             .points
             .iter()
@@ -421,7 +423,16 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
     let mut rejected = 0;
     let mut focal_held = vec![false; input.cameras.len()];
     let mut bound: Option<f64> = None;
+    let mut gnss_offsets: Vec<crate::georef::EstimatedOffset> = Vec::new();
     for part in parts {
+        // Each offset from the part whose priors carried it.
+        for (o, offset) in part.gnss_offsets.iter().enumerate() {
+            match gnss_offsets.get_mut(o) {
+                Some(kept) if kept.priors == 0 && offset.priors > 0 => *kept = offset.clone(),
+                Some(_) => {}
+                None => gnss_offsets.push(offset.clone()),
+            }
+        }
         bound = match (bound, part.observation_bound_px) {
             (Some(a), Some(b)) => Some(a.max(b)),
             (a, b) => a.or(b),
@@ -448,5 +459,6 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
         focal_held,
         moved_ties_split: 0,
         observation_bound_px: bound,
+        gnss_offsets,
     }
 }

@@ -7,9 +7,9 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    Independent, OfferedTiePoint, ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions,
-    SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy, georeference,
-    reconstruct,
+    Independent, OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, SfmImage,
+    SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
+    Strategy, georeference, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -206,11 +206,13 @@ fn gnss_priors_place_the_block_in_the_world() {
             position: p.center() + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.05,
             sigma_xy: 0.05,
             sigma_z: 0.05,
+            offset: None,
         })
         .collect();
     priors[7].position.x += 30.0;
     let geo = GeoreferenceInput {
         centre_priors: priors,
+        prior_offsets: Vec::new(),
         points: Vec::new(),
         marker_sigma_px: 0.5,
     };
@@ -395,12 +397,14 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
                 },
             sigma_xy: 1.5,
             sigma_z: 1.5,
+            offset: None,
         })
         .collect();
     Block {
         sfm: s.input.clone(),
         ground: GeoreferenceInput {
             centre_priors,
+            prior_offsets: Vec::new(),
             points: Vec::new(),
             marker_sigma_px: 0.5,
         },
@@ -498,6 +502,55 @@ fn strategies_differ_as_the_papers_say_on_biased_gnss() {
         );
     }
     assert!(timesift_align::strategy("magic", &matcher).is_none());
+}
+
+/// One block with a GNSS offset for the biased epoch: the offset takes the bias (within three of
+/// its reported σ), the reference epoch's unbiased priors keep the datum, and nothing is dragged
+/// — where the plain single block above ends half-way between the epochs' priors. (The reference
+/// epoch flew RTK, 5 cm: with two strips of 1.5 m priors alone, a vertical bias of one strip is
+/// as well explained by a roll of the block about the strips' axis.)
+#[test]
+fn a_gnss_offset_per_epoch_takes_the_bias_in_one_block() {
+    let s = scene(7, 0.3, 1500);
+    let bias = Vector3::new(2.0, -1.0, 1.5);
+    let mut block = two_epoch_block(&s, bias);
+    block.ground.prior_offsets = vec![OffsetPrior {
+        name: "second".into(),
+        sigma_xy: 3.0,
+        sigma_z: 3.0,
+    }];
+    for p in &mut block.ground.centre_priors {
+        p.offset = (block.epoch_of[p.image] == 1).then_some(0);
+        if p.offset.is_none() {
+            (p.sigma_xy, p.sigma_z) = (0.05, 0.05);
+        }
+    }
+    let single = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    assert_eq!(single.reconstruction.num_oriented(), 20);
+    let offset = &single.gnss_offsets[0];
+    let std = offset.std.expect("offset precision");
+    println!(
+        "offset {:?} ± {std:?} from {} priors",
+        offset.value, offset.priors
+    );
+    assert_eq!((offset.name.as_str(), offset.priors), ("second", 10));
+    for k in 0..3 {
+        assert!(
+            (offset.value[k] - bias[k]).abs() < 3.0 * std[k] + 1e-3,
+            "axis {k}: {} ± {} for {}",
+            offset.value[k],
+            std[k],
+            bias[k]
+        );
+    }
+    // Exact 5 cm priors place the block to centimetres; the bias no longer adds to it.
+    let (a, b) = (
+        mean_offset(&single, &s, &block, 0),
+        mean_offset(&single, &s, &block, 1),
+    );
+    println!("epochs off by {a:?} and {b:?}");
+    assert!(a.norm() < 0.03 && (a - b).norm() < 0.03, "{a:?} {b:?}");
+    assert!(rigid_misfit(&single, &s) < 0.05);
 }
 
 /// The descriptor matching of `stp` replaced by the truth of the synthetic tracks: two offered

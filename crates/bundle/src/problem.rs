@@ -231,7 +231,9 @@ impl BundleProblem {
             }
         }
         for (k, o) in self.prior_offsets.iter().enumerate() {
-            if !(o.sigma_xy > 0.0 && o.sigma_z > 0.0) || !o.value.iter().all(|v| v.is_finite()) {
+            let valid =
+                o.sigma_xy > 0.0 && o.sigma_z > 0.0 && o.value.iter().all(|v| v.is_finite());
+            if !valid {
                 return Err(BundleError::InvalidProblem(format!(
                     "prior offset {k}: non-positive sigma or non-finite value"
                 )));

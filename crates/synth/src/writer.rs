@@ -9,6 +9,7 @@
 //! truth/surface_<epoch>.ply  the rendered surface mesh (wall scenes)
 //! truth/stable.tif       1 where the surface and its cover never change, 0 elsewhere
 //! truth/change.json      regions with their true volumes between every pair of epochs
+//! truth/gnss_bias.csv    each epoch's GNSS bias (gnss.csv minus the true centres, less noise)
 //! ```
 //!
 //! Images are rendered one at a time (each with every core) and written as they come, so memory
@@ -108,6 +109,7 @@ pub fn write_scene(
         .map_err(|e: String| SynthError::InvalidScene(e))?;
     let mut markers = String::from("image,name,u,v\n");
     let mut gnss = String::from("image,x,y,z,sxy,sz\n");
+    let mut gnss_bias = String::from("epoch,east,north,up\n");
     let mut truth_images = Vec::new();
     let mut written = Written {
         images: 0,
@@ -170,6 +172,16 @@ pub fn write_scene(
                     written.markers += 1;
                 }
             }
+            if let (Some(g), 0) = (&spec.gnss, k) {
+                let _ = writeln!(
+                    gnss_bias,
+                    "{},{:.6},{:.6},{:.6}",
+                    epoch.name,
+                    g.bias_h * bias.x,
+                    g.bias_h * bias.y,
+                    g.bias_v * bias.z
+                );
+            }
             if let Some(g) = &spec.gnss {
                 let c = image.pose.center() + origin;
                 let x = c.x + g.bias_h * bias.x + g.noise_h * rng.normal();
@@ -211,6 +223,7 @@ pub fn write_scene(
     write_text(&dir.join("markers.csv"), &markers)?;
     if spec.gnss.is_some() {
         write_text(&dir.join("gnss.csv"), &gnss)?;
+        write_text(&dir.join("truth/gnss_bias.csv"), &gnss_bias)?;
     }
     write_points(spec, dir, &points_local, &mut rng)?;
     write_cameras_json(
