@@ -127,38 +127,66 @@ impl Strategy for ChunkAlignment {
         let reference = orient_reference(block, options)?;
         let reference_points = point_index(&reference.reconstruction);
         let mut parts = vec![reference.clone()];
+        let mut dropped_parts = 0;
         for e in (0..block.epoch_names.len()).filter(|&e| e != r) {
             let keep = |i: usize| block.epoch_of[i] == e;
             let sub = restrict(&block.sfm, &keep);
-            let mut rec = reconstruct(&sub, options)
-                .map_err(|source| in_epoch(block, e, source))?
-                .into_iter()
-                .next()
-                .ok_or_else(|| in_epoch(block, e, AlignError::Georeferencing("empty".into())))?;
-            let (src, dst) = shared_points(
-                &block.sfm.tracks,
-                &rec,
-                &reference.reconstruction,
-                &reference_points,
-            );
-            let ref_from_epoch =
-                fit_similarity(&src, &dst, &reference.reconstruction, options.seed)
-                    .map_err(|source| in_epoch(block, e, source))?;
-            rec.transform(&ref_from_epoch);
-            parts.push(Georeferenced {
-                rms_px: rec.rms_px(&sub),
-                reconstruction: rec,
-                datum: reference.datum,
-                dropped_components: 0,
-                rejected_priors: 0,
-                residuals: Vec::new(),
-                focal_held: sub.focal_held_during_sfm(),
-                moved_ties_split: 0,
-                observation_bound_px: None,
-                gnss_offsets: Vec::new(),
-            });
+            let components =
+                reconstruct(&sub, options).map_err(|source| in_epoch(block, e, source))?;
+            if components.is_empty() {
+                return Err(in_epoch(
+                    block,
+                    e,
+                    AlignError::Georeferencing("empty".into()),
+                ));
+            }
+            // Every component of the epoch goes onto the reference by the tie points it shares
+            // with it; the largest must, the others are dropped (and counted) when they cannot.
+            for (k, mut rec) in components.into_iter().enumerate() {
+                let (src, dst) = shared_points(
+                    &block.sfm.tracks,
+                    &rec,
+                    &reference.reconstruction,
+                    &reference_points,
+                );
+                let ref_from_epoch = match fit_similarity(
+                    &src,
+                    &dst,
+                    &reference.reconstruction,
+                    options.seed,
+                ) {
+                    Ok(t) => t,
+                    Err(source) if k == 0 => return Err(in_epoch(block, e, source)),
+                    Err(source) => {
+                        tracing::warn!(
+                            epoch = block.epoch_names[e].as_str(),
+                            component = k,
+                            images = rec.num_oriented(),
+                            %source,
+                            "component left out: it shares too few tie points with the reference epoch"
+                        );
+                        dropped_parts += 1;
+                        continue;
+                    }
+                };
+                rec.transform(&ref_from_epoch);
+                parts.push(Georeferenced {
+                    rms_px: rec.rms_px(&sub),
+                    reconstruction: rec,
+                    datum: reference.datum,
+                    dropped_components: 0,
+                    rejected_priors: 0,
+                    residuals: Vec::new(),
+                    focal_held: sub.focal_held_during_sfm(),
+                    moved_ties_split: 0,
+                    observation_bound_px: None,
+                    gnss_offsets: Vec::new(),
+                });
+            }
         }
-        Ok(merge(&block.sfm, parts))
+        let mut merged = merge(&block.sfm, parts);
+        merged.dropped_components += dropped_parts;
+        Ok(merged)
     }
 }
 
@@ -173,37 +201,61 @@ impl Strategy for ProgressiveMerge {
         let input = &block.sfm;
         let track_of = track_table(input);
         let r = block.reference;
-        let mut epochs: Vec<(usize, Reconstruction)> = Vec::new();
+        // Every component of every epoch: (epoch, largest of its epoch, reconstruction).
+        let mut epochs: Vec<(usize, bool, Reconstruction)> = Vec::new();
         for e in 0..block.epoch_names.len() {
             let keep = |i: usize| block.epoch_of[i] == e;
             let sub = restrict(input, &keep);
-            let mut rec = reconstruct(&sub, options)
-                .map_err(|source| in_epoch(block, e, source))?
-                .into_iter()
-                .next()
-                .ok_or_else(|| in_epoch(block, e, AlignError::Georeferencing("empty".into())))?;
-            // Points name tracks of the epoch's own input; renumber them to the whole block's.
-            for p in &mut rec.points {
-                if let Some(o) = p.observations.first() {
-                    p.track = track_of[o.image.index()][o.feature.index()] as usize;
-                }
+            let components =
+                reconstruct(&sub, options).map_err(|source| in_epoch(block, e, source))?;
+            if components.is_empty() {
+                return Err(in_epoch(
+                    block,
+                    e,
+                    AlignError::Georeferencing("empty".into()),
+                ));
             }
-            epochs.push((e, rec));
+            for (k, mut rec) in components.into_iter().enumerate() {
+                // Points name tracks of the epoch's own input; renumber them to the whole
+                // block's.
+                for p in &mut rec.points {
+                    if let Some(o) = p.observations.first() {
+                        p.track = track_of[o.image.index()][o.feature.index()] as usize;
+                    }
+                }
+                epochs.push((e, k == 0, rec));
+            }
         }
-        let at = epochs.iter().position(|(e, _)| *e == r).unwrap_or(0);
-        let (_, mut merged) = epochs.swap_remove(at);
+        let at = epochs
+            .iter()
+            .position(|(e, largest, _)| *e == r && *largest)
+            .unwrap_or(0);
+        let (_, _, mut merged) = epochs.swap_remove(at);
+        let mut dropped_parts = 0;
         while !epochs.is_empty() {
-            // The epoch sharing the most tie points with the block so far goes next.
+            // The part sharing the most tie points with the block so far goes next.
             let index = point_index(&merged);
             let (k, (src, dst)) = epochs
                 .iter()
-                .map(|(_, rec)| shared_points(&input.tracks, rec, &merged, &index))
+                .map(|(_, _, rec)| shared_points(&input.tracks, rec, &merged, &index))
                 .enumerate()
                 .max_by_key(|(_, (src, _))| src.len())
                 .ok_or_else(|| AlignError::Georeferencing("no epoch left".into()))?;
-            let (e, mut rec) = epochs.swap_remove(k);
-            let block_from_epoch = fit_similarity(&src, &dst, &merged, options.seed)
-                .map_err(|source| in_epoch(block, e, source))?;
+            let (e, largest, mut rec) = epochs.swap_remove(k);
+            let block_from_epoch = match fit_similarity(&src, &dst, &merged, options.seed) {
+                Ok(t) => t,
+                Err(source) if largest => return Err(in_epoch(block, e, source)),
+                Err(source) => {
+                    tracing::warn!(
+                        epoch = block.epoch_names[e].as_str(),
+                        images = rec.num_oriented(),
+                        %source,
+                        "component left out: it shares too few tie points with the block"
+                    );
+                    dropped_parts += 1;
+                    continue;
+                }
+            };
             rec.transform(&block_from_epoch);
             adopt_oriented(&mut merged, &rec, input);
             let mut state = State::with_reconstruction(input, options, &track_of, merged);
@@ -217,6 +269,7 @@ impl Strategy for ProgressiveMerge {
         let components = std::mem::take(&mut separated.components);
         let mut placed = georeference(&separated.input, components, &block.ground, options)?;
         placed.moved_ties_split = separated.split;
+        placed.dropped_components += dropped_parts;
         separated.restore_track_ids(&mut placed.reconstruction);
         Ok(placed)
     }
