@@ -389,8 +389,8 @@ pub struct RegionVolume {
     /// Net volume of the DoD of the two epochs' DEMs inside the region, m³; NaN when no cell of
     /// the region has a height in both DEMs (`coverage` 0).
     pub measured_m3: f64,
-    /// Its 1-σ uncertainty (random from the stable-area NMAD, systematic from the stable-area
-    /// median), m³; NaN with the volume.
+    /// Its 1-σ uncertainty (random from the stable-area NMAD correlated as the stable-area
+    /// variogram says, systematic from the stable-area median), m³; NaN with the volume.
     pub sigma_m3: f64,
     /// Fraction of the region's cells with a difference.
     pub coverage: f64,
@@ -445,7 +445,13 @@ pub fn region_volumes(project: &Project) -> Result<Vec<RegionVolume>, ProjectErr
                         .filter(|(_, s)| **s)
                         .map(|(v, _)| *v as f64),
                 );
-                let options = timesift_change::pair::volume_uncertainty(None, stable_dz.as_ref());
+                let stable_variogram =
+                    timesift_change::correlation::variogram(&dod, Some(&stable)).ok();
+                let options = timesift_change::pair::volume_uncertainty(
+                    None,
+                    stable_dz.as_ref(),
+                    stable_variogram.as_ref(),
+                );
                 dods.insert(key.clone(), (dod, options));
             }
             let (dod, options) = &dods[&key];

@@ -8,6 +8,7 @@ use image::ImageEncoder;
 use serde::Serialize;
 use timesift_change::ChangeError;
 use timesift_change::checkpoints::{CheckPointReport, dem_residuals};
+use timesift_change::correlation::Variogram;
 use timesift_change::grid::{Dem, Grid, check_same_crs};
 use timesift_change::icp::{IcpModel, IcpOptions, IcpResult, icp, select};
 use timesift_change::m3c2::{M3c2Params, M3c2Point, m3c2, subsample_core_points};
@@ -81,6 +82,10 @@ pub struct DemReport {
     /// that the stable median cannot show.
     #[serde(default)]
     pub stable_trend: Option<PlaneTrend>,
+    /// Variogram of the difference over the stable areas (spherical model and its lags): how far
+    /// the DEMs' errors correlate, which the volumes' random σ follows.
+    #[serde(default)]
+    pub stable_variogram: Option<Variogram>,
     /// 95 % level of detection, m.
     pub lod95: Option<f64>,
     /// Where the LoD came from.
@@ -305,6 +310,7 @@ pub fn compare_dems(
         all: analysis.all,
         stable: analysis.stable,
         stable_trend: analysis.stable_trend,
+        stable_variogram: analysis.stable_variogram,
         lod95: lod,
         lod_source: analysis.lod_source.to_string(),
         significant_cells: analysis.significant_cells,

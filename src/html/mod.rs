@@ -825,6 +825,24 @@ fn change_section(project: &Project, warnings: &mut Vec<String>) -> String {
             esc(&dem.lod_source),
             dem.significant_cells.map_or("–".into(), |c| c.to_string())
         );
+        match &dem.stable_variogram {
+            Some(v) => {
+                let c = v.correlation();
+                let _ = write!(
+                    s,
+                    "<p>Errors over the stable areas correlate up to {} m ({} % of their \
+                     variance; spherical variogram over {} lags): the volumes' σ follows.</p>",
+                    num(Some(c.range_m), 1),
+                    num(Some(100.0 * c.correlated_fraction), 0),
+                    v.lags.len()
+                );
+            }
+            None if dem.stable.is_some() => s.push_str(
+                "<p class=\"missing\">No variogram of the stable areas: the volumes' σ assumes \
+                 independent cells and is too small.</p>",
+            ),
+            None => {}
+        }
         let mut vrows = vec![volume_row("every cell", &dem.volumes)];
         if let Some(v) = &dem.volumes_beyond_lod {
             vrows.push(volume_row("beyond LoD95", v));

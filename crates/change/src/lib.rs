@@ -8,6 +8,7 @@
 
 pub mod checkpoints;
 pub mod cloud;
+pub mod correlation;
 pub mod dod;
 mod error;
 pub mod grid;

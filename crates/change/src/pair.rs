@@ -10,6 +10,7 @@
 //! callers only read and write files.
 
 use crate::ChangeError;
+use crate::correlation::{Variogram, variogram};
 use crate::dod::dem_of_difference;
 use crate::grid::{Dem, check_same_crs};
 use crate::mask::Mask;
@@ -65,20 +66,27 @@ pub fn level_of_detection(
 }
 
 /// The uncertainty of the volumes: the random σ from the σ given (both DEMs in quadrature) or the
-/// stable areas' NMAD; the systematic σ is the stable areas' median offset whenever there are
-/// stable areas (a bias the σ given cannot know of), else 0.
+/// stable areas' NMAD, correlated between cells as the stable areas' variogram says (when there
+/// is one); the systematic σ is the stable areas' median offset whenever there are stable areas
+/// (a bias the σ given cannot know of), else 0.
 pub fn volume_uncertainty(
     sigmas: Option<(f64, f64)>,
     stable: Option<&Statistics>,
+    stable_variogram: Option<&Variogram>,
 ) -> VolumeOptions {
-    match (sigmas, stable) {
+    let options = match (sigmas, stable) {
         (Some((sa, sb)), _) => VolumeOptions {
             threshold: 0.0,
             sigma_random: sa.hypot(sb),
             sigma_systematic: stable.map_or(0.0, |s| s.median.abs()),
+            correlation: None,
         },
         (None, Some(s)) => VolumeOptions::from_stable(s),
         (None, None) => VolumeOptions::default(),
+    };
+    VolumeOptions {
+        correlation: stable_variogram.map(Variogram::correlation),
+        ..options
     }
 }
 
@@ -97,6 +105,9 @@ pub struct PairAnalysis {
     pub stable: Option<Statistics>,
     /// The least-squares plane of the difference over the stable areas.
     pub stable_trend: Option<PlaneTrend>,
+    /// The variogram of the difference over the stable areas: how its errors correlate, which
+    /// the volume uncertainty follows.
+    pub stable_variogram: Option<Variogram>,
     /// 95 % level of detection, m.
     pub lod95: Option<f64>,
     /// Where it came from.
@@ -186,12 +197,29 @@ pub fn analyse_pair(
         },
         None => None,
     };
+    let stable_variogram = match &stable_on_dod {
+        Some(m) => match variogram(&dod, Some(m)) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                warnings.push(format!(
+                    "no variogram of the stable areas ({e}): volume uncertainties assume \
+                     independent cells and are too small"
+                ));
+                None
+            }
+        },
+        None => None,
+    };
     let (lod, lod_source) = level_of_detection(options.sigmas, stable_stats.as_ref());
     let region = match region {
         Some(m) => Some(m.onto(&dod.grid)?),
         None => None,
     };
-    let uncertainty = volume_uncertainty(options.sigmas, stable_stats.as_ref());
+    let uncertainty = volume_uncertainty(
+        options.sigmas,
+        stable_stats.as_ref(),
+        stable_variogram.as_ref(),
+    );
     let every_cell = volumes(&dod, region.as_ref(), uncertainty)?;
     let beyond_lod = match lod {
         Some(l) => Some(volumes(
@@ -212,6 +240,7 @@ pub fn analyse_pair(
         all,
         stable: stable_stats,
         stable_trend,
+        stable_variogram,
         lod95: lod,
         lod_source,
         significant_cells,
@@ -341,15 +370,18 @@ mod tests {
     #[test]
     fn volume_uncertainty_follows_the_stable_area() {
         let s = statistics([0.1, -0.1, 0.3, 0.2, 0.2]).expect("statistics");
-        let v = volume_uncertainty(None, Some(&s));
+        let v = volume_uncertainty(None, Some(&s), None);
         assert_eq!(
             (v.sigma_random, v.sigma_systematic),
             (s.nmad, s.median.abs())
         );
-        let v = volume_uncertainty(Some((0.3, 0.4)), Some(&s));
+        let v = volume_uncertainty(Some((0.3, 0.4)), Some(&s), None);
         assert!((v.sigma_random - 0.5).abs() < 1e-12);
         assert_eq!(v.sigma_systematic, s.median.abs());
-        assert_eq!(volume_uncertainty(None, None), VolumeOptions::default());
+        assert_eq!(
+            volume_uncertainty(None, None, None),
+            VolumeOptions::default()
+        );
     }
 
     #[test]

@@ -6,11 +6,13 @@
 //! Volume uncertainty has two parts (as in the DEM-differencing literature): a random per-cell error
 //! σ_r, independent between cells, giving A·σ_r·√n; and a systematic error (residual vertical bias)
 //! σ_s common to all cells, giving A·n·σ_s. They add in quadrature. Spatially correlated errors lie
-//! between the two; callers who know the correlation range can pass a larger σ_r.
+//! between the two: with a [`Correlation`] (the variogram of the stable areas' errors), the random
+//! part is the double sum of the correlated covariance over the region's cells instead.
 
 use serde::{Deserialize, Serialize};
 
 use crate::ChangeError;
+use crate::correlation::{Correlation, correlated_area};
 use crate::grid::Dem;
 use crate::mask::Mask;
 use crate::stats::Statistics;
@@ -44,6 +46,8 @@ pub struct VolumeOptions {
     pub sigma_random: f64,
     /// Systematic σ of dz (m), shared by all cells (residual bias).
     pub sigma_systematic: f64,
+    /// How the random errors correlate between cells; `None`: independent.
+    pub correlation: Option<Correlation>,
 }
 
 impl Default for VolumeOptions {
@@ -52,6 +56,7 @@ impl Default for VolumeOptions {
             threshold: 0.0,
             sigma_random: 0.0,
             sigma_systematic: 0.0,
+            correlation: None,
         }
     }
 }
@@ -65,6 +70,7 @@ impl VolumeOptions {
             threshold: 0.0,
             sigma_random: stable.nmad,
             sigma_systematic: stable.median.abs(),
+            correlation: None,
         }
     }
 }
@@ -118,11 +124,15 @@ pub fn volumes(
     };
     let grid = &dod.grid;
     let (mut cut, mut fill, mut area, mut cells, mut changed) = (0.0, 0.0, 0.0, 0usize, 0usize);
-    // Σ A² over cells, for the random part; Σ A for the systematic part.
+    // Σ A² over cells, for the random part; Σ A for the systematic part; the cells themselves
+    // (metric x, y, area) when their errors correlate.
     let mut area_sq = 0.0;
+    let mut located: Vec<(f64, f64, f64)> = Vec::new();
+    let mut y = 0.0;
     for row in 0..grid.height {
         let (dx, dy) = grid.metric_cell_size_at_row(row);
         let a = dx * dy;
+        y += dy;
         for col in 0..grid.width {
             let i = row * grid.width + col;
             if region.as_ref().is_some_and(|m| !m.cells[i]) {
@@ -135,6 +145,9 @@ pub fn volumes(
             cells += 1;
             area += a;
             area_sq += a * a;
+            if options.correlation.is_some() {
+                located.push(((col as f64 + 0.5) * dx, y - 0.5 * dy, a));
+            }
             if dz > options.threshold {
                 fill += dz * a;
                 changed += 1;
@@ -149,7 +162,11 @@ pub fn volumes(
             "the volume region holds no cell with a difference".into(),
         ));
     }
-    let sigma_random = options.sigma_random * area_sq.sqrt();
+    let sigma_random = options.sigma_random
+        * match options.correlation {
+            Some(c) => correlated_area(&located, c),
+            None => area_sq.sqrt(),
+        };
     let sigma_systematic = options.sigma_systematic * area;
     Ok(Volumes {
         cut,

@@ -237,6 +237,7 @@ fn volumes_of_an_excavation_and_a_mound() {
         threshold: 0.0,
         sigma_random: 0.1,
         sigma_systematic: 0.02,
+        correlation: None,
     };
     let v = volumes(&dod, Some(&region), options).expect("volumes");
     let a = 0.25 * 0.25;
