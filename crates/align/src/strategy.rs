@@ -149,25 +149,10 @@ impl Strategy for ChunkAlignment {
                     &reference.reconstruction,
                     &reference_points,
                 );
-                let ref_from_epoch = match fit_similarity(
-                    &src,
-                    &dst,
-                    &reference.reconstruction,
-                    options.seed,
-                ) {
-                    Ok(t) => t,
-                    Err(source) if k == 0 => return Err(in_epoch(block, e, source)),
-                    Err(source) => {
-                        tracing::warn!(
-                            epoch = block.epoch_names[e].as_str(),
-                            component = k,
-                            images = rec.num_oriented(),
-                            %source,
-                            "component left out: it shares too few tie points with the reference epoch"
-                        );
-                        dropped_parts += 1;
-                        continue;
-                    }
+                let fit = fit_similarity(&src, &dst, &reference.reconstruction, options.seed);
+                let Some(ref_from_epoch) = placed_or_left_out(block, e, k == 0, &rec, fit)? else {
+                    dropped_parts += 1;
+                    continue;
                 };
                 rec.transform(&ref_from_epoch);
                 parts.push(Georeferenced {
@@ -242,19 +227,10 @@ impl Strategy for ProgressiveMerge {
                 .max_by_key(|(_, (src, _))| src.len())
                 .ok_or_else(|| AlignError::Georeferencing("no epoch left".into()))?;
             let (e, largest, mut rec) = epochs.swap_remove(k);
-            let block_from_epoch = match fit_similarity(&src, &dst, &merged, options.seed) {
-                Ok(t) => t,
-                Err(source) if largest => return Err(in_epoch(block, e, source)),
-                Err(source) => {
-                    tracing::warn!(
-                        epoch = block.epoch_names[e].as_str(),
-                        images = rec.num_oriented(),
-                        %source,
-                        "component left out: it shares too few tie points with the block"
-                    );
-                    dropped_parts += 1;
-                    continue;
-                }
+            let fit = fit_similarity(&src, &dst, &merged, options.seed);
+            let Some(block_from_epoch) = placed_or_left_out(block, e, largest, &rec, fit)? else {
+                dropped_parts += 1;
+                continue;
             };
             rec.transform(&block_from_epoch);
             adopt_oriented(&mut merged, &rec, input);
@@ -326,6 +302,30 @@ pub(crate) fn shared_points(
         }
     }
     (src, dst)
+}
+
+/// A component's placement: the largest of its epoch must be placed (a failed fit is the
+/// epoch's error); another that shares too few tie points is left out with a warning (`None`).
+fn placed_or_left_out(
+    block: &Block,
+    epoch: usize,
+    largest: bool,
+    rec: &Reconstruction,
+    fit: Result<timesift_geometry::similarity::Similarity, AlignError>,
+) -> Result<Option<timesift_geometry::similarity::Similarity>, AlignError> {
+    match fit {
+        Ok(t) => Ok(Some(t)),
+        Err(source) if largest => Err(in_epoch(block, epoch, source)),
+        Err(source) => {
+            tracing::warn!(
+                epoch = block.epoch_names[epoch].as_str(),
+                images = rec.num_oriented(),
+                %source,
+                "component left out: it shares too few tie points to be placed"
+            );
+            Ok(None)
+        }
+    }
 }
 
 /// RANSAC similarity from an epoch's points to the reference's, with a threshold of three

@@ -45,7 +45,6 @@ fn scene_with_motion(
     motion: &dyn Fn(usize, &Vector3<f64>) -> Vector3<f64>,
 ) -> Scene {
     let mut rng = SeededRng::new(seed);
-    let camera = camera();
     let mut poses = Vec::new();
     for row in 0..4 {
         for col in 0..5 {
@@ -73,6 +72,19 @@ fn scene_with_motion(
             )
         })
         .collect();
+    observe(poses, points, noise_px, &mut rng, motion)
+}
+
+/// The scene whose images (at `poses`, through [`camera`]) see `points`, image `i` seeing point
+/// `x` displaced by `motion(i, x)`, with `noise_px` of pixel noise; the start camera is off.
+fn observe(
+    poses: Vec<Pose>,
+    points: Vec<Vector3<f64>>,
+    noise_px: f64,
+    rng: &mut SeededRng,
+    motion: &dyn Fn(usize, &Vector3<f64>) -> Vector3<f64>,
+) -> Scene {
+    let camera = camera();
     let mut keypoints: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); poses.len()];
     let mut tracks = Vec::new();
     for x in &points {
@@ -288,33 +300,13 @@ fn repeated_waypoints_do_not_start_the_reconstruction() {
         let centre = p.center() + Vector3::new(0.02, -0.01, 0.01);
         Pose::from_rotation_and_center(p.rotation, &centre)
     }));
-    let camera = camera();
-    let mut keypoints: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); poses.len()];
-    let mut tracks = Vec::new();
-    for x in &first.points {
-        let mut elements = Vec::new();
-        for (i, pose) in poses.iter().enumerate() {
-            let Ok(u) = project_world(&camera, pose, x) else {
-                continue;
-            };
-            if u.x < 0.0 || u.y < 0.0 || u.x > 1000.0 || u.y > 800.0 {
-                continue;
-            }
-            elements.push(TrackElement {
-                image: ImageId::from(i),
-                feature: FeatureIndex::from(keypoints[i].len()),
-            });
-            keypoints[i].push(u);
-        }
-        tracks.push(Track { elements });
-    }
-    let mut start = BrownCamera::new(1000, 800, 850.0).unwrap();
-    start.cx = 0.0;
-    let twice = Scene {
-        input: one_camera_input(Camera::Brown(start), keypoints, tracks),
+    let twice = observe(
         poses,
-        points: first.points.clone(),
-    };
+        first.points.clone(),
+        0.0,
+        &mut SeededRng::new(12),
+        &|_, _| Vector3::zeros(),
+    );
     let options = SfmOptions {
         init_max_trials: 5,
         ..SfmOptions::default()

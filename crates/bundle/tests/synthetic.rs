@@ -181,22 +181,26 @@ fn georeferenced_block(seed: u64) -> (BundleProblem, Vec<Vector3<f64>>) {
     (p, truth_centres)
 }
 
+/// The true points of `block(seed)`: its generator draws them first, so the same seed gives them
+/// again.
+fn block_points(seed: u64) -> Vec<Vector3<f64>> {
+    let mut rng = SeededRng::new(seed);
+    (0..150)
+        .map(|_| {
+            Vector3::new(
+                rng.uniform_range(-10.0, 10.0),
+                rng.uniform_range(-10.0, 10.0),
+                rng.uniform_range(-3.0, 3.0),
+            )
+        })
+        .collect()
+}
+
 #[test]
 fn a_scale_bar_fixes_the_scale_of_a_free_network() {
     // Truth from the noise-free generator: the same seed gives the same geometry.
     let (mut p, _) = block(21);
-    let truth: Vec<Vector3<f64>> = {
-        let mut rng = SeededRng::new(21);
-        (0..150)
-            .map(|_| {
-                Vector3::new(
-                    rng.uniform_range(-10.0, 10.0),
-                    rng.uniform_range(-10.0, 10.0),
-                    rng.uniform_range(-3.0, 3.0),
-                )
-            })
-            .collect()
-    };
+    let truth = block_points(21);
     // Start 10 % too large (points and camera centres scaled about the origin).
     for pt in &mut p.points {
         pt.position *= 1.1;
@@ -337,18 +341,7 @@ fn gnss_priors_georeference_the_block() {
 /// images' GNSS carries a common bias `bias`.
 fn biased_flight(seed: u64, bias: Vector3<f64>) -> (BundleProblem, Vec<Vector3<f64>>) {
     let (mut p, truth) = georeferenced_block(seed);
-    let truth_points: Vec<Vector3<f64>> = {
-        let mut rng = SeededRng::new(seed);
-        (0..150)
-            .map(|_| {
-                Vector3::new(
-                    rng.uniform_range(-10.0, 10.0),
-                    rng.uniform_range(-10.0, 10.0),
-                    rng.uniform_range(-3.0, 3.0),
-                )
-            })
-            .collect()
-    };
+    let truth_points = block_points(seed);
     p.point_priors = (0..10)
         .map(|j| timesift_bundle::PointPrior {
             point: j * 15,

@@ -95,15 +95,7 @@ impl Variogram {
 /// ([`ChangeError::NotEnoughData`]); a mask on another grid ([`ChangeError::InvalidInput`]).
 pub fn variogram(dod: &Dem, mask: Option<&Mask>) -> Result<Variogram, ChangeError> {
     let grid = &dod.grid;
-    if let Some(m) = mask
-        && m.cells.len() != grid.len()
-    {
-        return Err(ChangeError::InvalidInput(format!(
-            "mask of {} cells for a grid of {}",
-            m.cells.len(),
-            grid.len()
-        )));
-    }
+    Mask::check_fits(mask, grid)?;
     let (w, h) = (grid.width, grid.height);
     let (cw, ch) = grid.metric_cell_size_at_row(h / 2);
     let value = |c: usize, r: usize| -> Option<f64> {

@@ -24,6 +24,19 @@ impl Mask {
         }
     }
 
+    /// Fails unless `mask` (when given) has one flag per cell of `grid`: functions that take a
+    /// mask for a grid they also take call this first.
+    pub fn check_fits(mask: Option<&Mask>, grid: &Grid) -> Result<(), ChangeError> {
+        match mask {
+            Some(m) if m.cells.len() != grid.len() => Err(ChangeError::InvalidInput(format!(
+                "mask of {} cells for a grid of {}",
+                m.cells.len(),
+                grid.len()
+            ))),
+            _ => Ok(()),
+        }
+    }
+
     /// Number of selected cells.
     pub fn count(&self) -> usize {
         self.cells.iter().filter(|&&c| c).count()

@@ -39,15 +39,7 @@ pub struct PlaneTrend {
 /// [`ChangeError::Degenerate`]); a mask on another grid ([`ChangeError::InvalidInput`]).
 pub fn plane_trend(dod: &Dem, mask: Option<&Mask>) -> Result<PlaneTrend, ChangeError> {
     let grid = &dod.grid;
-    if let Some(m) = mask
-        && m.cells.len() != grid.len()
-    {
-        return Err(ChangeError::InvalidInput(format!(
-            "mask of {} cells for a grid of {}",
-            m.cells.len(),
-            grid.len()
-        )));
-    }
+    Mask::check_fits(mask, grid)?;
     let (cw, ch) = grid.metric_cell_size_at_row(grid.height / 2);
     let cells = || {
         (0..grid.height)
