@@ -252,9 +252,28 @@ impl State<'_> {
         } else {
             None
         };
+        // An offset's σ is the larger of the a-priori and a-posteriori ones: priors that state
+        // the bias in their σ make the block's variance factor small, and the posterior σ alone
+        // would then claim the mean of the flight's noise is known better than it is.
+        let prior_precision = if a.precision && !problem.prior_offsets.is_empty() {
+            timesift_bundle::precision::precision(
+                &problem,
+                timesift_bundle::precision::CovarianceScale::Prior,
+            )
+            .ok()
+        } else {
+            None
+        };
         let offset_std = precision.as_ref().map(|p| {
             (0..problem.prior_offsets.len())
-                .map(|o| p.offset_std(o))
+                .map(|o| {
+                    let posterior = p.offset_std(o)?;
+                    let prior = prior_precision.as_ref().and_then(|q| q.offset_std(o));
+                    Some(match prior {
+                        Some(q) => [0, 1, 2].map(|k| posterior[k].max(q[k])),
+                        None => posterior,
+                    })
+                })
                 .collect()
         });
         let intrinsic_std = precision.map(|p| p.intrinsics);
