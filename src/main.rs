@@ -11,6 +11,9 @@ use timesift::stages::Stage;
 use timesift::{Project, stages};
 use timesift_change::icp::IcpModel;
 use timesift_change::m3c2::{Aggregation, M3c2Params};
+use tracing_subscriber::filter::{LevelFilter, Targets};
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
 
 /// Prints a line of a command's result. A closed pipe (`timesift … | head`) ends the program
 /// quietly, as Unix tools do, instead of panicking as `println!` would.
@@ -165,16 +168,19 @@ enum IcpArg {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let level = match cli.verbose {
-        0 => "warn",
-        1 => "info",
-        _ => "debug",
+        0 => LevelFilter::WARN,
+        1 => LevelFilter::INFO,
+        _ => LevelFilter::DEBUG,
     };
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level)),
-        )
-        .with_writer(std::io::stderr)
+    // `RUST_LOG` takes per-crate levels (`info,timesift_dense=debug`); a value it cannot parse
+    // falls back to the level of `-v`. (Targets, not EnvFilter: no regex engine in the binary.)
+    let filter = std::env::var("RUST_LOG")
+        .ok()
+        .and_then(|spec| spec.parse::<Targets>().ok())
+        .unwrap_or_else(|| Targets::new().with_default(level));
+    tracing_subscriber::registry()
+        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+        .with(filter)
         .init();
     match run(cli.command) {
         Ok(()) => ExitCode::SUCCESS,

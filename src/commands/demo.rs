@@ -4,10 +4,12 @@
 //! want to know against the truth: orientation accuracy, each epoch's DEM error, the stable-area
 //! DoD statistics and the measured volume change of every changed region next to the true one.
 
+use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
 
 use crate::commands::compare::DemReport;
+use crate::config::DenseConfig;
 use crate::report::read_json;
 use crate::stages::{Stage, epoch_pairs, run};
 use crate::truth::{
@@ -17,6 +19,23 @@ use crate::{Project, ProjectError};
 
 /// The demo scene.
 pub const DEMO_SCENE: &str = "landslide";
+
+/// Appends the demo's `[dense]` section ([`DenseConfig::quick`]) to the project file the scene
+/// writer produced: the whole demo then stays within a few minutes on two cores.
+fn append_demo_settings(path: &Path) -> Result<(), ProjectError> {
+    let mut text = std::fs::read_to_string(path).map_err(|e| timesift_io::IoError::io(path, e))?;
+    let dense = toml::to_string(&DenseConfig::quick()).map_err(|e| ProjectError::Path {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    text.push_str("\n# The demo's lighter dense matching (see `timesift demo`).\n[dense]\n");
+    text.push_str(&dense);
+    timesift_io::fsutil::write_atomically(path, |w| {
+        w.write_all(text.as_bytes())
+            .map_err(|e| timesift_io::IoError::io(path, e))
+    })?;
+    Ok(())
+}
 
 /// Writes the demo project into `dir` (which must be empty or absent), runs every stage and
 /// returns the printed summary.
@@ -47,12 +66,15 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
         path: dir.to_path_buf(),
         message: e.to_string(),
     })?;
+    append_demo_settings(&dir.join("project.toml"))?;
     let mut text = format!(
-        "demo: scene `{DEMO_SCENE}`, {} epochs, {} images rendered into {} ({:.0} s)\n",
+        "demo: scene `{DEMO_SCENE}`, {} epochs, {} images rendered into {} ({:.0} s)\n\
+         demo settings: [dense] {}\n",
         spec.epochs.len(),
         written.images,
         dir.display(),
-        start.elapsed().as_secs_f64()
+        start.elapsed().as_secs_f64(),
+        DenseConfig::quick().differences()
     );
     let project = Project::load(dir)?;
     let start = Instant::now();

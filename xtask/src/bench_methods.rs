@@ -16,7 +16,7 @@ use std::time::Instant;
 use anyhow::Context;
 use timesift::Project;
 use timesift::commands::compare::DemReport;
-use timesift::config::AlignMethod;
+use timesift::config::{AlignMethod, DenseConfig};
 use timesift::report::read_json;
 use timesift::stages::{Stage, run, run_stage};
 use timesift::truth::{
@@ -41,6 +41,9 @@ pub struct MethodsBench {
     pub out: PathBuf,
     /// Run dense, dem and change per strategy and score the products.
     pub products: bool,
+    /// The default `[dense]` settings instead of the demo's lighter ones
+    /// (`DenseConfig::quick`): the strategies differ in orientation, which both show.
+    pub full_dense: bool,
 }
 
 /// The stable-area DoD of one pair of consecutive epochs, metres.
@@ -116,6 +119,9 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
                 .with_context(|| format!("unknown method {name}"))?;
             let mut project = Project::load(&dir)?;
             project.config.align.method = method;
+            if !bench.full_dense {
+                project.config.dense = DenseConfig::quick();
+            }
             let start = Instant::now();
             let result = run_stage(&project, Stage::Align);
             let seconds = start.elapsed().as_secs_f64();
@@ -141,6 +147,15 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
     }
     let mut markdown = table(&rows) + &findings(&rows);
     if bench.products {
+        let dense = if bench.full_dense {
+            DenseConfig::default()
+        } else {
+            DenseConfig::quick()
+        };
+        markdown.push_str(&format!(
+            "\nProducts with [dense] {} (--full-dense: the defaults).\n",
+            dense.differences()
+        ));
         markdown.push_str(&product_table(&product_rows));
     }
     println!("{markdown}");

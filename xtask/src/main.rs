@@ -85,6 +85,9 @@ enum Task {
         /// stable-area DoDs and volumes).
         #[arg(long)]
         no_products: bool,
+        /// Products with the default `[dense]` settings rather than the demo's lighter ones.
+        #[arg(long)]
+        full_dense: bool,
     },
     /// Stage benchmarks against peers, printing time ratios.
     Bench {
@@ -387,8 +390,10 @@ fn main() -> anyhow::Result<()> {
             seed,
             out,
             no_products,
+            full_dense,
         } => bench_methods::run_bench(&bench_methods::MethodsBench {
             products: !no_products,
+            full_dense,
             scenes: scenes.unwrap_or_else(|| {
                 timesift_synth::scenes::SCENES
                     .iter()
