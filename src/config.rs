@@ -250,6 +250,23 @@ pub struct AlignConfig {
     /// Use GCPs in every epoch rather than only in the reference epoch. Default `false`.
     #[serde(default)]
     pub gcps_in_all_epochs: bool,
+    /// Which inter-epoch tie points tie the epochs of a single block (`timesift`, `msfm`).
+    /// Default `stable`: with stable areas given, only those on them.
+    #[serde(default)]
+    pub inter_epoch_ties: InterEpochTies,
+}
+
+/// `[align] inter_epoch_ties`: which tie points may join the epochs of a single block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum InterEpochTies {
+    /// Only tie points on the stable areas (`stable.csv`) when the project has them; every tie
+    /// point otherwise. Ground that changed by less than the noise shows (accreting sand,
+    /// thinning ice) would otherwise bend the block and flatten the change.
+    #[default]
+    Stable,
+    /// Every tie point that passed the moved-point test.
+    All,
 }
 
 fn default_max_keypoints() -> usize {
@@ -273,6 +290,7 @@ impl Default for AlignConfig {
             tie_point_accuracy_px: default_tie_px(),
             marker_accuracy_px: default_marker_px(),
             gcps_in_all_epochs: false,
+            inter_epoch_ties: InterEpochTies::default(),
         }
     }
 }
@@ -880,5 +898,32 @@ mod tests {
             assert!(e.contains(key) && e.contains(what), "{line}: {e}");
             assert!(!e.contains('\n'), "{e}");
         }
+    }
+
+    #[test]
+    fn inter_epoch_ties_default_to_stable_and_name_their_values() {
+        let with_align = |line: &str| {
+            let text =
+                format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[align]\n{line}\n");
+            ProjectConfig::parse(Path::new("project.toml"), &text)
+        };
+        assert_eq!(
+            with_align("").unwrap().align.inter_epoch_ties,
+            InterEpochTies::Stable
+        );
+        assert_eq!(
+            with_align("inter_epoch_ties = \"all\"")
+                .unwrap()
+                .align
+                .inter_epoch_ties,
+            InterEpochTies::All
+        );
+        let e = with_align("inter_epoch_ties = \"some\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("inter_epoch_ties") && e.contains("stable") && e.contains("all"),
+            "{e}"
+        );
     }
 }

@@ -28,8 +28,17 @@ pub struct AlignReport {
     pub tie_points: usize,
     /// Inter-epoch tie points split by epoch because their surface moved.
     pub inter_epoch_ties_split_as_moved: usize,
-    /// Observations beyond this reprojection error were outliers, pixels.
+    /// Inter-epoch tie points split by epoch because they lie off the stable areas
+    /// (`[align] inter_epoch_ties = "stable"`).
+    #[serde(default)]
+    pub inter_epoch_ties_split_off_stable: usize,
+    /// Observations beyond this reprojection error were outliers, pixels (pooled over the
+    /// block; each camera group's own bound is in `group_noise`).
     pub observation_bound_px: Option<f64>,
+    /// Per camera group (as `cameras`): the σ of its own reprojection errors and its own
+    /// outlier bound, so a noisier group (scanned film) is judged by its own noise.
+    #[serde(default)]
+    pub group_noise: Vec<GroupNoise>,
     /// Reconstructed components that could not be placed.
     pub components_dropped: usize,
     /// GNSS priors rejected as outliers.
@@ -78,7 +87,24 @@ pub struct GnssOffset {
     pub std: Option<[f64; 3]>,
     /// Priors that carried it.
     pub priors: usize,
+    /// Largest |correlation| of the up component with a free focal length (above
+    /// [`FOCAL_CORRELATION_WARNING`] the report says the two cannot be told apart).
+    #[serde(default)]
+    pub focal_correlation: Option<f64>,
 }
+
+/// The reprojection noise of one camera group, pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GroupNoise {
+    /// σ per image axis, robustly from the median error of the group's observations.
+    pub sigma_px: Option<f64>,
+    /// Observations of the group beyond this error were outliers.
+    pub bound_px: Option<f64>,
+}
+
+/// Correlation of a vertical GNSS offset with a focal length above which the report warns: the
+/// block cannot separate them (nadir images over flat ground) and the offset's prior decides.
+pub const FOCAL_CORRELATION_WARNING: f64 = 0.9;
 
 /// Residuals of ground points (intersected from markers − surveyed), metres.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

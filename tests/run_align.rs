@@ -58,6 +58,16 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
     // 4 σ of an RMS within 0.5 px is under 2 px.
     let bound = report["observation_bound_px"].as_f64().unwrap();
     assert!((0.5..2.0).contains(&bound), "observation bound {bound} px");
+    // Each camera group is judged by its own noise, within the same limits.
+    let groups = report["group_noise"].as_array().unwrap();
+    assert_eq!(groups.len(), report["cameras"].as_array().unwrap().len());
+    for g in groups {
+        let (sigma, bound) = (
+            g["sigma_px"].as_f64().unwrap(),
+            g["bound_px"].as_f64().unwrap(),
+        );
+        assert!(sigma < 0.5 && (0.5..2.0).contains(&bound), "{g}");
+    }
     for (name, epoch) in report["epochs"].as_object().unwrap() {
         assert!(
             epoch["inter_epoch_tie_points"].as_u64().unwrap() > 100,

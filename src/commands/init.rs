@@ -149,7 +149,11 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     let _ = writeln!(text, "# max_keypoints = 40000");
     let _ = writeln!(text, "# tie_point_accuracy_px = 1.0");
     let _ = writeln!(text, "# marker_accuracy_px = 0.5");
-    let _ = writeln!(text, "# gcps_in_all_epochs = false\n");
+    let _ = writeln!(text, "# gcps_in_all_epochs = false");
+    let _ = writeln!(
+        text,
+        "# inter_epoch_ties = \"stable\"  # with stable.csv only ties on it join the epochs, or \"all\"\n"
+    );
     let _ = writeln!(text, "[dense]");
     let _ = writeln!(
         text,

@@ -27,7 +27,8 @@ use timesift_io::ply::{TiePoint, read_tiepoints};
 use crate::commands::compare::{CloudReport, DemReport};
 use crate::layout::Layout;
 use crate::report::{
-    AlignReport, DenseReport, GridFile, PointResiduals, RasterReport, RunLog, read_json,
+    AlignReport, DenseReport, FOCAL_CORRELATION_WARNING, GridFile, PointResiduals, RasterReport,
+    RunLog, read_json,
 };
 use crate::stages::{Stage, epoch_pairs};
 use crate::{Project, ProjectError};
@@ -224,14 +225,16 @@ fn summary_section(inputs: &Inputs, warnings: &[String]) -> String {
     let a = &inputs.align;
     let mut s = format!(
         "<p>{} of {} images oriented in one run of the <b>{}</b> strategy; datum: {}; RMS \
-         reprojection error {} px; {} tie points, of which {} split as moved between epochs.</p>",
+         reprojection error {} px; {} tie points, of which {} split as moved between epochs \
+         and {} split for lying off the stable areas.</p>",
         a.images_oriented,
         a.images_given,
         esc(&a.method),
         esc(&a.datum),
         num(a.rms_reprojection_px, 3),
         a.tie_points,
-        a.inter_epoch_ties_split_as_moved
+        a.inter_epoch_ties_split_as_moved,
+        a.inter_epoch_ties_split_off_stable
     );
     let produced: Vec<String> = [
         (Stage::Dense, "dense clouds"),
@@ -479,6 +482,20 @@ fn orientation_section(
                 )
             }),
         ]);
+        if let Some(rho) = r
+            .gnss_offset
+            .and_then(|o| o.focal_correlation)
+            .filter(|rho| *rho > FOCAL_CORRELATION_WARNING)
+        {
+            warnings.push(format!(
+                "epoch {}: the vertical GNSS offset correlates with the focal length (|ρ| = \
+                 {rho:.2}): nadir images over flat ground cannot tell a flying-height bias from a \
+                 focal length, so the offset's prior (the stated GNSS accuracy) decides it; \
+                 control points with height spread, oblique images or a calibrated camera \
+                 separate them",
+                e.name
+            ));
+        }
         if r.images_oriented < r.images_given {
             warnings.push(format!(
                 "epoch {}: {} of {} images could not be oriented",

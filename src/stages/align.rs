@@ -14,7 +14,8 @@ use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
     Block, CentrePrior, Datum, FocalSource, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
-    OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions, ground_point_residuals,
+    OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions, StableGround,
+    ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -22,12 +23,12 @@ use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use super::{PipelineStage, Stage};
-use crate::config::{AlignMethod, GnssOffsets};
+use crate::config::{AlignMethod, GnssOffsets, InterEpochTies};
 use crate::layout::Layout;
 use crate::project::GivenFocal;
 use crate::report::{
-    AlignReport, EpochOrientation, GnssOffset, PointResidual as ResidualRow, PointResiduals, Rmse,
-    read_json, write_json,
+    AlignReport, EpochOrientation, GnssOffset, GroupNoise, PointResidual as ResidualRow,
+    PointResiduals, Rmse, read_json, write_json,
 };
 use crate::stable_matcher::FeatureFileMatcher;
 use crate::{Project, ProjectError};
@@ -145,6 +146,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         epoch_of: project.images.iter().map(|im| im.epoch.index()).collect(),
         epoch_names: project.epochs.iter().map(|e| e.name.clone()).collect(),
         reference: project.reference_epoch.index(),
+        stable_ground: stable_ground(project, &frame)?,
     };
     let block = strategy
         .orient(&block_input, &options)
@@ -158,6 +160,57 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         &block,
         start.elapsed().as_secs_f64(),
     )
+}
+
+/// Cells of the stable-ground grid along the longer side of the stable areas' extent (0.3 m on
+/// a 300 m site): finer than the areas are drawn, coarser than a tie point is placed.
+const STABLE_CELLS_PER_SIDE: f64 = 1000.0;
+
+/// The stable areas as a grid in the block's local frame, when `inter_epoch_ties = "stable"`
+/// and the project has some.
+fn stable_ground(
+    project: &Project,
+    frame: &LocalFrame,
+) -> Result<Option<StableGround>, ProjectError> {
+    if project.config.align.inter_epoch_ties != InterEpochTies::Stable
+        || project.stable_areas.is_empty()
+    {
+        return Ok(None);
+    }
+    let polygons: Vec<&timesift_io::wkt::Polygon> = project
+        .stable_areas
+        .iter()
+        .flat_map(|a| &a.polygons)
+        .collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in polygons.iter().flat_map(|p| &p.exterior) {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    if !(extent > 0.0) {
+        return Err(stage_error(
+            "the stable areas enclose no ground: inter_epoch_ties = \"stable\" needs polygons \
+             with an area (or set it to \"all\")"
+                .into(),
+        ));
+    }
+    let cell = extent / STABLE_CELLS_PER_SIDE;
+    let width = ((hi[0] - lo[0]) / cell).ceil().max(1.0) as usize;
+    let height = ((hi[1] - lo[1]) / cell).ceil().max(1.0) as usize;
+    let (ox, oy) = (frame.origin.x, frame.origin.y);
+    let ground = StableGround::rasterise([lo[0] - ox, lo[1] - oy], cell, width, height, |x, y| {
+        polygons.iter().any(|p| p.contains(x + ox, y + oy))
+    })
+    .map_err(|e| stage_error(e.to_string()))?;
+    tracing::info!(
+        cell,
+        stable = ground.stable_fraction(),
+        "inter-epoch ties only on the stable areas"
+    );
+    Ok(Some(ground))
 }
 
 fn method_name(m: AlignMethod) -> &'static str {
@@ -591,6 +644,7 @@ fn report(
                         offset: [o.value.x, o.value.y, o.value.z],
                         std: o.std,
                         priors: o.priors,
+                        focal_correlation: o.focal_correlation,
                     }),
             },
         );
@@ -603,7 +657,14 @@ fn report(
         rms_reprojection_px: block.rms_px.is_finite().then_some(block.rms_px),
         tie_points: rec.points.len(),
         inter_epoch_ties_split_as_moved: block.moved_ties_split,
+        inter_epoch_ties_split_off_stable: block.unstable_ties_split,
         observation_bound_px: block.observation_bound_px,
+        group_noise: (0..rec.cameras.len())
+            .map(|g| GroupNoise {
+                sigma_px: block.group_sigma_px.get(g).copied().flatten(),
+                bound_px: block.group_bound_px.get(g).copied(),
+            })
+            .collect(),
         components_dropped: block.dropped_components,
         gnss_priors_rejected: block.rejected_priors,
         focal_length_held: block.focal_held.clone(),

@@ -94,6 +94,9 @@ pub(crate) struct Adjusted {
     /// Per offset: standard deviations (east, north, up), when asked for and the datum allowed
     /// it.
     pub offset_std: Option<Vec<Option<[f64; 3]>>>,
+    /// Per offset: the largest |correlation| of its up component with a free focal length,
+    /// when asked for and some focal length was free.
+    pub offset_focal_correlation: Option<Vec<Option<f64>>>,
 }
 
 /// Robust loss of tie-point residuals (in sigmas) while the block grows: soft L1 beyond about
@@ -276,6 +279,19 @@ impl State<'_> {
                 })
                 .collect()
         });
+        let offset_focal_correlation = precision.as_ref().map(|p| {
+            p.offset_intrinsic_correlations
+                .iter()
+                .map(|list| {
+                    list.iter()
+                        .filter(|c| {
+                            problem.groups[c.group].camera.param_names().get(c.param) == Some(&"f")
+                        })
+                        .map(|c| c.rho[2].abs())
+                        .reduce(f64::max)
+                })
+                .collect()
+        });
         let intrinsic_std = precision.map(|p| p.intrinsics);
         for (value, offset) in self.offsets.iter_mut().zip(&problem.prior_offsets) {
             *value = offset.value;
@@ -293,6 +309,7 @@ impl State<'_> {
             report,
             intrinsic_std,
             offset_std,
+            offset_focal_correlation,
         })
     }
 }

@@ -95,6 +95,10 @@ pub struct EstimatedOffset {
     pub std: Option<[f64; 3]>,
     /// Priors that carried it in the final adjustment (0: not estimated).
     pub priors: usize,
+    /// Largest |correlation| of the up component with a free focal length: near 1, a nadir
+    /// block over flat ground cannot tell a flying-height bias from a focal length, and the
+    /// offset's prior decides.
+    pub focal_correlation: Option<f64>,
 }
 
 /// The georeferenced block.
@@ -118,10 +122,17 @@ pub struct Georeferenced {
     /// Inter-epoch tie points split by epoch because a surface moved between the epochs
     /// (strategies that orient epochs together; 0 otherwise).
     pub moved_ties_split: usize,
+    /// Epoch groups of inter-epoch tie points split off for lying off the stable ground
+    /// ([`crate::Block::stable_ground`]).
+    pub unstable_ties_split: usize,
     /// Largest reprojection error of a kept observation in the final adjustment, pixels: 4 σ of
     /// the block's own noise, at most the options' threshold; the largest over the parts of a
     /// strategy that georeferences epochs apart. `None` when nothing was georeferenced.
     pub observation_bound_px: Option<f64>,
+    /// Per camera group: its own outlier bound, pixels (empty without a datum).
+    pub group_bound_px: Vec<f64>,
+    /// Per camera group: σ of its own reprojection errors (robust, from their median), pixels.
+    pub group_sigma_px: Vec<Option<f64>>,
     /// The GNSS offsets, index for index with [`GeoreferenceInput::prior_offsets`] (empty when
     /// none was asked for or nothing was georeferenced).
     pub gnss_offsets: Vec<EstimatedOffset>,
@@ -313,6 +324,8 @@ pub fn georeference(
     let nominal = |g: usize| input.focal_source(g) == FocalSource::Nominal;
     let mut focal_fixed: Vec<bool> = input.focal_held_during_sfm();
     let mut bound = None;
+    let mut group_bound_px = Vec::new();
+    let mut group_sigma_px = Vec::new();
     let mut gnss_offsets = Vec::new();
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
@@ -371,6 +384,12 @@ pub fn georeference(
             state.compact();
         }
         bound = Some(state.max_error_px);
+        group_bound_px = state.group_bound_px.clone();
+        group_sigma_px = state
+            .group_noise()
+            .into_iter()
+            .map(|n| n.map(|(median, _)| median / RAYLEIGH_MEDIAN))
+            .collect();
         merged = state.rec;
     }
     let residuals = if datum == Datum::Local {
@@ -388,7 +407,10 @@ pub fn georeference(
         rms_px,
         focal_held: focal_fixed,
         moved_ties_split: 0,
+        unstable_ties_split: 0,
         observation_bound_px: bound,
+        group_bound_px,
+        group_sigma_px,
         gnss_offsets,
     })
 }
@@ -414,10 +436,18 @@ fn estimated_offsets(
                     .and_then(|s| s.get(o).copied().flatten())
                     .filter(|_| carried > 0),
                 priors: carried,
+                focal_correlation: adjusted
+                    .offset_focal_correlation
+                    .as_ref()
+                    .and_then(|c| c.get(o).copied().flatten())
+                    .filter(|_| carried > 0),
             }
         })
         .collect()
 }
+
+/// Median of the norm of a 2-D Gaussian error in units of its per-axis σ (Rayleigh).
+const RAYLEIGH_MEDIAN: f64 = 1.1774;
 
 /// A known focal length is held at its known value when the block determines it worse than this
 /// relative standard deviation: the block cannot tell the focal length (a nadir block over flat

@@ -9,7 +9,8 @@
 //! `timesift-bundle`), `incremental` (the loop and components), `georef` (similarity to GNSS
 //! priors and control points per component, merge, adjustment with the priors, control and
 //! check point residuals), `strategy` (the strategies over a multi-epoch `Block`), `moved`
-//! (inter-epoch tie points on surfaces that moved, split by epoch), `stable` (the `stp`
+//! (inter-epoch tie points on surfaces that moved or off the stable ground, split by epoch),
+//! `stable_ground` (the caller's stable areas as a grid), `stable` (the `stp`
 //! strategy over a caller-given descriptor matcher).
 //!
 //! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
@@ -28,6 +29,7 @@ mod moved;
 mod options;
 mod register;
 mod stable;
+mod stable_ground;
 mod state;
 mod strategy;
 
@@ -41,6 +43,7 @@ pub use incremental::reconstruct;
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{SelfCalibration, SfmOptions};
 pub use stable::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};
+pub use stable_ground::StableGround;
 pub use strategy::{
     AVAILABLE, Block, ChunkAlignment, Independent, ProgressiveMerge, SingleBlock, Strategy,
     strategy,

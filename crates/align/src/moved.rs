@@ -17,6 +17,7 @@ use crate::adjust::Intrinsics;
 use crate::incremental::global;
 use crate::model::{Reconstruction, SfmInput, SparsePoint};
 use crate::options::SfmOptions;
+use crate::stable_ground::StableGround;
 use crate::state::{State, track_table};
 
 /// Smallest miss threshold, pixels: on noise-free data the median error is ~0 and nothing may
@@ -35,6 +36,9 @@ pub(crate) struct Separated {
     origin: Vec<usize>,
     /// Number of the caller's tracks.
     first_new: usize,
+    /// Epoch groups split off their points for lying off the stable ground
+    /// ([`Separated::split_unstable`]).
+    pub split_unstable: usize,
 }
 
 impl Separated {
@@ -47,6 +51,90 @@ impl Separated {
                 p.track = self.origin[p.track - self.first_new];
             }
         }
+    }
+}
+
+impl Separated {
+    /// Splits every inter-epoch tie point of `rec` (a georeferenced block of this input) whose
+    /// position is not on `stable` ground: the reference epoch keeps it (or, without reference
+    /// observations, the epoch with the most); every other epoch gets a track and a point of its
+    /// own, started at the same position. Unlike the moved-point test this needs no measurable
+    /// miss: ground that changed by less than the noise shows (sand, ice, a creeping slope)
+    /// still must not bend the block. Returns the epoch groups split off.
+    pub fn split_unstable(
+        &mut self,
+        rec: &mut Reconstruction,
+        epoch_of: &[usize],
+        reference: usize,
+        stable: &StableGround,
+    ) -> usize {
+        let first_new = self.first_new;
+        let original = |origin: &[usize], t: usize| {
+            if t >= first_new {
+                origin[t - first_new]
+            } else {
+                t
+            }
+        };
+        let mut uses = vec![0u8; self.input.tracks.len()];
+        for p in &rec.points {
+            uses[p.track] = uses[p.track].saturating_add(1);
+        }
+        let mut new_points = Vec::new();
+        let mut split = 0;
+        for point in &mut rec.points {
+            // A track shared by two points (from an earlier split) is left alone.
+            if uses[point.track] != 1 || stable.contains(&point.position) {
+                continue;
+            }
+            let groups = by_epoch(&point.observations, epoch_of);
+            if groups.len() < 2 {
+                continue;
+            }
+            let Some(&keeper) = groups
+                .iter()
+                .max_by_key(|(e, obs)| (**e == reference, obs.len()))
+                .map(|(e, _)| e)
+            else {
+                continue;
+            };
+            for (&epoch, observations) in groups.iter().filter(|(e, _)| **e != keeper) {
+                split += 1;
+                point
+                    .observations
+                    .retain(|e| epoch_of[e.image.index()] != epoch);
+                let elements: Vec<TrackElement> = self.input.tracks[point.track]
+                    .elements
+                    .iter()
+                    .filter(|e| epoch_of[e.image.index()] == epoch)
+                    .copied()
+                    .collect();
+                self.input.tracks[point.track]
+                    .elements
+                    .retain(|e| epoch_of[e.image.index()] != epoch);
+                if elements.len() < 2 {
+                    continue;
+                }
+                let track = self.input.tracks.len();
+                self.input.tracks.push(Track { elements });
+                let from = original(&self.origin, point.track);
+                self.origin.push(from);
+                if observations.len() >= 2 {
+                    new_points.push(SparsePoint {
+                        position: point.position,
+                        track,
+                        observations: observations.clone(),
+                    });
+                }
+            }
+            if point.observations.len() < 2 {
+                point.observations.clear();
+            }
+        }
+        rec.points.retain(|p| !p.observations.is_empty());
+        rec.points.extend(new_points);
+        self.split_unstable += split;
+        split
     }
 }
 
@@ -103,6 +191,7 @@ pub(crate) fn separate_moved_points(
         split,
         origin,
         first_new,
+        split_unstable: 0,
     })
 }
 

@@ -52,6 +52,9 @@ pub(crate) struct State<'a> {
     /// Largest reprojection error of a kept observation, pixels: the options' threshold, or
     /// the block's own outlier bound once it is adjusted ([`State::tighten_to_noise`]).
     pub max_error_px: f64,
+    /// Per camera group, its own outlier bound once the block is adjusted
+    /// ([`State::tighten_to_noise`]); empty before, and then [`State::max_error_px`] holds.
+    pub group_bound_px: Vec<f64>,
     /// Current values of the GNSS offsets of the adjustments (see [`crate::adjust::OffsetPrior`]).
     pub offsets: Vec<nalgebra::Vector3<f64>>,
 }
@@ -77,8 +80,18 @@ impl<'a> State<'a> {
             available,
             failed_trials: vec![0; input.images.len()],
             max_error_px: options.max_reprojection_px,
+            group_bound_px: Vec::new(),
             offsets: Vec::new(),
         }
+    }
+
+    /// Largest reprojection error of a kept observation of `e`'s image, pixels: its camera
+    /// group's own bound once there is one, the block's otherwise.
+    pub fn bound_of(&self, e: &TrackElement) -> f64 {
+        self.group_bound_px
+            .get(self.input.images[e.image.index()].group)
+            .copied()
+            .unwrap_or(self.max_error_px)
     }
 
     /// Reprojection error of a world point in an oriented image, pixels (infinite when it does
@@ -133,13 +146,17 @@ impl<'a> State<'a> {
             let Some(position) = self.triangulate_elements(&elements, &mut views) else {
                 return false;
             };
-            let errors: Vec<f64> = elements.iter().map(|e| self.error(&position, e)).collect();
+            // Errors in units of each observation's bound (groups may differ).
+            let errors: Vec<f64> = elements
+                .iter()
+                .map(|e| self.error(&position, e) / self.bound_of(e))
+                .collect();
             let (worst, worst_error) = errors
                 .iter()
                 .copied()
                 .enumerate()
                 .fold((0, 0.0), |b, (i, e)| if e > b.1 { (i, e) } else { b });
-            if worst_error > self.max_error_px {
+            if worst_error > 1.0 {
                 elements.remove(worst);
                 continue;
             }
@@ -192,7 +209,7 @@ impl<'a> State<'a> {
             .filter(|e| {
                 self.rec.poses[e.image.index()].is_some()
                     && !point.observations.contains(e)
-                    && self.error(&point.position, e) <= self.max_error_px
+                    && self.error(&point.position, e) <= self.bound_of(e)
             })
             .copied()
             .collect();
@@ -238,7 +255,7 @@ impl<'a> State<'a> {
             let keep: Vec<TrackElement> = point
                 .observations
                 .iter()
-                .filter(|e| self.error(&point.position, e) <= self.max_error_px)
+                .filter(|e| self.error(&point.position, e) <= self.bound_of(e))
                 .copied()
                 .collect();
             let angle_ok = keep.len() >= 2
@@ -305,18 +322,56 @@ impl<'a> State<'a> {
     }
 
     /// Lowers the observation threshold to `OUTLIER_SIGMAS` standard deviations of the
-    /// block's reprojection errors (never above the options' threshold): a 2-D Gaussian error
-    /// exceeds it once in 3000 observations, so what it removes is mismatches that the fixed
-    /// threshold let through (grain matched to grain, a moving shadow edge). σ is estimated
-    /// robustly from the median error norm (Rayleigh: median = 1.1774 σ). Returns the threshold.
+    /// reprojection errors (never above the options' threshold): a 2-D Gaussian error exceeds
+    /// it once in 3000 observations, so what it removes is mismatches that the fixed threshold
+    /// let through (grain matched to grain, a moving shadow edge). σ is estimated robustly from
+    /// the median error norm (Rayleigh: median = 1.1774 σ), per camera group from its own
+    /// observations: a noisier group (scanned film among digital images) keeps what its own
+    /// noise allows instead of the block's pooled bound. A group with too few observations
+    /// takes the pooled bound. Returns the pooled bound.
     pub fn tighten_to_noise(&mut self) -> f64 {
-        if let Some((median, MIN_OBSERVATIONS_FOR_NOISE..)) = self.median_error() {
-            let sigma = median / 1.1774;
-            self.max_error_px = (OUTLIER_SIGMAS * sigma)
+        let bound = |median: f64| {
+            (OUTLIER_SIGMAS * median / 1.1774)
                 .max(MIN_OUTLIER_BOUND_PX)
-                .min(self.options.max_reprojection_px);
+                .min(self.options.max_reprojection_px)
+        };
+        if let Some((median, MIN_OBSERVATIONS_FOR_NOISE..)) = self.median_error() {
+            self.max_error_px = bound(median);
         }
+        self.group_bound_px = self
+            .group_noise()
+            .iter()
+            .map(|n| match n {
+                Some((median, MIN_OBSERVATIONS_FOR_NOISE..)) => bound(*median),
+                _ => self.max_error_px,
+            })
+            .collect();
         self.max_error_px
+    }
+
+    /// Per camera group: the median reprojection error of its observations, pixels, and how
+    /// many finite errors it is taken over.
+    pub fn group_noise(&self) -> Vec<Option<(f64, usize)>> {
+        let mut errors: Vec<Vec<f64>> = vec![Vec::new(); self.input.cameras.len()];
+        for p in &self.rec.points {
+            for e in &p.observations {
+                let error = self.error(&p.position, e);
+                if error.is_finite() {
+                    errors[self.input.images[e.image.index()].group].push(error);
+                }
+            }
+        }
+        errors
+            .into_iter()
+            .map(|mut errors| {
+                if errors.is_empty() {
+                    return None;
+                }
+                let mid = errors.len() / 2;
+                let (_, median, _) = errors.select_nth_unstable_by(mid, f64::total_cmp);
+                Some((*median, errors.len()))
+            })
+            .collect()
     }
 
     /// Median reprojection error of the points' observations, pixels, and how many finite

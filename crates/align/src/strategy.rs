@@ -24,9 +24,10 @@ use crate::adjust::Intrinsics;
 use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, georeference};
 use crate::incremental::global;
 use crate::model::{Reconstruction, SfmInput};
-use crate::moved::separate_moved_points;
+use crate::moved::{Separated, separate_moved_points};
 use crate::options::SfmOptions;
 use crate::stable::{StableMatcher, StableTiePoints};
+use crate::stable_ground::StableGround;
 use crate::state::{State, track_table};
 use crate::{AlignError, reconstruct};
 
@@ -43,6 +44,9 @@ pub struct Block {
     pub epoch_names: Vec<String>,
     /// The epoch that carries the datum.
     pub reference: usize,
+    /// Where the ground did not change, when the caller knows: the single-block strategies
+    /// (`timesift`, `msfm`) then tie the epochs only through points on it.
+    pub stable_ground: Option<StableGround>,
 }
 
 /// A co-registration strategy.
@@ -86,7 +90,8 @@ impl Strategy for SingleBlock {
             options,
         )?;
         let components = std::mem::take(&mut separated.components);
-        let mut placed = georeference(&separated.input, components, &block.ground, options)?;
+        let placed = georeference(&separated.input, components, &block.ground, options)?;
+        let mut placed = tie_on_stable_ground(block, &mut separated, placed, options)?;
         placed.moved_ties_split = separated.split;
         separated.restore_track_ids(&mut placed.reconstruction);
         Ok(placed)
@@ -164,7 +169,10 @@ impl Strategy for ChunkAlignment {
                     residuals: Vec::new(),
                     focal_held: sub.focal_held_during_sfm(),
                     moved_ties_split: 0,
+                    unstable_ties_split: 0,
                     observation_bound_px: None,
+                    group_bound_px: Vec::new(),
+                    group_sigma_px: Vec::new(),
                     gnss_offsets: Vec::new(),
                 });
             }
@@ -243,12 +251,54 @@ impl Strategy for ProgressiveMerge {
         let mut separated =
             separate_moved_points(input, vec![merged], &block.epoch_of, r, options)?;
         let components = std::mem::take(&mut separated.components);
-        let mut placed = georeference(&separated.input, components, &block.ground, options)?;
+        let placed = georeference(&separated.input, components, &block.ground, options)?;
+        let mut placed = tie_on_stable_ground(block, &mut separated, placed, options)?;
         placed.moved_ties_split = separated.split;
         placed.dropped_components += dropped_parts;
         separated.restore_track_ids(&mut placed.reconstruction);
         Ok(placed)
     }
+}
+
+/// With stable ground given, the inter-epoch tie points of the georeferenced block that lie
+/// off it are split by epoch ([`Separated::split_unstable`]) and the block is adjusted again:
+/// only stable ground ties the epochs. Without it, `placed` as it is.
+fn tie_on_stable_ground(
+    block: &Block,
+    separated: &mut Separated,
+    mut placed: Georeferenced,
+    options: &SfmOptions,
+) -> Result<Georeferenced, AlignError> {
+    let Some(stable) = &block.stable_ground else {
+        return Ok(placed);
+    };
+    if placed.datum == Datum::Local {
+        // Without a datum the block's frame is not the stable ground's.
+        tracing::warn!("stable areas cannot select inter-epoch ties in an ungeoreferenced block");
+        return Ok(placed);
+    }
+    let split = separated.split_unstable(
+        &mut placed.reconstruction,
+        &block.epoch_of,
+        block.reference,
+        stable,
+    );
+    tracing::info!(
+        split,
+        "inter-epoch tie points off the stable ground split by epoch"
+    );
+    if split == 0 {
+        return Ok(placed);
+    }
+    let mut again = georeference(
+        &separated.input,
+        vec![placed.reconstruction],
+        &block.ground,
+        options,
+    )?;
+    again.dropped_components += placed.dropped_components;
+    again.unstable_ties_split = split;
+    Ok(again)
 }
 
 /// The reference epoch reconstructed and georeferenced alone, with its own priors and markers.
@@ -476,6 +526,8 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
     let mut rejected = 0;
     let mut focal_held = vec![false; input.cameras.len()];
     let mut bound: Option<f64> = None;
+    let mut group_bound_px: Vec<Option<f64>> = vec![None; input.cameras.len()];
+    let mut group_sigma_px: Vec<Option<f64>> = vec![None; input.cameras.len()];
     let mut gnss_offsets: Vec<crate::georef::EstimatedOffset> = Vec::new();
     for part in parts {
         // Each offset from the part whose priors carried it.
@@ -493,6 +545,12 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
         let r = part.reconstruction;
         for g in adopt_oriented(&mut merged, &r, input) {
             focal_held[g] = part.focal_held.get(g).copied().unwrap_or(false);
+            if let Some(&b) = part.group_bound_px.get(g) {
+                group_bound_px[g] = Some(b);
+            }
+            if let Some(&s) = part.group_sigma_px.get(g) {
+                group_sigma_px[g] = s;
+            }
         }
         merged.points.extend(r.points);
         if datum == Datum::Local || part.datum == Datum::GnssAndControlPoints {
@@ -511,7 +569,14 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
         rms_px,
         focal_held,
         moved_ties_split: 0,
+        unstable_ties_split: 0,
         observation_bound_px: bound,
+        // A group no part bounded keeps the pooled bound, as in a part.
+        group_bound_px: match bound {
+            Some(b) => group_bound_px.iter().map(|g| g.unwrap_or(b)).collect(),
+            None => Vec::new(),
+        },
+        group_sigma_px,
         gnss_offsets,
     }
 }

@@ -403,6 +403,7 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
         epoch_of,
         epoch_names: vec!["first".into(), "second".into()],
         reference: 0,
+        stable_ground: None,
     }
 }
 
@@ -657,4 +658,157 @@ fn tie_points_on_a_moved_surface_stop_tying_the_epochs() {
     // 0.3 px per axis: an RMS of 0.3·√2 = 0.42 px once nothing strains the block.
     assert!(relaxed.rms_px < 0.45, "{}", relaxed.rms_px);
     assert!(strained.rms_px > relaxed.rms_px);
+}
+
+/// Ground that changed by less than the moved-point test sees (a disc 4 m in radius around
+/// (4, 0) lowered by 10 cm in the second epoch: at most ~1 px in these images) still ties the
+/// epochs, and the block gives its points one height, hiding the change. With the stable ground
+/// given (everything but the disc and a metre around it), only ties on it join the epochs: the
+/// second epoch's points on the disc are its own, and their heights show the change.
+#[test]
+fn only_ties_on_stable_ground_join_the_epochs_when_it_is_given() {
+    const LOWERING: f64 = 0.1;
+    let from_centre = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm();
+    let s = scene_with_motion(13, 0.3, 1500, &|i, x| {
+        if i >= 10 && from_centre(x) < 4.0 {
+            Vector3::new(0.0, 0.0, -LOWERING)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let all = two_epoch_block(&s, Vector3::zeros());
+    let stable = timesift_align::StableGround::rasterise([-20.0, -20.0], 0.1, 400, 400, |x, y| {
+        (Vector2::new(x, y) - Vector2::new(4.0, 0.0)).norm() > 5.0
+    })
+    .unwrap();
+    let stable_only = Block {
+        stable_ground: Some(stable),
+        ..all.clone()
+    };
+    let epochs_of = |p: &timesift_align::SparsePoint| {
+        p.observations
+            .iter()
+            .map(|e| all.epoch_of[e.image.index()])
+            .collect::<std::collections::BTreeSet<usize>>()
+    };
+    // Inter-epoch ties on the disc and off the unstable ring; and the mean height error of the
+    // second epoch's own points on the disc.
+    let summary = |g: &Georeferenced| {
+        let (mut on, mut off) = (0, 0);
+        let mut second = Vec::new();
+        for p in &g.reconstruction.points {
+            let epochs = epochs_of(p);
+            let truth = s.points[p.track];
+            if epochs.len() == 2 && from_centre(&truth) < 3.5 {
+                on += 1;
+            } else if epochs.len() == 2 && from_centre(&truth) > 5.5 {
+                off += 1;
+            } else if epochs.len() == 1 && epochs.contains(&1) && from_centre(&truth) < 3.5 {
+                second.push(p.position.z - truth.z);
+            }
+        }
+        let mean = (!second.is_empty()).then(|| second.iter().sum::<f64>() / second.len() as f64);
+        (on, off, second.len(), mean)
+    };
+    let options = SfmOptions::default();
+    let before = SingleBlock.orient(&all, &options).unwrap();
+    let after = SingleBlock.orient(&stable_only, &options).unwrap();
+    let (on_before, off_before, _, _) = summary(&before);
+    let (on, off, own, lowered) = summary(&after);
+    println!(
+        "all ties: {on_before} on the disc, {off_before} off, {} split as moved; stable only: \
+         {on} on, {off} off, {} split off stable ground, {own} second-epoch points on the disc \
+         lowered by {lowered:?} m",
+        before.moved_ties_split, after.unstable_ties_split
+    );
+    assert_eq!(before.unstable_ties_split, 0);
+    assert!(
+        on_before > 50,
+        "the lowered disc must tie the epochs at first: {on_before}"
+    );
+    assert_eq!(on, 0, "inter-epoch ties left on the disc");
+    assert!(after.unstable_ties_split >= on_before);
+    assert!(
+        off * 10 >= off_before * 9,
+        "{off} of {off_before} stable ties left"
+    );
+    assert_eq!(after.reconstruction.num_oriented(), 20);
+    let lowered = lowered.expect("the second epoch keeps its points on the disc");
+    assert!(
+        own >= on_before / 2,
+        "{own} second-epoch points on the disc"
+    );
+    assert!(
+        (lowered + LOWERING).abs() < 0.3 * LOWERING,
+        "second epoch's disc lowered by {lowered:.3} m, truly {LOWERING} m"
+    );
+    assert!(after.rms_px < 0.45, "{}", after.rms_px);
+}
+
+/// A noisy camera group among quiet ones (scanned film among digital images: here the second
+/// "epoch", 8 of 20 images, with 1.2 px of noise against 0.3 px) is judged by its own noise: the
+/// bound pooled over the block (4 σ of mostly quiet errors, 1.9 px here) would cut a fifth of
+/// its good observations; its own bound keeps nearly all.
+#[test]
+fn a_noisy_camera_group_keeps_the_observations_its_own_noise_allows() {
+    const NOISY_PX: f64 = 1.2;
+    let s = scene(17, 0.3, 1500);
+    let mut block = two_epoch_block(&s, Vector3::zeros());
+    let noisy = |i: usize| i >= 12;
+    let mut rng = SeededRng::new(5);
+    block.sfm.cameras.push(block.sfm.cameras[0].clone());
+    for (_, image) in block
+        .sfm
+        .images
+        .iter_mut()
+        .enumerate()
+        .filter(|(i, _)| noisy(*i))
+    {
+        image.group = 1;
+        for k in &mut image.keypoints {
+            // 0.3² + extra² = 1.2².
+            let extra = (NOISY_PX * NOISY_PX - 0.09).sqrt();
+            *k += Vector2::new(rng.normal(), rng.normal()) * extra;
+        }
+    }
+    let g = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    assert_eq!(g.reconstruction.num_oriented(), 20);
+    // Observations of the noisy images kept against those the tracks offer on oriented points.
+    let (mut kept, mut offered) = (0usize, 0usize);
+    let keeps: std::collections::HashSet<(usize, usize)> = g
+        .reconstruction
+        .points
+        .iter()
+        .flat_map(|p| {
+            p.observations
+                .iter()
+                .map(move |e| (p.track, e.image.index()))
+        })
+        .collect();
+    for p in &g.reconstruction.points {
+        for e in &block.sfm.tracks[p.track].elements {
+            if noisy(e.image.index()) {
+                offered += 1;
+                kept += usize::from(keeps.contains(&(p.track, e.image.index())));
+            }
+        }
+    }
+    let share = kept as f64 / offered as f64;
+    println!(
+        "bounds {:?} px (pooled {:?}), σ {:?} px; noisy group keeps {kept} of {offered} ({share:.3})",
+        g.group_bound_px, g.observation_bound_px, g.group_sigma_px
+    );
+    // Residuals are smaller than the noise (the points fit some of it): σ of the residuals
+    // within 0.8–1.1 of the noise.
+    let sigma = g.group_sigma_px[1].unwrap();
+    assert!(
+        (0.8 * NOISY_PX..1.1 * NOISY_PX).contains(&sigma),
+        "noisy group σ {sigma} px"
+    );
+    assert!(g.group_sigma_px[0].unwrap() < 0.4);
+    assert!(g.group_bound_px[1] > 3.0 * g.group_bound_px[0]);
+    assert!(
+        share > 0.97,
+        "noisy group keeps {share:.3} of its observations"
+    );
 }

@@ -196,6 +196,21 @@ pub struct Precision {
     pub intrinsics: Vec<Vec<(usize, f64)>>,
     /// Covariance of each free prior offset (m²), world axes.
     pub offsets: Vec<Option<Matrix3<f64>>>,
+    /// Per prior offset: its correlations with every free intrinsic. A vertical offset and the
+    /// focal length of a nadir block over flat ground correlate near 1: the data cannot
+    /// separate a shifted flying height from a changed focal length, only the priors can.
+    pub offset_intrinsic_correlations: Vec<Vec<OffsetCorrelation>>,
+}
+
+/// The correlation of a prior offset with one free intrinsic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OffsetCorrelation {
+    /// Camera group.
+    pub group: usize,
+    /// Parameter index in the camera model.
+    pub param: usize,
+    /// Correlation of the offset's east, north and up components with the parameter.
+    pub rho: [f64; 3],
 }
 
 impl Precision {
@@ -296,11 +311,70 @@ pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision,
             k += 1;
         }
     }
+    let offset_intrinsic_correlations = offset_correlations(&s, &layout)?;
     Ok(Precision {
         scale: factor,
         centers,
         poses,
         intrinsics,
         offsets,
+        offset_intrinsic_correlations,
     })
+}
+
+/// The correlations of every free offset's components with every free intrinsic (the scale
+/// of the covariance cancels): three columns of the inverse per offset, read at the rows of
+/// the intrinsics.
+fn offset_correlations(
+    s: &crate::reduced::Reduced,
+    layout: &Layout,
+) -> Result<Vec<Vec<OffsetCorrelation>>, BundleError> {
+    let mut out = vec![Vec::new(); layout.bias_offset.len()];
+    let intrinsics: Vec<(usize, usize, usize)> = layout
+        .group_offset
+        .iter()
+        .enumerate()
+        .filter_map(|(g, off)| off.map(|off| (g, off)))
+        .flat_map(|(g, off)| {
+            layout.group_free[g]
+                .iter()
+                .enumerate()
+                .map(move |(q, &param)| (g, param, off + q))
+        })
+        .collect();
+    if intrinsics.is_empty() {
+        return Ok(out);
+    }
+    let variances = s
+        .inverse_columns(
+            &intrinsics
+                .iter()
+                .map(|&(_, _, row)| row)
+                .collect::<Vec<_>>(),
+        )
+        .ok_or_else(|| BundleError::Singular("intrinsic variances".into()))?;
+    for (o, off) in layout.bias_offset.iter().enumerate() {
+        let Some(off) = *off else { continue };
+        let columns = s
+            .inverse_columns(&[off, off + 1, off + 2])
+            .ok_or_else(|| BundleError::Singular("offset covariances".into()))?;
+        for (k, &(g, param, row)) in intrinsics.iter().enumerate() {
+            let var_param = variances[(row, k)];
+            let rho = [0, 1, 2].map(|c| {
+                let var_offset = columns[(off + c, c)];
+                let denominator = (var_param * var_offset).sqrt();
+                if denominator > 0.0 {
+                    (columns[(row, c)] / denominator).clamp(-1.0, 1.0)
+                } else {
+                    0.0
+                }
+            });
+            out[o].push(OffsetCorrelation {
+                group: g,
+                param,
+                rho,
+            });
+        }
+    }
+    Ok(out)
 }

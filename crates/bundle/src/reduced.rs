@@ -189,6 +189,22 @@ impl Reduced {
     /// Diagonal blocks `(start, len)` of `S⁻¹`, from one Cholesky factorisation and solves against
     /// the identity columns of the blocks (in batches, so memory stays at n × 256); `None` when
     /// `S` is not positive definite.
+    /// Columns `columns` of the inverse (n × columns.len()), or `None` when a solve fails.
+    pub(crate) fn inverse_columns(&self, columns: &[usize]) -> Option<faer::Mat<f64>> {
+        let n = match self {
+            Reduced::Dense(m) => m.nrows(),
+            Reduced::Sparse { pattern, .. } => pattern.n,
+        };
+        let mut rhs = faer::Mat::<f64>::zeros(n, columns.len());
+        for (k, &c) in columns.iter().enumerate() {
+            rhs[(c, k)] = 1.0;
+        }
+        self.solve_in_place(&mut rhs)?;
+        (0..columns.len())
+            .all(|k| (0..n).all(|i| rhs[(i, k)].is_finite()))
+            .then_some(rhs)
+    }
+
     pub(crate) fn inverse_diagonal_blocks(
         &self,
         blocks: &[(usize, usize)],

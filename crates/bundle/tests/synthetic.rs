@@ -449,3 +449,51 @@ fn a_fixed_offset_is_applied_and_bad_offsets_are_errors() {
     let err = solve(&mut bad, &BundleOptions::default()).unwrap_err();
     assert!(err.to_string().contains("prior offset 0"), "{err}");
 }
+
+/// The correlation of an offset with an intrinsic obeys the Gaussian conditioning identity:
+/// fixing the intrinsic shrinks the offset's variance by the factor 1 − ρ². Both variances come
+/// from the (separately tested) diagonal blocks, so this checks the cross terms exactly.
+#[test]
+fn offset_intrinsic_correlations_match_the_conditional_variances() {
+    let (mut p, _) = biased_flight(33, Vector3::new(0.0, 0.0, 2.0));
+    p.prior_offsets = vec![timesift_bundle::PriorOffset {
+        value: Vector3::zeros(),
+        sigma_xy: 1.0,
+        sigma_z: 1.0,
+        fixed: false,
+    }];
+    for c in p.center_priors.iter_mut().skip(4) {
+        c.offset = Some(0);
+    }
+    // Focal length and principal point free.
+    p.groups[0].free = (0..p.groups[0].free.len()).map(|k| k < 3).collect();
+    solve(&mut p, &BundleOptions::default()).unwrap();
+    let scale = timesift_bundle::precision::CovarianceScale::Prior;
+    let free = timesift_bundle::precision::precision(&p, scale).unwrap();
+    let correlations = &free.offset_intrinsic_correlations[0];
+    assert_eq!(correlations.len(), 3, "{correlations:?}");
+    let std = free.offset_std(0).unwrap();
+    for c in correlations {
+        let (param, rho) = (c.param, c.rho);
+        assert_eq!(c.group, 0);
+        let mut fixed = p.clone();
+        fixed.groups[0].free[param] = false;
+        let conditional = timesift_bundle::precision::precision(&fixed, scale)
+            .unwrap()
+            .offset_std(0)
+            .unwrap();
+        for c in 0..3 {
+            let shrink = 1.0 - (conditional[c] / std[c]).powi(2);
+            assert!(
+                (rho[c] * rho[c] - shrink).abs() < 1e-6,
+                "param {param} axis {c}: ρ = {}, 1 − σ²|fixed / σ² = {shrink}",
+                rho[c]
+            );
+        }
+    }
+    // An offset without a free intrinsic to correlate with has none.
+    let mut calibrated = p.clone();
+    calibrated.groups[0].free.fill(false);
+    let none = timesift_bundle::precision::precision(&calibrated, scale).unwrap();
+    assert!(none.offset_intrinsic_correlations[0].is_empty());
+}
