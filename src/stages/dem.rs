@@ -288,7 +288,8 @@ fn ensure_grid(project: &Project) -> Result<GridFile, ProjectError> {
             e.to_string(),
         )
     })?;
-    let grid = plan_grid(&footprints, &options).map_err(|e| stage_error("dem", e.to_string()))?;
+    let grid = plan_grid(&footprints, &options)
+        .map_err(|e| stage_error("dem", format!("{e}{}", scale_hint(&epoch_gsd))))?;
     let ortho = grid.ortho();
     let file = GridFile {
         crs: cameras.crs.clone(),
@@ -371,4 +372,57 @@ fn median(v: &mut [f64]) -> f64 {
     let mid = v.len() / 2;
     let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
     *m
+}
+
+/// Ratio of the epochs' ground sampling distances beyond which they cannot share one datum.
+const GSD_RATIO_UNSCALED: f64 = 100.0;
+
+/// When the epochs' ground sampling distances differ by orders of magnitude, the words that
+/// name the likely cause: some epoch was oriented without a datum (no GNSS and no control in it,
+/// e.g. `independent` with control points in the reference epoch only), so its cloud is in an
+/// arbitrary scale and no grid can hold all epochs. Empty otherwise.
+fn scale_hint(epoch_gsd: &std::collections::BTreeMap<String, f64>) -> String {
+    let (Some(lo), Some(hi)) = (
+        epoch_gsd.values().copied().reduce(f64::min),
+        epoch_gsd.values().copied().reduce(f64::max),
+    ) else {
+        return String::new();
+    };
+    if !(hi > GSD_RATIO_UNSCALED * lo) {
+        return String::new();
+    }
+    let list: Vec<String> = epoch_gsd
+        .iter()
+        .map(|(e, g)| format!("{e} {g:.3e} m"))
+        .collect();
+    format!(
+        "; the epochs' ground sampling distances differ by a factor of {:.0} ({}): an epoch \
+         without GNSS or control points of its own has no scale when oriented alone (`align.method` \
+         \"independent\"); give it control points (`align.gcps_in_all_epochs`) or choose a \
+         strategy that ties it to the reference epoch",
+        hi / lo,
+        list.join(", ")
+    )
+}
+
+#[cfg(test)]
+mod scale_hint_tests {
+    use super::*;
+
+    #[test]
+    fn epochs_of_very_different_scale_are_named_and_similar_ones_are_not() {
+        let gsd = |values: &[(&str, f64)]| {
+            values
+                .iter()
+                .map(|(e, g)| (e.to_string(), *g))
+                .collect::<std::collections::BTreeMap<_, _>>()
+        };
+        assert_eq!(scale_hint(&gsd(&[("a", 0.40), ("b", 0.45)])), "");
+        assert_eq!(scale_hint(&gsd(&[])), "");
+        let hint = scale_hint(&gsd(&[("1971", 2.7), ("1981", 0.0046)]));
+        assert!(
+            hint.contains("1971") && hint.contains("1981") && hint.contains("independent"),
+            "{hint}"
+        );
+    }
 }
