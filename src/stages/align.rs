@@ -412,6 +412,7 @@ fn ground_input(project: &Project, frame: &LocalFrame) -> Result<GeoreferenceInp
                 sigma_z: sz,
                 check,
                 markers: markers_of(&g.name, !check),
+                marker_sigma_px: None,
             });
         }
     }

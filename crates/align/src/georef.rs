@@ -42,6 +42,17 @@ pub struct GroundPoint {
     pub check: bool,
     /// Its markers.
     pub markers: Vec<Marker>,
+    /// σ of its markers, pixels; `None`: the input's `marker_sigma_px`. Points made of tie
+    /// points (`stp`'s stable control) carry the tie points' measured noise, not the accuracy
+    /// of a hand-placed marker.
+    pub marker_sigma_px: Option<f64>,
+}
+
+impl GroundPoint {
+    /// σ of this point's markers, pixels.
+    pub fn marker_sigma(&self, geo: &GeoreferenceInput) -> f64 {
+        self.marker_sigma_px.unwrap_or(geo.marker_sigma_px)
+    }
 }
 
 /// Everything that can place the block in the world.
@@ -193,7 +204,8 @@ fn correspondences(
         }
     }
     for point in geo.points.iter().filter(|p| !p.check) {
-        if let (_, Some(position)) = intersect(input, rec, &point.markers, geo.marker_sigma_px) {
+        if let (_, Some(position)) = intersect(input, rec, &point.markers, point.marker_sigma(geo))
+        {
             c.src.push(position);
             c.dst.push(point.position);
             c.sigma.push(point.sigma_xy.max(point.sigma_z));
@@ -494,13 +506,14 @@ fn marked_points(
         .iter()
         .filter(|p| !p.check)
         .filter_map(|p| {
-            let (_, position) = intersect(input, rec, &p.markers, geo.marker_sigma_px);
+            let sigma = p.marker_sigma(geo);
+            let (_, position) = intersect(input, rec, &p.markers, sigma);
             Some(MarkedPoint {
                 position: position?,
                 markers: p
                     .markers
                     .iter()
-                    .map(|m| (m.image, m.pixel, geo.marker_sigma_px))
+                    .map(|m| (m.image, m.pixel, sigma))
                     .collect(),
                 prior: Some((p.position, p.sigma_xy, p.sigma_z)),
             })
@@ -525,7 +538,7 @@ pub fn ground_point_residuals(
                 .filter(|m| keep(m.image))
                 .copied()
                 .collect();
-            let (images, position) = intersect(input, rec, &markers, geo.marker_sigma_px);
+            let (images, position) = intersect(input, rec, &markers, p.marker_sigma(geo));
             PointResidual {
                 name: p.name.clone(),
                 check: p.check,

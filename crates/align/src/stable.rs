@@ -191,6 +191,19 @@ impl StableTiePoints<'_> {
             points: ground.points.clone(),
             marker_sigma_px: ground.marker_sigma_px,
         };
+        // The stable points' observations are tie points of this epoch: weighted by the
+        // epoch's own measured reprojection noise (σ per axis from the RMS), not as hand-placed
+        // markers.
+        let rms = rough.rms_px(sub);
+        let tie_sigma_px = if rms.is_finite() && rms > 0.0 {
+            (rms / std::f64::consts::SQRT_2).max(MIN_TIE_SIGMA_PX)
+        } else {
+            options.tie_point_sigma_px
+        };
+        tracing::debug!(
+            tie_sigma_px,
+            "stable tie points weighted by the epoch's noise"
+        );
         for (k, pair) in pairs.iter().enumerate() {
             let Some(point) = offered.get(pair.other) else {
                 continue;
@@ -215,6 +228,7 @@ impl StableTiePoints<'_> {
                         pixel: sub.pixel(e),
                     })
                     .collect(),
+                marker_sigma_px: Some(tie_sigma_px),
             });
         }
         let mut placed = georeference(sub, vec![rough], &controlled, options)?;
@@ -226,6 +240,10 @@ impl StableTiePoints<'_> {
         Ok(placed)
     }
 }
+
+/// Least σ of a stable tie point's observations, pixels: a noise-free synthetic epoch must not
+/// give its stable points infinite weight.
+const MIN_TIE_SIGMA_PX: f64 = 0.1;
 
 /// The points of a reconstruction as offered tie points.
 fn offer(rec: &Reconstruction) -> Vec<OfferedTiePoint<'_>> {
