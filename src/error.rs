@@ -15,36 +15,53 @@ pub enum ProjectError {
     /// A configuration value is wrong.
     #[error("{}: key `{key}`: {message}", path.display())]
     Config {
+        /// The file.
         path: PathBuf,
+        /// The key.
         key: String,
+        /// What is wrong and what was expected.
         message: String,
     },
     /// A line of an input file refers to something that does not exist.
     #[error("{}: line {line}: {message}", path.display())]
     Reference {
+        /// The file.
         path: PathBuf,
+        /// The line, counted from 1.
         line: usize,
+        /// What it refers to that does not exist.
         message: String,
     },
     /// A path given to a command is not usable.
     #[error("{}: {message}", path.display())]
-    Path { path: PathBuf, message: String },
+    Path {
+        /// The path.
+        path: PathBuf,
+        /// Why it is not usable.
+        message: String,
+    },
     /// `--from` comes after `--to`.
     #[error("stage range is empty: --from {from} comes after --to {to}")]
     StageRange {
+        /// The stage given to `--from`.
         from: &'static str,
+        /// The stage given to `--to`.
         to: &'static str,
     },
     /// A change computation failed; `context` names the inputs.
     #[error("{context}: {source}")]
     Change {
+        /// The inputs (files or epochs).
         context: String,
+        /// What failed.
         source: timesift_change::ChangeError,
     },
     /// A stage of `timesift run` failed.
     #[error("{stage}: {message}")]
     Stage {
+        /// The stage's name.
         stage: &'static str,
+        /// What failed.
         message: String,
     },
 }

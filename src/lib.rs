@@ -8,6 +8,8 @@
 //!   one line naming the file and the line or key.
 //! - Stage crates are called only through the types of `timesift-core`.
 
+#![warn(missing_docs, unnameable_types)]
+
 pub mod commands;
 pub mod config;
 mod error;

@@ -2,7 +2,7 @@
 //! stage reads, what it writes, how it runs), and the runner that walks a range of them.
 //!
 //! Every stage resumes: work files under `work/` record the settings they were made with
-//! ([`cache`]), and a stage skips what is up to date. A failed stage leaves the outputs of
+//! (`cache`), and a stage skips what is up to date. A failed stage leaves the outputs of
 //! earlier stages intact.
 
 mod align;

@@ -11,8 +11,11 @@ pub enum AlignError {
     /// An option is outside its domain.
     #[error("invalid option `{name}` = {value}: {expected}")]
     InvalidOption {
+        /// The option's name.
         name: &'static str,
+        /// The value given.
         value: f64,
+        /// What the value must be.
         expected: &'static str,
     },
     /// No pair of images could start a reconstruction.
@@ -22,8 +25,11 @@ pub enum AlignError {
          with those thresholds halved three times (too little overlap, texture or baseline)"
     )]
     NoInitialPair {
+        /// How many candidate pairs were evaluated.
         tried: usize,
+        /// The inliers a pair needs.
         min_inliers: usize,
+        /// The median triangulation angle a pair needs, degrees.
         min_angle_deg: f64,
     },
     /// Georeferencing is impossible with the given priors.
@@ -35,7 +41,9 @@ pub enum AlignError {
     /// A strategy failed on one epoch.
     #[error("epoch \"{epoch}\": {source}")]
     Epoch {
+        /// The epoch's name.
         epoch: String,
+        /// What failed.
         source: Box<AlignError>,
     },
     /// A geometric solver failed where the orientation needed it.

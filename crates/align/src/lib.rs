@@ -19,6 +19,8 @@
 //! seeded, so a run is reproducible; the frame of a reconstruction is arbitrary (first image at
 //! the origin) until georeferencing.
 
+#![warn(missing_docs, unnameable_types)]
+
 mod adjust;
 mod error;
 mod georef;

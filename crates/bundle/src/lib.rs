@@ -17,6 +17,8 @@
 //! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).
 
+#![warn(missing_docs, unnameable_types)]
+
 pub mod bal;
 mod error;
 pub mod libmv;

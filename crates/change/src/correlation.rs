@@ -209,7 +209,7 @@ fn fit(lags: Vec<Lag>, cell: f64) -> Variogram {
 
 /// `sqrt(ΣΣ aᵢ aⱼ ρ(dᵢⱼ))` over cells given as (x, y, area) in metres, ρ the correlation of the
 /// spherical model: the σ of Σ aᵢ eᵢ for errors of unit variance. Independent errors give
-/// `sqrt(Σ aᵢ²)`; fully correlated ones `Σ aᵢ`. Beyond [`MAX_BLOCKS`] cells, cells are grouped
+/// `sqrt(Σ aᵢ²)`; fully correlated ones `Σ aᵢ`. Beyond `MAX_BLOCKS` cells, cells are grouped
 /// into square blocks (the within-block pairs at the mean distance of two points in a square,
 /// 0.52 × its side) so that the cost stays bounded whatever the region.
 pub fn correlated_area(cells: &[(f64, f64, f64)], correlation: Correlation) -> f64 {

@@ -6,6 +6,8 @@
 //! nothing of images, cameras or orientation, and reads or writes no file (the caller does, through
 //! `timesift-io`). Nodata is NaN everywhere inside the crate and is propagated, never filled in.
 
+#![warn(missing_docs, unnameable_types)]
+
 pub mod checkpoints;
 pub mod cloud;
 pub mod correlation;

@@ -22,9 +22,19 @@ pub struct Keypoint {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Descriptors {
     /// Real-valued descriptors (e.g. SIFT, RootSIFT): `data.len() == count * dim`.
-    Float { dim: usize, data: Vec<f32> },
+    Float {
+        /// Values per descriptor.
+        dim: usize,
+        /// The descriptors, one after another.
+        data: Vec<f32>,
+    },
     /// Binary descriptors compared by Hamming distance (e.g. LDB): `data.len() == count * bytes`.
-    Binary { bytes: usize, data: Vec<u8> },
+    Binary {
+        /// Bytes per descriptor.
+        bytes: usize,
+        /// The descriptors, one after another.
+        data: Vec<u8>,
+    },
 }
 
 impl Descriptors {

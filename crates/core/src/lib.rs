@@ -10,6 +10,8 @@
 //! - This crate does no I/O and knows nothing of files, projects or epochs' meaning; it has no
 //!   dependency beyond `nalgebra` and `thiserror`.
 
+#![warn(missing_docs, unnameable_types)]
+
 pub mod camera;
 pub mod error;
 pub mod features;

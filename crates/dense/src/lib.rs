@@ -23,6 +23,8 @@
 //! - Matching works in f32 in camera frames and a local frame centred on the cameras; world
 //!   positions of fused points are computed in f64.
 
+#![warn(missing_docs, unnameable_types)]
+
 pub mod camera;
 pub mod depth_map;
 mod error;

@@ -16,6 +16,8 @@
 //! blob the keypoint stands for, in full-resolution pixels; orientations are radians in the image
 //! frame (x right, y down). Results do not depend on the number of threads or the memory budget.
 
+#![warn(missing_docs, unnameable_types)]
+
 mod blur;
 mod detect;
 mod error;
@@ -42,7 +44,9 @@ use timesift_core::{Descriptors, Keypoint};
 /// Keypoints and their descriptors (`descriptors.len() == keypoints.len()`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Features {
+    /// The keypoints, in the order of the descriptors.
     pub keypoints: Vec<Keypoint>,
+    /// One descriptor per keypoint.
     pub descriptors: Descriptors,
 }
 
@@ -57,7 +61,9 @@ pub trait FeatureExtractor: Sync {
 /// SIFT keypoints with SIFT or RootSIFT descriptors (128 floats, unit L2 norm).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SiftExtractor {
+    /// Scale space, detection and orientation options.
     pub detector: DetectorOptions,
+    /// SIFT (L2) or RootSIFT normalisation of the descriptors.
     pub normalization: SiftNormalization,
 }
 
@@ -96,6 +102,7 @@ impl FeatureExtractor for SiftExtractor {
 /// SIFT keypoints with binary LDB descriptors (61 bytes, Hamming distance).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct LdbExtractor {
+    /// Scale space, detection and orientation options.
     pub detector: DetectorOptions,
 }
 

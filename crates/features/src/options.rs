@@ -21,7 +21,10 @@ pub enum Upsample {
 pub enum Orientation {
     /// Every peak of the 36-bin gradient histogram within `peak_ratio` of the highest gives one
     /// keypoint (Lowe: 0.8).
-    Dominant { peak_ratio: f64 },
+    Dominant {
+        /// Least height of a secondary peak relative to the highest.
+        peak_ratio: f64,
+    },
     /// Orientation 0 for every keypoint: for images known to share their rotation (nadir blocks
     /// flown the same way, ortho-rectified scans), more distinctive and faster.
     Upright,

@@ -57,7 +57,9 @@ pub fn write(path: &Path, features: &Features) -> Result<(), FeatureError> {
 /// What kind of descriptor a feature file holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DescriptorKind {
+    /// Real-valued descriptors (SIFT, RootSIFT).
     Float,
+    /// Bytes compared by Hamming distance (LDB).
     Binary,
 }
 

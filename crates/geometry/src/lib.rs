@@ -11,6 +11,8 @@
 //! Invariants: pure functions of their inputs (no I/O, no global state); degenerate or
 //! insufficient input returns [`GeometryError`], never NaN; all randomness comes from a seed.
 
+#![warn(missing_docs, unnameable_types)]
+
 mod error;
 pub mod essential;
 pub mod fundamental;

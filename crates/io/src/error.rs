@@ -11,36 +11,57 @@ pub enum IoError {
     /// The operating system refused (missing file, permissions, disk full).
     #[error("{}: {source}", path.display())]
     Io {
+        /// The file.
         path: PathBuf,
+        /// What the operating system said.
         source: std::io::Error,
     },
     /// A text file has a bad line.
     #[error("{}: line {line}: {message}", path.display())]
     Line {
+        /// The file.
         path: PathBuf,
+        /// The line, counted from 1.
         line: usize,
+        /// What is wrong with it.
         message: String,
     },
     /// A structured file has a bad or missing key.
     #[error("{}: key `{key}`: {message}", path.display())]
     Key {
+        /// The file.
         path: PathBuf,
+        /// The key.
         key: String,
+        /// What is wrong with it.
         message: String,
     },
     /// The content is corrupt or not of the expected format.
     #[error("{}: {message}", path.display())]
-    Invalid { path: PathBuf, message: String },
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     /// The content is valid but uses a layout this reader does not support.
     #[error("{}: unsupported {what}: {message}", path.display())]
     Unsupported {
+        /// The file.
         path: PathBuf,
+        /// The kind of layout (compression, sample format, …).
         what: &'static str,
+        /// What the file holds.
         message: String,
     },
     /// A coordinate transformation failed or a CRS is unknown.
     #[error("coordinate reference system {crs}: {message}")]
-    Crs { crs: String, message: String },
+    Crs {
+        /// The CRS as given.
+        crs: String,
+        /// What failed.
+        message: String,
+    },
 }
 
 /// Folds a message onto one line: errors are reported as one line naming the file.

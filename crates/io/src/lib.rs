@@ -10,6 +10,8 @@
 //!   never leaves a half-written output.
 //! - Nothing here knows about stages, epochs' meaning or algorithms.
 
+#![warn(missing_docs, unnameable_types)]
+
 pub mod bal;
 pub mod cameras_json;
 pub mod colmap;

@@ -15,6 +15,8 @@
 //! `timesift-geometry` for verification; never reads images; results do not depend on the
 //! thread count.
 
+#![warn(missing_docs, unnameable_types)]
+
 mod error;
 pub mod guided;
 pub mod matcher;

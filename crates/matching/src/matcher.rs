@@ -21,7 +21,9 @@ const BLOCK: usize = 256;
 /// the second.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Match {
+    /// Keypoint index in the first image.
     pub query: u32,
+    /// Keypoint index in the second image.
     pub train: u32,
     /// Descriptor distance (Euclidean, or Hamming bits).
     pub distance: f32,

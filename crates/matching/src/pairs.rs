@@ -11,11 +11,16 @@ pub enum PairPolicy {
     /// Every pair.
     Exhaustive,
     /// Each image with the next `overlap` images in capture order.
-    Sequential { overlap: usize },
+    Sequential {
+        /// How many following images each image is paired with.
+        overlap: usize,
+    },
     /// Each image with its `neighbours` nearest images by prior camera centre, within
     /// `max_distance` (metres) when given. Images without a prior fall back to exhaustive.
     Spatial {
+        /// How many nearest images each image is paired with.
         neighbours: usize,
+        /// Farthest distance between paired centres, metres.
         max_distance: Option<f64>,
     },
 }

@@ -50,8 +50,11 @@ impl Default for PreselectOptions {
 /// A candidate pair and its number of coarse matches.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CoarsePair {
+    /// Index of the first image.
     pub a: usize,
+    /// Index of the second image.
     pub b: usize,
+    /// Coarse matches between them.
     pub matches: usize,
 }
 

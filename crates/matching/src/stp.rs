@@ -57,7 +57,9 @@ impl Default for StpOptions {
 /// An accepted pair: tie point `reference` of the reference epoch and `other` of the other.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StablePair {
+    /// Index of the tie point of the reference epoch.
     pub reference: usize,
+    /// Index of the tie point of the other epoch.
     pub other: usize,
     /// Mean descriptor distance; lower is more certain (weight the control point by it).
     pub score: f32,

@@ -14,8 +14,11 @@ use crate::{Match, MatchingError};
 /// The verified matches of one image pair.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PairMatches {
+    /// The first image (`Match::query` indexes its keypoints).
     pub a: ImageId,
+    /// The second image (`Match::train` indexes its keypoints).
     pub b: ImageId,
+    /// The verified matches.
     pub matches: Vec<Match>,
 }
 

@@ -59,6 +59,7 @@ pub enum EpipolarModel {
 /// A verified pair.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VerifiedPair {
+    /// The two-view model the inliers fit.
     pub model: EpipolarModel,
     /// General epipolar geometry, or explained by a homography.
     pub kind: TwoViewType,

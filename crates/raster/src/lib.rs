@@ -10,6 +10,8 @@
 //! orientation; knows nothing of epochs, projects or stages — one call grids one cloud or mosaics
 //! one set of views; every bad input is a [`RasterError`], never NaN in a valid cell.
 
+#![warn(missing_docs, unnameable_types)]
+
 mod dem;
 mod error;
 mod fill;

@@ -12,6 +12,8 @@
 //! what it makes is consumed exactly like user data; every random choice comes from a seed; the
 //! truth describes exactly what was rendered.
 
+#![warn(missing_docs, unnameable_types)]
+
 pub mod effects;
 pub mod flight;
 pub mod noise;

@@ -44,11 +44,15 @@ pub struct BrownCamera {
     pub b2: f64,
     /// Radial distortion coefficients of r², r⁴, r⁶, r⁸.
     pub k1: f64,
+    /// Radial coefficient of r⁴.
     pub k2: f64,
+    /// Radial coefficient of r⁶.
     pub k3: f64,
+    /// Radial coefficient of r⁸.
     pub k4: f64,
     /// Tangential (decentring) coefficients, Metashape convention.
     pub p1: f64,
+    /// Tangential coefficient, Metashape convention (OpenCV's p1).
     pub p2: f64,
 }
 
@@ -96,7 +100,7 @@ impl BrownCamera {
         Ok(cam)
     }
 
-    /// The parameters in [`BROWN_PARAMS`] order.
+    /// The parameters in the order of [`CameraModel::param_names`](crate::CameraModel::param_names).
     pub fn param_array(&self) -> [f64; 11] {
         [
             self.f, self.cx, self.cy, self.b1, self.b2, self.k1, self.k2, self.k3, self.k4,

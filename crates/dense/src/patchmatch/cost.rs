@@ -21,7 +21,7 @@ pub const MAX_WINDOW: usize = 128;
 const LANES: usize = 8;
 
 /// Window offsets and spatial weights of the sparse NCC window, padded to a multiple of
-/// [`LANES`] samples (padding: offset 0, weight 0).
+/// `LANES` samples (padding: offset 0, weight 0).
 #[derive(Debug, Clone)]
 pub struct WindowShape {
     /// dx per sample.

@@ -18,7 +18,7 @@
 
 mod board;
 pub mod cost;
-pub mod update;
+mod update;
 pub mod upsample;
 
 use rayon::prelude::*;
