@@ -31,7 +31,7 @@ pub mod solver;
 pub use error::BundleError;
 pub use loss::Loss;
 pub use problem::{
-    BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior, PriorOffset, ScaleBar,
+    BundleImage, BundlePoint, BundleProblem, CameraGroup, CenterPrior, Observation, PointPrior, PriorOffset, ScaleBar,
 };
 pub use solver::{
     BundleOptions, BundleReport, Elimination, LinearSolver, Termination, cost, gradient,

@@ -15,6 +15,28 @@
 //! DESIGN.md (the centre of the top-left pixel is (0.5, 0.5)); `Keypoint::scale` is the σ of the
 //! blob the keypoint stands for, in full-resolution pixels; orientations are radians in the image
 //! frame (x right, y down). Results do not depend on the number of threads or the memory budget.
+//!
+//! # Example
+//!
+//! SIFT keypoints of an image of soft blobs (any grey image in [0, 1] will do; from a file,
+//! [`GreyImage::from_io`] wraps what `timesift_io::image` decodes):
+//!
+//! ```
+//! use timesift_features::{FeatureExtractor, GreyImage, SiftExtractor};
+//!
+//! let (width, height) = (160, 120);
+//! let pixels = timesift_features::doc_example::blobs(width, height, 0.0);
+//! let image = GreyImage::new(width, height, &pixels)?;
+//! let features = SiftExtractor::default().extract(&image, None)?;
+//! assert!(features.keypoints.len() >= 20);
+//! assert_eq!(features.descriptors.len(), features.keypoints.len());
+//! assert_eq!(features.descriptors.width(), 128);
+//! let inside = |k: &timesift_core::Keypoint| {
+//!     k.x > 0.0 && k.x < width as f64 && k.y > 0.0 && k.y < height as f64
+//! };
+//! assert!(features.keypoints.iter().all(inside));
+//! # Ok::<(), timesift_features::FeatureError>(())
+//! ```
 
 #![warn(missing_docs, unnameable_types)]
 
@@ -23,6 +45,7 @@ mod detect;
 mod error;
 mod extract;
 mod fastmath;
+pub mod doc_example;
 pub mod files;
 mod image;
 pub mod ldb;

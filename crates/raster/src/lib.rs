@@ -9,6 +9,39 @@
 //! file (the root does, through `timesift-io`) and knows no file format; never changes an
 //! orientation; knows nothing of epochs, projects or stages — one call grids one cloud or mosaics
 //! one set of views; every bad input is a [`RasterError`], never NaN in a valid cell.
+//!
+//! # Example
+//!
+//! A DEM of 1 m cells from a cloud sampled on the plane `z = 100 + 0.1 x`, with one hole of two
+//! cells that the gap filling closes (and marks):
+//!
+//! ```
+//! use timesift_raster::{DemOptions, Lattice, grid_cloud};
+//!
+//! // 20 × 10 cells from (0, 10) at the north-west corner.
+//! let lattice = Lattice::new(0.0, 10.0, 1.0, 20, 10)?;
+//! let mut points = Vec::new();
+//! for j in 0..40 {
+//!     for i in 0..80 {
+//!         let (x, y) = (0.125 + 0.25 * i as f64, 0.125 + 0.25 * j as f64);
+//!         let in_hole = (5.0..7.0).contains(&x) && (4.0..5.0).contains(&y);
+//!         if !in_hole {
+//!             points.push([x, y, 100.0 + 0.1 * x]);
+//!         }
+//!     }
+//! }
+//! let dem = grid_cloud(&points, &lattice, &DemOptions::default())?;
+//! assert_eq!(dem.valid_cells(), 200);
+//! assert_eq!(dem.filled.iter().filter(|&&f| f).count(), 2);
+//! for row in 0..10 {
+//!     for col in 0..20 {
+//!         let (x, _) = lattice.cell_center(col, row);
+//!         let h = dem.height[row * 20 + col] as f64;
+//!         assert!((h - (100.0 + 0.1 * x)).abs() < 1e-4);
+//!     }
+//! }
+//! # Ok::<(), timesift_raster::RasterError>(())
+//! ```
 
 #![warn(missing_docs, unnameable_types)]
 
