@@ -18,6 +18,75 @@
 //! reference index, nothing more; every random choice is
 //! seeded, so a run is reproducible; the frame of a reconstruction is arbitrary (first image at
 //! the origin) until georeferencing.
+//!
+//! # Example
+//!
+//! Two surveys of one site flown with `timesift-synth`'s flight planner, their tie points
+//! projected exactly, oriented as one block by the `timesift` strategy. Without priors the block
+//! stays in a local frame; after one similarity every camera centre is where it was flown.
+//!
+//! ```
+//! use timesift_align::{Block, GeoreferenceInput, SfmImage, SfmInput, SfmOptions, SingleBlock, Strategy};
+//! use timesift_core::nalgebra::{Vector2, Vector3};
+//! use timesift_core::{BrownCamera, Camera, FeatureIndex, ImageId, SeededRng, Track, TrackElement};
+//! use timesift_geometry::{TransformKind, umeyama};
+//! use timesift_synth::flight::NadirBlock;
+//!
+//! let brown = BrownCamera::new(1000, 750, 900.0)?;
+//! let camera = Camera::Brown(brown.clone());
+//! let flight = NadirBlock {
+//!     min: (0.0, 0.0), max: (40.0, 30.0), altitude: 25.0, ground: 0.0,
+//!     forward: 0.6, side: 0.4, tilt_sigma: 0.02, position_sigma: 0.3,
+//! };
+//! let mut rng = SeededRng::new(3);
+//! let first = flight.poses(&brown, &mut rng);
+//! let second = flight.poses(&brown, &mut rng);
+//! let epoch_of: Vec<usize> = first.iter().map(|_| 0).chain(second.iter().map(|_| 1)).collect();
+//! let poses = [first, second].concat();
+//!
+//! // Ground points with 2 m of relief, each a track of the images that see it.
+//! let mut keypoints: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); poses.len()];
+//! let mut tracks = Vec::new();
+//! for _ in 0..2000 {
+//!     let x = Vector3::new(
+//!         rng.uniform_range(-5.0, 45.0),
+//!         rng.uniform_range(-5.0, 35.0),
+//!         rng.uniform_range(0.0, 2.0),
+//!     );
+//!     let mut elements = Vec::new();
+//!     for (i, pose) in poses.iter().enumerate() {
+//!         let Ok(u) = timesift_core::project_world(&camera, pose, &x) else { continue };
+//!         if u.x > 0.0 && u.y > 0.0 && u.x < 1000.0 && u.y < 750.0 {
+//!             let feature = FeatureIndex::from(keypoints[i].len());
+//!             elements.push(TrackElement { image: ImageId::from(i), feature });
+//!             keypoints[i].push(u);
+//!         }
+//!     }
+//!     if elements.len() >= 2 {
+//!         tracks.push(Track { elements });
+//!     }
+//! }
+//! let images = keypoints.into_iter().map(|keypoints| SfmImage { group: 0, keypoints });
+//! let block = Block {
+//!     sfm: SfmInput { cameras: vec![camera], images: images.collect(), tracks, focal: Vec::new() },
+//!     ground: GeoreferenceInput { marker_sigma_px: 0.5, ..GeoreferenceInput::default() },
+//!     epoch_of,
+//!     epoch_names: vec!["2019".into(), "2021".into()],
+//!     reference: 0,
+//!     stable_ground: None,
+//! };
+//!
+//! let oriented = SingleBlock.orient(&block, &SfmOptions::default())?;
+//! assert_eq!(oriented.reconstruction.num_oriented(), poses.len());
+//! let ours: Vec<Vector3<f64>> =
+//!     oriented.reconstruction.poses.iter().flatten().map(|p| p.center()).collect();
+//! let truth: Vec<Vector3<f64>> = poses.iter().map(|p| p.center()).collect();
+//! let onto_truth = umeyama(&ours, &truth, None, TransformKind::Similarity)?;
+//! for (a, b) in ours.iter().zip(&truth) {
+//!     assert!((onto_truth.apply(a) - b).norm() < 1e-4);
+//! }
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 #![warn(missing_docs, unnameable_types)]
 

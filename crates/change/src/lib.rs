@@ -68,8 +68,8 @@ pub use mask::Mask;
 pub use nuth_kaab::{NuthKaabOptions, NuthKaabResult, nuth_kaab};
 pub use pair::{LodSource, PairAnalysis, PairOptions, analyse_pair};
 pub use stats::{Statistics, statistics};
-pub use trend::{PlaneTrend, plane_trend};
-pub use volume::{VolumeOptions, Volumes, volumes};
 /// The CRS and geotransform of a [`Grid`], from `timesift-io`: re-exported so that a caller
 /// builds grids without naming another crate.
 pub use timesift_io::{coords::Crs, geotiff::GeoTransform};
+pub use trend::{PlaneTrend, plane_trend};
+pub use volume::{VolumeOptions, Volumes, volumes};

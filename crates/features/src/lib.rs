@@ -42,10 +42,10 @@
 
 mod blur;
 mod detect;
+pub mod doc_example;
 mod error;
 mod extract;
 mod fastmath;
-pub mod doc_example;
 pub mod files;
 mod image;
 pub mod ldb;
