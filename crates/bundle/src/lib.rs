@@ -1,6 +1,6 @@
 //! Bundle adjustment: Levenberg–Marquardt on the reduced camera system (Schur complement over the
 //! points), camera groups with shared intrinsics and a fixed/free mask per parameter, robust losses,
-//! fixed poses and points (issue "Bundle adjustment").
+//! fixed poses and points.
 //!
 //! Built so far: reprojection residuals through any `CameraModel` with per-observation sigmas,
 //! camera-centre (GNSS) and control-point priors with horizontal/vertical sigmas, offsets shared by
@@ -12,7 +12,7 @@
 //! intrinsics; scale bars (distances between two points), whose end points stay in the reduced
 //! system since they couple two points; libmv problems; Schur elimination of points or poses
 //! (whichever leaves the smaller system); an iterative (PCG, Schur–Jacobi) path that never forms
-//! the reduced system. Still to come (see the issue): parallel assembly.
+//! the reduced system.
 //!
 //! Invariants: a solver of problems expressed in `timesift-core` types; it knows nothing of how the
 //! observations were obtained, of epochs or of files (BAL conversion aside, for benchmarks).

@@ -1,5 +1,4 @@
-//! Descriptor matching, pair selection, geometric verification and track building (issue
-//! "Matching").
+//! Descriptor matching, pair selection, geometric verification and track building.
 //!
 //! Map: [`matcher`] (nearest neighbours of float descriptors by blocked matrix products, binary
 //! ones by popcount; ratio test, mutual check, maximum distance), [`verify`] (fundamental,
