@@ -4,8 +4,8 @@
 use std::collections::BTreeMap;
 use std::process::Command;
 
-/// Normal (non-dev, non-build) dependencies of every workspace package, by package name.
-fn dependencies() -> BTreeMap<String, Vec<String>> {
+/// `cargo metadata` of the workspace's own packages.
+fn metadata() -> serde_json::Value {
     let out = Command::new(env!("CARGO"))
         .args([
             "metadata",
@@ -22,7 +22,12 @@ fn dependencies() -> BTreeMap<String, Vec<String>> {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    serde_json::from_slice(&out.stdout).expect("JSON")
+}
+
+/// Normal (non-dev, non-build) dependencies of every workspace package, by package name.
+fn dependencies() -> BTreeMap<String, Vec<String>> {
+    let meta = metadata();
     let mut deps = BTreeMap::new();
     for p in meta["packages"].as_array().expect("packages") {
         let names = p["dependencies"]
@@ -106,4 +111,49 @@ fn file_formats_are_io_s_and_dense_and_raster_touch_no_file() {
             "{pure} depends on timesift-io"
         );
     }
+}
+
+/// Every package but the benches can be published: the metadata crates.io shows, a readme and
+/// license texts in the package, and a version on every dependency on another timesift crate
+/// (a path alone is refused by `cargo package`; dev-dependencies without one are dropped).
+#[test]
+fn every_library_crate_is_ready_for_crates_io() {
+    let meta = metadata();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    for p in meta["packages"].as_array().expect("packages") {
+        let name = p["name"].as_str().expect("name");
+        if name == "xtask" {
+            assert_eq!(
+                p["publish"],
+                serde_json::json!([]),
+                "xtask is not published"
+            );
+            continue;
+        }
+        for key in ["description", "license", "repository", "readme"] {
+            assert!(p[key].is_string(), "{name}: no `{key}`");
+        }
+        for key in ["keywords", "categories"] {
+            let n = p[key].as_array().map_or(0, Vec::len);
+            assert!((1..=5).contains(&n), "{name}: {n} {key}");
+        }
+        let dir = std::path::Path::new(p["manifest_path"].as_str().expect("manifest"))
+            .parent()
+            .expect("package folder")
+            .to_path_buf();
+        for file in [
+            "LICENSE-MIT",
+            "LICENSE-APACHE",
+            p["readme"].as_str().unwrap_or(""),
+        ] {
+            assert!(dir.join(file).is_file(), "{name}: no {file}");
+        }
+        for d in p["dependencies"].as_array().expect("dependencies") {
+            let dep = d["name"].as_str().expect("name");
+            if dep.starts_with("timesift") && d["kind"].is_null() {
+                assert_ne!(d["req"], "*", "{name} depends on {dep} without a version");
+            }
+        }
+    }
+    assert!(root.join("LICENSE-MIT").is_file() && root.join("LICENSE-APACHE").is_file());
 }

@@ -38,7 +38,8 @@ impl PipelineStage for FeaturesStage {
     }
 }
 
-/// Extracts the features of every image whose feature file is missing or unreadable.
+/// Extracts the features of every image whose feature file is missing or unreadable, with the
+/// extractor `[align] features` names.
 pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
     let detector = DetectorOptions {
         limit: Some(KeypointLimit::spread(project.config.align.max_keypoints)),
@@ -58,13 +59,36 @@ pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
         "max_keypoints": project.config.align.max_keypoints,
         "contrast_threshold": detector.contrast_threshold,
     });
+    extract_with(project, extractor.as_ref(), &settings)
+}
+
+/// The `features` stage with any extractor: a caller's own (a research group's detector, a
+/// learned descriptor) in place of the built-in ones, for the stages after it to use as they
+/// would SIFT's. Returns how many images were extracted. The extractor's name is recorded with
+/// the features, so that another extractor, or the built-in one of a later `timesift run`,
+/// redoes them and the matches.
+pub fn extract_features(
+    project: &Project,
+    extractor: &dyn FeatureExtractor,
+) -> Result<usize, ProjectError> {
+    let settings = serde_json::json!({ "extractor": extractor.name() });
+    extract_with(project, extractor, &settings)
+}
+
+/// Extracts the features of every image whose feature file is missing or unreadable; `settings`
+/// is what the feature files are recorded as made with.
+fn extract_with(
+    project: &Project,
+    extractor: &dyn FeatureExtractor,
+    settings: &serde_json::Value,
+) -> Result<usize, ProjectError> {
     let layout = project.layout();
     let (features_dir, matches_dir) = (layout.features_dir(), layout.matches_dir());
     start_with_settings(
         "features",
         &features_dir,
         "feat",
-        &settings,
+        settings,
         &[(&matches_dir, "match")],
     )?;
     let todo: Vec<usize> = (0..project.images.len())
@@ -74,7 +98,7 @@ pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
         .par_iter()
         .filter_map(|&i| {
             let image = project.dir.join(&project.images[i].name);
-            let result = timesift_features::files::extract_file(&image, extractor.as_ref())
+            let result = timesift_features::files::extract_file(&image, extractor)
                 .map_err(|e| format!("{}: {e}", project.images[i].name))
                 .and_then(|f| {
                     write_features(&layout.feature_file(i), &f.keypoints, &f.descriptors)

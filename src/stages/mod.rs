@@ -27,7 +27,7 @@ pub use align::align_stage;
 pub use change::{epoch_pairs, stable_file};
 pub use dem::{dem_stage, epoch_ground_sample_distance, georeference, write_dem_files};
 pub use dense::{dense_input, dense_inputs, dense_stage};
-pub use features::features_stage;
+pub use features::{extract_features, features_stage};
 pub use matching::match_stage;
 pub use ortho::ortho_stage;
 pub use report::report_stage;

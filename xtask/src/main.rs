@@ -11,6 +11,8 @@
 //!   reprojection error).
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
 //!
+//! - `api [--bless]`: the public API of every library crate against its snapshot in `api/`.
+//!
 //! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
 //!   with its ground truth (`timesift-synth`).
 //!
@@ -19,6 +21,7 @@
 //!   truth: orientation, and (unless `--no-products`) the stable-area DoDs between epochs and
 //!   the volume change of the true regions (tables as markdown and JSON).
 
+mod api;
 mod bench_align;
 mod bench_bundle;
 mod bench_change;
@@ -88,6 +91,12 @@ enum Task {
         /// Products with the default `[dense]` settings rather than the demo's lighter ones.
         #[arg(long)]
         full_dense: bool,
+    },
+    /// The public API of every library crate against its snapshot under `api/`.
+    Api {
+        /// Rewrite the snapshots instead of comparing.
+        #[arg(long)]
+        bless: bool,
     },
     /// Stage benchmarks against peers, printing time ratios.
     Bench {
@@ -288,6 +297,20 @@ fn write_results(
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().task {
+        Task::Api { bless } => {
+            let differences = api::check(&api::workspace_root(), bless)?;
+            if !differences.is_empty() {
+                bail!("{}", differences.join("\n"));
+            }
+            if bless {
+                println!("api/: {} snapshots written", api::CRATES.len());
+            } else {
+                println!(
+                    "api/: the public API of {} crates is the recorded one",
+                    api::CRATES.len()
+                );
+            }
+        }
         Task::Bench {
             stage: BenchStage::Geometry { runs },
         } => bench_geometry::run(runs)?,
