@@ -251,7 +251,8 @@ pub struct AlignConfig {
     #[serde(default)]
     pub gcps_in_all_epochs: bool,
     /// Which inter-epoch tie points tie the epochs of a single block (`timesift`, `msfm`).
-    /// Default `stable`: with stable areas given, only those on them.
+    /// Default `auto`: with stable areas given, only those on them; without, none on ground
+    /// the block's own ties show changed.
     #[serde(default)]
     pub inter_epoch_ties: InterEpochTies,
 }
@@ -260,10 +261,16 @@ pub struct AlignConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum InterEpochTies {
-    /// Only tie points on the stable areas (`stable.csv`) when the project has them; every tie
-    /// point otherwise. Ground that changed by less than the noise shows (accreting sand,
-    /// thinning ice) would otherwise bend the block and flatten the change.
+    /// Only tie points on the stable areas (`stable.csv`) when the project has them; without
+    /// them, none on ground that the block's own ties show changed: intersected in each epoch
+    /// apart, the ties of a region differ significantly on average (decimetres of smooth
+    /// change that no single point shows). Ground that changed by less than one point's noise
+    /// (accreting sand, thinning ice, a creeping slope) would otherwise bend the block and
+    /// flatten the change.
     #[default]
+    Auto,
+    /// Only tie points on the stable areas when the project has them; every tie point
+    /// otherwise.
     Stable,
     /// Every tie point that passed the moved-point test.
     All,
@@ -901,7 +908,7 @@ mod tests {
     }
 
     #[test]
-    fn inter_epoch_ties_default_to_stable_and_name_their_values() {
+    fn inter_epoch_ties_default_to_auto_and_name_their_values() {
         let with_align = |line: &str| {
             let text =
                 format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[align]\n{line}\n");
@@ -909,6 +916,13 @@ mod tests {
         };
         assert_eq!(
             with_align("").unwrap().align.inter_epoch_ties,
+            InterEpochTies::Auto
+        );
+        assert_eq!(
+            with_align("inter_epoch_ties = \"stable\"")
+                .unwrap()
+                .align
+                .inter_epoch_ties,
             InterEpochTies::Stable
         );
         assert_eq!(
@@ -922,7 +936,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("inter_epoch_ties") && e.contains("stable") && e.contains("all"),
+            e.contains("inter_epoch_ties")
+                && e.contains("auto")
+                && e.contains("stable")
+                && e.contains("all"),
             "{e}"
         );
     }

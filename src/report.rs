@@ -28,10 +28,15 @@ pub struct AlignReport {
     pub tie_points: usize,
     /// Inter-epoch tie points split by epoch because their surface moved.
     pub inter_epoch_ties_split_as_moved: usize,
-    /// Inter-epoch tie points split by epoch because they lie off the stable areas
-    /// (`[align] inter_epoch_ties = "stable"`).
+    /// Inter-epoch tie points split by epoch because they lie off the stable areas, or (without
+    /// stable areas, `[align] inter_epoch_ties = "auto"`) on ground the block's own ties show
+    /// changed.
     #[serde(default)]
     pub inter_epoch_ties_split_off_stable: usize,
+    /// Regions found changed from the block's own inter-epoch ties (`[align] inter_epoch_ties =
+    /// "auto"` without stable areas); 0 otherwise.
+    #[serde(default)]
+    pub changed_regions: usize,
     /// Observations beyond this reprojection error were outliers, pixels (pooled over the
     /// block; each camera group's own bound is in `group_noise`).
     pub observation_bound_px: Option<f64>,

@@ -152,7 +152,7 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     let _ = writeln!(text, "# gcps_in_all_epochs = false");
     let _ = writeln!(
         text,
-        "# inter_epoch_ties = \"stable\"  # with stable.csv only ties on it join the epochs, or \"all\"\n"
+        "# inter_epoch_ties = \"auto\"  # with stable.csv only ties on it join the epochs; without, none on ground the ties show changed (\"stable\": stable.csv only; \"all\")\n"
     );
     let _ = writeln!(text, "[dense]");
     let _ = writeln!(

@@ -226,7 +226,7 @@ fn summary_section(inputs: &Inputs, warnings: &[String]) -> String {
     let mut s = format!(
         "<p>{} of {} images oriented in one run of the <b>{}</b> strategy; datum: {}; RMS \
          reprojection error {} px; {} tie points, of which {} split as moved between epochs \
-         and {} split for lying off the stable areas.</p>",
+         and {} split for lying off the stable areas{}.</p>",
         a.images_oriented,
         a.images_given,
         esc(&a.method),
@@ -234,7 +234,15 @@ fn summary_section(inputs: &Inputs, warnings: &[String]) -> String {
         num(a.rms_reprojection_px, 3),
         a.tie_points,
         a.inter_epoch_ties_split_as_moved,
-        a.inter_epoch_ties_split_off_stable
+        a.inter_epoch_ties_split_off_stable,
+        if a.changed_regions > 0 {
+            format!(
+                " or on the {} regions their own differences between epochs showed changed",
+                a.changed_regions
+            )
+        } else {
+            String::new()
+        }
     );
     let produced: Vec<String> = [
         (Stage::Dense, "dense clouds"),

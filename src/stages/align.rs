@@ -13,8 +13,8 @@ use std::time::Instant;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
-    Block, CentrePrior, Datum, FocalSource, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
-    OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions, StableGround,
+    Block, CentrePrior, ChangeDetection, Datum, FocalSource, GeoreferenceInput, Georeferenced,
+    GroundPoint, Marker, OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions, StableGround,
     ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
@@ -125,6 +125,10 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     let geo = ground_input(project, &frame)?;
     let mut options = SfmOptions {
         tie_point_sigma_px: project.config.align.tie_point_accuracy_px,
+        change_detection: match project.config.align.inter_epoch_ties {
+            InterEpochTies::Auto => ChangeDetection::Regional,
+            InterEpochTies::Stable | InterEpochTies::All => ChangeDetection::MovedPointsOnly,
+        },
         ..SfmOptions::default()
     };
     options.self_calibration.min_images = 3;
@@ -172,7 +176,7 @@ fn stable_ground(
     project: &Project,
     frame: &LocalFrame,
 ) -> Result<Option<StableGround>, ProjectError> {
-    if project.config.align.inter_epoch_ties != InterEpochTies::Stable
+    if project.config.align.inter_epoch_ties == InterEpochTies::All
         || project.stable_areas.is_empty()
     {
         return Ok(None);
@@ -659,6 +663,7 @@ fn report(
         tie_points: rec.points.len(),
         inter_epoch_ties_split_as_moved: block.moved_ties_split,
         inter_epoch_ties_split_off_stable: block.unstable_ties_split,
+        changed_regions: block.changed_regions,
         observation_bound_px: block.observation_bound_px,
         group_noise: (0..rec.cameras.len())
             .map(|g| GroupNoise {

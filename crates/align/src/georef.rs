@@ -136,6 +136,9 @@ pub struct Georeferenced {
     /// Epoch groups of inter-epoch tie points split off for lying off the stable ground
     /// ([`crate::Block::stable_ground`]).
     pub unstable_ties_split: usize,
+    /// Regions of the block found changed from its own inter-epoch ties
+    /// ([`crate::ChangeDetection::Regional`]), over every round; 0 without the detection.
+    pub changed_regions: usize,
     /// Largest reprojection error of a kept observation in the final adjustment, pixels: 4 σ of
     /// the block's own noise, at most the options' threshold; the largest over the parts of a
     /// strategy that georeferences epochs apart. `None` when nothing was georeferenced.
@@ -420,6 +423,7 @@ pub fn georeference(
         focal_held: focal_fixed,
         moved_ties_split: 0,
         unstable_ties_split: 0,
+        changed_regions: 0,
         observation_bound_px: bound,
         group_bound_px,
         group_sigma_px,

@@ -91,6 +91,7 @@
 #![warn(missing_docs, unnameable_types)]
 
 mod adjust;
+mod changed;
 mod error;
 mod georef;
 mod incremental;
@@ -112,7 +113,7 @@ pub use georef::{
 };
 pub use incremental::reconstruct;
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
-pub use options::{SelfCalibration, SfmOptions};
+pub use options::{ChangeDetection, SelfCalibration, SfmOptions};
 pub use stable::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};
 pub use stable_ground::StableGround;
 pub use strategy::{

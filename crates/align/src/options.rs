@@ -75,8 +75,24 @@ pub struct SfmOptions {
     /// times the block's median reprojection error mark a surface that moved: the point is split
     /// by epoch (strategies that orient epochs together). `f64::INFINITY` keeps every tie.
     pub moved_point_factor: f64,
+    /// What the single-block strategies do about ground that changed where the caller gave no
+    /// stable ground ([`crate::Block::stable_ground`], which always wins).
+    pub change_detection: ChangeDetection,
     /// Seed of every RANSAC.
     pub seed: u64,
+}
+
+/// How a single block finds ground that changed between epochs without stable areas given.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ChangeDetection {
+    /// Only the moved-point test ([`SfmOptions::moved_point_factor`]): smooth change below the
+    /// noise of one point keeps tying the epochs.
+    #[default]
+    MovedPointsOnly,
+    /// Also regions whose inter-epoch ties, intersected in each epoch apart, differ
+    /// significantly on average: their ties stop tying the epochs and the block is adjusted
+    /// again, the most significant first, until no region is found (at most six rounds).
+    Regional,
 }
 
 impl Default for SfmOptions {
@@ -100,6 +116,7 @@ impl Default for SfmOptions {
             local_iterations: 25,
             min_component_images: 3,
             moved_point_factor: 5.0,
+            change_detection: ChangeDetection::default(),
             seed: 0xa1_16e,
         }
     }

@@ -21,11 +21,12 @@ use timesift_geometry::ransac::{RansacOptions, ransac};
 use timesift_geometry::similarity::{SimilarityEstimator, TransformKind, umeyama};
 
 use crate::adjust::Intrinsics;
+use crate::changed::detect_changed_ground;
 use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, georeference};
 use crate::incremental::global;
 use crate::model::{Reconstruction, SfmInput};
 use crate::moved::{Separated, separate_moved_points};
-use crate::options::SfmOptions;
+use crate::options::{ChangeDetection, SfmOptions};
 use crate::stable::{StableMatcher, StableTiePoints};
 use crate::stable_ground::StableGround;
 use crate::state::{State, track_table};
@@ -170,6 +171,7 @@ impl Strategy for ChunkAlignment {
                     focal_held: sub.focal_held_during_sfm(),
                     moved_ties_split: 0,
                     unstable_ties_split: 0,
+                    changed_regions: 0,
                     observation_bound_px: None,
                     group_bound_px: Vec::new(),
                     group_sigma_px: Vec::new(),
@@ -262,44 +264,82 @@ impl Strategy for ProgressiveMerge {
 
 /// With stable ground given, the inter-epoch tie points of the georeferenced block that lie
 /// off it are split by epoch ([`Separated::split_unstable`]) and the block is adjusted again:
-/// only stable ground ties the epochs. Without it, `placed` as it is.
+/// only stable ground ties the epochs. Without it, and with [`ChangeDetection::Regional`], the
+/// changed ground is found from the block's own ties ([`detect_changed_ground`]), the same way,
+/// round after round until none is found. Otherwise `placed` as it is.
 fn tie_on_stable_ground(
     block: &Block,
     separated: &mut Separated,
     mut placed: Georeferenced,
     options: &SfmOptions,
 ) -> Result<Georeferenced, AlignError> {
-    let Some(stable) = &block.stable_ground else {
+    let detect = options.change_detection == ChangeDetection::Regional;
+    if block.stable_ground.is_none() && !detect {
         return Ok(placed);
-    };
+    }
     if placed.datum == Datum::Local {
-        // Without a datum the block's frame is not the stable ground's.
-        tracing::warn!("stable areas cannot select inter-epoch ties in an ungeoreferenced block");
+        // Without a datum the block's frame is not the stable ground's, and has no "up".
+        tracing::warn!("stable ground cannot select inter-epoch ties in an ungeoreferenced block");
         return Ok(placed);
     }
-    let split = separated.split_unstable(
-        &mut placed.reconstruction,
-        &block.epoch_of,
-        block.reference,
-        stable,
-    );
-    tracing::info!(
-        split,
-        "inter-epoch tie points off the stable ground split by epoch"
-    );
-    if split == 0 {
-        return Ok(placed);
+    let rounds = if block.stable_ground.is_some() {
+        1
+    } else {
+        CHANGE_DETECTION_ROUNDS
+    };
+    let (mut total, mut regions) = (0, 0);
+    for _ in 0..rounds {
+        let found;
+        let stable = match &block.stable_ground {
+            Some(stable) => stable,
+            None => {
+                // σ of one observation per axis, from the block's RMS (a 2-D norm).
+                let noise_px = (placed.rms_px / std::f64::consts::SQRT_2).max(0.1);
+                let Some(detected) = detect_changed_ground(
+                    &separated.input,
+                    &placed.reconstruction,
+                    &block.epoch_of,
+                    block.reference,
+                    noise_px,
+                ) else {
+                    break;
+                };
+                regions += detected.regions_changed;
+                found = detected;
+                &found.stable
+            }
+        };
+        let split = separated.split_unstable(
+            &mut placed.reconstruction,
+            &block.epoch_of,
+            block.reference,
+            stable,
+        );
+        tracing::info!(
+            split,
+            "inter-epoch tie points off the stable ground split by epoch"
+        );
+        if split == 0 {
+            break;
+        }
+        total += split;
+        let mut again = georeference(
+            &separated.input,
+            vec![placed.reconstruction],
+            &block.ground,
+            options,
+        )?;
+        again.dropped_components += placed.dropped_components;
+        placed = again;
     }
-    let mut again = georeference(
-        &separated.input,
-        vec![placed.reconstruction],
-        &block.ground,
-        options,
-    )?;
-    again.dropped_components += placed.dropped_components;
-    again.unstable_ties_split = split;
-    Ok(again)
+    placed.unstable_ties_split = total;
+    placed.changed_regions = regions;
+    Ok(placed)
 }
+
+/// Most rounds of change detection: each takes the most significant regions left and adjusts
+/// the block without their ties, which shows what is left more clearly.
+const CHANGE_DETECTION_ROUNDS: usize = 6;
 
 /// The reference epoch reconstructed and georeferenced alone, with its own priors and markers.
 pub(crate) fn orient_reference(
@@ -570,6 +610,7 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
         focal_held,
         moved_ties_split: 0,
         unstable_ties_split: 0,
+        changed_regions: 0,
         observation_bound_px: bound,
         // A group no part bounded keeps the pooled bound, as in a part.
         group_bound_px: match bound {

@@ -840,3 +840,102 @@ fn stable_tie_points_weigh_with_the_epochs_own_noise_not_the_marker_accuracy() {
     println!("largest camera-centre change between marker σ 0.5 and 5 px: {largest:.2e} m");
     assert!(largest < 1e-9, "{largest}");
 }
+
+/// Without stable areas, the regional change detection finds the lowered disc of the test above
+/// from the block's own ties: intersected in each epoch apart, the disc's ties differ by a part of
+/// the 10 cm that no single point shows but their mean does. Its ties stop tying the epochs, and
+/// the second epoch's own points show the change, where the plain block gives the disc one
+/// height between the epochs'.
+#[test]
+fn regional_change_detection_finds_a_lowered_disc_without_stable_areas() {
+    const LOWERING: f64 = 0.1;
+    let from_centre = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm();
+    let s = scene_with_motion(13, 0.3, 1500, &|i, x| {
+        if i >= 10 && from_centre(x) < 4.0 {
+            Vector3::new(0.0, 0.0, -LOWERING)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let block = two_epoch_block(&s, Vector3::zeros());
+    let epochs = |p: &timesift_align::SparsePoint| {
+        p.observations
+            .iter()
+            .map(|e| block.epoch_of[e.image.index()])
+            .collect::<std::collections::BTreeSet<usize>>()
+    };
+    // The disc's change as the block shows it (mean height error of the disc's points the
+    // second epoch sees minus that of those the first sees: 0 where ties give both one height),
+    // and the inter-epoch ties left on the disc and off it.
+    let summary = |g: &Georeferenced| {
+        let (mut on, mut off) = (0, 0);
+        let mut error = [Vec::new(), Vec::new()];
+        for p in &g.reconstruction.points {
+            let truth = s.points[p.track];
+            let e = epochs(p);
+            if e.len() == 2 && from_centre(&truth) < 3.5 {
+                on += 1;
+            } else if e.len() == 2 && from_centre(&truth) > 5.5 {
+                off += 1;
+            }
+            if from_centre(&truth) < 3.5 {
+                for k in &e {
+                    error[*k].push(p.position.z - truth.z);
+                }
+            }
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        (on, off, mean(&error[1]) - mean(&error[0]))
+    };
+    let plain = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    let options = SfmOptions {
+        change_detection: timesift_align::ChangeDetection::Regional,
+        ..SfmOptions::default()
+    };
+    let detected = SingleBlock.orient(&block, &options).unwrap();
+    let (on_plain, off_plain, flattened) = summary(&plain);
+    let (on, off, lowered) = summary(&detected);
+    println!(
+        "plain block: {on_plain} ties on the disc, {off_plain} off, disc lowered by \
+         {flattened:.4} m between the epochs; regional detection: {} regions changed, {} ties split, {on} on the \
+         disc, {off} off, disc lowered by {lowered:.4} m (truly {LOWERING} m)",
+        detected.changed_regions, detected.unstable_ties_split
+    );
+    assert!(on_plain > 50 && plain.changed_regions == 0);
+    assert!(
+        flattened.abs() < 0.8 * LOWERING,
+        "the plain block was expected to flatten the change: {flattened}"
+    );
+    assert!(detected.changed_regions > 0);
+    assert!(
+        on * 5 <= on_plain,
+        "{on} of {on_plain} ties left on the disc"
+    );
+    assert!(
+        off * 10 >= off_plain * 8,
+        "{off} of {off_plain} ties left off the disc"
+    );
+    assert!(
+        (lowered + LOWERING).abs() < 0.2 * LOWERING,
+        "second epoch's disc lowered by {lowered:.4} m, truly {LOWERING} m"
+    );
+    assert_eq!(detected.reconstruction.num_oriented(), 20);
+}
+
+/// On ground that did not change the detection finds nothing and the block is the plain one.
+#[test]
+fn regional_change_detection_finds_nothing_where_nothing_changed() {
+    let s = scene(7, 0.3, 1500);
+    let block = two_epoch_block(&s, Vector3::zeros());
+    let options = SfmOptions {
+        change_detection: timesift_align::ChangeDetection::Regional,
+        ..SfmOptions::default()
+    };
+    let detected = SingleBlock.orient(&block, &options).unwrap();
+    println!(
+        "{} regions changed, {} ties split",
+        detected.changed_regions, detected.unstable_ties_split
+    );
+    assert_eq!(detected.changed_regions, 0);
+    assert_eq!(detected.unstable_ties_split, 0);
+}
