@@ -10,7 +10,8 @@
 //! priors and control points per component, merge, adjustment with the priors, control and
 //! check point residuals), `strategy` (the strategies over a multi-epoch `Block`), `moved`
 //! (inter-epoch tie points on surfaces that moved or off the stable ground, split by epoch),
-//! `stable_ground` (the caller's stable areas as a grid), `stable` (the `stp`
+//! `stable_ground` (the caller's stable areas as a grid), `changed` (without them, the regions
+//! whose inter-epoch ties differ between epochs on average), `stable` (the `stp`
 //! strategy over a caller-given descriptor matcher).
 //!
 //! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
