@@ -44,6 +44,26 @@ pub struct MethodsBench {
     /// The default `[dense]` settings instead of the demo's lighter ones
     /// (`DenseConfig::quick`): the strategies differ in orientation, which both show.
     pub full_dense: bool,
+    /// Which inter-epoch ties the single-block strategies keep, one run per entry (rows named
+    /// `method+ties` beyond the first): `default` (the project's: stable areas when given),
+    /// `all`, or `auto-blind` (the regional change detection, the stable areas hidden from the
+    /// align stage; the products are still judged on them).
+    pub ties: Vec<String>,
+}
+
+/// The align stage's view of the project for one `--ties` entry.
+fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
+    use timesift::config::InterEpochTies;
+    match ties {
+        "default" => {}
+        "all" => project.config.align.inter_epoch_ties = InterEpochTies::All,
+        "auto-blind" => {
+            project.config.align.inter_epoch_ties = InterEpochTies::Auto;
+            project.stable_areas.clear();
+        }
+        other => anyhow::bail!("--ties: unknown \"{other}\" (default, all, auto-blind)"),
+    }
+    Ok(project)
 }
 
 /// The stable-area DoD of one pair of consecutive epochs, metres.
@@ -111,19 +131,26 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
         );
         let gsd = ground_sampling_distance(&project)?;
         println!("{scene}: ground sampling distance at the check points {gsd:.4} m");
-        for name in &bench.methods {
+        let variants = bench.methods.iter().flat_map(|m| {
+            bench.ties.iter().enumerate().map(move |(k, t)| {
+                let label = if k == 0 { m.clone() } else { format!("{m}+{t}") };
+                (m.clone(), t.clone(), label)
+            })
+        });
+        for (method_name, ties, name) in variants {
+            let name = &name;
             let method = METHODS
                 .iter()
-                .find(|(n, _)| n == name)
+                .find(|(n, _)| *n == method_name)
                 .map(|m| m.1)
-                .with_context(|| format!("unknown method {name}"))?;
+                .with_context(|| format!("unknown method {method_name}"))?;
             let mut project = Project::load(&dir)?;
             project.config.align.method = method;
             if !bench.full_dense {
                 project.config.dense = DenseConfig::quick();
             }
             let start = Instant::now();
-            let result = run_stage(&project, Stage::Align);
+            let result = run_stage(&with_ties(project.clone(), &ties)?, Stage::Align);
             let seconds = start.elapsed().as_secs_f64();
             match result {
                 Ok(_) => {

@@ -91,6 +91,10 @@ enum Task {
         /// Products with the default `[dense]` settings rather than the demo's lighter ones.
         #[arg(long)]
         full_dense: bool,
+        /// Inter-epoch ties of the single-block strategies, one run each: default, all,
+        /// auto-blind (change detected from the ties, stable areas hidden from align).
+        #[arg(long, value_delimiter = ',', default_value = "default")]
+        ties: Vec<String>,
     },
     /// The public API of every library crate against its snapshot under `api/`.
     Api {
@@ -414,9 +418,11 @@ fn main() -> anyhow::Result<()> {
             out,
             no_products,
             full_dense,
+            ties,
         } => bench_methods::run_bench(&bench_methods::MethodsBench {
             products: !no_products,
             full_dense,
+            ties,
             scenes: scenes.unwrap_or_else(|| {
                 timesift_synth::scenes::SCENES
                     .iter()
