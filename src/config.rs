@@ -65,6 +65,38 @@ pub struct CameraConfig {
     /// cannot tell it from the flying height.
     #[serde(default)]
     pub adjust_focal: bool,
+    /// Scanned film: the certificate's principal point, mm, in the frame of `fiducials`.
+    /// Default: the centre of the marks' bounding box.
+    #[serde(default)]
+    pub principal_point_mm: Option<[f64; 2]>,
+    /// Scanned film: a PNG of one fiducial mark as it looks in a scan, cut so that its centre
+    /// pixel is the mark's centre (path relative to the project directory). Needed with
+    /// `fiducials`.
+    #[serde(default)]
+    pub fiducial_template: Option<String>,
+    /// Scanned film: the certificate's fiducial marks (`[camera.fiducials]`: name = [x, y] in
+    /// mm, x right, y up, any origin). With them, every scan of the camera is measured
+    /// (`timesift fiducials`), given an interior orientation and resampled to the camera's frame
+    /// (the marks' bounding box at `pixel_mm`), and the film's edge, marks and data strip are
+    /// kept out of matching. Default: none (images used as they are).
+    #[serde(default)]
+    pub fiducials: Option<std::collections::BTreeMap<String, [f64; 2]>>,
+    /// Scanned film: the transform of each scan to the frame, `affine` (the default: shift,
+    /// rotation, two scales and shear, which a flatbed scan of shrunk film is) or `projective`
+    /// (used for scans with eight marks or more; for scanners whose platen tilts).
+    #[serde(default)]
+    pub interior_orientation: InteriorOrientationModel,
+}
+
+/// `[[camera]] interior_orientation`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum InteriorOrientationModel {
+    /// Six parameters.
+    #[default]
+    Affine,
+    /// Eight parameters, with eight marks or more (else affine).
+    Projective,
 }
 
 fn default_crs() -> String {
@@ -124,6 +156,9 @@ pub struct InputsConfig {
     pub stable: Option<String>,
     /// Scale bars between named targets (`a,b,distance[,sd]`). Default `scalebars.csv`.
     pub scalebars: Option<String>,
+    /// Fiducial marks measured by hand in scans (`image,mark,u,v`), which replace the
+    /// automatic measurement of those marks. Default `fiducials.csv`.
+    pub fiducials: Option<String>,
 }
 
 /// `[gnss]`: camera-centre priors.

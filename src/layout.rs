@@ -110,6 +110,11 @@ impl Layout {
         self.work_dir().join("align.json")
     }
 
+    /// `work/fiducials.json`: what the interior orientations of the scans were made from.
+    pub fn fiducials_settings(&self) -> PathBuf {
+        self.work_dir().join("fiducials.json")
+    }
+
     /// `work/change/<a>__<b>.json`: what a pair's change products were made from.
     pub fn change_settings(&self, a: &str, b: &str) -> PathBuf {
         self.work_dir()
@@ -153,6 +158,21 @@ impl Layout {
     /// `out/report.json`.
     pub fn report_json(&self) -> PathBuf {
         self.out_dir().join("report.json")
+    }
+
+    /// `out/fiducials.json`: every scan's marks and interior orientation.
+    pub fn fiducials_json(&self) -> PathBuf {
+        self.out_dir().join("fiducials.json")
+    }
+
+    /// `out/fiducials.csv`: every measured mark (DESIGN.md: `image,mark,u,v,residual_px`).
+    pub fn fiducials_csv(&self) -> PathBuf {
+        self.out_dir().join("fiducials.csv")
+    }
+
+    /// `out/fiducials.png`: the contact sheet of every mark with its measured centre.
+    pub fn fiducials_sheet(&self) -> PathBuf {
+        self.out_dir().join("fiducials.png")
     }
 
     /// `out/report.html`.

@@ -13,6 +13,7 @@
 pub mod commands;
 pub mod config;
 mod error;
+pub mod film;
 pub mod html;
 pub mod layout;
 pub mod project;

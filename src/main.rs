@@ -86,6 +86,12 @@ enum Command {
         /// Where to write the project (empty or new). Default: ./timesift-demo.
         dir: Option<PathBuf>,
     },
+    /// Measure the fiducial marks of every scanned film image and report them (out/fiducials.csv,
+    /// out/fiducials.json, a contact sheet out/fiducials.png); `run` does this when needed.
+    Fiducials {
+        /// Project directory (a [[camera]] with [camera.fiducials]).
+        dir: PathBuf,
+    },
     /// Write the cameras, calibrations and sparse points for Metashape, COLMAP or OpenSfM/ODM.
     Export {
         /// Project directory (after the align stage).
@@ -279,6 +285,23 @@ fn run(command: Command) -> anyhow::Result<()> {
             for path in timesift::commands::export::export(&project, format, out.as_deref())? {
                 say!("wrote {}", path.display());
             }
+        }
+        Command::Fiducials { dir } => {
+            let project = Project::load(&dir)?;
+            let outcome = timesift::commands::fiducials::fiducials(&project)?;
+            say!(
+                "{}",
+                timesift::commands::fiducials::summary_table(&outcome).trim_end()
+            );
+            let layout = project.layout();
+            say!(
+                "{}; wrote {}, {} and {}",
+                outcome.summary(),
+                layout.fiducials_csv().display(),
+                layout.fiducials_json().display(),
+                layout.fiducials_sheet().display()
+            );
+            timesift::commands::fiducials::all_oriented(&outcome)?;
         }
         Command::Demo { dir } => {
             let dir = dir.unwrap_or_else(|| PathBuf::from("timesift-demo"));

@@ -90,6 +90,10 @@ pub struct Project {
     pub scale_bars: Vec<ScaleBarInput>,
     /// Known focal lengths by camera group (`[[camera]]`).
     pub calibrations: BTreeMap<String, GivenFocal>,
+    /// Film cameras by camera group (`[[camera]]` with fiducial marks).
+    pub film: BTreeMap<String, crate::film::FilmCamera>,
+    /// Fiducial marks measured by hand (`fiducials.csv`).
+    pub fiducial_marks: Vec<csv_inputs::FiducialMeasurement>,
 }
 
 /// A focal length the user gave for a camera group.
@@ -99,6 +103,9 @@ pub struct GivenFocal {
     pub focal_px: f64,
     /// Whether the bundle adjustment may refine it.
     pub adjust: bool,
+    /// The principal point's offset from the image centre (`cx`, `cy`, pixels) from a film
+    /// camera's certificate; the starting value of self-calibration.
+    pub principal_point: Option<(f64, f64)>,
 }
 
 fn is_image_file(path: &Path) -> bool {
@@ -190,6 +197,7 @@ fn camera_calibrations(
         let given = GivenFocal {
             focal_px,
             adjust: c.adjust_focal,
+            principal_point: None,
         };
         if out.insert(c.name.clone(), given).is_some() {
             return Err(error(
@@ -340,6 +348,13 @@ impl Project {
         };
 
         let calibrations = camera_calibrations(&cfg_path, &config, &epochs)?;
+        let film = crate::film::film_cameras(dir, &cfg_path, &config)?;
+        let mut calibrations = calibrations;
+        for (group, f) in &film {
+            if let (Some(g), Some(pp)) = (calibrations.get_mut(group), f.principal_point) {
+                g.principal_point = Some((pp.x, pp.y));
+            }
+        }
 
         let input = |key: &str,
                      explicit: &Option<String>,
@@ -436,6 +451,34 @@ impl Project {
                 }
             }
         }
+        let mut fiducial_marks = Vec::new();
+        if let Some(p) = input("fiducials", &inputs.fiducials, "fiducials.csv")? {
+            fiducial_marks = csv_inputs::read_fiducials(&p)?;
+            for m in &mut fiducial_marks {
+                m.image = normalise_name(&m.image);
+                let Some(&i) = image_index.get(m.image.as_str()) else {
+                    return Err(ProjectError::Reference {
+                        path: p.clone(),
+                        line: m.line,
+                        message: format!("unknown image \"{}\" (not in any epoch)", m.image),
+                    });
+                };
+                let group = &epochs[images[i].epoch.index()].camera_group;
+                let known = film
+                    .get(group)
+                    .is_some_and(|f| f.frame.marks().iter().any(|k| k.name == m.mark));
+                if !known {
+                    return Err(ProjectError::Reference {
+                        path: p.clone(),
+                        line: m.line,
+                        message: format!(
+                            "mark \"{}\" is not a fiducial of camera \"{group}\" ([camera.fiducials])",
+                            m.mark
+                        ),
+                    });
+                }
+            }
+        }
         let stable_areas = match input("stable", &inputs.stable, "stable.csv")? {
             Some(p) => csv_inputs::read_stable_areas(&p)?,
             None => Vec::new(),
@@ -455,12 +498,20 @@ impl Project {
             stable_areas,
             scale_bars,
             calibrations,
+            film,
+            fiducial_marks,
         })
     }
 
     /// The paths of the project's work and output files.
     pub fn layout(&self) -> crate::layout::Layout {
         crate::layout::Layout::new(&self.dir)
+    }
+
+    /// The film camera of image `i`, when its camera group is film.
+    pub fn film_camera(&self, i: usize) -> Option<&crate::film::FilmCamera> {
+        let epoch = &self.epochs[self.images.get(i)?.epoch.index()];
+        self.film.get(&epoch.camera_group)
     }
 
     /// Absolute path of an image.

@@ -218,6 +218,54 @@ pub struct EpochDense {
     pub seconds: f64,
 }
 
+/// `out/fiducials.json`: the fiducial marks and interior orientation of every scan.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct FiducialsReport {
+    /// Every scan of a film camera, in project order.
+    pub images: Vec<ScanReport>,
+}
+
+/// One scan of [`FiducialsReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScanReport {
+    /// Image path relative to the project.
+    pub image: String,
+    /// Its camera group.
+    pub camera: String,
+    /// Its marks, in the certificate's order.
+    pub marks: Vec<MarkReport>,
+    /// `affine`, `projective` or `similarity`; empty when the scan could not be oriented.
+    pub model: String,
+    /// Frame pixels → scan pixels (homogeneous, row-major); `None` when the scan could not be
+    /// oriented.
+    pub scan_from_frame: Option<[[f64; 3]; 3]>,
+    /// RMS of the residuals of the marks used, scan pixels.
+    pub rms_px: Option<f64>,
+    /// Scan scale against the certificate's pixel size (larger, smaller).
+    pub scales: Option<[f64; 2]>,
+    /// Rotation of the frame in the scan, degrees.
+    pub rotation_deg: Option<f64>,
+    /// Warnings, one line each, naming the mark.
+    pub warnings: Vec<String>,
+    /// Why the scan has no interior orientation.
+    pub error: Option<String>,
+}
+
+/// One mark of [`ScanReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MarkReport {
+    /// The certificate's name of the mark.
+    pub mark: String,
+    /// Measured position, scan pixels (`None`: not found).
+    pub uv: Option<[f64; 2]>,
+    /// Correlation with the template (1 for a mark given by hand).
+    pub correlation: f64,
+    /// Distance from the interior orientation, scan pixels.
+    pub residual_px: Option<f64>,
+    /// `measured`, `given`, `not found` or `rejected`.
+    pub status: String,
+}
+
 /// Writes a report as pretty JSON, atomically.
 pub fn write_json<T: Serialize>(path: &Path, report: &T) -> Result<(), ProjectError> {
     let text = serde_json::to_string_pretty(report).map_err(|e| ProjectError::Path {

@@ -162,8 +162,10 @@ pub fn focal(camera: &Camera) -> f64 {
 
 /// Writes the orientation of a synthetic project from its truth: `out/cameras.json` as
 /// `truth/cameras.json`, and `out/colmap/` with sparse points on each epoch's true surface
-/// every `spacing_gsd` ground sampling distances, observed by the images that see them.
-/// Returns the number of sparse points.
+/// every `spacing_gsd` ground sampling distances, observed by the images that see them. Scans of
+/// film epochs get their interior orientations as the pipeline gives them (the fiducials step),
+/// so that the stages after `align` see them in their cameras' frames. Returns the number of
+/// sparse points.
 pub fn write_true_orientation(
     dir: &Path,
     spec: &SceneSpec,
@@ -222,6 +224,9 @@ pub fn write_true_orientation(
         }
     }
     write_colmap_text(&layout.colmap_dir(), &model)?;
+    if spec.epochs.iter().any(|e| e.film.is_some()) {
+        crate::stages::fiducials_stage(&crate::Project::load(dir)?)?;
+    }
     Ok(next as usize - 1)
 }
 

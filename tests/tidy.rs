@@ -42,7 +42,8 @@ fn dependencies() -> BTreeMap<String, Vec<String>> {
     deps
 }
 
-const STAGE_CRATES: [&str; 6] = [
+const STAGE_CRATES: [&str; 7] = [
+    "timesift-film",
     "timesift-features",
     "timesift-matching",
     "timesift-align",
@@ -82,7 +83,7 @@ fn only_the_root_and_the_benches_use_the_pipeline_and_the_scene_generator() {
 }
 
 #[test]
-fn file_formats_are_io_s_and_dense_and_raster_touch_no_file() {
+fn file_formats_are_io_s_and_dense_raster_and_film_touch_no_file() {
     let deps = dependencies();
     for (name, d) in &deps {
         for format in ["tiff", "exr", "las", "kamadak-exif", "flate2", "csv"] {
@@ -105,7 +106,7 @@ fn file_formats_are_io_s_and_dense_and_raster_touch_no_file() {
             "{name} uses image"
         );
     }
-    for pure in ["timesift-dense", "timesift-raster"] {
+    for pure in ["timesift-dense", "timesift-raster", "timesift-film"] {
         assert!(
             !deps[pure].iter().any(|n| n == "timesift-io"),
             "{pure} depends on timesift-io"

@@ -244,7 +244,13 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
          # name = {}      # camera group\n\
          # focal_mm = 152.06  # with pixel_mm; or focal_px = ...\n\
          # pixel_mm = 0.021\n\
-         # adjust_focal = false  # true: nominal, refined where the georeferenced block determines it",
+         # adjust_focal = false  # true: nominal, refined where the georeferenced block determines it\n\
+         # Scanned film (see `timesift fiducials`): the certificate's marks make the images scans.\n\
+         # principal_point_mm = [0.004, -0.011]  # default: the centre of the marks\n\
+         # fiducial_template = \"calibration/mark.png\"  # one mark cut from a scan, centred\n\
+         # interior_orientation = \"affine\"  # or \"projective\" (eight marks or more)\n\
+         # [camera.fiducials]  # mm, x right, y up\n\
+         # TL = [-106.004, 105.996]",
         toml_string(&epochs[0].0)
     );
 

@@ -5,5 +5,6 @@ pub mod dem;
 pub mod demo;
 pub mod export;
 pub mod features;
+pub mod fiducials;
 pub mod info;
 pub mod init;

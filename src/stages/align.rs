@@ -24,6 +24,7 @@ use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use super::{PipelineStage, Stage};
 use crate::config::{AlignMethod, GnssOffsets, InterEpochTies};
+use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::project::GivenFocal;
 use crate::report::{
@@ -120,9 +121,10 @@ fn stage_error(message: String) -> ProjectError {
 /// Orients the block by the configured strategy and writes the outputs. Returns the report.
 pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     let start = Instant::now();
-    let input = load_input(project)?;
+    let source = ImageSource::of(project)?;
+    let input = load_input(project, &source)?;
     let frame = LocalFrame::of(project)?;
-    let geo = ground_input(project, &frame)?;
+    let geo = ground_input(project, &frame, &source)?;
     let mut options = SfmOptions {
         tie_point_sigma_px: project.config.align.tie_point_accuracy_px,
         change_detection: match project.config.align.inter_epoch_ties {
@@ -228,7 +230,7 @@ fn method_name(m: AlignMethod) -> &'static str {
 }
 
 /// Keypoints of every image, tracks over every verified pair, initial cameras per group.
-fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
+fn load_input(project: &Project, source: &ImageSource) -> Result<SfmInput, ProjectError> {
     let n = project.images.len();
     let keypoints = (0..n)
         .into_par_iter()
@@ -277,9 +279,11 @@ fn load_input(project: &Project) -> Result<SfmInput, ProjectError> {
                         stage_error(format!("epoch \"{}\" has no image", epoch.name))
                     })?;
                 let given = project.calibrations.get(&epoch.camera_group);
-                let (camera, source) = initial_camera(&project.image_path(first), given)?;
+                let size = source.dimensions(project, first.index())?;
+                let (camera, focal_source) =
+                    initial_camera(&project.image_path(first), size, given)?;
                 cameras.push(camera);
-                focal.push(source);
+                focal.push(focal_source);
                 group_index.insert(epoch.camera_group.clone(), cameras.len() - 1);
                 cameras.len() - 1
             }
@@ -322,13 +326,14 @@ fn match_files(dir: &Path) -> Result<Vec<(usize, usize, PathBuf)>, ProjectError>
     Ok(files)
 }
 
-/// A distortion-free `brown` camera of the image's size with the EXIF focal length (known), or
-/// the default focal length (a guess).
+/// A distortion-free `brown` camera of the image's size as the stages see it (a scan: its
+/// camera's frame) with the given focal length and principal point (a certificate's), the EXIF
+/// focal length (known), or the default focal length (a guess).
 fn initial_camera(
     path: &Path,
+    (w, h): (u32, u32),
     given: Option<&GivenFocal>,
 ) -> Result<(Camera, FocalSource), ProjectError> {
-    let (w, h) = timesift_io::image::dimensions(path)?;
     let (f, source) = match given {
         Some(g) if g.adjust => (g.focal_px, FocalSource::Nominal),
         Some(g) => (g.focal_px, FocalSource::Calibrated),
@@ -340,9 +345,13 @@ fn initial_camera(
             None => (DEFAULT_FOCAL_FACTOR * w.max(h) as f64, FocalSource::Guessed),
         },
     };
-    BrownCamera::new(w, h, f)
-        .map(|c| (Camera::Brown(c), source))
-        .map_err(|e| stage_error(format!("{}: {e}", path.display())))
+    let mut camera =
+        BrownCamera::new(w, h, f).map_err(|e| stage_error(format!("{}: {e}", path.display())))?;
+    if let Some((cx, cy)) = given.and_then(|g| g.principal_point) {
+        camera.cx = cx;
+        camera.cy = cy;
+    }
+    Ok((Camera::Brown(camera), source))
 }
 
 /// The local frame: project CRS minus `origin`.
@@ -380,7 +389,11 @@ impl LocalFrame {
 
 /// GNSS priors, control points (markers of the reference epoch only unless
 /// `gcps_in_all_epochs`) and check points, in the local frame.
-fn ground_input(project: &Project, frame: &LocalFrame) -> Result<GeoreferenceInput, ProjectError> {
+fn ground_input(
+    project: &Project,
+    frame: &LocalFrame,
+    source: &ImageSource,
+) -> Result<GeoreferenceInput, ProjectError> {
     let index_of: BTreeMap<&str, usize> = project
         .images
         .iter()
@@ -399,7 +412,8 @@ fn ground_input(project: &Project, frame: &LocalFrame) -> Result<GeoreferenceInp
                 (!control || in_reference || project.config.align.gcps_in_all_epochs).then_some(
                     Marker {
                         image,
-                        pixel: m.pixel,
+                        // Measured on the file: a scan's marker moves to the camera's frame.
+                        pixel: source.stage_pixel(image, &m.pixel),
                     },
                 )
             })

@@ -33,6 +33,7 @@ use timesift_io::pointcloud::{
 
 use super::cache::stage_error;
 use super::{PipelineStage, Stage};
+use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::report::{DenseReport, EpochDense, read_json, write_json};
 use crate::{Project, ProjectError};
@@ -328,6 +329,7 @@ fn write_settings(path: &Path, value: &serde_json::Value) -> Result<(), ProjectE
 /// Decoded and resampled images of an epoch, the most recently used kept.
 struct ImageCache<'a> {
     project: &'a Project,
+    source: &'a ImageSource,
     images: &'a [usize],
     maps: BTreeMap<String, UndistortMap>,
     views: &'a [View],
@@ -347,11 +349,14 @@ impl ImageCache<'_> {
             return Ok(image);
         }
         let image_index = self.images[view];
-        let path = self
-            .project
-            .dir
-            .join(&self.project.images[image_index].name);
-        let decoded = timesift_io::image::read_rgb(&path)?;
+        // A scan is seen in its camera's frame, its film mask kept out of matching.
+        let seen = self.source.read(self.project, image_index, false)?;
+        let decoded = seen.image;
+        let mask = seen.usable.map(|usable| timesift_dense::Mask {
+            width: decoded.width as usize,
+            height: decoded.height as usize,
+            usable,
+        });
         let camera = &self.views[view].camera;
         let key = camera_key(camera);
         let map = self
@@ -366,7 +371,7 @@ impl ImageCache<'_> {
                     channels: decoded.channels as usize,
                     data: &decoded.data,
                 },
-                None,
+                mask.as_ref(),
                 self.black_is_nodata,
             )
             .map_err(|e| {
@@ -499,8 +504,10 @@ fn dense_epoch(
             ..summary.clone()
         });
     }
+    let source = ImageSource::of(project)?;
     let mut cache = ImageCache {
         project,
+        source: &source,
         images: &images,
         maps: BTreeMap::new(),
         views: &input.views,

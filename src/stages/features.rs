@@ -4,14 +4,15 @@
 
 use rayon::prelude::*;
 use timesift_features::{
-    DetectorOptions, FeatureExtractor, KeypointLimit, LdbExtractor, SiftExtractor,
-    SiftNormalization,
+    DetectorOptions, FeatureExtractor, Features, GreyImage, KeypointLimit, LdbExtractor, Mask,
+    SiftExtractor, SiftNormalization,
 };
 use timesift_matching::storage::{read_features, write_features};
 
 use super::cache::{stage_error, start_with_settings};
 use super::{PipelineStage, Stage};
 use crate::config::FeatureMethod;
+use crate::film::ImageSource;
 use crate::{Project, ProjectError};
 
 /// The `features` stage.
@@ -30,11 +31,16 @@ impl PipelineStage for FeaturesStage {
             .collect()
     }
     fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        let film = super::fiducials::fiducials_stage(project)?;
         let extracted = features_stage(project)?;
-        Ok(format!(
+        let mut line = format!(
             "features of {extracted} images extracted ({} cached)",
             project.images.len() - extracted
-        ))
+        );
+        if let Some(film) = film {
+            line.push_str(&format!("; {}", film.summary()));
+        }
+        Ok(line)
     }
 }
 
@@ -84,11 +90,19 @@ fn extract_with(
 ) -> Result<usize, ProjectError> {
     let layout = project.layout();
     let (features_dir, matches_dir) = (layout.features_dir(), layout.matches_dir());
+    // Scans are seen through their interior orientations: new ones redo their features.
+    super::fiducials::fiducials_stage(project)?;
+    let source = ImageSource::of(project)?;
+    let mut settings = settings.clone();
+    if !project.film.is_empty() {
+        settings["interior_orientations"] =
+            super::cache::content_fingerprint(&[layout.fiducials_json()]).into();
+    }
     start_with_settings(
         "features",
         &features_dir,
         "feat",
-        settings,
+        &settings,
         &[(&matches_dir, "match")],
     )?;
     let todo: Vec<usize> = (0..project.images.len())
@@ -97,8 +111,7 @@ fn extract_with(
     let failures: Vec<String> = todo
         .par_iter()
         .filter_map(|&i| {
-            let image = project.dir.join(&project.images[i].name);
-            let result = timesift_features::files::extract_file(&image, extractor)
+            let result = extract_one(project, &source, i, extractor)
                 .map_err(|e| format!("{}: {e}", project.images[i].name))
                 .and_then(|f| {
                     write_features(&layout.feature_file(i), &f.keypoints, &f.descriptors)
@@ -123,4 +136,28 @@ fn extract_with(
         "features"
     );
     Ok(todo.len())
+}
+
+/// The features of image `i` as the stages see it: a scan resampled to its camera's frame,
+/// with keypoints only on the photograph (never on the film's edge, marks or data strip).
+fn extract_one(
+    project: &Project,
+    source: &ImageSource,
+    i: usize,
+    extractor: &dyn FeatureExtractor,
+) -> Result<Features, String> {
+    let seen = source.read(project, i, true).map_err(|e| e.to_string())?;
+    let grey = GreyImage::from_io(&seen.image).map_err(|e| e.to_string())?;
+    let mask_bytes: Option<Vec<u8>> = seen
+        .usable
+        .as_ref()
+        .map(|u| u.iter().map(|&b| b as u8).collect());
+    let mask = mask_bytes
+        .as_deref()
+        .map(|b| Mask::new(seen.image.width as usize, seen.image.height as usize, b))
+        .transpose()
+        .map_err(|e| e.to_string())?;
+    extractor
+        .extract(&grey, mask.as_ref())
+        .map_err(|e| e.to_string())
 }

@@ -20,6 +20,7 @@ use super::cache::file_stamp;
 use super::cache::stage_error;
 use super::dem::{georeference, on_lattice, project_grid_of, read_report};
 use super::{PipelineStage, Stage, dense_inputs};
+use crate::film::ImageSource;
 use crate::report::{GridFile, RasterReport, read_json, write_json};
 use crate::{Project, ProjectError};
 
@@ -65,14 +66,18 @@ impl PipelineStage for OrthoStage {
 }
 
 /// An epoch's images, read on demand, the most recently used kept.
-struct ImageCache {
+struct ImageCache<'a> {
+    project: &'a Project,
+    source: &'a ImageSource,
+    /// Project index of each view's image.
+    images: Vec<usize>,
     paths: Vec<PathBuf>,
     /// Width and height of each view's camera, which its image must have.
     sizes: Vec<(u32, u32)>,
     entries: Mutex<VecDeque<(usize, Arc<RgbImage>)>>,
 }
 
-impl ViewImages for ImageCache {
+impl ViewImages for ImageCache<'_> {
     fn image(&self, view: usize) -> Result<Arc<RgbImage>, String> {
         if let Ok(mut entries) = self.entries.lock()
             && let Some(pos) = entries.iter().position(|(v, _)| *v == view)
@@ -86,8 +91,38 @@ impl ViewImages for ImageCache {
             .paths
             .get(view)
             .ok_or_else(|| format!("no image for view {view}"))?;
-        let (width, height, data) =
-            timesift_io::image::read_rgb8(path).map_err(|e| e.to_string())?;
+        let image_index = *self
+            .images
+            .get(view)
+            .ok_or_else(|| format!("no image for view {view}"))?;
+        let (width, height, data) = match self.source.scan_transform(image_index) {
+            // A scan in its camera's frame; off the photograph black, which is no-data.
+            Some(_) => {
+                let seen = self
+                    .source
+                    .read(self.project, image_index, false)
+                    .map_err(|e| e.to_string())?;
+                let usable = seen.usable.unwrap_or_default();
+                let data = seen
+                    .image
+                    .data
+                    .chunks(3)
+                    .enumerate()
+                    .flat_map(|(k, rgb)| {
+                        let on = usable.get(k).copied().unwrap_or(false);
+                        rgb.iter().map(move |&v| {
+                            if on {
+                                (255.0 * v).round().clamp(1.0, 255.0) as u8
+                            } else {
+                                0
+                            }
+                        })
+                    })
+                    .collect();
+                (seen.image.width, seen.image.height, data)
+            }
+            None => timesift_io::image::read_rgb8(path).map_err(|e| e.to_string())?,
+        };
         if let Some(&(w, h)) = self.sizes.get(view)
             && (w, h) != (width, height)
         {
@@ -122,6 +157,7 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
     let ortho_lattice = grid.ortho();
     let mut report = read_report(project);
     let inputs = dense_inputs(project)?;
+    let source = ImageSource::of(project)?;
     for (epoch, (images, input)) in project.epochs.iter().zip(inputs) {
         let name = &epoch.name;
         let dem_path = layout.dem(name);
@@ -180,6 +216,9 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             })
             .collect();
         let cache = ImageCache {
+            project,
+            source: &source,
+            images: images.clone(),
             paths: images
                 .iter()
                 .map(|&i| project.dir.join(&project.images[i].name))

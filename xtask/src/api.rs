@@ -19,9 +19,10 @@ use anyhow::{Context, bail};
 use serde_json::Value;
 
 /// The library crates whose API is recorded, in publication order.
-pub const CRATES: [&str; 11] = [
+pub const CRATES: [&str; 12] = [
     "timesift-core",
     "timesift-geometry",
+    "timesift-film",
     "timesift-io",
     "timesift-synth",
     "timesift-bundle",

@@ -133,7 +133,11 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
         println!("{scene}: ground sampling distance at the check points {gsd:.4} m");
         let variants = bench.methods.iter().flat_map(|m| {
             bench.ties.iter().enumerate().map(move |(k, t)| {
-                let label = if k == 0 { m.clone() } else { format!("{m}+{t}") };
+                let label = if k == 0 {
+                    m.clone()
+                } else {
+                    format!("{m}+{t}")
+                };
                 (m.clone(), t.clone(), label)
             })
         });

@@ -29,6 +29,7 @@ mod bench_dense;
 mod bench_dense_lund;
 mod bench_dense_peer;
 mod bench_features;
+mod bench_film;
 mod bench_geometry;
 mod bench_matching;
 mod bench_methods;
@@ -66,6 +67,10 @@ enum Task {
         /// Write the geometry and truth only, not the images.
         #[arg(long)]
         no_images: bool,
+        /// Every epoch as film scans (fiducial marks, data strip, a scan transform per image),
+        /// as `archival` is.
+        #[arg(long)]
+        film: bool,
     },
     /// Every synthetic scene × every co-registration strategy against the truth.
     BenchMethods {
@@ -200,6 +205,19 @@ enum BenchStage {
         no_peer: bool,
     },
     /// Change detection on sandpyper `mar`: Nuth & Kääb against xdem, M3C2 against py4dgeo.
+    /// Scanned film on `synth archival`: marks and interior orientations against the truth,
+    /// then the orientation (and DEMs) with and without fiducial handling.
+    Film {
+        /// Scene seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder.
+        #[arg(long, default_value = "target/bench-film")]
+        out: PathBuf,
+        /// Orientation only (no dense clouds and DEMs).
+        #[arg(long)]
+        no_products: bool,
+    },
     Change {
         /// Core-point spacing for M3C2, metres.
         #[arg(long, default_value_t = 1.0)]
@@ -347,6 +365,18 @@ fn main() -> anyhow::Result<()> {
             stage: BenchStage::Align,
         } => bench_align::run()?,
         Task::Bench {
+            stage:
+                BenchStage::Film {
+                    seed,
+                    out,
+                    no_products,
+                },
+        } => bench_film::run_bench(&bench_film::FilmBench {
+            seed,
+            out,
+            products: !no_products,
+        })?,
+        Task::Bench {
             stage: BenchStage::Change { spacing, json },
         } => bench_change::run(spacing, json)?,
         Task::Bench {
@@ -445,11 +475,15 @@ fn main() -> anyhow::Result<()> {
             seed,
             scale,
             no_images,
+            film,
         } => {
             let scale: timesift_synth::scenes::Scale = scale
                 .parse()
                 .map_err(|e: String| anyhow::anyhow!("--scale: {e}"))?;
-            let spec = timesift_synth::scenes::build(&scene, scale, seed)?;
+            let mut spec = timesift_synth::scenes::build(&scene, scale, seed)?;
+            if film {
+                timesift_synth::film::scan_every_epoch(&mut spec);
+            }
             let start = std::time::Instant::now();
             let written = timesift_synth::writer::write_scene(
                 &spec,

@@ -262,6 +262,58 @@ pub fn read_markers(path: &Path) -> Result<Vec<Marker>, IoError> {
     Ok(markers)
 }
 
+/// A fiducial mark measured by hand in a scan (`fiducials.csv`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FiducialMeasurement {
+    /// Image path relative to the project directory.
+    pub image: String,
+    /// Mark name (as in the camera's `[camera.fiducials]`).
+    pub mark: String,
+    /// Pixel position in the scan (DESIGN.md convention).
+    pub pixel: Vector2<f64>,
+    /// Line in the file.
+    pub line: usize,
+}
+
+/// Reads `fiducials.csv`: `image,mark,u,v` — fiducial marks measured by hand in scans, pixels.
+/// A fifth column (`residual_px`, as `timesift fiducials` writes in `out/fiducials.csv`) is
+/// accepted and ignored, so that a corrected copy of that file can be given back.
+pub fn read_fiducials(path: &Path) -> Result<Vec<FiducialMeasurement>, IoError> {
+    let rows = read_rows(
+        path,
+        &[
+            &["image", "mark", "u", "v"],
+            &["image", "mark", "u", "v", "residual_px"],
+        ],
+        &[4, 5],
+        "4 fields (image,mark,u,v)",
+    )?;
+    let mut marks: Vec<FiducialMeasurement> = Vec::with_capacity(rows.len());
+    for row in &rows {
+        let mark = FiducialMeasurement {
+            image: non_empty(path, row, 0, "image")?,
+            mark: non_empty(path, row, 1, "mark")?,
+            pixel: Vector2::new(number(path, row, 2, "u")?, number(path, row, 3, "v")?),
+            line: row.line,
+        };
+        if let Some(dup) = marks
+            .iter()
+            .find(|m| m.image == mark.image && m.mark == mark.mark)
+        {
+            return Err(IoError::line(
+                path,
+                row.line,
+                format!(
+                    "mark \"{}\" in image \"{}\" is already measured on line {}",
+                    mark.mark, mark.image, dup.line
+                ),
+            ));
+        }
+        marks.push(mark);
+    }
+    Ok(marks)
+}
+
 /// Reads `scalebars.csv`: `a,b,distance[,sd]` (target names, metres).
 pub fn read_scale_bars(path: &Path) -> Result<Vec<ScaleBarInput>, IoError> {
     let rows = read_rows(

@@ -15,6 +15,7 @@
 #![warn(missing_docs, unnameable_types)]
 
 pub mod effects;
+pub mod film;
 pub mod flight;
 pub mod noise;
 pub mod render;

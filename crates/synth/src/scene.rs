@@ -189,6 +189,9 @@ pub struct EpochSpec {
     pub supersampling: u32,
     /// Storage format.
     pub format: ImageFormat,
+    /// Film and scan, for photographs scanned from film (the images are then scans: the
+    /// photograph inside a frame of fiducial marks, each with a scan transform of its own).
+    pub film: Option<crate::film::FilmSpec>,
 }
 
 /// Consumer GNSS on the camera: an epoch-wide bias and per-image noise, metres (1σ).

@@ -10,7 +10,13 @@
 //! truth/stable.tif       1 where the surface and its cover never change, 0 elsewhere
 //! truth/change.json      regions with their true volumes between every pair of epochs
 //! truth/gnss_bias.csv    each epoch's GNSS bias (gnss.csv minus the true centres, less noise)
+//! truth/fiducials.csv    film scans: the true scan pixel of every fiducial mark of every scan
+//! truth/scan_transforms.csv  film scans: each scan's affine frame → scan pixels (a11 … a23)
+//! calibration/mark_<epoch>.png  film scans: the mark template a user would cut from a scan
 //! ```
+//!
+//! For film epochs the images are scans (see `film`): the truth cameras describe the
+//! photograph in frame pixels, markers.csv is measured on the scans.
 //!
 //! Images are rendered one at a time (each with every core) and written as they come, so memory
 //! holds one epoch's scene and one image, whatever the block size.
@@ -30,8 +36,9 @@ use timesift_io::wkt::ring_contains;
 
 use crate::SynthError;
 use crate::effects::{self, Channels};
-use crate::render::{RayTable, Scene, render_rays};
-use crate::scene::{Frame, ImageFormat, SceneSpec};
+use crate::film::{FilmSpec, FrameRays, ScanCamera, ScanGeometry};
+use crate::render::{RayTable, RgbImage, Scene, render_rays};
+use crate::scene::{EpochSpec, Frame, ImageFormat, SceneSpec};
 use crate::terrain::Heightfield;
 use timesift_io::exif::{CameraTags, jpeg_with_camera_tags};
 
@@ -110,6 +117,8 @@ pub fn write_scene(
     let mut markers = String::from("image,name,u,v\n");
     let mut gnss = String::from("image,x,y,z,sxy,sz\n");
     let mut gnss_bias = String::from("epoch,east,north,up\n");
+    let mut truth_marks = String::from("image,mark,u,v\n");
+    let mut truth_scans = String::from("image,a11,a12,a13,a21,a22,a23\n");
     let mut truth_images = Vec::new();
     let mut written = Written {
         images: 0,
@@ -150,7 +159,18 @@ pub fn write_scene(
             )?;
         }
         let bias = Vector3::new(rng.normal(), rng.normal(), rng.normal());
-        let rays = if options.images {
+        let frame_rays = match (&epoch.film, options.images) {
+            (Some(film), true) => {
+                write_template(dir, &epoch.name, film)?;
+                Some(FrameRays::new(&epoch.camera))
+            }
+            (Some(film), false) => {
+                write_template(dir, &epoch.name, film)?;
+                None
+            }
+            _ => None,
+        };
+        let rays = if options.images && epoch.film.is_none() {
             RayTable::new(
                 &epoch.camera,
                 epoch.camera.width as usize,
@@ -162,8 +182,21 @@ pub fn write_scene(
         };
         for (k, image) in epoch.images.iter().enumerate() {
             let name = image_name(spec, e, k);
+            let scan = epoch.film.as_ref().map(|film| {
+                let mut rng = SeededRng::new(image.effects.seed ^ 0x5CA7_F11E);
+                film.draw_scan(&epoch.camera, &mut rng)
+            });
             for (_, p, x, n) in &targets {
-                if let Some(px) = observe(&scene, &epoch.camera, &image.pose, x, n) {
+                let seen = observe(&scene, &epoch.camera, &image.pose, x, n);
+                // On film, a marker is measured on the scan, and only on the photograph.
+                let seen = match (&epoch.film, &scan) {
+                    (Some(film), Some(scan)) => seen
+                        .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(4.0))))
+                        .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(-4.0))))
+                        .map(|px| scan.scan_px(&px)),
+                    _ => seen,
+                };
+                if let Some(px) = seen {
                     let noisy = px
                         + Vector2::new(truncated_normal(&mut rng), truncated_normal(&mut rng))
                             * spec.marker_sigma;
@@ -191,25 +224,45 @@ pub fn write_scene(
                 writeln!(gnss, "{name},{x:.3},{y:.3},{z:.3},{sxy:.2},{sz:.2}")
                     .map_err(|e| SynthError::Write(e.to_string()))?;
             }
+            if let (Some(film), Some(scan)) = (&epoch.film, &scan) {
+                for (k, (mark, _)) in film.marks.iter().enumerate() {
+                    let px = scan.scan_px(&film.marks_px(&epoch.camera)[k]);
+                    let _ = writeln!(truth_marks, "{name},{mark},{:.4},{:.4}", px.x, px.y);
+                }
+                let m = scan.scan_from_frame;
+                let _ = writeln!(
+                    truth_scans,
+                    "{name},{:.9},{:.9},{:.6},{:.9},{:.9},{:.6}",
+                    m[(0, 0)],
+                    m[(0, 1)],
+                    m[(0, 2)],
+                    m[(1, 0)],
+                    m[(1, 1)],
+                    m[(1, 2)]
+                );
+            }
             if options.images {
                 let path = dir.join(&name);
-                let rendered = render_rays(&scene, &rays, &image.pose, epoch.shadows);
+                let (rendered, (width, height)) = match (&epoch.film, &scan, &frame_rays) {
+                    (Some(film), Some(scan), Some(frame_rays)) => {
+                        render_scan(&scene, epoch, film, scan, frame_rays, &image.pose)
+                    }
+                    _ => (
+                        render_rays(&scene, &rays, &image.pose, epoch.shadows),
+                        (epoch.camera.width, epoch.camera.height),
+                    ),
+                };
                 let pixels = effects::apply(&rendered, &image.effects);
-                let mut bytes = encode(
-                    &pixels,
-                    epoch.camera.width,
-                    epoch.camera.height,
-                    image.effects.channels,
-                    epoch.format,
-                )
-                .map_err(|e| io_err(&path, e))?;
+                let mut bytes =
+                    encode(&pixels, width, height, image.effects.channels, epoch.format)
+                        .map_err(|e| io_err(&path, e))?;
                 if let ImageFormat::Jpeg(_) = epoch.format {
                     bytes = jpeg_with_camera_tags(&bytes, &camera_tags(&epoch.camera), &path)
                         .map_err(|e| SynthError::Write(e.to_string()))?;
                 }
                 write_bytes_atomically(&path, &bytes)
                     .map_err(|e| SynthError::Write(e.to_string()))?;
-                written.megapixels += (epoch.camera.width * epoch.camera.height) as f64 / 1e6;
+                written.megapixels += (width * height) as f64 / 1e6;
             }
             truth_images.push(OrientedImage {
                 name,
@@ -221,6 +274,10 @@ pub fn write_scene(
         }
     }
     write_text(&dir.join("markers.csv"), &markers)?;
+    if spec.epochs.iter().any(|e| e.film.is_some()) {
+        write_text(&dir.join("truth/fiducials.csv"), &truth_marks)?;
+        write_text(&dir.join("truth/scan_transforms.csv"), &truth_scans)?;
+    }
     if spec.gnss.is_some() {
         write_text(&dir.join("gnss.csv"), &gnss)?;
         write_text(&dir.join("truth/gnss_bias.csv"), &gnss_bias)?;
@@ -243,6 +300,89 @@ pub fn write_scene(
     write_change(spec, dir)?;
     write_project(spec, dir)?;
     Ok(written)
+}
+
+/// The scan of one photograph: the photograph rendered through the scan's transform, and the
+/// film (its edge, the marks, the data strip) drawn where the scan sees no photograph, with the
+/// epoch's supersampling.
+fn render_scan(
+    scene: &Scene,
+    epoch: &EpochSpec,
+    film: &FilmSpec,
+    scan: &ScanGeometry,
+    frame_rays: &FrameRays,
+    pose: &Pose,
+) -> (RgbImage, (u32, u32)) {
+    use rayon::prelude::*;
+    let camera = &epoch.camera;
+    let size = film.scan_size(camera);
+    let scan_camera = ScanCamera {
+        camera,
+        rays: frame_rays,
+        film,
+        scan,
+        size,
+    };
+    let rays = RayTable::new(
+        &scan_camera,
+        size.0 as usize,
+        size.1 as usize,
+        epoch.supersampling,
+    );
+    let mut image = render_rays(scene, &rays, pose, epoch.shadows);
+    let marks = film.marks_px(camera);
+    let strip = film.strip(camera, scan.strip_seed);
+    let n = epoch.supersampling.clamp(1, 8) as usize;
+    let background = scene.background;
+    let width = size.0 as usize;
+    image
+        .data
+        .par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(row, line)| {
+            for (col, out) in line.iter_mut().enumerate() {
+                let mut add = Vector3::zeros();
+                for s in 0..n * n {
+                    let p = Vector2::new(
+                        col as f64 + ((s % n) as f64 + 0.5) / n as f64,
+                        row as f64 + ((s / n) as f64 + 0.5) / n as f64,
+                    );
+                    let frame = scan.frame_px(&p);
+                    if !film.on_photo(camera, &frame) {
+                        let v = film.film_value(camera, &marks, &strip, &frame);
+                        add += Vector3::repeat(v) - background;
+                    }
+                }
+                let add = add / (n * n) as f64;
+                for c in 0..3 {
+                    out[c] += add[c] as f32;
+                }
+            }
+        });
+    (image, size)
+}
+
+/// `calibration/mark_<epoch>.png`: the mark as a user would cut it from a scan (8-bit grey at
+/// the epochs' usual exposure), its centre on the template's centre.
+fn write_template(dir: &Path, epoch: &str, film: &FilmSpec) -> Result<(), SynthError> {
+    let (size, values) = film.template();
+    let pixels: Vec<u8> = values
+        .iter()
+        .map(|v| (255.0 * 1.3 * v).round().clamp(0.0, 255.0) as u8)
+        .collect();
+    let path = dir.join(format!("calibration/mark_{epoch}.png"));
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| io_err(parent, e))?;
+    }
+    let bytes = encode(
+        &pixels,
+        size as u32,
+        size as u32,
+        Channels::Grey,
+        ImageFormat::Png,
+    )
+    .map_err(|e| io_err(&path, e))?;
+    write_bytes_atomically(&path, &bytes).map_err(|e| SynthError::Write(e.to_string()))
 }
 
 /// A standard normal draw truncated at ±3.5: marker measurement noise; a larger error would be a
@@ -640,9 +780,12 @@ fn write_project(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
     for e in spec
         .epochs
         .iter()
-        .filter(|e| matches!(e.format, ImageFormat::Tiff))
+        .filter(|e| matches!(e.format, ImageFormat::Tiff) || e.film.is_some())
     {
-        let pixel_mm = FILM_FRAME_MM / e.camera.width.max(e.camera.height) as f64;
+        let pixel_mm = match &e.film {
+            Some(film) => film.pixel_mm,
+            None => FILM_FRAME_MM / e.camera.width.max(e.camera.height) as f64,
+        };
         let _ = write!(
             s,
             "\n# Calibration certificate of the film camera, and the scan resolution.\n\
@@ -651,6 +794,18 @@ fn write_project(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
             e.camera.f * pixel_mm,
             pixel_mm
         );
+        if let Some(film) = &e.film {
+            let pp = film.principal_point_mm;
+            let _ = write!(
+                s,
+                "principal_point_mm = [{:.4}, {:.4}]\n\
+                 fiducial_template = \"calibration/mark_{}.png\"\n[camera.fiducials]\n",
+                pp.x, pp.y, e.name
+            );
+            for (name, mm) in &film.marks {
+                let _ = writeln!(s, "\"{name}\" = [{:.4}, {:.4}]", mm.x, mm.y);
+            }
+        }
     }
     write_text(&dir.join("project.toml"), &s)
 }

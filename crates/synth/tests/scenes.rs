@@ -62,12 +62,33 @@ fn value_at(raster: &GeoRaster<f32>, x: f64, y: f64) -> f32 {
 }
 
 /// Markers and control; returns (markers, worst |Δ| in σ).
+/// `truth/scan_transforms.csv` of a scene with film scans: image → a11 … a23.
+fn scan_transforms(dir: &Path) -> BTreeMap<String, [f64; 6]> {
+    let Ok(text) = std::fs::read_to_string(dir.join("truth/scan_transforms.csv")) else {
+        return BTreeMap::new();
+    };
+    text.lines()
+        .skip(1)
+        .map(|line| {
+            let f: Vec<&str> = line.split(',').collect();
+            let a: Vec<f64> = f[1..].iter().map(|v| v.parse().expect("number")).collect();
+            (f[0].to_string(), [a[0], a[1], a[2], a[3], a[4], a[5]])
+        })
+        .collect()
+}
+
 fn check_markers_and_control(name: &str, scale: Scale, dir: &Path) -> (usize, f64) {
     let spec = build(name, scale, 7).expect("scene");
     write_scene(&spec, dir, &GEOMETRY_ONLY).expect("write");
     let truth = read_cameras_json(&dir.join("truth/cameras.json")).expect("cameras.json");
     let points = truth_points(dir);
     let markers = read_markers(&dir.join("markers.csv")).expect("markers");
+    let scans = scan_transforms(dir);
+    assert_eq!(
+        spec.epochs.iter().any(|e| e.film.is_some()),
+        !scans.is_empty(),
+        "{name}: scan transforms for the film epochs"
+    );
     let images: BTreeMap<&str, _> = truth.images.iter().map(|i| (i.name.as_str(), i)).collect();
     let mut worst = 0.0f64;
     let mut sum_sq = 0.0;
@@ -78,6 +99,14 @@ fn check_markers_and_control(name: &str, scale: Scale, dir: &Path) -> (usize, f6
         let pose = image.pose.as_ref().expect("true poses exist");
         let x = points[&m.name].1;
         let px = project_world(camera, pose, &x).expect("projects");
+        // Film scans: markers are measured on the scan, the camera sees the frame.
+        let px = match scans.get(m.image.as_str()) {
+            Some(a) => nalgebra::Vector2::new(
+                a[0] * px.x + a[1] * px.y + a[2],
+                a[3] * px.x + a[4] * px.y + a[5],
+            ),
+            None => px,
+        };
         let d = (m.pixel - px) / spec.marker_sigma;
         worst = worst.max(d.x.abs()).max(d.y.abs());
         sum_sq += d.norm_squared();

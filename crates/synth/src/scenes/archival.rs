@@ -1,16 +1,19 @@
 //! `archival`: four panchromatic aerial surveys decades apart over farmland with a village and a
 //! river (after La Peyne and Mount Rainier): film cameras of different focal lengths flown at
-//! different scales, scanned with grain, dust and scratches. New buildings and a road embankment
+//! different scales, scanned with grain, dust and scratches: each image is a scan of the film
+//! frame with its fiducial marks and data strip, shifted, rotated and sheared as a scanner
+//! leaves it (`film`). New buildings and a road embankment
 //! appear, a wood grows; there is no GNSS.
 
 use std::sync::Arc;
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 use timesift_core::{BrownCamera, SeededRng};
 
 use super::*;
 use crate::SynthError;
 use crate::effects::{Channels, Effects};
+use crate::film::{FilmSpec, MarkPattern};
 use crate::flight::NadirBlock;
 use crate::noise::Noise;
 use crate::scene::{
@@ -211,6 +214,13 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         (153.0, 4600.0),
     ];
     let names = ["1971-06-14", "1981-07-02", "1996-08-21", "2010-06-30"];
+    // Each camera's marks: RC-type, RMK-type, crosses, dots in circles.
+    let patterns = [
+        MarkPattern::RcType,
+        MarkPattern::RmkType,
+        MarkPattern::Cross,
+        MarkPattern::DotInCircle,
+    ];
     let mut epochs = Vec::new();
     for (e, (f_mm, scale_number)) in cameras.iter().enumerate() {
         let f = w as f64 * f_mm / 230.0;
@@ -260,6 +270,13 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             shadows: true,
             supersampling: 2,
             format: ImageFormat::Tiff,
+            film: Some(FilmSpec::eight_marks(
+                &camera,
+                230.0 / w as f64,
+                patterns[e],
+                // The certificate's origin is its own, a little off the marks' centre.
+                Vector2::new(0.004 * (e as f64 + 1.0), -0.003 * e as f64),
+            )),
         });
     }
     let mut unstable = vec![

@@ -205,6 +205,7 @@ pub(crate) fn drone_epoch(
         shadows: false,
         supersampling: 2,
         format: ImageFormat::Jpeg(92),
+        film: None,
     }
 }
 

@@ -114,6 +114,7 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
                 shadows: false,
                 supersampling: 2,
                 format: ImageFormat::Jpeg(95),
+                film: None,
             }
         })
         .collect();

@@ -1,0 +1,193 @@
+//! Scanned film on `synth archival`: every fiducial mark of every scan is found within a fifth
+//! of a pixel of where it truly is, every scan gets an interior orientation with its residuals
+//! reported, no keypoint falls on the film's edge, marks or data strip, and bad inputs — a mark
+//! that is not there, a template larger than the search, certificate coordinates that do not
+//! fit the scans — are named by image and mark while the other scans go on.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use common::timesift;
+use nalgebra::Vector2;
+use timesift_synth::scene::SceneSpec;
+use timesift_synth::scenes::{Scale, build};
+use timesift_synth::writer::{WriteOptions, write_scene};
+
+/// `image,mark,u,v[,…]` rows of a CSV file, by (image, mark).
+fn marks(path: &Path) -> BTreeMap<(String, String), Vector2<f64>> {
+    let text = std::fs::read_to_string(path).expect("csv");
+    text.lines()
+        .skip(1)
+        .map(|line| {
+            let f: Vec<&str> = line.split(',').collect();
+            let n = |k: usize| f[k].parse::<f64>().expect("number");
+            (
+                (f[0].to_string(), f[1].to_string()),
+                Vector2::new(n(2), n(3)),
+            )
+        })
+        .collect()
+}
+
+/// The archival scene, rendered; `epochs` and `images` cut it down for tests of bad inputs.
+fn archival(dir: &Path, epochs: usize, images: usize) -> SceneSpec {
+    let mut spec = build("archival", Scale::Small, 5).expect("scene");
+    spec.epochs.truncate(epochs);
+    for e in &mut spec.epochs {
+        e.images.truncate(images);
+    }
+    write_scene(&spec, dir, &WriteOptions::default()).expect("write");
+    spec
+}
+
+#[test]
+fn every_mark_is_found_within_a_fifth_of_a_pixel_and_no_keypoint_falls_on_the_film() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let spec = archival(dir, 4, usize::MAX);
+    let d = dir.to_str().expect("utf-8");
+    let (ok, out, err) = timesift(&["fiducials", d]);
+    println!("{out}");
+    assert!(ok, "{err}");
+    let truth = marks(&dir.join("truth/fiducials.csv"));
+    let found = marks(&dir.join("out/fiducials.csv"));
+    assert_eq!(
+        found.len(),
+        truth.len(),
+        "every mark of every scan is found"
+    );
+    let sum: f64 = truth
+        .iter()
+        .map(|(k, t)| (found[k] - t).norm_squared())
+        .sum();
+    let rms = (sum / truth.len() as f64).sqrt();
+    println!("{} marks, position error RMS {rms:.3} px", truth.len());
+    assert!(rms <= 0.2, "{rms}");
+    // The interior-orientation residuals of every scan are reported.
+    let scans: Vec<&str> = truth.keys().map(|(image, _)| image.as_str()).collect();
+    for scan in &scans {
+        assert!(
+            out.lines()
+                .any(|l| l.starts_with(scan) && l.contains("affine")),
+            "{scan}"
+        );
+    }
+    assert!(out.contains("residual RMS per mark"), "{out}");
+    let sheet = image::open(dir.join("out/fiducials.png")).expect("contact sheet");
+    assert!(
+        sheet.height() as usize > 30 * (truth.len() / 8),
+        "a row per scan"
+    );
+
+    // Features: only on the photograph.
+    let (ok, _, err) = timesift(&["run", d, "--to", "features"]);
+    assert!(ok, "{err}");
+    let project = timesift::Project::load(dir).expect("project");
+    let mut keypoints = 0;
+    for (i, image) in project.images.iter().enumerate() {
+        let epoch = &spec.epochs[image.epoch.index()];
+        let film = epoch.film.as_ref().expect("film");
+        let (kps, _) = timesift_matching::storage::read_features(&project.layout().feature_file(i))
+            .expect("features");
+        assert!(kps.len() > 100, "{}: {} keypoints", image.name, kps.len());
+        for k in &kps {
+            let p = Vector2::new(k.x, k.y);
+            assert!(
+                film.on_photo(&epoch.camera, &p),
+                "{}: keypoint at {p} of the frame is off the photograph",
+                image.name
+            );
+        }
+        keypoints += kps.len();
+    }
+    println!("{keypoints} keypoints, all on the photographs");
+}
+
+#[test]
+fn a_hidden_mark_a_large_template_and_wrong_coordinates_are_named_and_the_others_go_on() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    archival(dir, 1, 3);
+    let d = dir.to_str().expect("utf-8");
+    let truth = marks(&dir.join("truth/fiducials.csv"));
+    let scan = "images/1971-06-14/IMG_0002.tif";
+
+    // Mark 3 of one scan painted over with film base.
+    let centre = truth[&(scan.to_string(), "3".to_string())];
+    let mut grey = image::open(dir.join(scan)).expect("scan").to_luma8();
+    for y in 0..grey.height() {
+        for x in 0..grey.width() {
+            if (Vector2::new(x as f64 + 0.5, y as f64 + 0.5) - centre).norm() < 14.0 {
+                grey.put_pixel(x, y, image::Luma([10]));
+            }
+        }
+    }
+    grey.save(dir.join(scan)).expect("save");
+    let (ok, out, err) = timesift(&["fiducials", d]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains(&format!("warning: {scan}: mark 3 not found")),
+        "{out}"
+    );
+    assert!(out.contains("3 scans: 23 of 24 marks used"), "{out}");
+
+    // Fiducial coordinates 1.5 % off the scans: a warning per scan; 30 % off: an error per
+    // scan, naming it.
+    let toml_path = dir.join("project.toml");
+    let original = std::fs::read_to_string(&toml_path).expect("toml");
+    let scaled = |factor: f64| {
+        original
+            .lines()
+            .map(|line| match line.split_once(" = [") {
+                Some((name, rest)) if name.starts_with('"') => {
+                    let v: Vec<f64> = rest
+                        .trim_end_matches(']')
+                        .split(',')
+                        .map(|v| v.trim().parse::<f64>().expect("mm"))
+                        .collect();
+                    format!("{name} = [{}, {}]", v[0] * factor, v[1] * factor)
+                }
+                _ => line.to_string(),
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    std::fs::write(&toml_path, scaled(1.015)).expect("toml");
+    let (ok, out, err) = timesift(&["fiducials", d]);
+    assert!(ok, "{err}");
+    assert!(out.contains("disagree with the scan"), "{out}");
+    std::fs::write(&toml_path, scaled(1.3)).expect("toml");
+    let (ok, out, err) = timesift(&["fiducials", d]);
+    assert!(!ok, "{out}");
+    assert!(
+        err.lines().count() == 1 && err.contains("3 scans not oriented"),
+        "{err}"
+    );
+    assert!(
+        out.contains(&format!("{scan}  ")) && out.contains("disagree with the scan"),
+        "{out}"
+    );
+
+    // A template larger than the search window.
+    std::fs::write(&toml_path, &original).expect("toml");
+    let big = image::GrayImage::from_fn(200, 200, |x, y| {
+        image::Luma([((x * 7 + y * 3) % 251) as u8])
+    });
+    big.save(dir.join("calibration/mark_1971-06-14.png"))
+        .expect("template");
+    let (ok, out, err) = timesift(&["fiducials", d]);
+    assert!(!ok);
+    assert!(
+        out.contains("larger than the search window"),
+        "{out}\n{err}"
+    );
+    // `run` stops before features, naming the scan and the way out.
+    let (ok, _, err) = timesift(&["run", d, "--to", "features"]);
+    assert!(!ok);
+    assert!(
+        err.contains("without an interior orientation") && err.contains("fiducials.csv"),
+        "{err}"
+    );
+}
