@@ -86,6 +86,12 @@ pub struct CameraConfig {
     /// (used for scans with eight marks or more; for scanners whose platen tilts).
     #[serde(default)]
     pub interior_orientation: InteriorOrientationModel,
+    /// A PNG of the camera's images as the stages see them (a film camera: its frame, as
+    /// `out/fiducials_frame_<camera>.png` shows it) where zero marks pixels that must give no
+    /// keypoint and no depth (a lens hood, a drone's legs, a film camera's clock or level left
+    /// inside the frame). Combined with the film mask. Default: none.
+    #[serde(default)]
+    pub mask: Option<String>,
 }
 
 /// `[[camera]] interior_orientation`.

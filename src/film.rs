@@ -128,13 +128,61 @@ pub(crate) fn film_cameras(
     Ok(out)
 }
 
+/// A `[[camera]] mask`: which pixels of a camera group's images (as the stages see them) may
+/// give keypoints and depths.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraMask {
+    /// The file.
+    pub path: PathBuf,
+    /// Columns.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// Row-major, `true` where usable.
+    pub usable: Vec<bool>,
+}
+
+/// The `[[camera]] mask` images, by camera group, read and checked.
+pub(crate) fn camera_masks(
+    dir: &Path,
+    cfg_path: &Path,
+    config: &ProjectConfig,
+) -> Result<BTreeMap<String, CameraMask>, ProjectError> {
+    let mut out = BTreeMap::new();
+    for (i, c) in config.cameras.iter().enumerate() {
+        let Some(name) = &c.mask else {
+            continue;
+        };
+        let path = dir.join(name);
+        if !path.is_file() {
+            return Err(ProjectError::config(
+                cfg_path,
+                format!("camera[{i}].mask"),
+                format!("file \"{name}\" does not exist"),
+            ));
+        }
+        let image = timesift_io::image::read_grey(&path)?;
+        out.insert(
+            c.name.clone(),
+            CameraMask {
+                path,
+                width: image.width,
+                height: image.height,
+                usable: image.data.iter().map(|&v| v > 0.0).collect(),
+            },
+        );
+    }
+    Ok(out)
+}
+
 /// What a stage reads of an image: its pixels and, for a scan, which of them hold the
 /// photograph.
 #[derive(Debug, Clone)]
 pub struct StageImage {
     /// The pixels (a scan: resampled to its camera's frame).
     pub image: ImageF32,
-    /// `None` for a photograph (every pixel usable); the film mask of a scan.
+    /// `None` when every pixel is usable; else the film mask of a scan and the camera's
+    /// `[[camera]] mask`.
     pub usable: Option<Vec<bool>>,
 }
 
@@ -157,6 +205,34 @@ impl ImageSource {
             path: path.clone(),
             message: "missing or unreadable: run `timesift fiducials` or the features stage".into(),
         })?;
+        let source = ImageSource::of_report(project, &report)?;
+        let scans = &source.scans;
+        let missing: Vec<&str> = project
+            .images
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| project.film_camera(*i).is_some() && !scans.contains_key(i))
+            .map(|(_, im)| im.name.as_str())
+            .collect();
+        if let Some(first) = missing.first() {
+            return Err(ProjectError::Path {
+                path,
+                message: format!(
+                    "{} scan(s) without an interior orientation, first {first}: measure their \
+                     marks by hand in fiducials.csv",
+                    missing.len()
+                ),
+            });
+        }
+        Ok(source)
+    }
+
+    /// The interior orientations a fiducials report gives (scans without one are left out).
+    pub(crate) fn of_report(
+        project: &Project,
+        report: &FiducialsReport,
+    ) -> Result<ImageSource, ProjectError> {
+        let path = project.layout().fiducials_json();
         let by_name: BTreeMap<&str, usize> = project
             .images
             .iter()
@@ -182,24 +258,36 @@ impl ImageSource {
                 scans.insert(i, t);
             }
         }
-        let missing: Vec<&str> = project
-            .images
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| project.film_camera(*i).is_some() && !scans.contains_key(i))
-            .map(|(_, im)| im.name.as_str())
-            .collect();
-        if let Some(first) = missing.first() {
-            return Err(ProjectError::Path {
-                path,
-                message: format!(
-                    "{} scan(s) without an interior orientation, first {first}: measure their \
-                     marks by hand in fiducials.csv",
-                    missing.len()
-                ),
-            });
-        }
         Ok(ImageSource { scans })
+    }
+
+    /// A fingerprint of how the stages see the images (the scans' interior orientations, the
+    /// camera masks), for the caches of the stages that read pixels; empty when images are read
+    /// as they are.
+    pub fn fingerprint(&self, project: &Project) -> String {
+        if self.scans.is_empty() && project.camera_masks.is_empty() {
+            return String::new();
+        }
+        let mut hash = crate::stages::Fnv1a::new();
+        for (i, t) in &self.scans {
+            hash.write(&i.to_le_bytes());
+            for v in t.scan_from_frame_matrix().iter() {
+                hash.write_f64(*v);
+            }
+        }
+        for (group, mask) in &project.camera_masks {
+            hash.write(group.as_bytes());
+            hash.write(&mask.width.to_le_bytes());
+            hash.write(&mask.height.to_le_bytes());
+            hash.write(&mask.usable.iter().map(|&u| u as u8).collect::<Vec<u8>>());
+        }
+        hash.hex()
+    }
+
+    /// Whether image `i` is read as its file is (not a scan, no camera mask).
+    pub fn as_is(&self, project: &Project, i: usize) -> bool {
+        let group = &project.epochs[project.images[i].epoch.index()].camera_group;
+        !self.scans.contains_key(&i) && !project.camera_masks.contains_key(group)
     }
 
     /// The interior orientation of image `i` when it is a scan.
@@ -221,32 +309,18 @@ impl ImageSource {
         } else {
             timesift_io::image::read_rgb(&path)?
         };
-        let (Some(film), Some(t)) = (project.film_camera(i), self.scans.get(&i)) else {
-            return Ok(StageImage {
+        let seen = match (project.film_camera(i), self.scans.get(&i)) {
+            (Some(film), Some(t)) => resampled(&path, &image, film, t)?,
+            _ => StageImage {
                 image,
                 usable: None,
-            });
-        };
-        let view = ImageView::new(
-            image.width as usize,
-            image.height as usize,
-            image.channels as usize,
-            &image.data,
-        )
-        .map_err(|e| ProjectError::Path {
-            path: path.clone(),
-            message: e.to_string(),
-        })?;
-        let frame = resample_to_frame(&view, t, &film.frame);
-        Ok(StageImage {
-            image: ImageF32 {
-                width: frame.width as u32,
-                height: frame.height as u32,
-                channels: frame.channels as u32,
-                data: frame.data,
             },
-            usable: Some(frame.usable),
-        })
+        };
+        let group = &project.epochs[project.images[i].epoch.index()].camera_group;
+        match project.camera_masks.get(group) {
+            None => Ok(seen),
+            Some(mask) => with_camera_mask(&path, seen, mask),
+        }
     }
 
     /// The size of image `i` as the stages see it (a scan: its camera's frame).
@@ -266,4 +340,62 @@ impl ImageSource {
             None => *file_pixel,
         }
     }
+}
+
+/// A scan resampled to its camera's frame, with the film mask.
+fn resampled(
+    path: &Path,
+    scan: &ImageF32,
+    film: &FilmCamera,
+    transform: &ScanTransform,
+) -> Result<StageImage, ProjectError> {
+    let view = ImageView::new(
+        scan.width as usize,
+        scan.height as usize,
+        scan.channels as usize,
+        &scan.data,
+    )
+    .map_err(|e| ProjectError::Path {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let frame = resample_to_frame(&view, transform, &film.frame);
+    Ok(StageImage {
+        image: ImageF32 {
+            width: frame.width as u32,
+            height: frame.height as u32,
+            channels: frame.channels as u32,
+            data: frame.data,
+        },
+        usable: Some(frame.usable),
+    })
+}
+
+/// The image with its camera's `[[camera]] mask` applied; a mask of another size is an error
+/// naming both.
+fn with_camera_mask(
+    path: &Path,
+    mut seen: StageImage,
+    mask: &CameraMask,
+) -> Result<StageImage, ProjectError> {
+    if (mask.width, mask.height) != (seen.image.width, seen.image.height) {
+        return Err(ProjectError::Path {
+            path: mask.path.clone(),
+            message: format!(
+                "the mask is {} × {} pixels but {} is {} × {} as the stages see it",
+                mask.width,
+                mask.height,
+                path.display(),
+                seen.image.width,
+                seen.image.height
+            ),
+        });
+    }
+    let usable = seen
+        .usable
+        .get_or_insert_with(|| vec![true; mask.usable.len()]);
+    for (u, &m) in usable.iter_mut().zip(&mask.usable) {
+        *u &= m;
+    }
+    Ok(seen)
 }

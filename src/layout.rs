@@ -175,6 +175,12 @@ impl Layout {
         self.out_dir().join("fiducials.png")
     }
 
+    /// `out/fiducials_frame_<camera>.png`: a scan of a film camera resampled to its frame, to
+    /// draw a `[[camera]] mask` on.
+    pub fn fiducials_frame(&self, camera: &str) -> PathBuf {
+        self.out_dir().join(format!("fiducials_frame_{camera}.png"))
+    }
+
     /// `out/report.html`.
     pub fn report_html(&self) -> PathBuf {
         self.out_dir().join("report.html")

@@ -94,6 +94,8 @@ pub struct Project {
     pub film: BTreeMap<String, crate::film::FilmCamera>,
     /// Fiducial marks measured by hand (`fiducials.csv`).
     pub fiducial_marks: Vec<csv_inputs::FiducialMeasurement>,
+    /// `[[camera]] mask` images by camera group.
+    pub camera_masks: BTreeMap<String, crate::film::CameraMask>,
 }
 
 /// A focal length the user gave for a camera group.
@@ -349,6 +351,7 @@ impl Project {
 
         let calibrations = camera_calibrations(&cfg_path, &config, &epochs)?;
         let film = crate::film::film_cameras(dir, &cfg_path, &config)?;
+        let camera_masks = crate::film::camera_masks(dir, &cfg_path, &config)?;
         let mut calibrations = calibrations;
         for (group, f) in &film {
             if let (Some(g), Some(pp)) = (calibrations.get_mut(group), f.principal_point) {
@@ -500,6 +503,7 @@ impl Project {
             calibrations,
             film,
             fiducial_marks,
+            camera_masks,
         })
     }
 

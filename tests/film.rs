@@ -103,6 +103,51 @@ fn every_mark_is_found_within_a_fifth_of_a_pixel_and_no_keypoint_falls_on_the_fi
         keypoints += kps.len();
     }
     println!("{keypoints} keypoints, all on the photographs");
+
+    // A camera mask drawn on the frame `fiducials` shows: no keypoint where it is zero.
+    let camera = &spec.epochs[0].name;
+    let example = image::open(dir.join(format!("out/fiducials_frame_{camera}.png")))
+        .expect("frame example")
+        .to_luma8();
+    let (w, h) = example.dimensions();
+    assert_eq!(
+        (w, h),
+        (spec.epochs[0].camera.width, spec.epochs[0].camera.height)
+    );
+    let mask =
+        image::GrayImage::from_fn(w, h, |x, _| image::Luma([if x < w / 2 { 0 } else { 255 }]));
+    mask.save(dir.join("calibration/mask.png")).expect("mask");
+    let toml = std::fs::read_to_string(dir.join("project.toml")).expect("toml");
+    let with_mask = toml.replacen(
+        &format!("name = \"{camera}\"\nfocal_mm"),
+        &format!("name = \"{camera}\"\nmask = \"calibration/mask.png\"\nfocal_mm"),
+        1,
+    );
+    assert_ne!(with_mask, toml);
+    std::fs::write(dir.join("project.toml"), with_mask).expect("toml");
+    let (ok, _, err) = timesift(&["run", d, "--to", "features"]);
+    assert!(ok, "{err}");
+    let project = timesift::Project::load(dir).expect("project");
+    for &i in &project.epochs[0].images {
+        let (kps, _) =
+            timesift_matching::storage::read_features(&project.layout().feature_file(i.index()))
+                .expect("features");
+        assert!(!kps.is_empty());
+        assert!(
+            kps.iter().all(|k| k.x >= (w / 2) as f64),
+            "a keypoint under the mask"
+        );
+    }
+    // A mask of another size is an error naming it.
+    image::GrayImage::new(w / 2, h)
+        .save(dir.join("calibration/mask.png"))
+        .expect("mask");
+    let (ok, _, err) = timesift(&["run", d, "--to", "features"]);
+    assert!(!ok);
+    assert!(
+        err.contains("mask.png") && err.contains("the mask is"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -132,6 +177,25 @@ fn a_hidden_mark_a_large_template_and_wrong_coordinates_are_named_and_the_others
         "{out}"
     );
     assert!(out.contains("3 scans: 23 of 24 marks used"), "{out}");
+    // Measured by hand, in fiducials.csv: used as given.
+    std::fs::write(
+        dir.join("fiducials.csv"),
+        format!("image,mark,u,v\n{scan},3,{:.2},{:.2}\n", centre.x, centre.y),
+    )
+    .expect("fiducials.csv");
+    let (ok, out, err) = timesift(&["fiducials", d]);
+    assert!(ok, "{err}");
+    assert!(out.contains("3 scans: 24 of 24 marks used"), "{out}");
+    let report: timesift::report::FiducialsReport =
+        timesift::report::read_json(&dir.join("out/fiducials.json")).expect("report");
+    let given = report
+        .images
+        .iter()
+        .find(|s| s.image == scan)
+        .and_then(|s| s.marks.iter().find(|m| m.mark == "3"))
+        .expect("mark 3");
+    assert_eq!(given.status, "given");
+    std::fs::remove_file(dir.join("fiducials.csv")).expect("remove");
 
     // Fiducial coordinates 1.5 % off the scans: a warning per scan; 30 % off: an error per
     // scan, naming it.

@@ -249,6 +249,7 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
          # principal_point_mm = [0.004, -0.011]  # default: the centre of the marks\n\
          # fiducial_template = \"calibration/mark.png\"  # one mark cut from a scan, centred\n\
          # interior_orientation = \"affine\"  # or \"projective\" (eight marks or more)\n\
+         # mask = \"calibration/mask.png\"  # zero where no keypoint or depth may come from\n\
          # [camera.fiducials]  # mm, x right, y up\n\
          # TL = [-106.004, 105.996]",
         toml_string(&epochs[0].0)

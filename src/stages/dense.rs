@@ -474,7 +474,10 @@ fn dense_epoch(
     let plan = plan_epoch(&input, &options.plan).map_err(|e| dense_error(name, e))?;
     let passes = plan_schedule(&plan, &options.patchmatch);
     let work = layout.dense_work_dir(name);
-    let maps = map_settings(options, &orientation_fingerprint(&input), &images);
+    let source = ImageSource::of(project)?;
+    // Scans in their frames and camera masks are part of what the maps are made from.
+    let fingerprint = orientation_fingerprint(&input) + &source.fingerprint(project);
+    let maps = map_settings(options, &fingerprint, &images);
     let settings_path = Layout::settings_file(&work);
     if read_settings(&settings_path).as_ref() != Some(&maps) {
         if work.exists() {
@@ -504,7 +507,6 @@ fn dense_epoch(
             ..summary.clone()
         });
     }
-    let source = ImageSource::of(project)?;
     let mut cache = ImageCache {
         project,
         source: &source,

@@ -94,9 +94,9 @@ fn extract_with(
     super::fiducials::fiducials_stage(project)?;
     let source = ImageSource::of(project)?;
     let mut settings = settings.clone();
-    if !project.film.is_empty() {
-        settings["interior_orientations"] =
-            super::cache::content_fingerprint(&[layout.fiducials_json()]).into();
+    let seen = source.fingerprint(project);
+    if !seen.is_empty() {
+        settings["image_source"] = seen.into();
     }
     start_with_settings(
         "features",

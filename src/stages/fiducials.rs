@@ -75,11 +75,12 @@ pub fn fiducials_stage(project: &Project) -> Result<Option<FiducialsOutcome>, Pr
             .collect::<Vec<_>>(),
     });
     let record = layout.fiducials_settings();
-    let outputs = [
+    let mut outputs = vec![
         layout.fiducials_json(),
         layout.fiducials_csv(),
         layout.fiducials_sheet(),
     ];
+    outputs.extend(project.film.keys().map(|c| layout.fiducials_frame(c)));
     let recorded = read_json::<serde_json::Value>(&record).ok();
     if recorded.as_ref() == Some(&settings) && outputs.iter().all(|p| p.exists()) {
         let report = read_json::<FiducialsReport>(&layout.fiducials_json())?;
@@ -100,6 +101,7 @@ pub fn fiducials_stage(project: &Project) -> Result<Option<FiducialsOutcome>, Pr
         fiducials_csv(&report).as_bytes(),
     )?;
     write_contact_sheet(&report, &crops, &layout.fiducials_sheet())?;
+    write_frame_examples(project, &report)?;
     write_json(&record, &settings)?;
     Ok(Some(FiducialsOutcome {
         report,
@@ -366,5 +368,45 @@ fn write_contact_sheet(
         }
     }
     timesift_io::image::write_png(path, width, height, 3, sheet.as_raw())?;
+    Ok(())
+}
+
+/// `out/fiducials_frame_<camera>.png`: each film camera's first oriented scan resampled to its
+/// frame, grey, the film mask dark — what a person draws a `[[camera]] mask` on.
+fn write_frame_examples(project: &Project, report: &FiducialsReport) -> Result<(), ProjectError> {
+    let source = crate::film::ImageSource::of_report(project, report)?;
+    for camera in project.film.keys() {
+        let Some(i) = report
+            .images
+            .iter()
+            .filter(|s| &s.camera == camera && s.scan_from_frame.is_some())
+            .find_map(|s| project.images.iter().position(|im| im.name == s.image))
+        else {
+            continue;
+        };
+        let seen = source.read(project, i, true)?;
+        let usable = seen.usable.unwrap_or_default();
+        let grey: Vec<u8> = seen
+            .image
+            .data
+            .iter()
+            .enumerate()
+            .map(|(k, &v)| {
+                let v = (255.0 * v).round().clamp(0.0, 255.0) as u8;
+                if usable.get(k).copied().unwrap_or(true) {
+                    v
+                } else {
+                    v / 4
+                }
+            })
+            .collect();
+        timesift_io::image::write_png(
+            &project.layout().fiducials_frame(camera),
+            seen.image.width,
+            seen.image.height,
+            1,
+            &grey,
+        )?;
+    }
     Ok(())
 }

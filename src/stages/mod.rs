@@ -25,6 +25,7 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 
 pub use align::align_stage;
+pub(crate) use cache::Fnv1a;
 pub use change::{epoch_pairs, stable_file};
 pub use dem::{dem_stage, epoch_ground_sample_distance, georeference, write_dem_files};
 pub use dense::{dense_input, dense_inputs, dense_stage};

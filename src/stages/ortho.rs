@@ -95,9 +95,10 @@ impl ViewImages for ImageCache<'_> {
             .images
             .get(view)
             .ok_or_else(|| format!("no image for view {view}"))?;
-        let (width, height, data) = match self.source.scan_transform(image_index) {
-            // A scan in its camera's frame; off the photograph black, which is no-data.
-            Some(_) => {
+        let (width, height, data) = match self.source.as_is(self.project, image_index) {
+            // A scan in its camera's frame, or an image with a camera mask: black off the
+            // photograph and under the mask, which is no-data.
+            false => {
                 let seen = self
                     .source
                     .read(self.project, image_index, false)
@@ -121,7 +122,7 @@ impl ViewImages for ImageCache<'_> {
                     .collect();
                 (seen.image.width, seen.image.height, data)
             }
-            None => timesift_io::image::read_rgb8(path).map_err(|e| e.to_string())?,
+            true => timesift_io::image::read_rgb8(path).map_err(|e| e.to_string())?,
         };
         if let Some(&(w, h)) = self.sizes.get(view)
             && (w, h) != (width, height)
@@ -175,6 +176,7 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             "dem": file_stamp(&dem_path),
             "options": format!("{options:?}"),
             "views": poses,
+            "images": source.fingerprint(project),
         });
         let settings_path = layout.raster_settings(name, "ortho");
         let recorded: Option<serde_json::Value> = read_json(&settings_path).ok();
