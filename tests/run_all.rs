@@ -18,10 +18,15 @@ use timesift_core::SeededRng;
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
 
-/// Renders the project into `dir`: the first two epochs of `landslide`, dense matching at level 4.
+/// Renders the project into `dir`: the first two epochs of `landslide`, each cut to its first
+/// strips (the same ground in both: one flight plan), dense matching at level 4 — every stage
+/// has work to do, and a run lasts long enough to be killed in each.
 fn project(dir: &Path) {
     let mut spec = build("landslide", Scale::Small, 3).expect("scene");
     spec.epochs.truncate(2);
+    for epoch in &mut spec.epochs {
+        epoch.images.truncate(14);
+    }
     write_scene(&spec, dir, &WriteOptions::default()).expect("write");
     let toml = dir.join("project.toml");
     let mut text = std::fs::read_to_string(&toml).expect("project.toml");

@@ -14,10 +14,14 @@ use timesift_io::pointcloud::{AttributeValues, PointCloud, read_las};
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
 
-/// A rendered soil-pit project oriented by its truth, dense matching at level 4 (fast).
-fn project() -> tempfile::TempDir {
+/// A rendered soil-pit project oriented by its truth, dense matching at level 4 (fast); with
+/// `images`, each epoch cut to its first images.
+fn project(images: Option<usize>) -> tempfile::TempDir {
     let dir = tempfile::tempdir().expect("tempdir");
-    let spec = build("soil-pit", Scale::Small, 1).expect("scene");
+    let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
+    for epoch in &mut spec.epochs {
+        epoch.images.truncate(images.unwrap_or(usize::MAX));
+    }
     write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
     let toml = dir.path().join("project.toml");
     let text = std::fs::read_to_string(&toml).unwrap() + "\n[dense]\nlevel = 4\n";
@@ -50,7 +54,7 @@ fn cloud(dir: &Path, epoch: &str) -> PointCloud {
 
 #[test]
 fn dense_stage_writes_clouds_and_resumes_image_by_image() {
-    let dir = project();
+    let dir = project(None);
     let (ok, err) = run_dense(dir.path());
     assert!(ok, "{err}");
     let names = epochs(dir.path());
@@ -143,7 +147,7 @@ fn dense_stage_writes_clouds_and_resumes_image_by_image() {
 
 #[test]
 fn dense_stage_names_bad_inputs() {
-    let dir = project();
+    let dir = project(Some(6));
     let path = dir.path();
     let toml = path.join("project.toml");
     let original = std::fs::read_to_string(&toml).unwrap();
@@ -191,7 +195,7 @@ fn dense_stage_names_bad_inputs() {
             &format!("images = \"images/{}/*.jpg\"", names[0]),
             &format!(
                 "images = [{}]",
-                (1..=16)
+                (1..=6)
                     .map(|k| format!("\"images/{}/IMG_{k:04}.jpg\"", names[0]))
                     .collect::<Vec<_>>()
                     .join(", ")

@@ -1,7 +1,7 @@
 //! `cargo xtask api [--bless]`: the public API of every library crate as text, one line per
 //! item, compared with the snapshot under `api/` — so that a change of the API is a decision
 //! (the snapshot changes in the same commit), not an accident. A unit test runs the comparison,
-//! so `cargo test --workspace` fails on an unrecorded change.
+//! so the test suite fails on an unrecorded change.
 //!
 //! The API is read from rustdoc's JSON output (the format cargo-semver-checks and
 //! cargo-public-api read; on a stable toolchain it needs `RUSTC_BOOTSTRAP=1` for rustdoc's
@@ -50,9 +50,10 @@ fn snapshot_path(root: &Path, krate: &str) -> PathBuf {
 /// Compares every crate's API with its snapshot (or rewrites the snapshots with `bless`);
 /// returns the differences found, one block per crate.
 pub fn check(root: &Path, bless: bool) -> anyhow::Result<Vec<String>> {
+    let docs = rustdoc_json(root)?;
     let mut differences = Vec::new();
     for krate in CRATES {
-        let json = rustdoc_json(root, krate)?;
+        let json = read_rustdoc_json(&docs, krate)?;
         let lines = render(&json).with_context(|| format!("reading the API of {krate}"))?;
         let text = format!(
             "# Public API of {krate} (cargo xtask api --bless rewrites this file)\n{}\n",
@@ -90,12 +91,13 @@ fn describe_difference(krate: &str, path: &Path, recorded: &str, now: &str) -> S
     out
 }
 
-/// Runs rustdoc's JSON backend on `krate` and parses its output. Only rustdoc is told it may
-/// use unstable options (through a wrapper that sets `RUSTC_BOOTSTRAP` for it alone): build
-/// scripts that look at that variable would otherwise change how the dependencies are built,
-/// and the check builds of the dependencies could not be shared with the workspace's own
-/// (clippy's) in the same target folder.
-fn rustdoc_json(root: &Path, krate: &str) -> anyhow::Result<Value> {
+/// Runs rustdoc's JSON backend on every library of the workspace in one `cargo doc` (features
+/// unified as in the workspace's own builds, so the check builds of the dependencies are the
+/// ones clippy made in the same target folder, and the crates are documented in parallel);
+/// returns the folder of the `<crate>.json` files. Only rustdoc is told it may use unstable
+/// options (through a wrapper that sets `RUSTC_BOOTSTRAP` for it alone): build scripts that look
+/// at that variable would otherwise change how the dependencies are built.
+fn rustdoc_json(root: &Path) -> anyhow::Result<PathBuf> {
     let target = std::env::var_os("CARGO_TARGET_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| root.join("target"));
@@ -104,21 +106,33 @@ fn rustdoc_json(root: &Path, krate: &str) -> anyhow::Result<Value> {
     let output = Command::new(cargo)
         .current_dir(root)
         .env("RUSTDOC", &wrapper)
+        .env("RUSTDOCFLAGS", "-Z unstable-options --output-format json")
         .env_remove("RUSTC_BOOTSTRAP")
-        .args(["rustdoc", "--quiet", "--lib", "-p", krate, "--target-dir"])
+        .args([
+            "doc",
+            "--quiet",
+            "--workspace",
+            "--exclude",
+            "xtask",
+            "--no-deps",
+            "--lib",
+            "--target-dir",
+        ])
         .arg(&target)
-        .args(["--", "-Z", "unstable-options", "--output-format", "json"])
         .output()
-        .context("running cargo rustdoc")?;
+        .context("running cargo doc")?;
     if !output.status.success() {
         bail!(
-            "cargo rustdoc -p {krate} failed:\n{}",
+            "cargo doc (rustdoc JSON) failed:\n{}",
             String::from_utf8_lossy(&output.stderr)
         );
     }
-    let file = target
-        .join("doc")
-        .join(format!("{}.json", krate.replace('-', "_")));
+    Ok(target.join("doc"))
+}
+
+/// The rustdoc JSON of one crate, from the folder [`rustdoc_json`] filled.
+fn read_rustdoc_json(docs: &Path, krate: &str) -> anyhow::Result<Value> {
+    let file = docs.join(format!("{}.json", krate.replace('-', "_")));
     let text =
         std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
     serde_json::from_str(&text).with_context(|| format!("parsing {}", file.display()))
