@@ -15,12 +15,12 @@ use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
 
 /// A rendered soil-pit project oriented by its truth, dense matching at level 4 (fast); with
-/// `images`, each epoch cut to its first images.
-fn project(images: Option<usize>) -> tempfile::TempDir {
+/// each epoch cut to its first `images` images (a row along the wall).
+fn project(images: usize) -> tempfile::TempDir {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
     for epoch in &mut spec.epochs {
-        epoch.images.truncate(images.unwrap_or(usize::MAX));
+        epoch.images.truncate(images);
     }
     write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
     let toml = dir.path().join("project.toml");
@@ -54,7 +54,7 @@ fn cloud(dir: &Path, epoch: &str) -> PointCloud {
 
 #[test]
 fn dense_stage_writes_clouds_and_resumes_image_by_image() {
-    let dir = project(None);
+    let dir = project(12);
     let (ok, err) = run_dense(dir.path());
     assert!(ok, "{err}");
     let names = epochs(dir.path());
@@ -147,7 +147,7 @@ fn dense_stage_writes_clouds_and_resumes_image_by_image() {
 
 #[test]
 fn dense_stage_names_bad_inputs() {
-    let dir = project(Some(6));
+    let dir = project(6);
     let path = dir.path();
     let toml = path.join("project.toml");
     let original = std::fs::read_to_string(&toml).unwrap();

@@ -8,10 +8,14 @@ use common::timesift;
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, Written, write_scene};
 
-/// The `soil-pit` scene (small, seed 1) written into a fresh folder.
+/// The `soil-pit` scene (small, seed 1), each epoch cut to its first 12 images, written into a
+/// fresh folder.
 fn soil_pit() -> (tempfile::TempDir, Written) {
     let dir = tempfile::tempdir().expect("tempdir");
-    let spec = build("soil-pit", Scale::Small, 1).expect("scene");
+    let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
+    for epoch in &mut spec.epochs {
+        epoch.images.truncate(12);
+    }
     let written = write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
     (dir, written)
 }

@@ -93,7 +93,8 @@ fn describe_difference(krate: &str, path: &Path, recorded: &str, now: &str) -> S
 
 /// Runs rustdoc's JSON backend on every library of the workspace in one `cargo doc` (features
 /// unified as in the workspace's own builds, so the check builds of the dependencies are the
-/// ones clippy made in the same target folder, and the crates are documented in parallel);
+/// ones `cargo clippy` or `cargo check` make in the same target folder, and the crates are
+/// documented in parallel);
 /// returns the folder of the `<crate>.json` files. Only rustdoc is told it may use unstable
 /// options (through a wrapper that sets `RUSTC_BOOTSTRAP` for it alone): build scripts that look
 /// at that variable would otherwise change how the dependencies are built.

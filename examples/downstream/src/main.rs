@@ -75,7 +75,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .nth(1)
         .map(PathBuf::from)
         .ok_or("usage: timesift-downstream-example <empty-dir>")?;
-    let spec = timesift_synth::scenes::build("soil-pit", timesift_synth::scenes::Scale::Small, 1)?;
+    let mut spec =
+        timesift_synth::scenes::build("soil-pit", timesift_synth::scenes::Scale::Small, 1)?;
+    // The first ten images of each epoch: enough for a block, quick enough for a test.
+    for epoch in &mut spec.epochs {
+        epoch.images.truncate(10);
+    }
     timesift_synth::writer::write_scene(&spec, &dir, &Default::default())?;
     let project = timesift::Project::load(&dir)?;
 
