@@ -9,7 +9,7 @@
 //!   used as images, one calibration per film camera, as COLMAP or ODM would): per epoch,
 //!   check-point RMSE (E, N, H) in GSD and camera-centre RMSE;
 //! - with `--products` (default), the DEM of each epoch against its true surface (dense and dem
-//!   stages, [dense] quick): mean and NMAD in GSD.
+//!   stages, `[dense]` quick): mean and NMAD in GSD.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

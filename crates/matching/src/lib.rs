@@ -4,8 +4,9 @@
 //! ones by popcount; ratio test, mutual check, maximum distance), [`verify`] (fundamental,
 //! essential and homography RANSAC from `timesift-geometry`, two-view type), [`guided`] (more
 //! matches for a verified pair, searched along its epipolar lines), [`pairs`] (which
-//! image pairs to match: exhaustive, sequential, spatial, epoch-aware), [`preselect`] (pairs
-//! worth matching in full, from matching the largest-scale keypoints), [`tracks`]
+//! image pairs to match: exhaustive, sequential, spatial, epoch-aware),
+//! [`preselect`](mod@preselect) (pairs worth matching in full, from matching the largest-scale
+//! keypoints), [`tracks`]
 //! (conflict-free union-find over verified matches, statistics per epoch pair), [`storage`]
 //! (versioned binary feature and match files with checksums), [`stp`] (stable tie points between
 //! two separately oriented epochs).
