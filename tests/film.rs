@@ -35,9 +35,7 @@ fn marks(path: &Path) -> BTreeMap<(String, String), Vector2<f64>> {
 fn archival(dir: &Path, epochs: usize, images: usize) -> SceneSpec {
     let mut spec = build("archival", Scale::Small, 5).expect("scene");
     spec.epochs.truncate(epochs);
-    for e in &mut spec.epochs {
-        e.images.truncate(images);
-    }
+    spec.keep_first_images(images);
     write_scene(&spec, dir, &WriteOptions::default()).expect("write");
     spec
 }

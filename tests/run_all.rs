@@ -20,20 +20,20 @@ use timesift_synth::writer::{WriteOptions, write_scene};
 
 /// Renders the project into `dir`: the first two epochs of `landslide`, each cut to its first ten
 /// images (the same ground in both: one flight plan), dense matching at level 4 with the quick
-/// settings (5 sources, 2 + 1 iterations) — every stage has work to do, and a run lasts long
+/// settings (`DenseConfig::quick`) — every stage has work to do, and a run lasts long
 /// enough to be killed in each.
 fn project(dir: &Path) {
     let mut spec = build("landslide", Scale::Small, 3).expect("scene");
     spec.epochs.truncate(2);
-    for epoch in &mut spec.epochs {
-        epoch.images.truncate(10);
-    }
+    spec.keep_first_images(10);
     write_scene(&spec, dir, &WriteOptions::default()).expect("write");
     let toml = dir.join("project.toml");
     let mut text = std::fs::read_to_string(&toml).expect("project.toml");
-    text.push_str(
-        "\n[dense]\nlevel = 4\nmax_sources = 5\niterations = 2\ngeometric_iterations = 1\n",
-    );
+    let quick = timesift::config::DenseConfig::quick();
+    text.push_str(&format!(
+        "\n[dense]\nlevel = 4\nmax_sources = {}\niterations = {}\ngeometric_iterations = {}\n",
+        quick.max_sources, quick.iterations, quick.geometric_iterations
+    ));
     std::fs::write(&toml, text).expect("project.toml");
 }
 

@@ -19,9 +19,7 @@ use timesift_synth::writer::{WriteOptions, write_scene};
 fn project(images: usize) -> tempfile::TempDir {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
-    for epoch in &mut spec.epochs {
-        epoch.images.truncate(images);
-    }
+    spec.keep_first_images(images);
     write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
     let toml = dir.path().join("project.toml");
     let text = std::fs::read_to_string(&toml).unwrap() + "\n[dense]\nlevel = 4\n";

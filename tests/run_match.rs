@@ -13,9 +13,7 @@ use timesift_synth::writer::{WriteOptions, Written, write_scene};
 fn soil_pit() -> (tempfile::TempDir, Written) {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
-    for epoch in &mut spec.epochs {
-        epoch.images.truncate(12);
-    }
+    spec.keep_first_images(12);
     let written = write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
     (dir, written)
 }

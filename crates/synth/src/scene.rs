@@ -271,6 +271,14 @@ pub struct SceneSpec {
 }
 
 impl SceneSpec {
+    /// Keeps the first `n` images of every epoch (in flight order), for a smaller block of the
+    /// same ground: tests and examples that need a block, not the whole survey.
+    pub fn keep_first_images(&mut self, n: usize) {
+        for epoch in &mut self.epochs {
+            epoch.images.truncate(n);
+        }
+    }
+
     /// The grid as a heightfield layout (origin, cell, nodes) filled with the surface of `epoch`
     /// (base plus the features present then; blocks excluded).
     pub fn heightfield(&self, epoch: usize) -> Heightfield {

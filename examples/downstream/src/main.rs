@@ -78,9 +78,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut spec =
         timesift_synth::scenes::build("soil-pit", timesift_synth::scenes::Scale::Small, 1)?;
     // The first ten images of each epoch: enough for a block, quick enough for a test.
-    for epoch in &mut spec.epochs {
-        epoch.images.truncate(10);
-    }
+    spec.keep_first_images(10);
     timesift_synth::writer::write_scene(&spec, &dir, &Default::default())?;
     let project = timesift::Project::load(&dir)?;
 
