@@ -162,6 +162,9 @@ pub struct InputsConfig {
     pub stable: Option<String>,
     /// Scale bars between named targets (`a,b,distance[,sd]`). Default `scalebars.csv`.
     pub scalebars: Option<String>,
+    /// Natural points on stable ground measured in several epochs (`name[,sxy,sz]`), the
+    /// control of `method = "manual"`. Default `stable_points.csv`.
+    pub stable_points: Option<String>,
     /// Fiducial marks measured by hand in scans (`image,mark,u,v`), which replace the
     /// automatic measurement of those marks. Default `fiducials.csv`.
     pub fiducials: Option<String>,
@@ -234,6 +237,10 @@ pub enum AlignMethod {
     Stp,
     /// Each epoch oriented and georeferenced alone.
     Independent,
+    /// Natural stable points measured by hand (`stable_points.csv` and their markers),
+    /// intersected in the reference epoch, as control points of the others (Garieri's
+    /// Method 1).
+    Manual,
 }
 
 /// Feature detector and descriptor.

@@ -88,6 +88,8 @@ pub struct Project {
     pub stable_areas: Vec<StableArea>,
     /// Scale bars between marked targets.
     pub scale_bars: Vec<ScaleBarInput>,
+    /// Natural points on stable ground (`stable_points.csv`), measured in markers.csv.
+    pub stable_points: Vec<csv_inputs::StablePointInput>,
     /// Known focal lengths by camera group (`[[camera]]`).
     pub calibrations: BTreeMap<String, GivenFocal>,
     /// Film cameras by camera group (`[[camera]]` with fiducial marks).
@@ -401,6 +403,26 @@ impl Project {
             Some(p) => csv_inputs::read_scale_bars(&p)?,
             None => Vec::new(),
         };
+        let stable_points =
+            match input("stable_points", &inputs.stable_points, "stable_points.csv")? {
+                Some(p) => csv_inputs::read_stable_points(&p)?,
+                None => Vec::new(),
+            };
+        if let Some(s) = stable_points
+            .iter()
+            .find(|s| gcps.iter().chain(&checkpoints).any(|g| g.name == s.name))
+        {
+            return Err(ProjectError::Reference {
+                path: input("stable_points", &inputs.stable_points, "stable_points.csv")?
+                    .unwrap_or_default(),
+                line: s.line,
+                message: format!(
+                    "point \"{}\" is also a GCP or check point; a natural stable point has no \
+                     surveyed coordinates",
+                    s.name
+                ),
+            });
+        }
         if let Some(p) = input("markers", &inputs.markers, "markers.csv")? {
             markers = csv_inputs::read_markers(&p)?;
             for m in &mut markers {
@@ -413,13 +435,15 @@ impl Project {
                     });
                 }
                 let known = gcps.iter().chain(&checkpoints).any(|g| g.name == m.name)
-                    || scale_bars.iter().any(|b| b.a == m.name || b.b == m.name);
+                    || scale_bars.iter().any(|b| b.a == m.name || b.b == m.name)
+                    || stable_points.iter().any(|s| s.name == m.name);
                 if !known {
                     return Err(ProjectError::Reference {
                         path: p.clone(),
                         line: m.line,
                         message: format!(
-                            "unknown point \"{}\" (not in the GCP, check-point or scale-bar file)",
+                            "unknown point \"{}\" (not in the GCP, check-point, scale-bar or \
+                             stable-point file)",
                             m.name
                         ),
                     });
@@ -500,6 +524,7 @@ impl Project {
             gnss,
             stable_areas,
             scale_bars,
+            stable_points,
             calibrations,
             film,
             fiducial_marks,

@@ -243,6 +243,34 @@ fn marker_naming_unknown_point_or_image_names_file_and_line() {
     );
 }
 
+/// Natural stable points (`stable_points.csv`, for `method = "manual"`): markers may name
+/// them; one that is also a GCP is refused, naming the file and line.
+#[test]
+fn natural_stable_points_are_read_and_checked() {
+    let p = small_project();
+    write(
+        p.path(),
+        "markers.csv",
+        "image,name,u,v\nimages/2018/img0.png,G1,3,4\nimages/2018/img1.png,rock,5,6\nimages/2019/img1.png,rock,5.5,6\n",
+    );
+    assert!(info_error(p.path()).contains("unknown point \"rock\""));
+    write(
+        p.path(),
+        "stable_points.csv",
+        "name,sxy,sz\nrock,0.01,0.02\n",
+    );
+    let (ok, out, err) = timesift(&["info", p.path().to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(report["inputs"]["markers"], 3);
+    write(p.path(), "stable_points.csv", "rock\nG2\n");
+    let e = info_error(p.path());
+    assert!(
+        e.contains("stable_points.csv: line 2") && e.contains("\"G2\" is also a GCP"),
+        "{e}"
+    );
+}
+
 #[test]
 fn csv_row_with_wrong_field_count_names_file_and_line() {
     let p = small_project();

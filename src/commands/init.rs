@@ -138,7 +138,7 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     let _ = writeln!(text, "[align]");
     let _ = writeln!(
         text,
-        "method = \"timesift\"  # timesift | msfm | chunk | stp | independent"
+        "method = \"timesift\"  # timesift | msfm | chunk | stp | manual | independent"
     );
     let _ = writeln!(text, "reference_epoch = {}", toml_string(&epochs[0].0));
     let _ = writeln!(text, "features = \"sift\"  # sift | ldb");

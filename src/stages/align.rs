@@ -14,8 +14,8 @@ use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
     Block, CentrePrior, ChangeDetection, Datum, FocalSource, GeoreferenceInput, Georeferenced,
-    GroundPoint, Marker, OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions, StableGround,
-    ground_point_residuals,
+    GroundPoint, Marker, NaturalPoint, OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions,
+    StableGround, ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -99,7 +99,7 @@ fn align_settings(project: &Project) -> serde_json::Value {
         "features": features.iter().map(|f| super::cache::file_stamp(f)).collect::<Vec<_>>(),
         "images": project.images.iter().map(|i| &i.name).collect::<Vec<_>>(),
         "config": format!("{:?}", (&c.crs, &c.epochs, &c.inputs, &c.gnss, &c.align, &c.cameras)),
-        "ground": format!("{:?}", (&project.gcps, &project.checkpoints, &project.markers,
+        "ground": format!("{:?}", (&project.gcps, &project.checkpoints, &project.markers, &project.stable_points,
             &project.gnss, &project.stable_areas, &project.scale_bars, &project.calibrations)),
     })
 }
@@ -124,7 +124,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     let source = ImageSource::of(project)?;
     let input = load_input(project, &source)?;
     let frame = LocalFrame::of(project)?;
-    let geo = ground_input(project, &frame, &source)?;
+    let (geo, natural_points) = ground_input(project, &frame, &source)?;
     let mut options = SfmOptions {
         tie_point_sigma_px: project.config.align.tie_point_accuracy_px,
         change_detection: match project.config.align.inter_epoch_ties {
@@ -153,6 +153,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         epoch_names: project.epochs.iter().map(|e| e.name.clone()).collect(),
         reference: project.reference_epoch.index(),
         stable_ground: stable_ground(project, &frame)?,
+        natural_points,
     };
     let block = strategy
         .orient(&block_input, &options)
@@ -226,6 +227,7 @@ fn method_name(m: AlignMethod) -> &'static str {
         AlignMethod::Chunk => "chunk",
         AlignMethod::Stp => "stp",
         AlignMethod::Independent => "independent",
+        AlignMethod::Manual => "manual",
     }
 }
 
@@ -389,11 +391,13 @@ impl LocalFrame {
 
 /// GNSS priors, control points (markers of the reference epoch only unless
 /// `gcps_in_all_epochs`) and check points, in the local frame.
+/// Priors, control and check points with their markers, and the natural stable points (their
+/// markers in every epoch).
 fn ground_input(
     project: &Project,
     frame: &LocalFrame,
     source: &ImageSource,
-) -> Result<GeoreferenceInput, ProjectError> {
+) -> Result<(GeoreferenceInput, Vec<NaturalPoint>), ProjectError> {
     let index_of: BTreeMap<&str, usize> = project
         .images
         .iter()
@@ -470,12 +474,24 @@ fn ground_input(
             })
         })
         .collect();
-    Ok(GeoreferenceInput {
-        centre_priors,
-        prior_offsets,
-        points,
-        marker_sigma_px: project.config.align.marker_accuracy_px,
-    })
+    let natural_points = project
+        .stable_points
+        .iter()
+        .map(|s| NaturalPoint {
+            name: s.name.clone(),
+            stability: s.sigma,
+            markers: markers_of(&s.name, false),
+        })
+        .collect();
+    Ok((
+        GeoreferenceInput {
+            centre_priors,
+            prior_offsets,
+            points,
+            marker_sigma_px: project.config.align.marker_accuracy_px,
+        },
+        natural_points,
+    ))
 }
 
 fn write_outputs(

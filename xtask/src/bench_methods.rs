@@ -24,12 +24,13 @@ use timesift::truth::{
 };
 
 /// The strategies, in the papers' order.
-const METHODS: [(&str, AlignMethod); 5] = [
+const METHODS: [(&str, AlignMethod); 6] = [
     ("timesift", AlignMethod::Timesift),
     ("independent", AlignMethod::Independent),
     ("chunk", AlignMethod::Chunk),
     ("stp", AlignMethod::Stp),
     ("msfm", AlignMethod::Msfm),
+    ("manual", AlignMethod::Manual),
 ];
 
 /// What to run.

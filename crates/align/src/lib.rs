@@ -75,6 +75,7 @@
 //!     epoch_names: vec!["2019".into(), "2021".into()],
 //!     reference: 0,
 //!     stable_ground: None,
+//!     natural_points: Vec::new(),
 //! };
 //!
 //! let oriented = SingleBlock.orient(&block, &SfmOptions::default())?;
@@ -97,6 +98,7 @@ mod error;
 mod georef;
 mod incremental;
 mod init;
+mod manual;
 mod model;
 mod moved;
 mod options;
@@ -113,6 +115,7 @@ pub use georef::{
     georeference, ground_point_residuals,
 };
 pub use incremental::reconstruct;
+pub use manual::{MIN_REFERENCE_IMAGES, ManualStablePoints, NaturalPoint};
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{ChangeDetection, SelfCalibration, SfmOptions};
 pub use stable::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};

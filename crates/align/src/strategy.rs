@@ -9,6 +9,8 @@
 //!   tie points the two epochs share (tracks spanning both), RANSAC then least squares.
 //! - [`ProgressiveMerge`] (`msfm`): epochs alone, merged into one block most-connected first.
 //! - [`StableTiePoints`] (`stp`, module `stable`): stable tie points as control points.
+//! - [`ManualStablePoints`] (`manual`, module `manual`): natural points measured by hand in
+//!   several epochs, intersected in the reference, as control points of the others.
 //!
 //! The strategies that orient epochs together (`timesift`, `msfm`) split the tie points whose
 //! epochs disagree (module `moved`).
@@ -24,6 +26,7 @@ use crate::adjust::Intrinsics;
 use crate::changed::detect_changed_ground;
 use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, georeference};
 use crate::incremental::global;
+use crate::manual::{ManualStablePoints, NaturalPoint};
 use crate::model::{Reconstruction, SfmInput};
 use crate::moved::{Separated, separate_moved_points};
 use crate::options::{ChangeDetection, SfmOptions};
@@ -48,6 +51,9 @@ pub struct Block {
     /// Where the ground did not change, when the caller knows: the single-block strategies
     /// (`timesift`, `msfm`) then tie the epochs only through points on it.
     pub stable_ground: Option<StableGround>,
+    /// Natural points on stable ground measured by hand in several epochs (the `manual`
+    /// strategy's control; the others ignore them).
+    pub natural_points: Vec<NaturalPoint>,
 }
 
 /// A co-registration strategy.
@@ -67,12 +73,13 @@ pub fn strategy<'m>(name: &str, matcher: &'m dyn StableMatcher) -> Option<Box<dy
         "chunk" => Some(Box::new(ChunkAlignment)),
         "msfm" => Some(Box::new(ProgressiveMerge)),
         "stp" => Some(Box::new(StableTiePoints { matcher })),
+        "manual" => Some(Box::new(ManualStablePoints)),
         _ => None,
     }
 }
 
 /// Names of the strategies.
-pub const AVAILABLE: [&str; 5] = ["timesift", "independent", "chunk", "msfm", "stp"];
+pub const AVAILABLE: [&str; 6] = ["timesift", "independent", "chunk", "msfm", "stp", "manual"];
 
 /// `timesift`: one block.
 pub struct SingleBlock;

@@ -7,9 +7,9 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    Independent, OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, SfmImage,
-    SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
-    Strategy, georeference, reconstruct,
+    Independent, ManualStablePoints, Marker, NaturalPoint, OfferedTiePoint, OffsetPrior,
+    ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock, StableMatch,
+    StableMatcher, StableSearch, StableTiePoints, Strategy, georeference, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -404,6 +404,7 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
         epoch_names: vec!["first".into(), "second".into()],
         reference: 0,
         stable_ground: None,
+        natural_points: Vec::new(),
     }
 }
 
@@ -495,6 +496,118 @@ fn strategies_differ_as_the_papers_say_on_biased_gnss() {
         );
     }
     assert!(timesift_align::strategy("magic", &matcher).is_none());
+}
+
+/// `count` of the scene's points spread over the block (the farthest-point order from its
+/// centre), as natural points measured by hand in every image that sees them, with `noise_px`
+/// of marker noise.
+fn natural_points(s: &Scene, count: usize, noise_px: f64, seed: u64) -> Vec<NaturalPoint> {
+    let camera = camera();
+    let mut rng = SeededRng::new(seed);
+    let mut chosen: Vec<usize> = Vec::new();
+    while chosen.len() < count {
+        let next = (0..s.points.len())
+            .filter(|k| !chosen.contains(k))
+            .max_by(|&a, &b| {
+                let spread = |k: usize| {
+                    let p = s.points[k].xy();
+                    chosen
+                        .iter()
+                        .map(|&c| (s.points[c].xy() - p).norm())
+                        .fold(12.0 - p.norm(), f64::min)
+                };
+                spread(a).total_cmp(&spread(b))
+            })
+            .unwrap();
+        chosen.push(next);
+    }
+    chosen
+        .iter()
+        .enumerate()
+        .map(|(n, &k)| NaturalPoint {
+            name: format!("rock {n}"),
+            stability: None,
+            markers: s
+                .poses
+                .iter()
+                .enumerate()
+                .filter_map(|(image, pose)| {
+                    let u = project_world(&camera, pose, &s.points[k]).ok()?;
+                    (u.x > 0.0 && u.y > 0.0 && u.x < 1000.0 && u.y < 800.0).then(|| Marker {
+                        image,
+                        pixel: u + Vector2::new(rng.normal(), rng.normal()) * noise_px,
+                    })
+                })
+                .collect(),
+        })
+        .collect()
+}
+
+/// The manual method: the second epoch's GNSS is biased by 2 m and the epochs share no tie
+/// point, yet six natural points measured by hand in both put it on the reference within a
+/// small fraction of the bias; without enough such points it fails naming what is missing.
+#[test]
+fn natural_points_measured_by_hand_control_the_later_epochs() {
+    let s = scene(7, 0.3, 1500);
+    let bias = Vector3::new(2.0, 0.0, 0.0);
+    let mut block = two_epoch_block(&s, bias);
+    // No tie point joins the epochs: only the hand-measured points can.
+    let epoch_of = block.epoch_of.clone();
+    for track in &mut block.sfm.tracks {
+        let first = epoch_of[track.elements[0].image.index()];
+        track
+            .elements
+            .retain(|e| epoch_of[e.image.index()] == first);
+    }
+    block.sfm.tracks.retain(|t| t.elements.len() >= 2);
+    let options = SfmOptions::default();
+    let missing = ManualStablePoints.orient(&block, &options).unwrap_err();
+    assert!(
+        missing.to_string().contains("stable_points.csv"),
+        "{missing}"
+    );
+    block.natural_points = natural_points(&s, 6, 0.5, 3);
+    for p in &block.natural_points {
+        let (a, b) = p
+            .markers
+            .iter()
+            .partition::<Vec<&Marker>, _>(|m| epoch_of[m.image] == 0);
+        assert!(
+            a.len() >= 4 && b.len() >= 2,
+            "{}: {} + {}",
+            p.name,
+            a.len(),
+            b.len()
+        );
+    }
+    let manual = ManualStablePoints.orient(&block, &options).unwrap();
+    assert_eq!(manual.reconstruction.num_oriented(), 20);
+    let off = mean_offset(&manual, &s, &block, 1);
+    let reference = mean_offset(&manual, &s, &block, 0);
+    let misfit = rigid_misfit(&manual, &s);
+    println!(
+        "manual: reference off by {reference:?}, second epoch off by {off:?}, rigid misfit {misfit:.4} m"
+    );
+    assert!(reference.norm() < 0.05, "{reference:?}");
+    assert!(off.norm() < 0.1 && misfit < 0.1, "{off:?} {misfit}");
+    // Independent, on the same block, follows the bias.
+    let independent = Independent.orient(&block, &options).unwrap();
+    assert!((mean_offset(&independent, &s, &block, 1) - bias).norm() < 0.1);
+    // Points measured in too few reference images cannot control anything.
+    let mut sparse = block.clone();
+    for p in &mut sparse.natural_points {
+        let mut in_reference = 0;
+        p.markers.retain(|m| {
+            in_reference += usize::from(epoch_of[m.image] == 0);
+            epoch_of[m.image] == 1 || in_reference <= 3
+        });
+    }
+    let few = ManualStablePoints.orient(&sparse, &options).unwrap_err();
+    let message = few.to_string();
+    assert!(
+        message.contains("\"first\"") && message.contains("0 of 6 natural stable points"),
+        "{message}"
+    );
 }
 
 /// One block with a GNSS offset for the biased epoch: the offset takes the bias (within three of

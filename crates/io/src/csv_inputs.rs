@@ -1,5 +1,5 @@
 //! The CSV inputs of a project (DESIGN.md): `gcps.csv`, `checkpoints.csv`, `markers.csv`,
-//! `gnss.csv`, `stable.csv`, and `scalebars.csv` (an addition to DESIGN.md's list: scale bars
+//! `gnss.csv`, `stable.csv`, `stable_points.csv`, and `scalebars.csv` (an addition to DESIGN.md's list: scale bars
 //! between named targets, as close-range projects like `soil-pit` need).
 //!
 //! Rules common to all: comma-separated, `#` starts a comment line, blank lines are skipped, and an
@@ -21,6 +21,18 @@ pub struct ControlPoint {
     /// Object coordinates (E, N, H) in the project CRS, metres.
     pub position: Vector3<f64>,
     /// Standard deviations (horizontal, vertical) in metres, when given.
+    pub sigma: Option<(f64, f64)>,
+    /// Line in the file.
+    pub line: usize,
+}
+
+/// A natural point on stable ground (`stable_points.csv`): no coordinates, only a name that
+/// markers of several epochs measure, and optionally how far it may have moved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StablePointInput {
+    /// Point name, unique within its file.
+    pub name: String,
+    /// Standard deviations (horizontal, vertical) of its stability in metres, when given.
     pub sigma: Option<(f64, f64)>,
     /// Line in the file.
     pub line: usize,
@@ -159,6 +171,23 @@ fn non_empty(path: &Path, row: &Row, index: usize, column: &str) -> Result<Strin
     Ok(text)
 }
 
+/// A name not yet defined by an earlier row (`defined`: names and their lines).
+fn defined_once<'a>(
+    path: &Path,
+    row: &Row,
+    name: &str,
+    mut defined: impl Iterator<Item = (&'a str, usize)>,
+) -> Result<(), IoError> {
+    match defined.find(|(n, _)| *n == name) {
+        Some((_, line)) => Err(IoError::line(
+            path,
+            row.line,
+            format!("point \"{name}\" is already defined on line {line}"),
+        )),
+        None => Ok(()),
+    }
+}
+
 fn sigma(path: &Path, row: &Row) -> Result<Option<(f64, f64)>, IoError> {
     if row.fields.len() < 6 {
         return Ok(None);
@@ -201,13 +230,12 @@ fn control_points(path: &Path, with_sigma: bool) -> Result<Vec<ControlPoint>, Io
     let mut points: Vec<ControlPoint> = Vec::with_capacity(rows.len());
     for row in &rows {
         let name = non_empty(path, row, 0, "name")?;
-        if let Some(first) = points.iter().find(|p| p.name == name) {
-            return Err(IoError::line(
-                path,
-                row.line,
-                format!("point \"{name}\" is already defined on line {}", first.line),
-            ));
-        }
+        defined_once(
+            path,
+            row,
+            &name,
+            points.iter().map(|p| (p.name.as_str(), p.line)),
+        )?;
         points.push(ControlPoint {
             name,
             position: xyz(path, row)?,
@@ -226,6 +254,46 @@ pub fn read_gcps(path: &Path) -> Result<Vec<ControlPoint>, IoError> {
 /// Reads `checkpoints.csv`: `name,x,y,z`.
 pub fn read_checkpoints(path: &Path) -> Result<Vec<ControlPoint>, IoError> {
     control_points(path, false)
+}
+
+/// Reads `stable_points.csv`: `name[,sxy,sz]`.
+pub fn read_stable_points(path: &Path) -> Result<Vec<StablePointInput>, IoError> {
+    let rows = read_rows(
+        path,
+        &[&["name"], &["name", "sxy", "sz"]],
+        &[1, 3],
+        "1 field (name) or 3 (name,sxy,sz)",
+    )?;
+    let mut points: Vec<StablePointInput> = Vec::with_capacity(rows.len());
+    for row in &rows {
+        let name = non_empty(path, row, 0, "name")?;
+        defined_once(
+            path,
+            row,
+            &name,
+            points.iter().map(|p| (p.name.as_str(), p.line)),
+        )?;
+        let sigma = if row.fields.len() == 3 {
+            let sxy = number(path, row, 1, "sxy")?;
+            let sz = number(path, row, 2, "sz")?;
+            if !(sxy >= 0.0 && sz >= 0.0) {
+                return Err(IoError::line(
+                    path,
+                    row.line,
+                    "standard deviations sxy and sz must not be negative",
+                ));
+            }
+            Some((sxy, sz))
+        } else {
+            None
+        };
+        points.push(StablePointInput {
+            name,
+            sigma,
+            line: row.line,
+        });
+    }
+    Ok(points)
 }
 
 /// Reads `markers.csv`: `image,name,u,v`.
@@ -510,6 +578,41 @@ mod tests {
         let p = write(dir.path(), "checkpoints.csv", "C1,1,2,3,0.1,0.1\n");
         let e = read_checkpoints(&p).unwrap_err().to_string();
         assert!(e.contains("checkpoints.csv: line 1"), "{e}");
+    }
+
+    #[test]
+    fn stable_points_with_and_without_stability() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(
+            dir.path(),
+            "stable_points.csv",
+            "name,sxy,sz\nboulder corner,0.01,0.02\n# the bridge\npier\n",
+        );
+        let points = read_stable_points(&p).unwrap();
+        assert_eq!(points.len(), 2);
+        assert_eq!(points[0].name, "boulder corner");
+        assert_eq!(points[0].sigma, Some((0.01, 0.02)));
+        assert_eq!((points[1].name.as_str(), points[1].sigma), ("pier", None));
+        assert_eq!(points[1].line, 4);
+        for (text, expected) in [
+            (
+                "a,1\n",
+                "line 1: expected 1 field (name) or 3 (name,sxy,sz), found 2",
+            ),
+            ("a\na\n", "line 2: point \"a\" is already defined on line 1"),
+            (
+                "a,0.1,-1\n",
+                "line 1: standard deviations sxy and sz must not be negative",
+            ),
+            ("a,x,1\n", "line 1: column `sxy`: expected a number"),
+        ] {
+            let p = write(dir.path(), "stable_points.csv", text);
+            let e = read_stable_points(&p).unwrap_err().to_string();
+            assert!(
+                e.contains("stable_points.csv") && e.contains(expected),
+                "{text:?}: {e}"
+            );
+        }
     }
 
     #[test]

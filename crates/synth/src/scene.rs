@@ -24,6 +24,38 @@ use timesift_io::wkt::ring_contains;
 /// change a scene makes.
 const APRON_DROP: f64 = 500.0;
 
+/// Most natural stable points a scene offers ([`SceneSpec::natural_candidates`]).
+pub const NATURAL_POINTS: usize = 8;
+
+/// Up to `count` of `points` spread over the grid: the farthest-point order, starting from the
+/// one nearest the grid's centre. Returns their indices.
+pub fn spread_out(
+    grid: (f64, f64, f64, usize, usize),
+    points: &[(f64, f64)],
+    count: usize,
+) -> Vec<usize> {
+    let (x0, y0, cell, nx, ny) = grid;
+    let (w, h) = ((nx - 1) as f64 * cell, (ny - 1) as f64 * cell);
+    let centre = (x0 + 0.5 * w, y0 + 0.5 * h);
+    let mut chosen: Vec<usize> = Vec::new();
+    while chosen.len() < count.min(points.len()) {
+        let spread = |p: &(f64, f64)| {
+            chosen
+                .iter()
+                .map(|&c| (points[c].0 - p.0).hypot(points[c].1 - p.1))
+                .fold(w.max(h) - (p.0 - centre.0).hypot(p.1 - centre.1), f64::min)
+        };
+        let Some(next) = (0..points.len())
+            .filter(|k| !chosen.contains(k))
+            .max_by(|&a, &b| spread(&points[a]).total_cmp(&spread(&points[b])))
+        else {
+            break;
+        };
+        chosen.push(next);
+    }
+    chosen
+}
+
 /// How the grid frame sits in the local frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Frame {
@@ -329,6 +361,34 @@ impl SceneSpec {
             .map(tag("gcp"))
             .chain(self.checkpoints.iter().map(tag("checkpoint")))
             .chain(self.scale_targets.iter().map(tag("scalebar")))
+    }
+
+    /// Where natural stable points may be (the `manual` method's unpainted spots — a boulder's
+    /// corner, a fence post): grid positions on a lattice over the scene, on stable ground with
+    /// a margin, away from the painted targets. The writer keeps those the cameras see and
+    /// spreads [`NATURAL_POINTS`] of them over the scene ([`spread_out`]).
+    pub fn natural_candidates(&self) -> Vec<(f64, f64)> {
+        let (x0, y0, cell, nx, ny) = self.grid;
+        let (w, h) = ((nx - 1) as f64 * cell, (ny - 1) as f64 * cell);
+        let margin = 0.03 * w.max(h);
+        let targets: Vec<(f64, f64)> = self.named_points().map(|(_, p)| p.at).collect();
+        let stable_around = |x: f64, y: f64| {
+            self.is_stable(x, y)
+                && (0..8).all(|k| {
+                    let a = k as f64 * std::f64::consts::FRAC_PI_4;
+                    self.is_stable(x + margin * a.cos(), y + margin * a.sin())
+                })
+        };
+        let lattice = 16;
+        (0..lattice * lattice)
+            .map(|k| {
+                let (i, j) = ((k % lattice) as f64, (k / lattice) as f64);
+                let t = |v: f64| 0.04 + 0.92 * v / (lattice - 1) as f64;
+                (x0 + w * t(i), y0 + h * t(j))
+            })
+            .filter(|&(x, y)| stable_around(x, y))
+            .filter(|&(x, y)| targets.iter().all(|t| (t.0 - x).hypot(t.1 - y) > margin))
+            .collect()
     }
 
     /// Whether a grid position is stable (outside every unstable polygon).

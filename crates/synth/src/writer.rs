@@ -1,10 +1,12 @@
 //! Writes a [`SceneSpec`] as a project directory of DESIGN.md plus `truth/`:
 //!
 //! ```text
-//! project.toml, images/<epoch>/IMG_nnnn.*, gcps.csv, checkpoints.csv, markers.csv,
+//! project.toml, images/<epoch>/IMG_nnnn.*, gcps.csv, checkpoints.csv, markers.csv, stable_points.csv,
 //! gnss.csv (when the scene has GNSS), stable.csv (ground scenes), scalebars.csv (when any)
 //! truth/cameras.json     true cameras and poses (world frame)
 //! truth/points.csv       exact world positions of every GCP, check point and scale-bar target
+//! truth/stable_points.csv exact world positions of the natural stable points (stable_points.csv
+//!                        names them; markers.csv measures them in every epoch, for `manual`)
 //! truth/dem_<epoch>.tif  true surface per epoch on the scene grid (wall scenes: wall frame)
 //! truth/surface_<epoch>.ply  the rendered surface mesh (wall scenes)
 //! truth/stable.tif       1 where the surface and its cover never change, 0 elsewhere
@@ -126,6 +128,12 @@ pub fn write_scene(
         megapixels: 0.0,
     };
     let mut points_local: Vec<(String, &'static str, Vector3<f64>)> = Vec::new();
+    // Natural stable points: every candidate is observed as a target would be; those the
+    // cameras see enough are kept after the last epoch.
+    let candidates = spec.natural_candidates();
+    let mut candidate_local = Vec::new();
+    let mut candidate_seen: Vec<Vec<(String, usize, Vector2<f64>)>> =
+        vec![Vec::new(); candidates.len()];
     for (e, epoch) in spec.epochs.iter().enumerate() {
         let field = spec.heightfield(e);
         // Every named point with its position and surface normal, once per epoch.
@@ -136,7 +144,20 @@ pub fn write_scene(
                 Ok((kind, p, x, normal(spec, &field, p.at)))
             })
             .collect::<Result<Vec<_>, SynthError>>()?;
+        let naturals: Vec<(Vector3<f64>, Vector3<f64>)> = candidates
+            .iter()
+            .filter_map(|&(x, y)| {
+                let h = field.height_at(x, y)?;
+                Some((spec.frame.to_local(x, y, h), normal(spec, &field, (x, y))))
+            })
+            .collect();
+        if naturals.len() != candidates.len() {
+            return Err(SynthError::InvalidScene(
+                "a natural stable point candidate lies outside the grid".into(),
+            ));
+        }
         if e == 0 {
+            candidate_local = naturals.iter().map(|(x, _)| *x).collect();
             points_local.extend(
                 targets
                     .iter()
@@ -186,23 +207,34 @@ pub fn write_scene(
                 let mut rng = SeededRng::new(image.effects.seed ^ 0x5CA7_F11E);
                 film.draw_scan(&epoch.camera, &mut rng)
             });
-            for (_, p, x, n) in &targets {
+            // Where a point is measured in this image: on film, on the scan, and only on the
+            // photograph.
+            let measured = |x: &Vector3<f64>, n: &Vector3<f64>| {
                 let seen = observe(&scene, &epoch.camera, &image.pose, x, n);
-                // On film, a marker is measured on the scan, and only on the photograph.
-                let seen = match (&epoch.film, &scan) {
+                match (&epoch.film, &scan) {
                     (Some(film), Some(scan)) => seen
                         .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(4.0))))
                         .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(-4.0))))
                         .map(|px| scan.scan_px(&px)),
                     _ => seen,
-                };
-                if let Some(px) = seen {
-                    let noisy = px
-                        + Vector2::new(truncated_normal(&mut rng), truncated_normal(&mut rng))
-                            * spec.marker_sigma;
-                    writeln!(markers, "{name},{},{:.3},{:.3}", p.name, noisy.x, noisy.y)
-                        .map_err(|e| SynthError::Write(e.to_string()))?;
-                    written.markers += 1;
+                }
+            };
+            let mut mark = |point: &str, px: Vector2<f64>, noise: &mut SeededRng| {
+                let noisy = px
+                    + Vector2::new(truncated_normal(noise), truncated_normal(noise))
+                        * spec.marker_sigma;
+                written.markers += 1;
+                writeln!(markers, "{name},{point},{:.3},{:.3}", noisy.x, noisy.y)
+                    .map_err(|e| SynthError::Write(e.to_string()))
+            };
+            for (_, p, x, n) in &targets {
+                if let Some(px) = measured(x, n) {
+                    mark(&p.name, px, &mut rng)?;
+                }
+            }
+            for (k, (x, n)) in naturals.iter().enumerate() {
+                if let Some(px) = measured(x, n) {
+                    candidate_seen[k].push((name.clone(), e, px));
                 }
             }
             if let (Some(g), 0) = (&spec.gnss, k) {
@@ -273,6 +305,14 @@ pub fn write_scene(
             written.images += 1;
         }
     }
+    written.markers += write_natural_points(
+        spec,
+        &candidates,
+        &candidate_local,
+        &candidate_seen,
+        &mut markers,
+        dir,
+    )?;
     write_text(&dir.join("markers.csv"), &markers)?;
     if spec.epochs.iter().any(|e| e.film.is_some()) {
         write_text(&dir.join("truth/fiducials.csv"), &truth_marks)?;
@@ -642,6 +682,60 @@ fn write_points(
         write_text(&dir.join("scalebars.csv"), &bars)?;
     }
     Ok(())
+}
+
+/// Images of the first epoch that must measure a natural stable point (`manual` intersects it
+/// there) and of every other epoch (it controls them).
+const NATURAL_REFERENCE_IMAGES: usize = 4;
+const NATURAL_OTHER_IMAGES: usize = 2;
+
+/// Keeps the natural stable point candidates measured in enough images of every epoch, spreads
+/// [`crate::scene::NATURAL_POINTS`] of them over the scene, and writes `stable_points.csv`,
+/// their markers (noise from a stream of their own, so the targets' markers and the GNSS are
+/// what they would be without them) and `truth/stable_points.csv`. Returns the markers written.
+fn write_natural_points(
+    spec: &SceneSpec,
+    candidates: &[(f64, f64)],
+    local: &[Vector3<f64>],
+    seen: &[Vec<(String, usize, Vector2<f64>)>],
+    markers: &mut String,
+    dir: &Path,
+) -> Result<usize, SynthError> {
+    let usable: Vec<usize> = (0..candidates.len())
+        .filter(|&k| {
+            (0..spec.epochs.len()).all(|e| {
+                let n = seen[k].iter().filter(|s| s.1 == e).count();
+                n >= if e == 0 {
+                    NATURAL_REFERENCE_IMAGES
+                } else {
+                    NATURAL_OTHER_IMAGES
+                }
+            })
+        })
+        .collect();
+    let at: Vec<(f64, f64)> = usable.iter().map(|&k| candidates[k]).collect();
+    let chosen = crate::scene::spread_out(spec.grid, &at, crate::scene::NATURAL_POINTS);
+    let mut rng = SeededRng::new(spec.seed ^ 0x4E47_5552_414C);
+    let mut listed = String::from("name\n");
+    let mut truth = String::from("name,x,y,z\n");
+    let mut written = 0;
+    for (n, &c) in chosen.iter().enumerate() {
+        let k = usable[c];
+        let name = format!("natural-{}", n + 1);
+        let w = local[k] + spec.origin;
+        let _ = writeln!(listed, "{name}");
+        let _ = writeln!(truth, "{name},{:.6},{:.6},{:.6}", w.x, w.y, w.z);
+        for (image, _, px) in &seen[k] {
+            let noisy = px
+                + Vector2::new(truncated_normal(&mut rng), truncated_normal(&mut rng))
+                    * spec.marker_sigma;
+            let _ = writeln!(markers, "{image},{name},{:.3},{:.3}", noisy.x, noisy.y);
+            written += 1;
+        }
+    }
+    write_text(&dir.join("stable_points.csv"), &listed)?;
+    write_text(&dir.join("truth/stable_points.csv"), &truth)?;
+    Ok(written)
 }
 
 fn ring_wkt(ring: &[[f64; 2]], offset: (f64, f64)) -> String {

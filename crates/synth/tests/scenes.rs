@@ -18,13 +18,21 @@ use timesift_synth::writer::{WriteOptions, write_scene};
 
 const GEOMETRY_ONLY: WriteOptions = WriteOptions { images: false };
 
-/// truth/points.csv: name → (kind, world position).
+/// truth/points.csv and truth/stable_points.csv: name → (kind, world position); the natural
+/// stable points are of kind "natural".
 fn truth_points(dir: &Path) -> BTreeMap<String, (String, Vector3<f64>)> {
     let text = std::fs::read_to_string(dir.join("truth/points.csv")).expect("points.csv");
+    let natural =
+        std::fs::read_to_string(dir.join("truth/stable_points.csv")).expect("stable_points.csv");
     text.lines()
         .skip(1)
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
+        .map(|l| l.split(',').collect::<Vec<&str>>())
+        .chain(natural.lines().skip(1).map(|l| {
+            let mut f: Vec<&str> = l.split(',').collect();
+            f.insert(1, "natural");
+            f
+        }))
+        .map(|f| {
             let n = |i: usize| f[i].parse::<f64>().expect("number");
             (
                 f[0].to_string(),
@@ -93,6 +101,8 @@ fn check_markers_and_control(name: &str, scale: Scale, dir: &Path) -> (usize, f6
     let mut worst = 0.0f64;
     let mut sum_sq = 0.0;
     let mut seen: BTreeMap<&str, usize> = BTreeMap::new();
+    // Natural points: (name, epoch) → images measuring it.
+    let mut natural_seen: BTreeMap<(&str, &str), usize> = BTreeMap::new();
     for m in &markers {
         let image = images[m.image.as_str()];
         let camera = &truth.cameras[&image.camera];
@@ -110,9 +120,13 @@ fn check_markers_and_control(name: &str, scale: Scale, dir: &Path) -> (usize, f6
         let d = (m.pixel - px) / spec.marker_sigma;
         worst = worst.max(d.x.abs()).max(d.y.abs());
         sum_sq += d.norm_squared();
-        *seen
-            .entry(points.get_key_value(&m.name).expect("known").0)
-            .or_default() += 1;
+        let (point, (kind, _)) = points.get_key_value(&m.name).expect("known");
+        *seen.entry(point).or_default() += 1;
+        if kind == "natural" {
+            *natural_seen
+                .entry((point, image.epoch.as_str()))
+                .or_default() += 1;
+        }
     }
     assert!(!markers.is_empty(), "{name}: no markers");
     assert!(worst <= 4.0, "{name}: marker off by {worst:.2} σ");
@@ -144,10 +158,10 @@ fn check_markers_and_control(name: &str, scale: Scale, dir: &Path) -> (usize, f6
     };
     let mut control = 0;
     for (point, (kind, x)) in &points {
-        if kind != "gcp" && kind != "checkpoint" {
+        if kind != "gcp" && kind != "checkpoint" && kind != "natural" {
             continue;
         }
-        control += 1;
+        control += usize::from(kind != "natural");
         let (mx, my) = raster_xy(&change, x);
         assert_eq!(
             value_at(&mask, mx, my),
@@ -164,6 +178,36 @@ fn check_markers_and_control(name: &str, scale: Scale, dir: &Path) -> (usize, f6
         }
     }
     assert!(control >= 7, "{name}: {control} control and check points");
+    // Enough natural stable points for `manual`: intersected in four images of the reference
+    // epoch, measured in two of every other.
+    let listed = std::fs::read_to_string(dir.join("stable_points.csv")).expect("stable_points");
+    let natural: Vec<&str> = listed.lines().skip(1).collect();
+    assert_eq!(
+        natural.len(),
+        points.values().filter(|(k, _)| k == "natural").count()
+    );
+    let reference = &spec.epochs[0].name;
+    let usable = natural
+        .iter()
+        .filter(|p| {
+            natural_seen
+                .get(&(**p, reference.as_str()))
+                .is_some_and(|&n| n >= 4)
+                && spec.epochs[1..].iter().all(|e| {
+                    natural_seen
+                        .get(&(**p, e.name.as_str()))
+                        .is_some_and(|&n| n >= 2)
+                })
+        })
+        .count();
+    println!(
+        "{name:<10} {usable} of {} natural stable points usable by `manual`",
+        natural.len()
+    );
+    assert!(
+        usable >= 4,
+        "{name}: {usable} natural points usable by `manual`"
+    );
     (markers.len(), worst)
 }
 
