@@ -40,6 +40,122 @@ pub struct EpochAccuracy {
     pub gnss_offset_error_m: Option<[f64; 3]>,
     /// The same in the offset's reported standard deviations.
     pub gnss_offset_error_sigmas: Option<[f64; 3]>,
+    /// The epoch's tie points on stable ground against its true surface (ground scenes).
+    pub stable_ties: Option<SurfaceAgreement>,
+    /// The ground sampling distance the GSD figures are in, metres.
+    pub gsd_m: f64,
+}
+
+/// How a set of points sits on a true surface: the height residuals' median and the plane
+/// fitted to them, which shows a tilt (a roll about a corridor's axis) that check points along
+/// the corridor cannot.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SurfaceAgreement {
+    /// Points compared.
+    pub count: usize,
+    /// Median height residual (point − surface), metres.
+    pub median_m: f64,
+    /// Slope of the plane fitted to the residuals, mm per m.
+    pub tilt_mm_per_m: f64,
+    /// Downhill direction of that plane, degrees clockwise from north.
+    pub tilt_azimuth_deg: f64,
+}
+
+/// Least points for a plane fit of residuals.
+const MIN_PLANE_POINTS: usize = 20;
+
+/// The plane `dz = a + b·x + c·y` through height residuals at `xy`, fitted by least squares,
+/// then again without the residuals beyond 3 NMAD of the first fit (blunders among tie
+/// points); `None` with fewer than 20 points or a degenerate spread.
+pub fn residual_plane(points: &[(f64, f64, f64)]) -> Option<SurfaceAgreement> {
+    if points.len() < MIN_PLANE_POINTS {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(sx, sy), p| (sx + p.0 / n, sy + p.1 / n));
+    // Points along a line fix no plane across it.
+    let (sxx, syy, sxy) = points.iter().fold((0.0, 0.0, 0.0), |(a, b, c), p| {
+        let (x, y) = (p.0 - mx, p.1 - my);
+        (a + x * x, b + y * y, c + x * y)
+    });
+    if sxx * syy - sxy * sxy <= 1e-9 * (sxx + syy).powi(2) {
+        return None;
+    }
+    let fit = |keep: &dyn Fn(&(f64, f64, f64)) -> bool| -> Option<nalgebra::Vector3<f64>> {
+        let mut normal = nalgebra::Matrix3::<f64>::zeros();
+        let mut rhs = nalgebra::Vector3::<f64>::zeros();
+        for p in points.iter().filter(|p| keep(p)) {
+            let row = nalgebra::Vector3::new(1.0, p.0 - mx, p.1 - my);
+            normal += row * row.transpose();
+            rhs += row * p.2;
+        }
+        normal.cholesky().map(|c| c.solve(&rhs))
+    };
+    let first = fit(&|_| true)?;
+    let residual = |c: &nalgebra::Vector3<f64>, p: &(f64, f64, f64)| {
+        p.2 - (c[0] + c[1] * (p.0 - mx) + c[2] * (p.1 - my))
+    };
+    let stats = timesift_change::stats::statistics(points.iter().map(|p| residual(&first, p)))?;
+    let bound = 3.0 * stats.nmad.max(1e-9);
+    let plane = fit(&|p| residual(&first, p).abs() <= bound)?;
+    let median = timesift_change::stats::statistics(points.iter().map(|p| p.2))?.median;
+    let (gx, gy) = (plane[1], plane[2]);
+    Some(SurfaceAgreement {
+        count: points.len(),
+        median_m: median,
+        tilt_mm_per_m: 1000.0 * gx.hypot(gy),
+        // Downhill: against the gradient; azimuth from north (y) clockwise towards east (x).
+        tilt_azimuth_deg: (-gx).atan2(-gy).to_degrees().rem_euclid(360.0),
+    })
+}
+
+/// The tie points observed in `epoch`'s images (the COLMAP model in `colmap`, world
+/// coordinates) against that epoch's true surface, on stable ground (`truth/stable.tif`):
+/// [`residual_plane`] of their height residuals. `None` for wall scenes (their truth is in the
+/// wall's frame) and where too few points fall on stable ground.
+pub fn stable_tie_agreement(
+    project: &Project,
+    model: &timesift_io::colmap::ColmapModel,
+    epoch: &str,
+) -> Result<Option<SurfaceAgreement>, ProjectError> {
+    let truth_dir = project.layout().truth_dir();
+    if truth_dir.join(format!("surface_{epoch}.ply")).exists() {
+        return Ok(None);
+    }
+    let dem_path = truth_dir.join(format!("dem_{epoch}.tif"));
+    let truth =
+        timesift_change::grid::Dem::from_raster(timesift_io::geotiff::read_f32(&dem_path)?, None)
+            .map_err(|source| ProjectError::Change {
+            context: dem_path.display().to_string(),
+            source,
+        })?;
+    let stable = timesift_io::geotiff::read_f32(&truth_dir.join("stable.tif"))?;
+    let images: std::collections::HashSet<u32> = model
+        .images
+        .iter()
+        .filter(|(_, im)| im.epoch.as_deref() == Some(epoch))
+        .map(|(id, _)| *id)
+        .collect();
+    let t = stable.georef.transform;
+    let residuals: Vec<(f64, f64, f64)> = model
+        .points
+        .values()
+        .filter(|p| p.track.iter().any(|(image, _)| images.contains(image)))
+        .filter_map(|p| {
+            let (c, r) = t.world_to_pixel(p.xyz.x, p.xyz.y);
+            let (c, r) = (c.floor(), r.floor());
+            let on_stable = c >= 0.0
+                && r >= 0.0
+                && (c as usize) < stable.width
+                && (r as usize) < stable.height
+                && stable.get(c as usize, r as usize, 0) == 1.0;
+            let z = truth.bilinear(p.xyz.x, p.xyz.y);
+            (on_stable && z.is_finite()).then(|| (p.xyz.x, p.xyz.y, p.xyz.z - z))
+        })
+        .collect();
+    Ok(residual_plane(&residuals))
 }
 
 /// Each epoch's true GNSS bias from `truth/gnss_bias.csv` (`epoch,east,north,up`); empty when
@@ -126,6 +242,7 @@ pub fn epoch_accuracy(
     let reference_name = &project.epochs[project.reference_epoch.index()].name;
     let epochs = &report.epochs;
     let biases = true_gnss_bias(project)?;
+    let model = timesift_io::colmap::read_colmap_text(&out.join("colmap")).ok();
     let reference = epochs
         .get(reference_name)
         .map(check_residuals)
@@ -164,6 +281,11 @@ pub fn epoch_accuracy(
             gnss_offset_error_m: offset_error.map(|(e, _)| e),
             gnss_offset_error_sigmas: offset_error
                 .and_then(|(e, std)| std.map(|std| [0, 1, 2].map(|k| e[k] / std[k]))),
+            gsd_m: gsd,
+            stable_ties: match &model {
+                Some(model) => stable_tie_agreement(project, model, name)?,
+                None => None,
+            },
         });
     }
     Ok(rows)
@@ -515,6 +637,36 @@ pub fn epoch_dem_error(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_tilted_plane_of_residuals_is_recovered_despite_blunders() {
+        let mut rng = timesift_core::SeededRng::new(4);
+        // 2 mm/m rising towards the north-east (downhill to the south-west, 225°), 5 cm above.
+        let g = 0.002 / std::f64::consts::SQRT_2;
+        let mut points: Vec<(f64, f64, f64)> = (0..400)
+            .map(|_| {
+                let (x, y) = (
+                    rng.uniform_range(-150.0, 150.0),
+                    rng.uniform_range(-40.0, 40.0),
+                );
+                (500_000.0 + x, 5_000_000.0 + y, 0.05 + g * x + g * y)
+            })
+            .collect();
+        for p in points.iter_mut().step_by(40) {
+            p.2 += 3.0;
+        }
+        let a = residual_plane(&points).unwrap();
+        assert_eq!(a.count, 400);
+        assert!((a.tilt_mm_per_m - 2.0).abs() < 1e-6, "{a:?}");
+        assert!((a.tilt_azimuth_deg - 225.0).abs() < 1e-4, "{a:?}");
+        assert!((a.median_m - 0.05).abs() < 0.02, "{a:?}");
+        // Too few points, or points along a line, fix no plane.
+        assert_eq!(residual_plane(&points[..10]), None);
+        let line: Vec<(f64, f64, f64)> = (0..50)
+            .map(|k| (k as f64, 2.0 * k as f64 + 1.0, 0.0))
+            .collect();
+        assert_eq!(residual_plane(&line), None);
+    }
 
     #[test]
     fn a_four_quadrant_target_is_found_to_a_sixth_of_a_cell() {

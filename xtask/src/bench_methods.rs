@@ -47,8 +47,9 @@ pub struct MethodsBench {
     pub full_dense: bool,
     /// Which inter-epoch ties the single-block strategies keep, one run per entry (rows named
     /// `method+ties` beyond the first): `default` (the project's: stable areas when given),
-    /// `all`, or `auto-blind` (the regional change detection, the stable areas hidden from the
-    /// align stage; the products are still judged on them).
+    /// `all`, `plain` (every tie and no GNSS offsets: the single block before they existed), or
+    /// `auto-blind` (the regional change detection, the stable areas hidden from the align
+    /// stage; the products are still judged on them).
     pub ties: Vec<String>,
 }
 
@@ -58,11 +59,15 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
     match ties {
         "default" => {}
         "all" => project.config.align.inter_epoch_ties = InterEpochTies::All,
+        "plain" => {
+            project.config.align.inter_epoch_ties = InterEpochTies::All;
+            project.config.gnss.offsets = timesift::config::GnssOffsets::None;
+        }
         "auto-blind" => {
             project.config.align.inter_epoch_ties = InterEpochTies::Auto;
             project.stable_areas.clear();
         }
-        other => anyhow::bail!("--ties: unknown \"{other}\" (default, all, auto-blind)"),
+        other => anyhow::bail!("--ties: unknown \"{other}\" (default, all, plain, auto-blind)"),
     }
     Ok(project)
 }
@@ -226,13 +231,14 @@ fn evaluate(
 fn table(rows: &[Row]) -> String {
     let mut s = String::from(
         "| scene | method | epoch | oriented | check RMSE dE/dN/dH (m) | (GSD) | epoch − ref. (m) \
-         | centre RMSE (m) | RMS px | inter-epoch ties | GNSS offset − true bias (m) | (σ) | s |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         | centre RMSE (m) | RMS px | inter-epoch ties | GNSS offset − true bias (m) | (σ) \
+         | ties on stable ground vs truth: n, median (GSD), tilt (mm/m) | s |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let Some(a) = &r.accuracy else {
             s.push_str(&format!(
-                "| {} | {} | – | failed: {} | | | | | | | | | {:.1} |\n",
+                "| {} | {} | – | failed: {} | | | | | | | | | | {:.1} |\n",
                 r.scene,
                 r.method,
                 r.error.as_deref().unwrap_or("").replace('|', "/"),
@@ -241,7 +247,7 @@ fn table(rows: &[Row]) -> String {
             continue;
         };
         s.push_str(&format!(
-            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
             r.scene,
             r.method,
             a.epoch,
@@ -255,6 +261,12 @@ fn table(rows: &[Row]) -> String {
             a.inter_epoch_tie_points,
             triple(a.gnss_offset_error_m, 3),
             triple(a.gnss_offset_error_sigmas, 1),
+            a.stable_ties.map_or("–".into(), |t| format!(
+                "{}, {:+.2}, {:.2}",
+                t.count,
+                t.median_m / a.gsd_m,
+                t.tilt_mm_per_m
+            )),
             r.seconds
         ));
     }

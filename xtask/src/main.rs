@@ -77,7 +77,7 @@ enum Task {
         /// Scenes, comma-separated (default: all seven).
         #[arg(long, value_delimiter = ',')]
         scenes: Option<Vec<String>>,
-        /// Strategies, comma-separated (default: all five).
+        /// Strategies, comma-separated (default: all six).
         #[arg(long, value_delimiter = ',')]
         methods: Option<Vec<String>>,
         /// small or full.
@@ -96,8 +96,9 @@ enum Task {
         /// Products with the default `[dense]` settings rather than the demo's lighter ones.
         #[arg(long)]
         full_dense: bool,
-        /// Inter-epoch ties of the single-block strategies, one run each: default, all,
-        /// auto-blind (change detected from the ties, stable areas hidden from align).
+        /// Inter-epoch ties of the single-block strategies, one run each: default, all, plain
+        /// (all ties and no GNSS offsets: the plain single block), auto-blind (change detected
+        /// from the ties, stable areas hidden from align).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
     },
@@ -460,7 +461,7 @@ fn main() -> anyhow::Result<()> {
                     .collect()
             }),
             methods: methods.unwrap_or_else(|| {
-                ["timesift", "independent", "chunk", "stp", "msfm"]
+                ["timesift", "independent", "chunk", "stp", "msfm", "manual"]
                     .iter()
                     .map(|s| s.to_string())
                     .collect()

@@ -13,7 +13,7 @@ use timesift_io::cameras_json::read_cameras_json;
 use timesift_io::csv_inputs::{read_markers, read_stable_areas};
 use timesift_io::geotiff::{GeoRaster, read_f32};
 use timesift_io::wkt::parse_polygons;
-use timesift_synth::scenes::{SCENES, Scale, build};
+use timesift_synth::scenes::{EXTRA_SCENES, SCENES, Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
 
 const GEOMETRY_ONLY: WriteOptions = WriteOptions { images: false };
@@ -214,7 +214,7 @@ fn check_markers_and_control(name: &str, scale: Scale, dir: &Path) -> (usize, f6
 #[test]
 fn markers_reproject_and_control_is_on_stable_ground_in_every_scene_at_both_scales() {
     let root = tempfile::tempdir().expect("tempdir");
-    for name in SCENES {
+    for name in SCENES.into_iter().chain(EXTRA_SCENES) {
         for (scale, label) in [(Scale::Small, "small"), (Scale::Full, "full")] {
             let dir = root.path().join(format!("{name}-{label}"));
             let (n, worst) = check_markers_and_control(name, scale, &dir);
@@ -226,7 +226,7 @@ fn markers_reproject_and_control_is_on_stable_ground_in_every_scene_at_both_scal
 #[test]
 fn true_volumes_match_the_true_surfaces_and_stable_ground_never_changes() {
     let root = tempfile::tempdir().expect("tempdir");
-    for name in SCENES {
+    for name in SCENES.into_iter().chain(EXTRA_SCENES) {
         let dir = root.path().join(name);
         let spec = build(name, Scale::Small, 3).expect("scene");
         write_scene(&spec, &dir, &GEOMETRY_ONLY).expect("write");

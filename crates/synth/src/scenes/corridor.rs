@@ -1,0 +1,173 @@
+//! `corridor`: a coastal corridor flown along its axis in two nadir strips, the case where check
+//! points cannot see what goes wrong. Across it, from the sea: water whose edge moves from
+//! flight to flight, a sand beach accreting smoothly (decimetres a month, its texture
+//! persisting), a narrow band of stable dune grass — the only ground that looks the same in
+//! every epoch — and farmland whose crops change cover between flights (stable ground, new
+//! texture). Control points of the reference epoch lie along the band, so they spread little
+//! across the corridor; every epoch's GNSS carries a bias of its own. A roll of an epoch about
+//! the corridor's axis shows in the stable-area DoD (over the band and the farmland) as a tilt
+//! across it, not at the check points.
+
+use std::sync::Arc;
+
+use nalgebra::Vector3;
+use timesift_core::SeededRng;
+
+use super::*;
+use crate::SynthError;
+use crate::noise::Noise;
+use crate::scene::{ChangeRegion, Feature, SceneSpec, Shape};
+use crate::shapes::Bump;
+
+const EPOCHS: usize = 3;
+/// The corridor's length (x) and width (y), metres.
+const LENGTH: f64 = 300.0;
+const WIDTH: f64 = 110.0;
+/// Across the corridor (y): the beach's foot (mean water line), its top, and the top of the
+/// stable band of dune grass; farmland beyond.
+const BEACH_FOOT: f64 = 22.0;
+const BEACH_TOP: f64 = 52.0;
+const BAND_TOP: f64 = 74.0;
+
+pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
+    let mut rng = SeededRng::new(seed);
+    let noise = Noise::new(seed ^ 81);
+    // The beach rises 2 m from the water line to the dunes, which undulate gently; the farmland
+    // behind is nearly flat.
+    let base = move |x: f64, y: f64| {
+        let beach = 2.0 * ((y - BEACH_FOOT) / (BEACH_TOP - BEACH_FOOT)).clamp(0.0, 1.0);
+        let dune = if y > BEACH_TOP {
+            1.2 * noise.fbm(x, y, 0.0, 25.0, 4, 0.5).max(-0.5)
+        } else {
+            0.0
+        };
+        beach + dune + 0.15 * noise.fbm(x, y, 3.0, 4.0, 3, 0.5) - 0.002 * y
+    };
+    // Sand accreting smoothly on two stretches of the beach, more every month.
+    let mut features = Vec::new();
+    let mut regions = Vec::new();
+    let mut unstable = vec![rect((-1.0, -1.0), (LENGTH + 1.0, BEACH_TOP + 2.0))];
+    for (k, centre_x) in [80.0, 210.0].into_iter().enumerate() {
+        let bump = Bump {
+            centre: (centre_x, 0.5 * (BEACH_FOOT + BEACH_TOP)),
+            a: 45.0,
+            b: 12.0,
+            yaw: 0.0,
+            height: 1.0,
+            power: 2.0,
+        };
+        let mut members = Vec::new();
+        for e in 1..EPOCHS {
+            members.push(features.len());
+            features.push(Feature {
+                shape: Shape::Bump(Bump {
+                    height: 0.25 * e as f64,
+                    ..bump
+                }),
+                epochs: vec![e],
+            });
+        }
+        regions.push(ChangeRegion {
+            name: format!("accretion-{}", k + 1),
+            description: "sand accreting on the beach".into(),
+            polygon: bump.footprint(0.5),
+            features: members,
+            blocks: vec![],
+        });
+    }
+    // Fields behind the dunes, each with its own crop calendar.
+    let fields = [(0.0, 95.0), (95.0, 180.0), (180.0, LENGTH + 1.0)];
+    let (w, h) = image_size(scale, (512, 384), (3000, 2000));
+    let f = 0.72 * w as f64;
+    let altitude = 60.0;
+    let fin = finest(f, altitude);
+    let materials = vec![
+        // 0: dune grass (the stable band)
+        cover(seed ^ 1, [0.30, 0.34, 0.16], [0.58, 0.60, 0.36], 5.0, fin),
+        // 1: sand
+        cover(seed ^ 2, [0.66, 0.58, 0.42], [0.86, 0.78, 0.60], 3.0, fin),
+        // 2: water
+        cover_with_contrast(
+            seed ^ 3,
+            [0.05, 0.14, 0.18],
+            [0.10, 0.22, 0.26],
+            10.0,
+            fin,
+            0.4,
+        ),
+        // 3–5: crops: bare soil, young crop, grown crop
+        cover(seed ^ 4, [0.30, 0.22, 0.14], [0.50, 0.40, 0.28], 2.0, fin),
+        cover(seed ^ 5, [0.20, 0.32, 0.10], [0.40, 0.52, 0.22], 1.5, fin),
+        cover(seed ^ 6, [0.40, 0.44, 0.12], [0.64, 0.62, 0.26], 2.5, fin),
+    ];
+    let edge = Noise::new(seed ^ 82);
+    let cover_fn = move |e: usize, x: f64, y: f64| -> usize {
+        let water_line =
+            BEACH_FOOT + [0.0, 4.0, -3.0][e % 3] + 1.5 * edge.fbm2(x, 0.0, 20.0, 3, 0.5);
+        if y < water_line {
+            return 2;
+        }
+        if y < BEACH_TOP {
+            return 1;
+        }
+        if y < BAND_TOP + 2.0 * edge.fbm2(x, 5.0, 15.0, 3, 0.5) {
+            return 0;
+        }
+        let field = fields
+            .iter()
+            .position(|(a, b)| x >= *a && x < *b)
+            .unwrap_or(0);
+        3 + (e + field) % 3
+    };
+    let camera_seed = rng.next_u64();
+    let flight = match scale {
+        Scale::Small => nadir((15.0, 30.0), (285.0, 95.0), altitude, 1.5, (0.7, 0.3), 0.5),
+        Scale::Full => nadir((5.0, 10.0), (295.0, 105.0), 45.0, 1.5, (0.8, 0.6), 0.5),
+    };
+    let names = ["2024-05-02", "2024-06-04", "2024-07-03"];
+    let epochs = (0..EPOCHS)
+        .map(|e| {
+            let camera = drone_camera(w, h, camera_seed);
+            let poses = flight.poses(&camera, &mut rng);
+            let light = sun(
+                (140.0 + 20.0 * e as f64).to_radians(),
+                (58.0 - 4.0 * e as f64).to_radians(),
+            );
+            drone_epoch(names[e], camera, poses, light, &mut rng)
+        })
+        .collect();
+    let mut spec = new_scene(
+        "corridor",
+        "EPSG:32630",
+        Vector3::new(612_300.0, 5_364_900.0, 0.0),
+        Frame::Ground,
+        (
+            0.0,
+            0.0,
+            0.25,
+            (LENGTH / 0.25) as usize + 1,
+            (WIDTH / 0.25) as usize + 1,
+        ),
+        Arc::new(base),
+        materials,
+        Arc::new(cover_fn),
+        epochs,
+        seed,
+    );
+    spec.apron = 60.0;
+    spec.features = features;
+    spec.regions = regions;
+    spec.unstable = std::mem::take(&mut unstable);
+    // Control along the band, as a surveyor walking the dunes would place it.
+    place_control(
+        &mut spec,
+        &mut rng,
+        (5, 4),
+        (15.0, BEACH_TOP + 4.0),
+        (285.0, BAND_TOP - 4.0),
+        1.5,
+        45.0,
+        &[],
+    );
+    Ok(spec)
+}
