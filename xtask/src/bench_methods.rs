@@ -170,6 +170,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
                     let kept = dir.join(format!("out-{name}"));
                     let _ = std::fs::remove_dir_all(&kept);
                     std::fs::rename(dir.join("out"), &kept)?;
+                    restore_fiducials(&kept, &dir.join("out"))?;
                     rows.extend(evaluate(scene, name, &project, &kept, gsd, seconds)?);
                 }
                 Err(e) => rows.push(Row {
@@ -205,6 +206,19 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
         }))?,
     )?;
     println!("written: {}", bench.out.join("methods.{md,json}").display());
+    Ok(())
+}
+
+/// The fiducials stage's outputs (`out/fiducials*`, made once with the features) put back into
+/// `out` after a strategy's outputs moved away: the next strategy's align stage reads the scans'
+/// interior orientations from them.
+fn restore_fiducials(kept: &Path, out: &Path) -> anyhow::Result<()> {
+    for entry in std::fs::read_dir(kept)?.flatten() {
+        if entry.file_name().to_string_lossy().starts_with("fiducials") {
+            std::fs::create_dir_all(out)?;
+            std::fs::copy(entry.path(), out.join(entry.file_name()))?;
+        }
+    }
     Ok(())
 }
 
