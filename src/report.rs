@@ -56,6 +56,28 @@ pub struct AlignReport {
     pub seconds: f64,
     /// Per epoch, by name.
     pub epochs: BTreeMap<String, EpochOrientation>,
+    /// Per pair of epochs, the tie points observed in both and how they spread.
+    #[serde(default)]
+    pub epoch_pairs: Vec<EpochPairTies>,
+}
+
+/// The tie points two epochs share and their spread against every tie point's, along the
+/// block's principal axes: inter-epoch ties bunched along a corridor's axis leave a roll about
+/// it free.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochPairTies {
+    /// The two epochs.
+    pub epochs: [String; 2],
+    /// Tie points observed in both.
+    pub ties: usize,
+    /// Their standard deviation across the block (its minor horizontal axis), metres.
+    pub across_std_m: Option<f64>,
+    /// Their standard deviation along the block (its major horizontal axis), metres.
+    pub along_std_m: Option<f64>,
+    /// Every tie point's standard deviation across the block, metres.
+    pub all_across_std_m: f64,
+    /// Every tie point's standard deviation along the block, metres.
+    pub all_along_std_m: f64,
 }
 
 /// One epoch of [`AlignReport`].

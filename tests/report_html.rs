@@ -55,6 +55,7 @@ fn project(dir: &Path) {
         cameras: Vec::new(),
         seconds: 1.0,
         epochs: BTreeMap::from([("2018".into(), epoch(2)), ("2019".into(), epoch(1))]),
+        epoch_pairs: Vec::new(),
     };
     write_json(&dir.join("out/report.json"), &report).expect("report.json");
 }

@@ -624,6 +624,74 @@ fn residuals_of(residuals: &[PointResidual], check: bool) -> PointResiduals {
     }
 }
 
+/// Per pair of epochs, the tie points both observe, and their spread across and along the
+/// principal horizontal axes of every tie point.
+fn epoch_pair_ties(
+    project: &Project,
+    tiepoints: &[timesift_io::ply::TiePoint],
+) -> Vec<crate::report::EpochPairTies> {
+    let n = tiepoints.len().max(1) as f64;
+    let mean = tiepoints
+        .iter()
+        .fold(Vector2::zeros(), |m, p| m + p.position.xy() / n);
+    let covariance = tiepoints.iter().fold(nalgebra::Matrix2::zeros(), |c, p| {
+        let d = p.position.xy() - mean;
+        c + d * d.transpose() / n
+    });
+    let eigen = covariance.symmetric_eigen();
+    let (minor, major) = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
+        (
+            eigen.eigenvectors.column(0).into_owned(),
+            eigen.eigenvectors.column(1).into_owned(),
+        )
+    } else {
+        (
+            eigen.eigenvectors.column(1).into_owned(),
+            eigen.eigenvectors.column(0).into_owned(),
+        )
+    };
+    let spread = |points: &[Vector2<f64>], axis: &Vector2<f64>| -> Option<f64> {
+        (points.len() >= 2).then(|| {
+            let k = points.len() as f64;
+            let m = points.iter().map(|p| p.dot(axis)).sum::<f64>() / k;
+            (points
+                .iter()
+                .map(|p| (p.dot(axis) - m).powi(2))
+                .sum::<f64>()
+                / k)
+                .sqrt()
+        })
+    };
+    let all: Vec<Vector2<f64>> = tiepoints.iter().map(|p| p.position.xy() - mean).collect();
+    let (all_across, all_along) = (
+        spread(&all, &minor).unwrap_or(0.0),
+        spread(&all, &major).unwrap_or(0.0),
+    );
+    let mut pairs = Vec::new();
+    for a in 0..project.epochs.len().min(32) {
+        for b in a + 1..project.epochs.len().min(32) {
+            let both = (1u32 << a) | (1u32 << b);
+            let shared: Vec<Vector2<f64>> = tiepoints
+                .iter()
+                .filter(|p| p.epochs & both == both)
+                .map(|p| p.position.xy() - mean)
+                .collect();
+            pairs.push(crate::report::EpochPairTies {
+                epochs: [
+                    project.epochs[a].name.clone(),
+                    project.epochs[b].name.clone(),
+                ],
+                ties: shared.len(),
+                across_std_m: spread(&shared, &minor),
+                along_std_m: spread(&shared, &major),
+                all_across_std_m: all_across,
+                all_along_std_m: all_along,
+            });
+        }
+    }
+    pairs
+}
+
 fn report(
     project: &Project,
     input: &SfmInput,
@@ -685,6 +753,7 @@ fn report(
         );
     }
     AlignReport {
+        epoch_pairs: epoch_pair_ties(project, tiepoints),
         method: method_name(project.config.align.method).to_string(),
         datum: format!("{:?}", block.datum),
         images_given: project.images.len(),

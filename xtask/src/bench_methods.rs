@@ -119,6 +119,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
     std::fs::create_dir_all(&bench.out).with_context(|| bench.out.display().to_string())?;
     let mut rows = Vec::new();
     let mut product_rows = Vec::new();
+    let mut tie_rows: Vec<(String, String, timesift::report::EpochPairTies)> = Vec::new();
     for scene in &bench.scenes {
         let dir = bench.out.join(scene);
         let _ = std::fs::remove_dir_all(&dir);
@@ -171,6 +172,14 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
                     let _ = std::fs::remove_dir_all(&kept);
                     std::fs::rename(dir.join("out"), &kept)?;
                     restore_fiducials(&kept, &dir.join("out"))?;
+                    let report: timesift::report::AlignReport =
+                        read_json(&kept.join("report.json"))?;
+                    tie_rows.extend(
+                        report
+                            .epoch_pairs
+                            .into_iter()
+                            .map(|p| (scene.clone(), name.clone(), p)),
+                    );
                     rows.extend(evaluate(scene, name, &project, &kept, gsd, seconds)?);
                 }
                 Err(e) => rows.push(Row {
@@ -183,7 +192,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             }
         }
     }
-    let mut markdown = table(&rows) + &findings(&rows);
+    let mut markdown = table(&rows) + &findings(&rows) + &tie_table(&tie_rows);
     if bench.products {
         let dense = if bench.full_dense {
             DenseConfig::default()
@@ -207,6 +216,36 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
     )?;
     println!("written: {}", bench.out.join("methods.{md,json}").display());
     Ok(())
+}
+
+/// Per strategy and pair of epochs, the tie points both observe and their spread across and
+/// along the block against every tie point's.
+fn tie_table(rows: &[(String, String, timesift::report::EpochPairTies)]) -> String {
+    let mut s = String::from(
+        "\n## Inter-epoch ties per pair of epochs: count, spread across / along the block (std, m) \
+         against all tie points'\n\n| scene | method | pair | ties | across (all) | along (all) | \
+         across / all |\n|---|---|---|---|---|---|---|\n",
+    );
+    let m = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.1}"));
+    for (scene, method, p) in rows {
+        s.push_str(&format!(
+            "| {scene} | {method} | {} → {} | {} | {} ({:.1}) | {} ({:.1}) | {} |\n",
+            p.epochs[0],
+            p.epochs[1],
+            p.ties,
+            m(p.across_std_m),
+            p.all_across_std_m,
+            m(p.along_std_m),
+            p.all_along_std_m,
+            p.across_std_m
+                .filter(|_| p.all_across_std_m > 0.0)
+                .map_or("–".into(), |a| format!(
+                    "{:.0} %",
+                    100.0 * a / p.all_across_std_m
+                )),
+        ));
+    }
+    s
 }
 
 /// The fiducials stage's outputs (`out/fiducials*`, made once with the features) put back into
