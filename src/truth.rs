@@ -111,27 +111,35 @@ pub fn residual_plane(points: &[(f64, f64, f64)]) -> Option<SurfaceAgreement> {
     })
 }
 
+/// The true surface of `epoch` (`truth/dem_<epoch>.tif`).
+fn true_dem(project: &Project, epoch: &str) -> Result<timesift_change::grid::Dem, ProjectError> {
+    let path = project
+        .layout()
+        .truth_dir()
+        .join(format!("dem_{epoch}.tif"));
+    timesift_change::grid::Dem::from_raster(timesift_io::geotiff::read_f32(&path)?, None).map_err(
+        |source| ProjectError::Change {
+            context: path.display().to_string(),
+            source,
+        },
+    )
+}
+
 /// The tie points observed in `epoch`'s images (the COLMAP model in `colmap`, world
-/// coordinates) against that epoch's true surface, on stable ground (`truth/stable.tif`):
-/// [`residual_plane`] of their height residuals. `None` for wall scenes (their truth is in the
-/// wall's frame) and where too few points fall on stable ground.
+/// coordinates) against that epoch's true surface, on stable ground (`stable`, the scene's
+/// `truth/stable.tif`): [`residual_plane`] of their height residuals. `None` for wall scenes
+/// (their truth is in the wall's frame) and where too few points fall on stable ground.
 pub fn stable_tie_agreement(
     project: &Project,
     model: &timesift_io::colmap::ColmapModel,
+    stable: &timesift_io::geotiff::GeoRaster<f32>,
     epoch: &str,
 ) -> Result<Option<SurfaceAgreement>, ProjectError> {
     let truth_dir = project.layout().truth_dir();
     if truth_dir.join(format!("surface_{epoch}.ply")).exists() {
         return Ok(None);
     }
-    let dem_path = truth_dir.join(format!("dem_{epoch}.tif"));
-    let truth =
-        timesift_change::grid::Dem::from_raster(timesift_io::geotiff::read_f32(&dem_path)?, None)
-            .map_err(|source| ProjectError::Change {
-            context: dem_path.display().to_string(),
-            source,
-        })?;
-    let stable = timesift_io::geotiff::read_f32(&truth_dir.join("stable.tif"))?;
+    let truth = true_dem(project, epoch)?;
     let images: std::collections::HashSet<u32> = model
         .images
         .iter()
@@ -242,7 +250,14 @@ pub fn epoch_accuracy(
     let reference_name = &project.epochs[project.reference_epoch.index()].name;
     let epochs = &report.epochs;
     let biases = true_gnss_bias(project)?;
+    // The tie points and the stable mask, read once for every epoch.
     let model = timesift_io::colmap::read_colmap_text(&out.join("colmap")).ok();
+    let stable = match &model {
+        Some(_) => Some(timesift_io::geotiff::read_f32(
+            &project.layout().truth_dir().join("stable.tif"),
+        )?),
+        None => None,
+    };
     let reference = epochs
         .get(reference_name)
         .map(check_residuals)
@@ -282,9 +297,9 @@ pub fn epoch_accuracy(
             gnss_offset_error_sigmas: offset_error
                 .and_then(|(e, std)| std.map(|std| [0, 1, 2].map(|k| e[k] / std[k]))),
             gsd_m: gsd,
-            stable_ties: match &model {
-                Some(model) => stable_tie_agreement(project, model, name)?,
-                None => None,
+            stable_ties: match (&model, &stable) {
+                (Some(model), Some(stable)) => stable_tie_agreement(project, model, stable, name)?,
+                _ => None,
             },
         });
     }
@@ -620,13 +635,7 @@ pub fn epoch_dem_error(
     epoch: &str,
 ) -> Result<Option<(usize, f64, f64, f64)>, ProjectError> {
     let layout = project.layout();
-    let truth_path = layout.truth_dir().join(format!("dem_{epoch}.tif"));
-    let truth =
-        timesift_change::grid::Dem::from_raster(timesift_io::geotiff::read_f32(&truth_path)?, None)
-            .map_err(|source| ProjectError::Change {
-                context: truth_path.display().to_string(),
-                source,
-            })?;
+    let truth = true_dem(project, epoch)?;
     let dem = timesift_io::geotiff::read_f32(&layout.dem(epoch))?;
     let count = timesift_io::geotiff::read_f32(&layout.dem_count(epoch))?;
     let errors = dem_height_errors(&dem, &count, &truth, |_, _| true);

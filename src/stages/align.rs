@@ -390,9 +390,8 @@ impl LocalFrame {
 }
 
 /// GNSS priors, control points (markers of the reference epoch only unless
-/// `gcps_in_all_epochs`) and check points, in the local frame.
-/// Priors, control and check points with their markers, and the natural stable points (their
-/// markers in every epoch).
+/// `gcps_in_all_epochs`) and check points, in the local frame; and the natural stable points
+/// (their markers in every epoch).
 fn ground_input(
     project: &Project,
     frame: &LocalFrame,
@@ -639,17 +638,9 @@ fn epoch_pair_ties(
         c + d * d.transpose() / n
     });
     let eigen = covariance.symmetric_eigen();
-    let (minor, major) = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
-        (
-            eigen.eigenvectors.column(0).into_owned(),
-            eigen.eigenvectors.column(1).into_owned(),
-        )
-    } else {
-        (
-            eigen.eigenvectors.column(1).into_owned(),
-            eigen.eigenvectors.column(0).into_owned(),
-        )
-    };
+    let smaller = usize::from(eigen.eigenvalues[1] < eigen.eigenvalues[0]);
+    let minor: Vector2<f64> = eigen.eigenvectors.column(smaller).into_owned();
+    let major: Vector2<f64> = eigen.eigenvectors.column(1 - smaller).into_owned();
     let spread = |points: &[Vector2<f64>], axis: &Vector2<f64>| -> Option<f64> {
         (points.len() >= 2).then(|| {
             let k = points.len() as f64;

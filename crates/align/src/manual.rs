@@ -51,8 +51,8 @@ const MIN_CONTROL_POINTS: usize = 3;
 /// A natural point intersected in the reference epoch: its position and the standard deviations
 /// it controls later epochs with.
 #[derive(Debug, Clone, PartialEq)]
-struct Intersected {
-    name: String,
+struct Intersected<'a> {
+    point: &'a NaturalPoint,
     position: Vector3<f64>,
     sigma_xy: f64,
     sigma_z: f64,
@@ -102,7 +102,7 @@ impl Strategy for ManualStablePoints {
             let keep = |i: usize| block.epoch_of[i] == e;
             let sub = restrict(&block.sfm, &keep);
             let ground = restrict_ground(&block.ground, &keep);
-            let placed = control_epoch(&sub, &ground, block, &intersected, &keep, options)
+            let placed = control_epoch(&sub, &ground, &intersected, &keep, options)
                 .map_err(|source| in_epoch(block, e, source))?;
             parts.push(placed);
         }
@@ -113,12 +113,12 @@ impl Strategy for ManualStablePoints {
 /// The natural points measured in at least [`MIN_REFERENCE_IMAGES`] oriented images of the
 /// reference, intersected with their covariance; those with fewer (or whose intersection
 /// fails) are left out with a warning.
-fn intersect_in_reference(
+fn intersect_in_reference<'a>(
     input: &SfmInput,
     reference: &Reconstruction,
-    points: &[NaturalPoint],
+    points: &'a [NaturalPoint],
     sigma_px: f64,
-) -> Vec<Intersected> {
+) -> Vec<Intersected<'a>> {
     let mut out = Vec::new();
     for point in points {
         let observations: Vec<PixelObservation<'_>> = point
@@ -151,7 +151,7 @@ fn intersect_in_reference(
                 let c = x.covariance * factor;
                 let (sxy, sz) = point.stability.unwrap_or((0.0, 0.0));
                 out.push(Intersected {
-                    name: point.name.clone(),
+                    point,
                     position: x.position,
                     sigma_xy: (0.5 * (c[(0, 0)] + c[(1, 1)]) + sxy * sxy).sqrt(),
                     sigma_z: (c[(2, 2)] + sz * sz).sqrt(),
@@ -174,8 +174,7 @@ fn intersect_in_reference(
 fn control_epoch(
     sub: &SfmInput,
     ground: &GeoreferenceInput,
-    block: &Block,
-    intersected: &[Intersected],
+    intersected: &[Intersected<'_>],
     keep: &dyn Fn(usize) -> bool,
     options: &SfmOptions,
 ) -> Result<Georeferenced, AlignError> {
@@ -193,10 +192,8 @@ fn control_epoch(
     };
     let mut used = 0;
     for point in intersected {
-        let Some(natural) = block.natural_points.iter().find(|p| p.name == point.name) else {
-            continue;
-        };
-        let markers: Vec<Marker> = natural
+        let markers: Vec<Marker> = point
+            .point
             .markers
             .iter()
             .filter(|m| keep(m.image))
@@ -207,7 +204,7 @@ fn control_epoch(
         }
         used += 1;
         controlled.points.push(GroundPoint {
-            name: point.name.clone(),
+            name: point.point.name.clone(),
             position: point.position,
             sigma_xy: point.sigma_xy,
             sigma_z: point.sigma_z,
