@@ -4,12 +4,10 @@
 //! that is not there, a template larger than the search, certificate coordinates that do not
 //! fit the scans — are named by image and mark while the other scans go on.
 
-mod common;
-
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use common::timesift;
+use crate::common::timesift;
 use nalgebra::Vector2;
 use timesift_synth::scene::SceneSpec;
 use timesift_synth::scenes::{Scale, build};

@@ -2,9 +2,7 @@
 //! rendered, then `timesift info` on it sees every epoch, image, control point, marker, GNSS
 //! prior and scale bar the generator wrote, and the images are the camera's size.
 
-mod common;
-
-use common::timesift;
+use crate::common::timesift;
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
 

@@ -1,9 +1,8 @@
 //! End-to-end tests of `timesift compare` and the `change` stage: files in, products out, and a
 //! one-line error for every kind of bad pair.
 
+use crate::common::timesift;
 use std::path::{Path, PathBuf};
-mod common;
-use common::timesift;
 
 use timesift_change::grid::{Dem, Grid};
 use timesift_io::coords::Crs;

@@ -5,11 +5,9 @@
 //! bit in process, and through `timesift dem` and a LAZ file to the height resolution the LAZ
 //! stores (1e-7 m). Also the command's one-line errors.
 
-mod common;
-
 use std::path::PathBuf;
 
-use common::timesift;
+use crate::common::timesift;
 use timesift_io::coords::Crs;
 use timesift_io::geotiff::read_f32;
 use timesift_io::pointcloud::{LasWriteOptions, PointCloud, write_las};

@@ -3,12 +3,10 @@
 //! all three, georeferences them from the EXIF GPS, and reports the control point residuals in
 //! report.json.
 
-mod common;
-
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use common::timesift;
+use crate::common::timesift;
 use timesift_io::coords::{Crs, Projector};
 
 fn berlin() -> PathBuf {

@@ -1,11 +1,9 @@
 //! `timesift features`: the text format of DESIGN.md on a real photo, the budget, the mask, and
 //! clear errors.
 
-mod common;
-
 use std::path::PathBuf;
 
-use common::timesift;
+use crate::common::timesift;
 use timesift_core::Descriptors;
 use timesift_features::text::{DescriptorKind, read};
 

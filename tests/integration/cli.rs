@@ -1,9 +1,8 @@
 //! End-to-end tests of the `timesift` binary: init/info on real photos, and one-line errors that
 //! name the file and the line or key for every kind of bad input.
 
+use crate::common::timesift;
 use std::path::{Path, PathBuf};
-mod common;
-use common::timesift;
 
 fn shared_data() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data")

@@ -6,14 +6,12 @@
 //! - `out/report.html` renders in headless Chromium with every section and no broken image
 //!   (skipped with a printed reason where no Chromium is installed).
 
-mod common;
-
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::timesift;
+use crate::common::timesift;
 use timesift_core::SeededRng;
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};

@@ -4,9 +4,7 @@
 //! in every epoch, camera centres close to the truth; the output files are readable. Then the
 //! same with `align.method = "stp"`.
 
-mod common;
-
-use common::timesift;
+use crate::common::timesift;
 use nalgebra::Vector3;
 use timesift_io::cameras_json::read_cameras_json;
 use timesift_synth::scenes::{Scale, build};

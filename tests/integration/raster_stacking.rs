@@ -5,32 +5,15 @@
 //! scene fits in a test; what the orthos show is checked on a rendered scene in `run_raster.rs`.
 //! Also: an image whose size is not its camera's is an error naming the file.
 
-mod common;
-
 use std::path::Path;
 
-use common::timesift;
+use crate::common::{grey_images, timesift};
 use timesift::report::{GridFile, read_json};
 use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
 use timesift_io::cameras_json::read_cameras_json;
 use timesift_io::geotiff::{read_f32, read_rgb8};
 use timesift_synth::scenes::{SCENES, Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
-
-/// Writes a grey image of the camera's size for every image of the truth.
-fn grey_images(dir: &Path) {
-    let truth = read_cameras_json(&dir.join("truth/cameras.json")).expect("truth");
-    for image in &truth.images {
-        let camera = &truth.cameras[&image.camera];
-        use timesift_core::CameraModel;
-        let (w, h) = (camera.width(), camera.height());
-        let path = dir.join(&image.name);
-        std::fs::create_dir_all(path.parent().expect("folder")).expect("mkdir");
-        image::RgbImage::from_pixel(w, h, image::Rgb([120, 110, 100]))
-            .save(&path)
-            .expect("image");
-    }
-}
 
 fn run(dir: &Path) -> (bool, String) {
     let (ok, _, err) = timesift(&[
@@ -50,7 +33,7 @@ fn every_scene_s_epochs_share_the_dem_and_ortho_grids() {
         let tmp = tempfile::tempdir().expect("tempdir");
         let dir = tmp.path();
         let mut spec = build(scene, Scale::Small, 1).expect("scene");
-        // Uniform grey images stand in for the photographs: film scans (tests/film.rs) would
+        // Uniform grey images stand in for the photographs: film scans (tests/integration/film.rs) would
         // need their marks.
         for epoch in &mut spec.epochs {
             epoch.film = None;

@@ -3,26 +3,31 @@
 //! a resumed run recomputes exactly the depth maps that were deleted and gives the same cloud
 //! bit for bit; bad inputs give one-line errors naming the file or epoch.
 
-mod common;
-
 use std::path::Path;
 
-use common::timesift;
+use crate::common::timesift;
 use timesift::report::{DenseReport, read_json};
 use timesift::true_scene::write_true_orientation;
 use timesift_io::pointcloud::{AttributeValues, PointCloud, read_las};
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
 
-/// A rendered soil-pit project oriented by its truth, dense matching at level 4 (fast); with
-/// each epoch cut to its first `images` images (a row along the wall).
+/// A rendered soil-pit project oriented by its truth, dense matching at level 4 with the quick
+/// settings (`DenseConfig::quick`: this file tests the stage's files, resumption and errors; the
+/// accuracy of the maps is `timesift-dense`'s tests'); with each epoch cut to its first `images`
+/// images (a row along the wall).
 fn project(images: usize) -> tempfile::TempDir {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
     spec.keep_first_images(images);
     write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
     let toml = dir.path().join("project.toml");
-    let text = std::fs::read_to_string(&toml).unwrap() + "\n[dense]\nlevel = 4\n";
+    let quick = timesift::config::DenseConfig::quick();
+    let text = std::fs::read_to_string(&toml).unwrap()
+        + &format!(
+            "\n[dense]\nlevel = 4\nmax_sources = {}\niterations = {}\ngeometric_iterations = {}\n",
+            quick.max_sources, quick.iterations, quick.geometric_iterations
+        );
     std::fs::write(&toml, text).unwrap();
     let points = write_true_orientation(dir.path(), &spec, 15.0).expect("orientation");
     assert!(points > 100, "{points} sparse points");

@@ -3,12 +3,10 @@
 //! warnings about the orientation reach the summary. A stats.json that cannot be read is a
 //! warning naming the file, not a silent gap.
 
-mod common;
-
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use common::timesift;
+use crate::common::timesift;
 use timesift::report::{AlignReport, EpochOrientation, PointResiduals, write_json};
 
 fn project(dir: &Path) {

@@ -2,9 +2,7 @@
 //! written under `work/`, inter-epoch pairs are verified, and a second run resumes (rewrites
 //! nothing, same summary).
 
-mod common;
-
-use common::timesift;
+use crate::common::timesift;
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, Written, write_scene};
 

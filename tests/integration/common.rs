@@ -1,0 +1,34 @@
+//! Helpers shared by the end-to-end tests.
+
+use std::path::Path;
+use std::process::Command;
+
+use timesift_io::cameras_json::read_cameras_json;
+
+/// Runs the `timesift` binary: (success, stdout, stderr).
+pub fn timesift(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_timesift"))
+        .args(args)
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Writes a grey image of the camera's size for every image of the truth.
+pub fn grey_images(dir: &Path) {
+    let truth = read_cameras_json(&dir.join("truth/cameras.json")).expect("truth");
+    for image in &truth.images {
+        let camera = &truth.cameras[&image.camera];
+        use timesift_core::CameraModel;
+        let (w, h) = (camera.width(), camera.height());
+        let path = dir.join(&image.name);
+        std::fs::create_dir_all(path.parent().expect("folder")).expect("mkdir");
+        image::RgbImage::from_pixel(w, h, image::Rgb([120, 110, 100]))
+            .save(&path)
+            .expect("image");
+    }
+}

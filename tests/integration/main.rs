@@ -1,0 +1,21 @@
+//! The root package's integration tests, one test binary: each module was a binary of its own,
+//! and each of those linked the whole of timesift again (a minute of CPU on a clean build).
+
+mod berlin;
+mod berlin_align;
+mod cli;
+mod common;
+mod compare;
+mod dem_command;
+mod downstream;
+mod features;
+mod film;
+mod raster_stacking;
+mod report_html;
+mod run_align;
+mod run_all;
+mod run_dense;
+mod run_match;
+mod run_raster;
+mod synth;
+mod tidy;
