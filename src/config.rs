@@ -303,6 +303,22 @@ pub struct AlignConfig {
     /// the block's own ties show changed.
     #[serde(default)]
     pub inter_epoch_ties: InterEpochTies,
+    /// Whose reprojection noise bounds the kept observations once the block is adjusted.
+    /// Default `group`: each camera group's own.
+    #[serde(default)]
+    pub outlier_bound: OutlierBoundConfig,
+}
+
+/// `[align] outlier_bound`: whose noise the observation outlier bound (4 σ) follows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OutlierBoundConfig {
+    /// Each camera group's own σ: scanned film among digital images keeps the observations its
+    /// own noise allows.
+    #[default]
+    Group,
+    /// One σ of every observation of the block, as a single reprojection-error filter gives.
+    Pooled,
 }
 
 /// `[align] inter_epoch_ties`: which tie points may join the epochs of a single block.
@@ -346,6 +362,7 @@ impl Default for AlignConfig {
             marker_accuracy_px: default_marker_px(),
             gcps_in_all_epochs: false,
             inter_epoch_ties: InterEpochTies::default(),
+            outlier_bound: OutlierBoundConfig::default(),
         }
     }
 }
@@ -956,7 +973,7 @@ mod tests {
     }
 
     #[test]
-    fn inter_epoch_ties_default_to_auto_and_name_their_values() {
+    fn inter_epoch_ties_and_outlier_bound_have_defaults_and_name_their_values() {
         let with_align = |line: &str| {
             let text =
                 format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[align]\n{line}\n");
@@ -979,6 +996,20 @@ mod tests {
                 .align
                 .inter_epoch_ties,
             InterEpochTies::All
+        );
+        assert_eq!(
+            with_align("outlier_bound = \"pooled\"")
+                .unwrap()
+                .align
+                .outlier_bound,
+            OutlierBoundConfig::Pooled
+        );
+        let e = with_align("outlier_bound = \"camera\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("outlier_bound") && e.contains("group") && e.contains("pooled"),
+            "{e}"
         );
         let e = with_align("inter_epoch_ties = \"some\"")
             .unwrap_err()

@@ -102,6 +102,23 @@ pub struct EpochOrientation {
     /// The GNSS offset estimated for the epoch (`[gnss] offsets = "epoch"`).
     #[serde(default)]
     pub gnss_offset: Option<GnssOffset>,
+    /// How loosely the control the epoch rests on fixes the tilt of its datum.
+    #[serde(default)]
+    pub datum_tilt: Option<DatumTiltReport>,
+}
+
+/// The standard deviation of a datum's tilt that its control allows, predicted from the
+/// control alone (control points' survey σ, GNSS heights with their flight's offset estimated,
+/// the block taken as rigid: a lower bound). Over a DoD `w` metres wide, a tilt of σ mm/m is
+/// ±σ·w/1000 m of false change at its edges.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DatumTiltReport {
+    /// About the loosest horizontal axis, mm per m.
+    pub sigma_max_mm_per_m: f64,
+    /// About the firmest, mm per m.
+    pub sigma_min_mm_per_m: f64,
+    /// Direction of the loosest tilt's gradient, degrees counter-clockwise from east.
+    pub loose_azimuth_deg: f64,
 }
 
 /// An epoch's estimated GNSS offset: its receiver's positions minus the true camera centres,
@@ -118,6 +135,11 @@ pub struct GnssOffset {
     /// [`FOCAL_CORRELATION_WARNING`] the report says the two cannot be told apart).
     #[serde(default)]
     pub focal_correlation: Option<f64>,
+    /// The scatter of the flight's positions about the offset (horizontal per axis,
+    /// vertical), metres, estimated from its priors; below the stated accuracy, the final
+    /// adjustment weighs the priors by it.
+    #[serde(default)]
+    pub within_flight_sigma_m: Option<[f64; 2]>,
 }
 
 /// The reprojection noise of one camera group, pixels.

@@ -23,6 +23,8 @@ pub struct EpochAccuracy {
     pub images_oriented: u64,
     /// RMS reprojection error, pixels.
     pub rms_px: Option<f64>,
+    /// Observations kept in the epoch's images.
+    pub observations: u64,
     /// Check-point RMSE (dE, dN, dH), metres; `None` without measured check points.
     pub check_rmse_m: Option<[f64; 3]>,
     /// The same in ground sampling distances.
@@ -42,6 +44,9 @@ pub struct EpochAccuracy {
     pub gnss_offset_error_sigmas: Option<[f64; 3]>,
     /// The epoch's tie points on stable ground against its true surface (ground scenes).
     pub stable_ties: Option<SurfaceAgreement>,
+    /// The σ of the datum's tilt the epoch's control allows about its loosest axis, mm/m
+    /// (report.json's `datum_tilt`): what `stable_ties`' tilt can be expected to reach.
+    pub datum_tilt_sigma_mm_per_m: Option<f64>,
     /// The ground sampling distance the GSD figures are in, metres.
     pub gsd_m: f64,
 }
@@ -287,6 +292,8 @@ pub fn epoch_accuracy(
             images_given: epoch.images_given as u64,
             images_oriented: epoch.images_oriented as u64,
             rms_px: epoch.rms_reprojection_px,
+            observations: epoch.observations as u64,
+            datum_tilt_sigma_mm_per_m: epoch.datum_tilt.map(|t| t.sigma_max_mm_per_m),
             check_rmse_m: check,
             check_rmse_gsd: check.map(|c| c.map(|v| v / gsd)),
             check_points: vectors.len(),

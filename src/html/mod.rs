@@ -449,6 +449,9 @@ fn residual_map(
     ))
 }
 
+/// A datum tilt the control leaves looser than this (σ, mm/m) is named among the warnings.
+const DATUM_TILT_WARNING_MM_PER_M: f64 = 1.0;
+
 fn orientation_section(
     project: &Project,
     inputs: &Inputs,
@@ -484,12 +487,33 @@ fn orientation_section(
                 let std = o.std.map_or(String::new(), |s| {
                     format!(" ± {:.2} / {:.2} / {:.2}", s[0], s[1], s[2])
                 });
+                let within = o.within_flight_sigma_m.map_or(String::new(), |s| {
+                    format!(" (scatter within the flight {:.2} / {:.2})", s[0], s[1])
+                });
                 format!(
-                    "{:.2} / {:.2} / {:.2}{std}",
+                    "{:.2} / {:.2} / {:.2}{std}{within}",
                     o.offset[0], o.offset[1], o.offset[2]
                 )
             }),
+            r.datum_tilt.map_or("–".into(), |t| {
+                format!(
+                    "{:.2} (gradient at {:.0}°) / {:.2}",
+                    t.sigma_max_mm_per_m, t.loose_azimuth_deg, t.sigma_min_mm_per_m
+                )
+            }),
         ]);
+        if let Some(t) = r
+            .datum_tilt
+            .filter(|t| t.sigma_max_mm_per_m >= DATUM_TILT_WARNING_MM_PER_M)
+        {
+            warnings.push(format!(
+                "epoch {}: its control fixes the datum's tilt only to ± {:.1} mm/m (σ, gradient                  at {:.0}° from east): ± {:.2} m of false change per 100 m across that direction                  in a DoD, which check points along the other direction cannot show; control                  points spread across the site (or more accurate GNSS) fix it",
+                e.name,
+                t.sigma_max_mm_per_m,
+                t.loose_azimuth_deg,
+                t.sigma_max_mm_per_m / 10.0
+            ));
+        }
         if let Some(rho) = r
             .gnss_offset
             .and_then(|o| o.focal_correlation)
@@ -524,6 +548,7 @@ fn orientation_section(
             "control RMSE dE/dN/dH mm",
             "check RMSE dE/dN/dH mm",
             "GNSS offset E/N/H m",
+            "datum tilt σ mm/m: loosest / firmest",
         ],
         &rows,
     );

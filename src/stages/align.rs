@@ -14,8 +14,8 @@ use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
     Block, CentrePrior, ChangeDetection, Datum, FocalSource, GeoreferenceInput, Georeferenced,
-    GroundPoint, Marker, NaturalPoint, OffsetPrior, PointResidual, SfmImage, SfmInput, SfmOptions,
-    StableGround, ground_point_residuals,
+    GroundPoint, HeightObservation, Marker, NaturalPoint, OffsetPrior, OutlierBound, PointResidual,
+    SfmImage, SfmInput, SfmOptions, StableGround, datum_tilt, ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -23,13 +23,13 @@ use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use super::{PipelineStage, Stage};
-use crate::config::{AlignMethod, GnssOffsets, InterEpochTies};
+use crate::config::{AlignMethod, GnssOffsets, InterEpochTies, OutlierBoundConfig};
 use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::project::GivenFocal;
 use crate::report::{
-    AlignReport, EpochOrientation, GnssOffset, GroupNoise, PointResidual as ResidualRow,
-    PointResiduals, Rmse, read_json, write_json,
+    AlignReport, DatumTiltReport, EpochOrientation, GnssOffset, GroupNoise,
+    PointResidual as ResidualRow, PointResiduals, Rmse, read_json, write_json,
 };
 use crate::stable_matcher::FeatureFileMatcher;
 use crate::{Project, ProjectError};
@@ -130,6 +130,10 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         change_detection: match project.config.align.inter_epoch_ties {
             InterEpochTies::Auto => ChangeDetection::Regional,
             InterEpochTies::Stable | InterEpochTies::All => ChangeDetection::MovedPointsOnly,
+        },
+        outlier_bound: match project.config.align.outlier_bound {
+            OutlierBoundConfig::Group => OutlierBound::PerGroup,
+            OutlierBoundConfig::Pooled => OutlierBound::Pooled,
         },
         ..SfmOptions::default()
     };
@@ -683,6 +687,68 @@ fn epoch_pair_ties(
     pairs
 }
 
+/// How loosely the control an epoch's orientation rests on fixes its datum's tilt
+/// ([`timesift_align::datum_tilt`]): in a single block (`timesift`, `msfm`) the control of every
+/// epoch, oriented alone (`independent`, and the reference epoch of the other strategies) its
+/// own; `None` for the later epochs of `chunk`, `stp` and `manual` (their datum comes through
+/// the reference epoch, which the prediction does not follow) and without a datum.
+fn datum_tilt_of_epoch(
+    project: &Project,
+    geo: &GeoreferenceInput,
+    block: &Georeferenced,
+    epoch: usize,
+) -> Option<DatumTiltReport> {
+    let single_block = matches!(
+        project.config.align.method,
+        AlignMethod::Timesift | AlignMethod::Msfm
+    );
+    let own_only = project.config.align.method == AlignMethod::Independent
+        || epoch == project.reference_epoch.index();
+    if block.datum == Datum::Local || !(single_block || own_only) {
+        return None;
+    }
+    let counts = |image: usize| single_block || project.images[image].epoch.index() == epoch;
+    let oriented = |image: usize| block.reconstruction.poses[image].is_some();
+    let mut heights = Vec::new();
+    for point in geo.points.iter().filter(|p| !p.check) {
+        let images = point
+            .markers
+            .iter()
+            .filter(|m| counts(m.image) && oriented(m.image))
+            .count();
+        if images >= 2 {
+            heights.push(HeightObservation {
+                xy: point.position.xy(),
+                sigma_z: point.sigma_z,
+                offset: None,
+            });
+        }
+    }
+    for prior in geo
+        .centre_priors
+        .iter()
+        .filter(|p| counts(p.image) && oriented(p.image))
+    {
+        // Weighed as the final adjustment weighed it: by its flight's own noise where that
+        // was estimated below the stated σ.
+        let within_flight = prior
+            .offset
+            .and_then(|o| block.gnss_offsets.get(o))
+            .and_then(|o| o.within_flight_sigma);
+        heights.push(HeightObservation {
+            xy: prior.position.xy(),
+            sigma_z: within_flight.map_or(prior.sigma_z, |s| s[1].min(prior.sigma_z)),
+            offset: prior.offset,
+        });
+    }
+    let offsets: Vec<f64> = geo.prior_offsets.iter().map(|o| o.sigma_z).collect();
+    datum_tilt(&heights, &offsets).map(|t| DatumTiltReport {
+        sigma_max_mm_per_m: t.sigma_max_mm_per_m,
+        sigma_min_mm_per_m: t.sigma_min_mm_per_m,
+        loose_azimuth_deg: t.loose_azimuth_deg,
+    })
+}
+
 fn report(
     project: &Project,
     input: &SfmInput,
@@ -730,6 +796,7 @@ fn report(
                 inter_epoch_tie_points: inter,
                 control_points: residuals_of(&per_epoch, false),
                 check_points: residuals_of(&per_epoch, true),
+                datum_tilt: datum_tilt_of_epoch(project, geo, block, e),
                 gnss_offset: block
                     .gnss_offsets
                     .iter()
@@ -739,6 +806,7 @@ fn report(
                         std: o.std,
                         priors: o.priors,
                         focal_correlation: o.focal_correlation,
+                        within_flight_sigma_m: o.within_flight_sigma,
                     }),
             },
         );

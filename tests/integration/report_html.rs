@@ -34,6 +34,7 @@ fn project(dir: &Path) {
         control_points: PointResiduals::default(),
         check_points: PointResiduals::default(),
         gnss_offset: None,
+        datum_tilt: None,
     };
     let report = AlignReport {
         method: "timesift".into(),

@@ -72,6 +72,22 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
             "{name}"
         );
     }
+    // One block: every epoch rests on all of its control, so the tilt σ that control allows
+    // is one figure.
+    let tilts: Vec<f64> = report["epochs"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|e| {
+            e["datum_tilt"]["sigma_max_mm_per_m"]
+                .as_f64()
+                .expect("datum_tilt")
+        })
+        .collect();
+    assert!(
+        tilts.iter().all(|t| *t > 0.0 && *t == tilts[0]),
+        "{tilts:?}"
+    );
     assert!(
         centre_rmse < 2.0 * gsd,
         "camera centres off by {centre_rmse} m"
@@ -101,6 +117,15 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["method"], "stp");
     check_epochs(&report, gsd);
+    // The later epoch's datum comes through the reference epoch's: only the reference's own
+    // control is predicted.
+    let predicted = report["epochs"]
+        .as_object()
+        .unwrap()
+        .values()
+        .filter(|e| !e["datum_tilt"].is_null())
+        .count();
+    assert_eq!(predicted, 1);
 }
 
 /// Every epoch fully oriented, RMS within 0.5 px, check points within 1 GSD across the wall

@@ -47,15 +47,16 @@ pub struct MethodsBench {
     pub full_dense: bool,
     /// Which inter-epoch ties the single-block strategies keep, one run per entry (rows named
     /// `method+ties` beyond the first): `default` (the project's: stable areas when given),
-    /// `all`, `plain` (every tie and no GNSS offsets: the single block before they existed), or
-    /// `auto-blind` (the regional change detection, the stable areas hidden from the align
+    /// `all`, `plain` (every tie and no GNSS offsets: the single block before they existed),
+    /// `pooled` (the project's ties, one observation outlier bound for the whole block instead
+    /// of each camera group's own), or `auto-blind` (the regional change detection, the stable areas hidden from the align
     /// stage; the products are still judged on them).
     pub ties: Vec<String>,
 }
 
 /// The align stage's view of the project for one `--ties` entry.
 fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
-    use timesift::config::InterEpochTies;
+    use timesift::config::{InterEpochTies, OutlierBoundConfig};
     match ties {
         "default" => {}
         "all" => project.config.align.inter_epoch_ties = InterEpochTies::All,
@@ -63,11 +64,14 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
             project.config.align.inter_epoch_ties = InterEpochTies::All;
             project.config.gnss.offsets = timesift::config::GnssOffsets::None;
         }
+        "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
         "auto-blind" => {
             project.config.align.inter_epoch_ties = InterEpochTies::Auto;
             project.stable_areas.clear();
         }
-        other => anyhow::bail!("--ties: unknown \"{other}\" (default, all, plain, auto-blind)"),
+        other => {
+            anyhow::bail!("--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind)")
+        }
     }
     Ok(project)
 }
@@ -284,14 +288,14 @@ fn evaluate(
 fn table(rows: &[Row]) -> String {
     let mut s = String::from(
         "| scene | method | epoch | oriented | check RMSE dE/dN/dH (m) | (GSD) | epoch − ref. (m) \
-         | centre RMSE (m) | RMS px | inter-epoch ties | GNSS offset − true bias (m) | (σ) \
-         | ties on stable ground vs truth: n, median (GSD), tilt (mm/m) | s |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         | centre RMSE (m) | RMS px | observations | inter-epoch ties | GNSS offset − true bias (m) | (σ) \
+         | ties on stable ground vs truth: n, median (GSD), tilt (mm/m) | control's tilt σ (mm/m) | s |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let Some(a) = &r.accuracy else {
             s.push_str(&format!(
-                "| {} | {} | – | failed: {} | | | | | | | | | | {:.1} |\n",
+                "| {} | {} | – | failed: {} | | | | | | | | | | | | {:.1} |\n",
                 r.scene,
                 r.method,
                 r.error.as_deref().unwrap_or("").replace('|', "/"),
@@ -300,7 +304,7 @@ fn table(rows: &[Row]) -> String {
             continue;
         };
         s.push_str(&format!(
-            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
             r.scene,
             r.method,
             a.epoch,
@@ -311,6 +315,7 @@ fn table(rows: &[Row]) -> String {
             triple(a.disagreement_m, 3),
             triple(a.centre_rmse_m, 3),
             a.rms_px.map_or("–".into(), |v| format!("{v:.3}")),
+            a.observations,
             a.inter_epoch_tie_points,
             triple(a.gnss_offset_error_m, 3),
             triple(a.gnss_offset_error_sigmas, 1),
@@ -320,6 +325,8 @@ fn table(rows: &[Row]) -> String {
                 t.median_m / a.gsd_m,
                 t.tilt_mm_per_m
             )),
+            a.datum_tilt_sigma_mm_per_m
+                .map_or("–".into(), |v| format!("{v:.2}")),
             r.seconds
         ));
     }

@@ -97,8 +97,9 @@ enum Task {
         #[arg(long)]
         full_dense: bool,
         /// Inter-epoch ties of the single-block strategies, one run each: default, all, plain
-        /// (all ties and no GNSS offsets: the plain single block), auto-blind (change detected
-        /// from the ties, stable areas hidden from align).
+        /// (all ties and no GNSS offsets: the plain single block), pooled (one outlier bound
+        /// for the whole block, not one per camera group), auto-blind (change detected from the
+        /// ties, stable areas hidden from align).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
     },

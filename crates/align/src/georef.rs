@@ -110,6 +110,10 @@ pub struct EstimatedOffset {
     /// block over flat ground cannot tell a flying-height bias from a focal length, and the
     /// offset's prior decides.
     pub focal_correlation: Option<f64>,
+    /// The noise of the flight's positions about its offset (horizontal per axis, vertical),
+    /// metres, estimated from its priors' residuals; where below the stated σ, the final
+    /// adjustment weighs the priors by it.
+    pub within_flight_sigma: Option<[f64; 2]>,
 }
 
 /// The georeferenced block.
@@ -330,7 +334,7 @@ pub fn georeference(
     };
     let dropped_components = total - kept;
     let track_of = track_table(input);
-    let priors: Vec<CentrePrior> = accepted_priors
+    let mut priors: Vec<CentrePrior> = accepted_priors
         .iter()
         .map(|&k| geo.centre_priors[k])
         .collect();
@@ -342,6 +346,7 @@ pub fn georeference(
     let mut group_bound_px = Vec::new();
     let mut group_sigma_px = Vec::new();
     let mut gnss_offsets = Vec::new();
+    let mut within_flight = vec![None; geo.prior_offsets.len()];
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
         // First adjustment: every focal length but the calibrated ones free, with its
@@ -371,6 +376,14 @@ pub fn georeference(
             })?;
             if round == last {
                 gnss_offsets = estimated_offsets(geo, &priors, &state.offsets, &adjusted);
+                for (offset, noise) in gnss_offsets.iter_mut().zip(&within_flight) {
+                    offset.within_flight_sigma = *noise;
+                }
+            }
+            if round == 1 {
+                within_flight = within_flight_noise(&priors, &state.rec, &state.offsets);
+                reweigh_priors(&mut priors, &within_flight);
+                tracing::info!(?within_flight, "GNSS noise within each flight");
             }
             tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
             if round == 1 {
@@ -457,9 +470,87 @@ fn estimated_offsets(
                     .as_ref()
                     .and_then(|c| c.get(o).copied().flatten())
                     .filter(|_| carried > 0),
+                within_flight_sigma: None,
             }
         })
         .collect()
+}
+
+/// Priors a flight needs before its noise is estimated from them.
+const MIN_PRIORS_FOR_NOISE: usize = 10;
+/// Smallest within-flight σ taken from the data, metres (RTK grade): a flight whose centres
+/// happen to agree closely must not outweigh the photogrammetry.
+const MIN_WITHIN_FLIGHT_SIGMA: f64 = 0.02;
+
+/// Per estimated offset: the robust σ (horizontal per axis, vertical) of its priors' residuals
+/// (adjusted centre − position + offset), each axis about its median, scaled up for the
+/// offset's three parameters. Why: a receiver's stated accuracy covers its bias, which the
+/// offset now carries; the scatter within a flight is often several times smaller, and
+/// weighing the priors by the stated σ throws away what they say about the block's tilt (two
+/// strips of a corridor: their heights fix the roll about its axis).
+fn within_flight_noise(
+    priors: &[CentrePrior],
+    rec: &Reconstruction,
+    offsets: &[Vector3<f64>],
+) -> Vec<Option<[f64; 2]>> {
+    (0..offsets.len())
+        .map(|o| {
+            let residuals: Vec<Vector3<f64>> = priors
+                .iter()
+                .filter(|p| p.offset == Some(o))
+                .filter_map(|p| {
+                    let centre = rec.poses.get(p.image)?.as_ref()?.center();
+                    Some(centre - p.position + offsets[o])
+                })
+                .collect();
+            let n = residuals.len();
+            if n < MIN_PRIORS_FOR_NOISE {
+                return None;
+            }
+            let spread = |axis: usize| {
+                let mut v: Vec<f64> = residuals.iter().map(|r| r[axis]).collect();
+                let centre = median(&mut v);
+                let mut d: Vec<f64> = v.iter().map(|x| (x - centre).abs()).collect();
+                1.4826 * median(&mut d)
+            };
+            let redundancy = (n as f64 / (n - 3) as f64).sqrt();
+            let horizontal = ((spread(0).powi(2) + spread(1).powi(2)) / 2.0).sqrt();
+            let sigma = [horizontal * redundancy, spread(2) * redundancy];
+            sigma.iter().all(|s| s.is_finite()).then_some(sigma)
+        })
+        .collect()
+}
+
+/// Weighs each prior that carries an offset by its flight's noise where that is below the
+/// stated σ (never above: the stated σ is what the receiver promises), and not below
+/// [`MIN_WITHIN_FLIGHT_SIGMA`].
+fn reweigh_priors(priors: &mut [CentrePrior], noise: &[Option<[f64; 2]>]) {
+    for prior in priors.iter_mut() {
+        let Some([xy, z]) = prior.offset.and_then(|o| noise.get(o).copied().flatten()) else {
+            continue;
+        };
+        prior.sigma_xy = xy.clamp(
+            MIN_WITHIN_FLIGHT_SIGMA,
+            prior.sigma_xy.max(MIN_WITHIN_FLIGHT_SIGMA),
+        );
+        prior.sigma_z = z.clamp(
+            MIN_WITHIN_FLIGHT_SIGMA,
+            prior.sigma_z.max(MIN_WITHIN_FLIGHT_SIGMA),
+        );
+    }
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    }
 }
 
 /// Median of the norm of a 2-D Gaussian error in units of its per-axis σ (Rayleigh).
@@ -551,4 +642,72 @@ pub fn ground_point_residuals(
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use timesift_core::{Pose, SeededRng};
+
+    /// Two flights of 300 priors scattered by σ = (0.5, 1.0) m about their own offsets: the
+    /// estimate recovers each flight's σ, and the priors are weighed by it within the stated σ.
+    #[test]
+    fn the_scatter_within_each_flight_is_recovered_and_weighs_its_priors() {
+        let mut rng = SeededRng::new(7);
+        let offsets = [Vector3::new(1.2, -0.8, 2.5), Vector3::new(-2.0, 0.4, -3.0)];
+        let truth = [[0.5, 1.0], [0.2, 0.3]];
+        let mut poses = Vec::new();
+        let mut priors = Vec::new();
+        for k in 0..600 {
+            let flight = k % 2;
+            let centre = Vector3::new(3.0 * k as f64, 40.0 * flight as f64, 60.0);
+            poses.push(Some(
+                Pose::look_at(&centre, &Vector3::new(centre.x + 5.0, centre.y, 0.0)).expect("pose"),
+            ));
+            let [xy, z] = truth[flight];
+            let noise = Vector3::new(xy * rng.normal(), xy * rng.normal(), z * rng.normal());
+            priors.push(CentrePrior {
+                image: k,
+                position: centre + offsets[flight] + noise,
+                sigma_xy: 1.58,
+                sigma_z: 3.16,
+                offset: Some(flight),
+            });
+        }
+        let rec = Reconstruction {
+            cameras: Vec::new(),
+            poses,
+            points: Vec::new(),
+        };
+        let noise = within_flight_noise(&priors, &rec, &offsets);
+        for (estimate, truth) in noise.iter().zip(truth) {
+            let estimate = estimate.expect("estimated");
+            for k in 0..2 {
+                assert!(
+                    (estimate[k] / truth[k] - 1.0).abs() < 0.12,
+                    "{estimate:?} against {truth:?}"
+                );
+            }
+        }
+        reweigh_priors(&mut priors, &noise);
+        assert!((priors[0].sigma_z - noise[0].unwrap()[1]).abs() < 1e-12);
+        // Never looser than stated, never tighter than RTK.
+        let mut loose = vec![CentrePrior {
+            sigma_xy: 0.1,
+            sigma_z: 0.1,
+            ..priors[0]
+        }];
+        reweigh_priors(&mut loose, &[Some([0.5, 1.0]), None]);
+        assert_eq!((loose[0].sigma_xy, loose[0].sigma_z), (0.1, 0.1));
+        reweigh_priors(&mut loose, &[Some([0.001, 0.001]), None]);
+        assert_eq!(
+            (loose[0].sigma_xy, loose[0].sigma_z),
+            (MIN_WITHIN_FLIGHT_SIGMA, MIN_WITHIN_FLIGHT_SIGMA)
+        );
+        // Too few priors: nothing estimated.
+        assert_eq!(
+            within_flight_noise(&priors[..8], &rec, &offsets),
+            vec![None, None]
+        );
+    }
 }

@@ -94,6 +94,7 @@
 
 mod adjust;
 mod changed;
+mod datum_tilt;
 mod error;
 mod georef;
 mod incremental;
@@ -109,6 +110,7 @@ mod state;
 mod strategy;
 
 pub use adjust::{CentrePrior, OffsetPrior};
+pub use datum_tilt::{DatumTilt, HeightObservation, datum_tilt};
 pub use error::AlignError;
 pub use georef::{
     Datum, EstimatedOffset, GeoreferenceInput, Georeferenced, GroundPoint, Marker, PointResidual,
@@ -117,7 +119,7 @@ pub use georef::{
 pub use incremental::reconstruct;
 pub use manual::{MIN_REFERENCE_IMAGES, ManualStablePoints, NaturalPoint};
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
-pub use options::{ChangeDetection, SelfCalibration, SfmOptions};
+pub use options::{ChangeDetection, OutlierBound, SelfCalibration, SfmOptions};
 pub use stable::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};
 pub use stable_ground::StableGround;
 pub use strategy::{

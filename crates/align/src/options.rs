@@ -78,6 +78,8 @@ pub struct SfmOptions {
     /// What the single-block strategies do about ground that changed where the caller gave no
     /// stable ground ([`crate::Block::stable_ground`], which always wins).
     pub change_detection: ChangeDetection,
+    /// Whose noise sets the observation outlier bound once a block is adjusted.
+    pub outlier_bound: OutlierBound,
     /// Seed of every RANSAC.
     pub seed: u64,
 }
@@ -93,6 +95,19 @@ pub enum ChangeDetection {
     /// significantly on average: their ties stop tying the epochs and the block is adjusted
     /// again, the most significant first, until no region is found (at most six rounds).
     Regional,
+}
+
+/// Whose reprojection noise the outlier bound of an adjusted block follows
+/// ([`SfmOptions::outlier_bound`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OutlierBound {
+    /// Each camera group's own: a noisier group (scanned film among digital images) keeps the
+    /// observations its own noise allows.
+    #[default]
+    PerGroup,
+    /// One bound from every observation of the block (what a single reprojection-error filter
+    /// does): a noisier group loses observations its own noise would keep. For comparisons.
+    Pooled,
 }
 
 impl Default for SfmOptions {
@@ -117,6 +132,7 @@ impl Default for SfmOptions {
             min_component_images: 3,
             moved_point_factor: 5.0,
             change_detection: ChangeDetection::default(),
+            outlier_bound: OutlierBound::default(),
             seed: 0xa1_16e,
         }
     }

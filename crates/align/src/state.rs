@@ -7,7 +7,7 @@ use timesift_core::{Pose, TrackElement, project_world};
 use timesift_geometry::triangulation::{triangulate_dlt, triangulation_angle};
 
 use crate::model::{Reconstruction, SfmInput, SparsePoint};
-use crate::options::SfmOptions;
+use crate::options::{OutlierBound, SfmOptions};
 
 /// Standard deviations of the reprojection error beyond which an observation is an outlier
 /// ([`State::tighten_to_noise`]).
@@ -338,14 +338,17 @@ impl<'a> State<'a> {
         if let Some((median, MIN_OBSERVATIONS_FOR_NOISE..)) = self.median_error() {
             self.max_error_px = bound(median);
         }
-        self.group_bound_px = self
-            .group_noise()
-            .iter()
-            .map(|n| match n {
-                Some((median, MIN_OBSERVATIONS_FOR_NOISE..)) => bound(*median),
-                _ => self.max_error_px,
-            })
-            .collect();
+        self.group_bound_px = match self.options.outlier_bound {
+            OutlierBound::PerGroup => self
+                .group_noise()
+                .iter()
+                .map(|n| match n {
+                    Some((median, MIN_OBSERVATIONS_FOR_NOISE..)) => bound(*median),
+                    _ => self.max_error_px,
+                })
+                .collect(),
+            OutlierBound::Pooled => vec![self.max_error_px; self.input.cameras.len()],
+        };
         self.max_error_px
     }
 
