@@ -257,12 +257,10 @@ pub fn epoch_accuracy(
     let biases = true_gnss_bias(project)?;
     // The tie points and the stable mask, read once for every epoch.
     let model = timesift_io::colmap::read_colmap_text(&out.join("colmap")).ok();
-    let stable = match &model {
-        Some(_) => Some(timesift_io::geotiff::read_f32(
-            &project.layout().truth_dir().join("stable.tif"),
-        )?),
-        None => None,
-    };
+    let stable = model
+        .as_ref()
+        .map(|_| timesift_io::geotiff::read_f32(&project.layout().truth_dir().join("stable.tif")))
+        .transpose()?;
     let reference = epochs
         .get(reference_name)
         .map(check_residuals)

@@ -507,7 +507,10 @@ fn orientation_section(
             .filter(|t| t.sigma_max_mm_per_m >= DATUM_TILT_WARNING_MM_PER_M)
         {
             warnings.push(format!(
-                "epoch {}: its control fixes the datum's tilt only to ± {:.1} mm/m (σ, gradient                  at {:.0}° from east): ± {:.2} m of false change per 100 m across that direction                  in a DoD, which check points along the other direction cannot show; control                  points spread across the site (or more accurate GNSS) fix it",
+                "epoch {}: its control fixes the datum's tilt only to ± {:.1} mm/m (σ, gradient \
+                 at {:.0}° from east): ± {:.2} m of false change per 100 m across that direction \
+                 in a DoD, which check points along the other direction cannot show; control \
+                 points spread across the site (or more accurate GNSS) fix it",
                 e.name,
                 t.sigma_max_mm_per_m,
                 t.loose_azimuth_deg,

@@ -729,15 +729,16 @@ fn datum_tilt_of_epoch(
         .iter()
         .filter(|p| counts(p.image) && oriented(p.image))
     {
-        // Weighed as the final adjustment weighed it: by its flight's own noise where that
-        // was estimated below the stated σ.
-        let within_flight = prior
+        // Weighed as the final adjustment weighed it.
+        let sigma_z = prior
             .offset
             .and_then(|o| block.gnss_offsets.get(o))
-            .and_then(|o| o.within_flight_sigma);
+            .map_or(prior.sigma_z, |o| {
+                o.prior_sigma(prior.sigma_xy, prior.sigma_z).1
+            });
         heights.push(HeightObservation {
             xy: prior.position.xy(),
-            sigma_z: within_flight.map_or(prior.sigma_z, |s| s[1].min(prior.sigma_z)),
+            sigma_z,
             offset: prior.offset,
         });
     }

@@ -32,3 +32,16 @@ pub fn grey_images(dir: &Path) {
             .expect("image");
     }
 }
+
+/// Appends a `[dense]` section to the project's `project.toml`: level 4 with the quick settings
+/// (`DenseConfig::quick`), for tests of the stages rather than of the maps' accuracy.
+pub fn quick_dense_level_4(dir: &Path) {
+    let toml = dir.join("project.toml");
+    let quick = timesift::config::DenseConfig::quick();
+    let text = std::fs::read_to_string(&toml).expect("project.toml")
+        + &format!(
+            "\n[dense]\nlevel = 4\nmax_sources = {}\niterations = {}\ngeometric_iterations = {}\n",
+            quick.max_sources, quick.iterations, quick.geometric_iterations
+        );
+    std::fs::write(&toml, text).expect("project.toml");
+}

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use crate::common::timesift;
+use crate::common::{quick_dense_level_4, timesift};
 use timesift_core::SeededRng;
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
@@ -25,14 +25,7 @@ fn project(dir: &Path) {
     spec.epochs.truncate(2);
     spec.keep_first_images(10);
     write_scene(&spec, dir, &WriteOptions::default()).expect("write");
-    let toml = dir.join("project.toml");
-    let mut text = std::fs::read_to_string(&toml).expect("project.toml");
-    let quick = timesift::config::DenseConfig::quick();
-    text.push_str(&format!(
-        "\n[dense]\nlevel = 4\nmax_sources = {}\niterations = {}\ngeometric_iterations = {}\n",
-        quick.max_sources, quick.iterations, quick.geometric_iterations
-    ));
-    std::fs::write(&toml, text).expect("project.toml");
+    quick_dense_level_4(dir);
 }
 
 fn copy_tree(from: &Path, to: &Path) {

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use crate::common::timesift;
+use crate::common::{quick_dense_level_4, timesift};
 use timesift::report::{DenseReport, read_json};
 use timesift::true_scene::write_true_orientation;
 use timesift_io::pointcloud::{AttributeValues, PointCloud, read_las};
@@ -21,14 +21,7 @@ fn project(images: usize) -> tempfile::TempDir {
     let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
     spec.keep_first_images(images);
     write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
-    let toml = dir.path().join("project.toml");
-    let quick = timesift::config::DenseConfig::quick();
-    let text = std::fs::read_to_string(&toml).unwrap()
-        + &format!(
-            "\n[dense]\nlevel = 4\nmax_sources = {}\niterations = {}\ngeometric_iterations = {}\n",
-            quick.max_sources, quick.iterations, quick.geometric_iterations
-        );
-    std::fs::write(&toml, text).unwrap();
+    quick_dense_level_4(dir.path());
     let points = write_true_orientation(dir.path(), &spec, 15.0).expect("orientation");
     assert!(points > 100, "{points} sparse points");
     dir

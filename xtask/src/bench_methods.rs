@@ -49,8 +49,8 @@ pub struct MethodsBench {
     /// `method+ties` beyond the first): `default` (the project's: stable areas when given),
     /// `all`, `plain` (every tie and no GNSS offsets: the single block before they existed),
     /// `pooled` (the project's ties, one observation outlier bound for the whole block instead
-    /// of each camera group's own), or `auto-blind` (the regional change detection, the stable areas hidden from the align
-    /// stage; the products are still judged on them).
+    /// of each camera group's own), or `auto-blind` (the regional change detection, the stable
+    /// areas hidden from the align stage; the products are still judged on them).
     pub ties: Vec<String>,
 }
 

@@ -21,6 +21,7 @@ use nalgebra::Vector3;
 use timesift_geometry::triangulation::{PixelObservation, intersect_weighted};
 
 use crate::model::{Reconstruction, SfmInput};
+use crate::robust::median_abs_deviation;
 use crate::stable_ground::StableGround;
 
 /// Significance of a region's mean difference that marks it changed.
@@ -275,20 +276,4 @@ fn tie_differences(
         }
     }
     out
-}
-
-/// Median of |v − median(v)|; 0 for no values.
-fn median_abs_deviation(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let centre = median(values);
-    let mut deviations: Vec<f64> = values.iter().map(|v| (v - centre).abs()).collect();
-    median(&mut deviations)
-}
-
-fn median(values: &mut [f64]) -> f64 {
-    let mid = values.len() / 2;
-    let (_, m, _) = values.select_nth_unstable_by(mid, f64::total_cmp);
-    *m
 }

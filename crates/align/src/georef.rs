@@ -15,6 +15,7 @@ use crate::AlignError;
 use crate::adjust::{Adjustment, CentrePrior, Intrinsics, MarkedPoint, OffsetPrior};
 use crate::model::{FocalSource, Reconstruction, SfmInput};
 use crate::options::SfmOptions;
+use crate::robust::median_abs_deviation;
 use crate::state::{State, track_table};
 
 /// A marker: the measured pixel of a ground point in an image.
@@ -114,6 +115,17 @@ pub struct EstimatedOffset {
     /// metres, estimated from its priors' residuals; where below the stated σ, the final
     /// adjustment weighs the priors by it.
     pub within_flight_sigma: Option<[f64; 2]>,
+}
+
+impl EstimatedOffset {
+    /// The σ (horizontal, vertical) the final adjustment gave a prior of this flight stated
+    /// with `sigma_xy`, `sigma_z`: by the flight's own noise where that was estimated below it.
+    pub fn prior_sigma(&self, sigma_xy: f64, sigma_z: f64) -> (f64, f64) {
+        match self.within_flight_sigma {
+            Some(noise) => flight_prior_sigma(noise, sigma_xy, sigma_z),
+            None => (sigma_xy, sigma_z),
+        }
+    }
 }
 
 /// The georeferenced block.
@@ -375,15 +387,8 @@ pub fn georeference(
                 precision: round == 0 || (round == last && !geo.prior_offsets.is_empty()),
             })?;
             if round == last {
-                gnss_offsets = estimated_offsets(geo, &priors, &state.offsets, &adjusted);
-                for (offset, noise) in gnss_offsets.iter_mut().zip(&within_flight) {
-                    offset.within_flight_sigma = *noise;
-                }
-            }
-            if round == 1 {
-                within_flight = within_flight_noise(&priors, &state.rec, &state.offsets);
-                reweigh_priors(&mut priors, &within_flight);
-                tracing::info!(?within_flight, "GNSS noise within each flight");
+                gnss_offsets =
+                    estimated_offsets(geo, &priors, &state.offsets, &within_flight, &adjusted);
             }
             tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
             if round == 1 {
@@ -392,6 +397,9 @@ pub fn georeference(
                     bound_px = bound,
                     "observation outlier bound from the block's noise"
                 );
+                within_flight = within_flight_noise(&priors, &state.rec, &state.offsets);
+                reweigh_priors(&mut priors, &within_flight);
+                tracing::info!(?within_flight, "GNSS noise within each flight");
             }
             if round == 0 {
                 for g in (0..groups).filter(|&g| nominal(g)) {
@@ -449,6 +457,7 @@ fn estimated_offsets(
     geo: &GeoreferenceInput,
     priors: &[CentrePrior],
     values: &[Vector3<f64>],
+    within_flight: &[Option<[f64; 2]>],
     adjusted: &crate::adjust::Adjusted,
 ) -> Vec<EstimatedOffset> {
     geo.prior_offsets
@@ -470,7 +479,7 @@ fn estimated_offsets(
                     .as_ref()
                     .and_then(|c| c.get(o).copied().flatten())
                     .filter(|_| carried > 0),
-                within_flight_sigma: None,
+                within_flight_sigma: within_flight.get(o).copied().flatten(),
             }
         })
         .collect()
@@ -509,9 +518,7 @@ fn within_flight_noise(
             }
             let spread = |axis: usize| {
                 let mut v: Vec<f64> = residuals.iter().map(|r| r[axis]).collect();
-                let centre = median(&mut v);
-                let mut d: Vec<f64> = v.iter().map(|x| (x - centre).abs()).collect();
-                1.4826 * median(&mut d)
+                1.4826 * median_abs_deviation(&mut v)
             };
             let redundancy = (n as f64 / (n - 3) as f64).sqrt();
             let horizontal = ((spread(0).powi(2) + spread(1).powi(2)) / 2.0).sqrt();
@@ -521,36 +528,24 @@ fn within_flight_noise(
         .collect()
 }
 
-/// Weighs each prior that carries an offset by its flight's noise where that is below the
-/// stated σ (never above: the stated σ is what the receiver promises), and not below
-/// [`MIN_WITHIN_FLIGHT_SIGMA`].
+/// Weighs each prior that carries an offset as [`EstimatedOffset::prior_sigma`] says.
 fn reweigh_priors(priors: &mut [CentrePrior], noise: &[Option<[f64; 2]>]) {
     for prior in priors.iter_mut() {
-        let Some([xy, z]) = prior.offset.and_then(|o| noise.get(o).copied().flatten()) else {
-            continue;
-        };
-        prior.sigma_xy = xy.clamp(
-            MIN_WITHIN_FLIGHT_SIGMA,
-            prior.sigma_xy.max(MIN_WITHIN_FLIGHT_SIGMA),
-        );
-        prior.sigma_z = z.clamp(
-            MIN_WITHIN_FLIGHT_SIGMA,
-            prior.sigma_z.max(MIN_WITHIN_FLIGHT_SIGMA),
-        );
+        if let Some(noise) = prior.offset.and_then(|o| noise.get(o).copied().flatten()) {
+            (prior.sigma_xy, prior.sigma_z) =
+                flight_prior_sigma(noise, prior.sigma_xy, prior.sigma_z);
+        }
     }
 }
 
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    let n = values.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        0.5 * (values[n / 2 - 1] + values[n / 2])
-    }
+/// A prior's σ (horizontal, vertical) weighed by its flight's noise `[xy, z]`: that noise where
+/// below the stated σ (never above: the stated σ is what the receiver promises), and not below
+/// [`MIN_WITHIN_FLIGHT_SIGMA`].
+fn flight_prior_sigma([xy, z]: [f64; 2], sigma_xy: f64, sigma_z: f64) -> (f64, f64) {
+    let weigh = |noise: f64, stated: f64| {
+        noise.clamp(MIN_WITHIN_FLIGHT_SIGMA, stated.max(MIN_WITHIN_FLIGHT_SIGMA))
+    };
+    (weigh(xy, sigma_xy), weigh(z, sigma_z))
 }
 
 /// Median of the norm of a 2-D Gaussian error in units of its per-axis σ (Rayleigh).

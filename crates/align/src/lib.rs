@@ -104,6 +104,7 @@ mod model;
 mod moved;
 mod options;
 mod register;
+mod robust;
 mod stable;
 mod stable_ground;
 mod state;
