@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use timesift_io::coords::Crs;
-use timesift_io::pointcloud::read_las;
+use timesift_io::pointcloud::read_las_positions;
 use timesift_raster::{Bounds, CellHeight, DemOptions, Lattice, grid_cloud};
 
 use crate::ProjectError;
@@ -84,7 +84,7 @@ fn beside(out: &Path, suffix: &str, ext: &str) -> PathBuf {
 /// Grids the cloud and writes the DEM and its companions.
 pub fn dem(request: &DemRequest) -> Result<DemSummary, ProjectError> {
     let start = Instant::now();
-    let cloud = read_las(&request.cloud)?;
+    let cloud = read_las_positions(&request.cloud)?;
     let reading_seconds = start.elapsed().as_secs_f64();
     let (lattice, like_crs) = match (&request.like, request.cell) {
         (Some(_), Some(_)) | (None, None) => {

@@ -8,6 +8,7 @@
 //! redone only when its cloud, the lattice or the gridding options change
 //! (`work/raster/<epoch>.dem.json`).
 
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -15,7 +16,7 @@ use timesift_change::grid::DEM_NODATA;
 use timesift_core::Camera;
 use timesift_io::coords::Crs;
 use timesift_io::geotiff::{GeoRaster, GeoReference, GeoTransform, write_f32, write_u8};
-use timesift_io::pointcloud::read_las;
+use timesift_io::pointcloud::read_las_positions;
 use timesift_raster::{Bounds, EpochFootprint, Lattice, ProjectGrid, grid_cloud, plan_grid};
 
 use super::cache::file_stamp;
@@ -165,7 +166,7 @@ pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             continue;
         }
         let start = Instant::now();
-        let cloud = read_las(&cloud_path)?;
+        let cloud = read_las_positions(&cloud_path)?;
         let dem = grid_cloud(&cloud.positions, &grid.dem, &options)
             .map_err(|e| stage_error("dem", format!("epoch \"{name}\": {e}")))?;
         write_dem_files(&dem, crs, &outputs, &layout.dem_preview(name))?;
@@ -213,36 +214,44 @@ pub fn write_dem_files(
         data,
         georef: georeference(l, crs, nodata),
     };
-    let heights = dem
-        .height
-        .iter()
-        .map(|h| if h.is_finite() { *h } else { DEM_NODATA })
-        .collect();
-    write_f32(dem_path, &raster(heights, nodata))?;
-    write_f32(
-        count_path,
-        &raster(dem.count.iter().map(|n| *n as f32).collect(), None),
-    )?;
-    let spread = dem
-        .spread
-        .iter()
-        .map(|s| if s.is_finite() { *s } else { DEM_NODATA })
-        .collect();
-    write_f32(std_path, &raster(spread, nodata))?;
-    write_u8(
-        filled_path,
-        &GeoRaster {
-            width: l.width(),
-            height: l.height(),
-            bands: 1,
-            data: dem.filled.iter().map(|f| *f as u8).collect(),
-            georef: georeference(l, crs, None),
+    // Five independent files, each compressed as it is written: written side by side.
+    let writers: [&(dyn Fn() -> Result<(), ProjectError> + Sync); 5] = [
+        &|| {
+            let heights = dem.height.iter().map(|h| finite_or_nodata(*h)).collect();
+            Ok(write_f32(dem_path, &raster(heights, nodata))?)
         },
-    )?;
-    let shade = timesift_raster::hillshade(&dem.height, l);
-    let (w, h, small) = timesift_raster::downscale(&shade, 2, l.width(), l.height(), 1024);
-    timesift_io::image::write_png(preview, w as u32, h as u32, 2, &small)?;
-    Ok(())
+        &|| {
+            let counts = dem.count.iter().map(|n| *n as f32).collect();
+            Ok(write_f32(count_path, &raster(counts, None))?)
+        },
+        &|| {
+            let spread = dem.spread.iter().map(|s| finite_or_nodata(*s)).collect();
+            Ok(write_f32(std_path, &raster(spread, nodata))?)
+        },
+        &|| {
+            let filled = GeoRaster {
+                width: l.width(),
+                height: l.height(),
+                bands: 1,
+                data: dem.filled.iter().map(|f| *f as u8).collect(),
+                georef: georeference(l, crs, None),
+            };
+            Ok(write_u8(filled_path, &filled)?)
+        },
+        &|| {
+            let shade = timesift_raster::hillshade(&dem.height, l);
+            let (w, h, small) = timesift_raster::downscale(&shade, 2, l.width(), l.height(), 1024);
+            Ok(timesift_io::image::write_png(
+                preview, w as u32, h as u32, 2, &small,
+            )?)
+        },
+    ];
+    writers.par_iter().try_for_each(|write| write())
+}
+
+/// A height or spread as written: NaN (no points) becomes the DEM's nodata value.
+fn finite_or_nodata(value: f32) -> f32 {
+    if value.is_finite() { value } else { DEM_NODATA }
 }
 
 /// `out/grid.json`, made now unless one made from the same keys and epochs is there.
@@ -266,7 +275,7 @@ fn ensure_grid(project: &Project) -> Result<GridFile, ProjectError> {
     let mut footprints = Vec::with_capacity(project.epochs.len());
     let mut epoch_gsd = std::collections::BTreeMap::new();
     for (epoch, (_, input)) in project.epochs.iter().zip(&inputs) {
-        let cloud = read_las(&layout.dense_cloud(&epoch.name))?;
+        let cloud = read_las_positions(&layout.dense_cloud(&epoch.name))?;
         let bounds = footprint(&cloud.positions).ok_or_else(|| {
             stage_error(
                 "dem",

@@ -4,7 +4,8 @@
 //! the ground) and a preview `ortho.png`.
 //!
 //! Images are read on demand through a small cache, so memory holds the images of the tiles in
-//! flight, not the epoch. An epoch's ortho is redone only when its DEM, its orientation or the
+//! flight, not the epoch; the mosaic is written a band of rows at a time as it is made, so
+//! memory never holds the mosaic either (an ortho over 4 GiB is written as BigTIFF). An epoch's ortho is redone only when its DEM, its orientation or the
 //! ortho options change (`work/raster/<epoch>.ortho.json`).
 
 use std::collections::VecDeque;
@@ -13,8 +14,9 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use timesift_core::CameraModel;
-use timesift_io::geotiff::{GeoRaster, read_f32, write_rgb8};
-use timesift_raster::{OrthoView, RgbImage, ViewImages, orthomosaic};
+use timesift_io::geotiff::{GeoTiffWriter, read_f32};
+use timesift_io::tiled_tiff::{Pixels, SampleFormat};
+use timesift_raster::{Downscaler, OrthoView, RgbImage, ViewImages, orthomosaic_by_rows};
 
 use super::cache::file_stamp;
 use super::cache::stage_error;
@@ -237,22 +239,41 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
         };
-        let ortho = orthomosaic(&heights, &grid.dem, &views, &cache, &options, &progress)
-            .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
-        bar.finish_and_clear();
-        let seconds = start.elapsed().as_secs_f64();
+        // The mosaic goes to its GeoTIFF and to the preview a band of rows at a time: memory
+        // holds the DEM, a few bands and the images of the tiles in flight, whatever the size
+        // of the ortho.
         let l = &ortho_lattice;
-        write_rgb8(
-            &layout.ortho(name),
-            &GeoRaster {
-                width: l.width(),
-                height: l.height(),
-                bands: 4,
-                data: ortho.rgba.clone(),
-                georef: georeference(l, crs, None),
-            },
+        let ortho_path = layout.ortho(name);
+        let mut tiff = GeoTiffWriter::create(
+            &ortho_path,
+            l.width(),
+            l.height(),
+            SampleFormat::U8 { bands: 4 },
+            &georeference(l, crs, None),
         )?;
-        let (w, h, small) = timesift_raster::downscale(&ortho.rgba, 4, l.width(), l.height(), 1024);
+        let mut preview = Downscaler::new(4, l.width(), l.height(), 1024);
+        let mut write_rows = |_first_row: usize, rgba: &[u8]| {
+            preview.push_rows(rgba);
+            tiff.push_rows(Pixels::U8 {
+                data: rgba,
+                bands: 4,
+            })
+            .map_err(|e| e.to_string())
+        };
+        let ortho = orthomosaic_by_rows(
+            &heights,
+            &grid.dem,
+            &views,
+            &cache,
+            &options,
+            &progress,
+            &mut write_rows,
+        )
+        .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
+        bar.finish_and_clear();
+        tiff.finish()?;
+        let seconds = start.elapsed().as_secs_f64();
+        let (w, h, small) = preview.finish();
         timesift_io::image::write_png(&layout.ortho_preview(name), w as u32, h as u32, 4, &small)?;
         let with_height = heights.iter().filter(|h| h.is_finite()).count();
         let factor2 = (grid.ortho_factor * grid.ortho_factor) as f64;

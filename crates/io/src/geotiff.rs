@@ -8,14 +8,16 @@
 
 use std::fs::File;
 use std::io::BufReader;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 use tiff::{ColorType, TiffError};
 
 use crate::coords::Crs;
-use crate::tiled_tiff::{Entry, Pixels, TiledError, write_tiled};
+use crate::tiled_tiff::{
+    Entry, Flavour, Pixels, SampleFormat, TiledError, TiledWriter, write_tiled,
+};
 use crate::{IoError, fsutil};
 
 /// A north-up affine grid, GDAL geotransform style.
@@ -145,14 +147,7 @@ fn write_geotiff(
     pixels: Pixels<'_>,
     georef: &GeoReference,
 ) -> Result<(), IoError> {
-    let t = &georef.transform;
-    if !(t.pixel_width > 0.0 && t.pixel_height < 0.0) {
-        return Err(IoError::unsupported(
-            path,
-            "grid",
-            "only north-up rasters (pixel width > 0, pixel height < 0) are written",
-        ));
-    }
+    check_north_up(path, georef)?;
     let nodata = georef
         .nodata
         .map(|v| Entry::ascii(GDAL_NODATA_TAG, &format_nodata(v)));
@@ -165,18 +160,136 @@ fn write_geotiff(
             &georef_entries(georef),
             nodata.as_ref(),
         )
-        .map_err(|e| match e {
-            TiledError::Io(e) => IoError::io(path, e),
-            TiledError::TooLarge(bytes) => IoError::unsupported(
-                path,
-                "GeoTIFF size",
-                format!(
-                    "{bytes} bytes compressed exceed the 4 GiB of a classic TIFF (BigTIFF is not \
-                     written); use a coarser cell or a smaller extent"
-                ),
-            ),
-        })
+        .map_err(|e| tiled_error(path, e))
     })
+}
+
+fn tiled_error(path: &Path, e: TiledError) -> IoError {
+    match e {
+        TiledError::Io(e) => IoError::io(path, e),
+        TiledError::Rows(message) => IoError::invalid(path, message),
+    }
+}
+
+/// Checks what both writers refuse: a grid that is not north-up.
+fn check_north_up(path: &Path, georef: &GeoReference) -> Result<(), IoError> {
+    let t = &georef.transform;
+    if !(t.pixel_width > 0.0 && t.pixel_height < 0.0) {
+        return Err(IoError::unsupported(
+            path,
+            "grid",
+            "only north-up rasters (pixel width > 0, pixel height < 0) are written",
+        ));
+    }
+    Ok(())
+}
+
+/// A GeoTIFF written a band of rows at a time, for rasters larger than memory (orthomosaics):
+/// the same file as [`write_f32`], [`write_rgb8`] or [`write_u8`] would write from the whole
+/// raster, BigTIFF beyond 4 GiB. Memory holds one band of [`crate::tiled_tiff::TILE`] rows per
+/// overview level; the compressed tiles wait in a spool file beside the output
+/// (`.<name>.tmp-<pid>.tiles`, removed when the writer is finished or dropped), and the file
+/// appears at its path only when [`GeoTiffWriter::finish`] succeeds.
+pub struct GeoTiffWriter {
+    path: PathBuf,
+    spool: SpoolFile,
+    georef: GeoReference,
+    flavour: Flavour,
+    tiles: TiledWriter<File>,
+}
+
+impl GeoTiffWriter {
+    /// Starts `path`: `width` × `height` pixels of `format` (RGB(A) or grey u8, or float32 whose
+    /// nodata is `georef`'s).
+    pub fn create(
+        path: &Path,
+        width: usize,
+        height: usize,
+        format: SampleFormat,
+        georef: &GeoReference,
+    ) -> Result<GeoTiffWriter, IoError> {
+        check_north_up(path, georef)?;
+        let format_ok = match format {
+            SampleFormat::F32 { nodata } => nodata == georef.nodata.map(|v| v as f32),
+            SampleFormat::U8 { bands } => matches!(bands, 1 | 3 | 4),
+        };
+        if width == 0
+            || height == 0
+            || width > u32::MAX as usize
+            || height > u32::MAX as usize
+            || !format_ok
+        {
+            return Err(IoError::invalid(
+                path,
+                format!("cannot write {width} × {height} pixels of {format:?}"),
+            ));
+        }
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(|e| IoError::io(parent, e))?;
+        }
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let spool_path = path.with_file_name(format!(".{name}.tmp-{}.tiles", std::process::id()));
+        let spool = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&spool_path)
+            .map_err(|e| IoError::io(&spool_path, e))?;
+        Ok(GeoTiffWriter {
+            path: path.to_path_buf(),
+            spool: SpoolFile(spool_path),
+            georef: *georef,
+            flavour: Flavour::Auto,
+            tiles: TiledWriter::new(width, height, format, spool),
+        })
+    }
+
+    /// Writes BigTIFF whatever the size (files of GIS tools that need one layout).
+    pub fn big_tiff(mut self) -> GeoTiffWriter {
+        self.flavour = Flavour::BigTiff;
+        self
+    }
+
+    /// Appends whole rows below those already given.
+    pub fn push_rows(&mut self, pixels: Pixels<'_>) -> Result<(), IoError> {
+        self.tiles
+            .push_rows(pixels)
+            .map_err(|e| tiled_error(&self.spool.0, e))
+    }
+
+    /// Writes the file (atomically) once every row has been given.
+    pub fn finish(self) -> Result<(), IoError> {
+        let GeoTiffWriter {
+            path,
+            spool,
+            georef,
+            flavour,
+            tiles,
+        } = self;
+        let nodata = georef
+            .nodata
+            .map(|v| Entry::ascii(GDAL_NODATA_TAG, &format_nodata(v)));
+        let written = fsutil::write_atomically(&path, |w| {
+            tiles
+                .finish(w, &georef_entries(&georef), nodata.as_ref(), flavour)
+                .map_err(|e| tiled_error(&path, e))
+        });
+        drop(spool);
+        written
+    }
+}
+
+/// The spool file of a [`GeoTiffWriter`], removed when the writer is done with it.
+struct SpoolFile(PathBuf);
+
+impl Drop for SpoolFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
 }
 
 fn check_size<T>(path: &Path, raster: &GeoRaster<T>, bands: &[usize]) -> Result<(), IoError> {

@@ -4,10 +4,14 @@
 //! data from the smallest overview to the full resolution, tile offsets ascending in each IFD.
 //! The `tiff` crate's encoder writes strips only, hence this module.
 //!
-//! Classic TIFF (32-bit offsets): a file over 4 GiB is refused with an error rather than
-//! written as BigTIFF.
+//! [`TiledWriter`] takes the pixels a band of rows at a time, so an orthomosaic larger than
+//! memory is written with one band per level in memory: each band's tiles are compressed as it
+//! arrives and spooled (to a file beside the output, or to memory), its 2 × 2 averages feed the
+//! next overview, and [`TiledWriter::finish`] writes the IFDs, then copies the tiles from the
+//! spool in the file's order. A file whose offsets do not fit 32 bits is written as BigTIFF
+//! (what GDAL does with `BIGTIFF=IF_SAFER`); [`Flavour::BigTiff`] asks for it always.
 
-use std::io::Write;
+use std::io::{Read, Seek, SeekFrom, Write};
 
 use flate2::Compression;
 use flate2::write::ZlibEncoder;
@@ -20,6 +24,7 @@ const SHORT: u16 = 3;
 const LONG: u16 = 4;
 const DOUBLE: u16 = 12;
 const ASCII: u16 = 2;
+const LONG8: u16 = 16;
 
 /// One IFD entry with its value bytes (little-endian).
 #[derive(Debug, Clone)]
@@ -49,6 +54,15 @@ impl Entry {
             bytes: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
         }
     }
+    /// LONG8 values (BigTIFF's 64-bit offsets).
+    fn long8s(tag: u16, values: &[u64]) -> Entry {
+        Entry {
+            tag,
+            kind: LONG8,
+            count: values.len() as u32,
+            bytes: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        }
+    }
     /// DOUBLE values.
     pub fn doubles(tag: u16, values: &[f64]) -> Entry {
         Entry {
@@ -71,7 +85,7 @@ impl Entry {
     }
 }
 
-/// What the pixels are.
+/// What the pixels are: whole rows, row-major.
 pub enum Pixels<'a> {
     /// One float32 band; `nodata` (and NaN) cells are left out of overview averages.
     F32 {
@@ -89,23 +103,462 @@ pub enum Pixels<'a> {
     },
 }
 
-/// One resolution level, owned.
-enum Level {
-    F32(Vec<f32>),
-    U8(Vec<u8>),
+impl Pixels<'_> {
+    /// The sample layout of these pixels.
+    pub fn format(&self) -> SampleFormat {
+        match self {
+            Pixels::F32 { nodata, .. } => SampleFormat::F32 { nodata: *nodata },
+            Pixels::U8 { bands, .. } => SampleFormat::U8 { bands: *bands },
+        }
+    }
+
+    /// Samples held.
+    fn len(&self) -> usize {
+        match self {
+            Pixels::F32 { data, .. } => data.len(),
+            Pixels::U8 { data, .. } => data.len(),
+        }
+    }
+}
+
+/// The sample layout of a file, without its pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SampleFormat {
+    /// One float32 band and its nodata value.
+    F32 {
+        /// The declared nodata value.
+        nodata: Option<f32>,
+    },
+    /// 1, 3 or 4 interleaved u8 bands.
+    U8 {
+        /// 1, 3 or 4.
+        bands: usize,
+    },
+}
+
+impl SampleFormat {
+    fn bands(&self) -> usize {
+        match self {
+            SampleFormat::F32 { .. } => 1,
+            SampleFormat::U8 { bands } => *bands,
+        }
+    }
+}
+
+/// Classic TIFF or BigTIFF.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Flavour {
+    /// Classic TIFF when every offset fits 32 bits (files up to 4 GiB), BigTIFF beyond.
+    #[default]
+    Auto,
+    /// BigTIFF whatever the size.
+    BigTiff,
 }
 
 /// Why the tiled file could not be written.
 #[derive(Debug)]
 pub enum TiledError {
-    /// Writing failed.
+    /// Writing or spooling failed.
     Io(std::io::Error),
-    /// The compressed file would exceed classic TIFF's 4 GiB.
-    TooLarge(u64),
+    /// Rows that do not fit the file: another sample format, a partial row, more rows than
+    /// the height, or fewer at [`TiledWriter::finish`].
+    Rows(String),
 }
 
-/// Writes a tiled TIFF with overviews; `georef` entries (GeoTIFF tags, nodata) go into the
-/// full-resolution IFD, `nodata` also into the overviews'.
+/// Rows of one resolution level waiting to make a row of tiles, owned.
+enum Rows {
+    F32(Vec<f32>),
+    U8(Vec<u8>),
+}
+
+impl Rows {
+    fn empty(format: SampleFormat) -> Rows {
+        match format {
+            SampleFormat::F32 { .. } => Rows::F32(Vec::new()),
+            SampleFormat::U8 { .. } => Rows::U8(Vec::new()),
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Rows::F32(v) => v.len(),
+            Rows::U8(v) => v.len(),
+        }
+    }
+
+    fn append(&mut self, more: Rows) {
+        match (self, more) {
+            (Rows::F32(a), Rows::F32(b)) if a.is_empty() => *a = b,
+            (Rows::F32(a), Rows::F32(b)) => a.extend_from_slice(&b),
+            (Rows::U8(a), Rows::U8(b)) if a.is_empty() => *a = b,
+            (Rows::U8(a), Rows::U8(b)) => a.extend_from_slice(&b),
+            _ => unreachable!("one level holds one sample type"),
+        }
+    }
+
+    /// Removes the first `samples` samples.
+    fn drain_front(&mut self, samples: usize) {
+        match self {
+            Rows::F32(v) => drop(v.drain(..samples)),
+            Rows::U8(v) => drop(v.drain(..samples)),
+        }
+    }
+}
+
+/// One resolution level as it fills.
+struct LevelState {
+    width: usize,
+    height: usize,
+    /// Rows received so far (made into tiles or pending).
+    received: usize,
+    pending: Rows,
+    /// Each tile's place in the spool (offset, length), row-major.
+    tiles: Vec<(u64, u32)>,
+}
+
+/// A tiled TIFF written a band of rows at a time; see the module documentation.
+pub struct TiledWriter<S: Read + Write + Seek> {
+    format: SampleFormat,
+    levels: Vec<LevelState>,
+    spool: S,
+    spool_len: u64,
+}
+
+impl<S: Read + Write + Seek> TiledWriter<S> {
+    /// A writer of a `width` × `height` raster whose tiles are spooled to `spool` (written from
+    /// its start; a file beside the output for rasters larger than memory, a
+    /// `Cursor<Vec<u8>>` otherwise).
+    pub fn new(width: usize, height: usize, format: SampleFormat, spool: S) -> Self {
+        let mut levels = vec![(width, height)];
+        while let Some(&(w, h)) = levels.last() {
+            if w <= TILE && h <= TILE {
+                break;
+            }
+            levels.push((w.div_ceil(2), h.div_ceil(2)));
+        }
+        TiledWriter {
+            format,
+            levels: levels
+                .into_iter()
+                .map(|(width, height)| LevelState {
+                    width,
+                    height,
+                    received: 0,
+                    pending: Rows::empty(format),
+                    tiles: Vec::new(),
+                })
+                .collect(),
+            spool,
+            spool_len: 0,
+        }
+    }
+
+    /// Full-resolution rows received so far.
+    pub fn rows_received(&self) -> usize {
+        self.levels[0].received
+    }
+
+    /// Appends whole rows below those already given: tiles are made as soon as a band of
+    /// [`TILE`] rows is complete, at every level.
+    pub fn push_rows(&mut self, pixels: Pixels<'_>) -> Result<(), TiledError> {
+        if pixels.format() != self.format {
+            return Err(TiledError::Rows(format!(
+                "{:?} rows given to a file of {:?}",
+                pixels.format(),
+                self.format
+            )));
+        }
+        let row_len = self.levels[0].width * self.format.bands();
+        let rows = pixels.len() / row_len.max(1);
+        if pixels.len() % row_len.max(1) != 0
+            || self.levels[0].received + rows > self.levels[0].height
+        {
+            return Err(TiledError::Rows(format!(
+                "{} samples are not whole rows of {} below row {} of {}",
+                pixels.len(),
+                row_len,
+                self.levels[0].received,
+                self.levels[0].height
+            )));
+        }
+        let owned = match pixels {
+            Pixels::F32 { data, .. } => Rows::F32(data.to_vec()),
+            Pixels::U8 { data, .. } => Rows::U8(data.to_vec()),
+        };
+        self.feed(owned)
+    }
+
+    /// Gives `rows` to the full-resolution level; every complete band of tiles there is
+    /// compressed and spooled, and its 2 × 2 averages go down a level, and so on.
+    fn feed(&mut self, rows: Rows) -> Result<(), TiledError> {
+        let bands = self.format.bands();
+        let nodata = match self.format {
+            SampleFormat::F32 { nodata } => nodata,
+            SampleFormat::U8 { .. } => None,
+        };
+        let n_levels = self.levels.len();
+        let mut incoming = Some(rows);
+        for k in 0..n_levels {
+            let Some(rows) = incoming.take() else { break };
+            let level = &mut self.levels[k];
+            let row_len = level.width * bands;
+            level.received += rows.len() / row_len;
+            level.pending.append(rows);
+            let mut halves = Rows::empty(self.format);
+            loop {
+                let pending_rows = level.pending.len() / row_len;
+                let last = level.received == level.height;
+                if pending_rows == 0 || (pending_rows < TILE && !last) {
+                    break;
+                }
+                let n = pending_rows.min(TILE);
+                let samples = n * row_len;
+                let (tiles, halved) = match &level.pending {
+                    Rows::F32(v) => {
+                        let band = &v[..samples];
+                        let pixels = Pixels::F32 { data: band, nodata };
+                        (
+                            compress_band(&pixels, level.width, n)?,
+                            (k + 1 < n_levels)
+                                .then(|| Rows::F32(halve_f32(band, level.width, n, nodata))),
+                        )
+                    }
+                    Rows::U8(v) => {
+                        let band = &v[..samples];
+                        let pixels = Pixels::U8 { data: band, bands };
+                        (
+                            compress_band(&pixels, level.width, n)?,
+                            (k + 1 < n_levels)
+                                .then(|| Rows::U8(halve_u8(band, level.width, n, bands))),
+                        )
+                    }
+                };
+                for tile in tiles {
+                    self.spool.write_all(&tile).map_err(TiledError::Io)?;
+                    level.tiles.push((self.spool_len, tile.len() as u32));
+                    self.spool_len += tile.len() as u64;
+                }
+                level.pending.drain_front(samples);
+                if let Some(h) = halved {
+                    halves.append(h);
+                }
+            }
+            if halves.len() > 0 {
+                incoming = Some(halves);
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the file to `out`: header, IFDs (`georef` entries — GeoTIFF tags, nodata — in the
+    /// full-resolution one, `nodata` also in the overviews'), their values, then the tiles from
+    /// the smallest overview up, copied from the spool.
+    pub fn finish(
+        mut self,
+        out: &mut impl Write,
+        georef: &[Entry],
+        nodata: Option<&Entry>,
+        flavour: Flavour,
+    ) -> Result<(), TiledError> {
+        let full = &self.levels[0];
+        if full.received != full.height {
+            return Err(TiledError::Rows(format!(
+                "{} of {} rows given",
+                full.received, full.height
+            )));
+        }
+        let (bands, float) = match self.format {
+            SampleFormat::F32 { .. } => (1, true),
+            SampleFormat::U8 { bands } => (bands, false),
+        };
+        // Each level's IFD. Its TileOffsets (324) holds one offset per tile: their count, not
+        // their values, decides the layout computed next, which then gives them their values.
+        let mut ifds: Vec<Vec<Entry>> = Vec::new();
+        for (k, level) in self.levels.iter().enumerate() {
+            let n_tiles = level.tiles.len();
+            let mut e = vec![
+                Entry::longs(254, &[if k == 0 { 0 } else { 1 }]),
+                Entry::longs(256, &[level.width as u32]),
+                Entry::longs(257, &[level.height as u32]),
+                Entry::shorts(258, &vec![if float { 32 } else { 8 }; bands]),
+                Entry::shorts(259, &[8]),
+                Entry::shorts(262, &[if bands >= 3 { 2 } else { 1 }]),
+                Entry::shorts(277, &[bands as u16]),
+                Entry::shorts(284, &[1]),
+                Entry::shorts(317, &[if float { 3 } else { 2 }]),
+                Entry::shorts(322, &[TILE as u16]),
+                Entry::shorts(323, &[TILE as u16]),
+                Entry::longs(324, &vec![0; n_tiles]),
+                Entry::longs(325, &level.tiles.iter().map(|t| t.1).collect::<Vec<_>>()),
+                Entry::shorts(339, &vec![if float { 3 } else { 1 }; bands]),
+            ];
+            if bands == 4 {
+                e.push(Entry::shorts(338, &[2]));
+            }
+            if k == 0 {
+                e.extend(georef.iter().cloned());
+            }
+            if let Some(nd) = nodata {
+                e.push(nd.clone());
+            }
+            e.sort_by_key(|e| e.tag);
+            ifds.push(e);
+        }
+        let tile_lens: Vec<Vec<u32>> = self
+            .levels
+            .iter()
+            .map(|l| l.tiles.iter().map(|t| t.1).collect())
+            .collect();
+        let classic = Layout::of(&ifds, &tile_lens, false);
+        let big = flavour == Flavour::BigTiff || classic.end > u32::MAX as u64;
+        let layout = if big {
+            // The offsets become 64-bit values (the entry keeps its count).
+            for (k, e) in ifds.iter_mut().enumerate() {
+                if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
+                    *entry = Entry::long8s(324, &vec![0; tile_lens[k].len()]);
+                }
+            }
+            Layout::of(&ifds, &tile_lens, true)
+        } else {
+            classic
+        };
+        for (k, e) in ifds.iter_mut().enumerate() {
+            // The entry was made with one zero per tile; same size, now the positions.
+            if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
+                *entry = if big {
+                    Entry::long8s(324, &layout.tiles[k])
+                } else {
+                    let offsets: Vec<u32> = layout.tiles[k].iter().map(|&p| p as u32).collect();
+                    Entry::longs(324, &offsets)
+                };
+            }
+        }
+
+        // Serialise, following the layout.
+        let mut out = Positioned { out, at: 0 };
+        let offset = |out: &mut Positioned<'_, _>, value: u64| {
+            if big {
+                out.put(&value.to_le_bytes())
+            } else {
+                out.put(&(value as u32).to_le_bytes())
+            }
+        };
+        out.put(b"II")?;
+        if big {
+            out.put(&43u16.to_le_bytes())?;
+            out.put(&8u16.to_le_bytes())?;
+            out.put(&0u16.to_le_bytes())?;
+        } else {
+            out.put(&42u16.to_le_bytes())?;
+        }
+        offset(&mut out, layout.ifds[0])?;
+        let inline = if big { 8 } else { 4 };
+        for (k, e) in ifds.iter().enumerate() {
+            if big {
+                out.put(&(e.len() as u64).to_le_bytes())?;
+            } else {
+                out.put(&(e.len() as u16).to_le_bytes())?;
+            }
+            for (entry, &at) in e.iter().zip(&layout.values[k]) {
+                out.put(&entry.tag.to_le_bytes())?;
+                out.put(&entry.kind.to_le_bytes())?;
+                if big {
+                    out.put(&(entry.count as u64).to_le_bytes())?;
+                } else {
+                    out.put(&entry.count.to_le_bytes())?;
+                }
+                if entry.bytes.len() > inline {
+                    offset(&mut out, at)?;
+                } else {
+                    let mut value = [0u8; 8];
+                    value[..entry.bytes.len()].copy_from_slice(&entry.bytes);
+                    out.put(&value[..inline])?;
+                }
+            }
+            offset(&mut out, layout.ifds.get(k + 1).copied().unwrap_or(0))?;
+        }
+        for (k, e) in ifds.iter().enumerate() {
+            for (entry, &at) in e.iter().zip(&layout.values[k]) {
+                if entry.bytes.len() > inline {
+                    out.pad_to(at)?;
+                    out.put(&entry.bytes)?;
+                }
+            }
+        }
+        let mut buffer = Vec::new();
+        for k in (0..self.levels.len()).rev() {
+            for (&(from, len), &at) in self.levels[k].tiles.iter().zip(&layout.tiles[k]) {
+                debug_assert_eq!(out.at, at);
+                buffer.resize(len as usize, 0);
+                self.spool
+                    .seek(SeekFrom::Start(from))
+                    .and_then(|_| self.spool.read_exact(&mut buffer))
+                    .map_err(TiledError::Io)?;
+                out.put(&buffer)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Where everything goes in the file.
+struct Layout {
+    /// Each IFD's position.
+    ifds: Vec<u64>,
+    /// Each IFD entry's out-of-line value position (0 for inline values).
+    values: Vec<Vec<u64>>,
+    /// Each level's tiles' positions.
+    tiles: Vec<Vec<u64>>,
+    /// The file's size.
+    end: u64,
+}
+
+impl Layout {
+    /// Header, IFDs, their out-of-line values, tile data smallest level first.
+    fn of(ifds: &[Vec<Entry>], tile_lens: &[Vec<u32>], big: bool) -> Layout {
+        let (header, count, entry, next, inline) = if big {
+            (16, 8, 20, 8, 8)
+        } else {
+            (8, 2, 12, 4, 4)
+        };
+        let mut pos: u64 = header;
+        let mut ifd_pos = Vec::with_capacity(ifds.len());
+        for e in ifds {
+            ifd_pos.push(pos);
+            pos += count + entry * e.len() as u64 + next;
+        }
+        let mut values = Vec::with_capacity(ifds.len());
+        for e in ifds {
+            let mut v = Vec::with_capacity(e.len());
+            for entry in e {
+                if entry.bytes.len() > inline {
+                    pos += pos % 2;
+                    v.push(pos);
+                    pos += entry.bytes.len() as u64;
+                } else {
+                    v.push(0);
+                }
+            }
+            values.push(v);
+        }
+        let mut tiles: Vec<Vec<u64>> = vec![Vec::new(); tile_lens.len()];
+        for k in (0..tile_lens.len()).rev() {
+            for &len in &tile_lens[k] {
+                tiles[k].push(pos);
+                pos += len as u64;
+            }
+        }
+        Layout {
+            ifds: ifd_pos,
+            values,
+            tiles,
+            end: pos,
+        }
+    }
+}
+
+/// Writes a whole raster as a tiled TIFF with overviews (tiles spooled in memory); see
+/// [`TiledWriter::finish`] for `georef` and `nodata`.
 pub fn write_tiled(
     out: &mut impl Write,
     width: usize,
@@ -114,152 +567,14 @@ pub fn write_tiled(
     georef: &[Entry],
     nodata: Option<&Entry>,
 ) -> Result<(), TiledError> {
-    let (bands, float, nodata_value) = match &pixels {
-        Pixels::F32 { nodata, .. } => (1usize, true, *nodata),
-        Pixels::U8 { bands, .. } => (*bands, false, None),
-    };
-    // Every level, from the full resolution down to one tile.
-    let mut levels = vec![(
+    let mut writer = TiledWriter::new(
         width,
         height,
-        match pixels {
-            Pixels::F32 { data, .. } => Level::F32(data.to_vec()),
-            Pixels::U8 { data, .. } => Level::U8(data.to_vec()),
-        },
-    )];
-    while let Some((w, h, level)) = levels.last() {
-        let (w, h) = (*w, *h);
-        if w <= TILE && h <= TILE {
-            break;
-        }
-        let next = match level {
-            Level::F32(v) => Level::F32(halve_f32(v, w, h, nodata_value)),
-            Level::U8(v) => Level::U8(halve_u8(v, w, h, bands)),
-        };
-        levels.push((w.div_ceil(2), h.div_ceil(2), next));
-    }
-    // Compressed tiles per level.
-    let tiles: Vec<Vec<Vec<u8>>> = levels
-        .iter()
-        .map(|(w, h, level)| compress_level(level, *w, *h, bands))
-        .collect::<Result<_, _>>()
-        .map_err(TiledError::Io)?;
-
-    // Each level's IFD. Its TileOffsets (324) holds one offset per tile: their count, not their
-    // values, decides the layout computed next, which then gives them their values.
-    let mut ifds: Vec<Vec<Entry>> = Vec::new();
-    for (k, (w, h, _)) in levels.iter().enumerate() {
-        let n_tiles = tiles[k].len();
-        let mut e = vec![
-            Entry::longs(254, &[if k == 0 { 0 } else { 1 }]),
-            Entry::longs(256, &[*w as u32]),
-            Entry::longs(257, &[*h as u32]),
-            Entry::shorts(258, &vec![if float { 32 } else { 8 }; bands]),
-            Entry::shorts(259, &[8]),
-            Entry::shorts(262, &[if bands >= 3 { 2 } else { 1 }]),
-            Entry::shorts(277, &[bands as u16]),
-            Entry::shorts(284, &[1]),
-            Entry::shorts(317, &[if float { 3 } else { 2 }]),
-            Entry::shorts(322, &[TILE as u16]),
-            Entry::shorts(323, &[TILE as u16]),
-            Entry::longs(324, &vec![0; n_tiles]),
-            Entry::longs(
-                325,
-                &tiles[k].iter().map(|t| t.len() as u32).collect::<Vec<_>>(),
-            ),
-            Entry::shorts(339, &vec![if float { 3 } else { 1 }; bands]),
-        ];
-        if bands == 4 {
-            e.push(Entry::shorts(338, &[2]));
-        }
-        if k == 0 {
-            e.extend(georef.iter().cloned());
-        }
-        if let Some(nd) = nodata {
-            e.push(nd.clone());
-        }
-        e.sort_by_key(|e| e.tag);
-        ifds.push(e);
-    }
-
-    // Layout: header, IFDs, their out-of-line values, tile data smallest level first.
-    let mut pos: u64 = 8;
-    let mut ifd_pos = Vec::with_capacity(ifds.len());
-    for e in &ifds {
-        ifd_pos.push(pos);
-        pos += 2 + 12 * e.len() as u64 + 4;
-    }
-    let mut value_pos: Vec<Vec<u64>> = Vec::with_capacity(ifds.len());
-    for e in &ifds {
-        let mut v = Vec::with_capacity(e.len());
-        for entry in e {
-            if entry.bytes.len() > 4 {
-                pos += pos % 2;
-                v.push(pos);
-                pos += entry.bytes.len() as u64;
-            } else {
-                v.push(0);
-            }
-        }
-        value_pos.push(v);
-    }
-    let mut tile_pos: Vec<Vec<u64>> = vec![Vec::new(); levels.len()];
-    for k in (0..levels.len()).rev() {
-        for t in &tiles[k] {
-            tile_pos[k].push(pos);
-            pos += t.len() as u64;
-        }
-    }
-    if pos > u32::MAX as u64 {
-        return Err(TiledError::TooLarge(pos));
-    }
-    for (k, e) in ifds.iter_mut().enumerate() {
-        // The entry was made with one zero per tile; same size, now the positions.
-        if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
-            *entry = Entry::longs(
-                324,
-                &tile_pos[k].iter().map(|&p| p as u32).collect::<Vec<_>>(),
-            );
-        }
-    }
-
-    // Serialise, following the layout.
-    let mut out = Positioned { out, at: 0 };
-    out.put(b"II")?;
-    out.put(&42u16.to_le_bytes())?;
-    out.put(&(ifd_pos[0] as u32).to_le_bytes())?;
-    for (k, e) in ifds.iter().enumerate() {
-        out.put(&(e.len() as u16).to_le_bytes())?;
-        for (entry, &at) in e.iter().zip(&value_pos[k]) {
-            out.put(&entry.tag.to_le_bytes())?;
-            out.put(&entry.kind.to_le_bytes())?;
-            out.put(&entry.count.to_le_bytes())?;
-            if entry.bytes.len() > 4 {
-                out.put(&(at as u32).to_le_bytes())?;
-            } else {
-                let mut inline = [0u8; 4];
-                inline[..entry.bytes.len()].copy_from_slice(&entry.bytes);
-                out.put(&inline)?;
-            }
-        }
-        let next = ifd_pos.get(k + 1).copied().unwrap_or(0) as u32;
-        out.put(&next.to_le_bytes())?;
-    }
-    for (k, e) in ifds.iter().enumerate() {
-        for (entry, &at) in e.iter().zip(&value_pos[k]) {
-            if entry.bytes.len() > 4 {
-                out.pad_to(at)?;
-                out.put(&entry.bytes)?;
-            }
-        }
-    }
-    for k in (0..levels.len()).rev() {
-        for (t, &at) in tiles[k].iter().zip(&tile_pos[k]) {
-            debug_assert_eq!(out.at, at);
-            out.put(t)?;
-        }
-    }
-    Ok(())
+        pixels.format(),
+        std::io::Cursor::new(Vec::new()),
+    );
+    writer.push_rows(pixels)?;
+    writer.finish(out, georef, nodata, Flavour::Auto)
 }
 
 /// A writer that knows how many bytes it has written: its position in the file.
@@ -284,33 +599,26 @@ impl<W: Write> Positioned<'_, W> {
     }
 }
 
-/// Cuts a level into tiles (edge tiles padded by repeating nothing: zeros, or nodata for
-/// floats), applies the predictor and compresses each.
-fn compress_level(
-    level: &Level,
-    w: usize,
-    h: usize,
-    bands: usize,
-) -> std::io::Result<Vec<Vec<u8>>> {
+/// Cuts a band of `h` ≤ [`TILE`] rows into tiles (edge tiles padded with zeros), applies the
+/// predictor and compresses each, in parallel.
+fn compress_band(band: &Pixels<'_>, w: usize, h: usize) -> Result<Vec<Vec<u8>>, TiledError> {
+    let bands = band.format().bands();
     let across = w.div_ceil(TILE);
-    let down = h.div_ceil(TILE);
-    (0..across * down)
+    (0..across)
         .into_par_iter()
-        .map(|t| {
-            let (tc, tr) = (t % across, t / across);
+        .map(|tc| {
             let mut raw = Vec::with_capacity(TILE * TILE * bands * 4);
-            for r in 0..TILE {
-                let y = tr * TILE + r;
+            for y in 0..TILE {
                 let row_start = raw.len();
                 for c in 0..TILE {
                     let x = tc * TILE + c;
                     let inside = x < w && y < h;
-                    match level {
-                        Level::F32(v) => {
+                    match band {
+                        Pixels::F32 { data: v, .. } => {
                             let value = if inside { v[y * w + x] } else { 0.0 };
                             raw.extend_from_slice(&value.to_le_bytes());
                         }
-                        Level::U8(v) => {
+                        Pixels::U8 { data: v, .. } => {
                             for b in 0..bands {
                                 raw.push(if inside {
                                     v[(y * w + x) * bands + b]
@@ -322,9 +630,9 @@ fn compress_level(
                     }
                 }
                 let row = &mut raw[row_start..];
-                match level {
-                    Level::F32(_) => float_predictor(row),
-                    Level::U8(_) => {
+                match band {
+                    Pixels::F32 { .. } => float_predictor(row),
+                    Pixels::U8 { .. } => {
                         for i in (bands..row.len()).rev() {
                             row[i] = row[i].wrapping_sub(row[i - bands]);
                         }
@@ -335,7 +643,8 @@ fn compress_level(
             z.write_all(&raw)?;
             z.finish()
         })
-        .collect()
+        .collect::<std::io::Result<_>>()
+        .map_err(TiledError::Io)
 }
 
 /// The floating-point predictor (TIFF predictor 3) on one row of little-endian f32: bytes
@@ -532,5 +841,144 @@ mod tests {
         let r = (data[0] as u32 + data[(w + 1) * 4] as u32).div_ceil(2) as u8;
         assert!((half[0] as i32 - r as i32).abs() <= 1);
         assert_eq!(half[3], 128);
+    }
+
+    /// A float raster over several rows of tiles at two levels, with nodata.
+    fn floats(w: usize, h: usize) -> Vec<f32> {
+        (0..w * h)
+            .map(|i| {
+                if i % 89 == 0 {
+                    -32767.0
+                } else {
+                    ((i % w) as f32 * 0.021).cos() * 40.0 + (i / w) as f32 * 0.3
+                }
+            })
+            .collect()
+    }
+
+    fn rgba(w: usize, h: usize) -> Vec<u8> {
+        (0..w * h * 4)
+            .map(|i| {
+                if i % 4 == 3 {
+                    ((i / 4) % 3 * 127) as u8
+                } else {
+                    (i * 7 % 251) as u8
+                }
+            })
+            .collect()
+    }
+
+    /// Streams `pixels` in bands of `rows` rows (the last one shorter) into a file.
+    fn streamed(w: usize, h: usize, pixels: Pixels<'_>, rows: usize, flavour: Flavour) -> Vec<u8> {
+        let mut writer = TiledWriter::new(w, h, pixels.format(), std::io::Cursor::new(Vec::new()));
+        let bands = pixels.format().bands();
+        for r in (0..h).step_by(rows) {
+            let range = r * w * bands..(r + rows).min(h) * w * bands;
+            let band = match &pixels {
+                Pixels::F32 { data, nodata } => Pixels::F32 {
+                    data: &data[range],
+                    nodata: *nodata,
+                },
+                Pixels::U8 { data, bands } => Pixels::U8 {
+                    data: &data[range],
+                    bands: *bands,
+                },
+            };
+            writer.push_rows(band).unwrap();
+        }
+        let mut out = Vec::new();
+        writer.finish(&mut out, &[], None, flavour).unwrap();
+        out
+    }
+
+    #[test]
+    fn rows_streamed_in_any_bands_make_the_same_file_as_the_whole_raster() {
+        // 700 × 1100: five rows of tiles at full resolution, three at the first overview.
+        let (w, h) = (700, 1100);
+        let data = floats(w, h);
+        let f32_pixels = || Pixels::F32 {
+            data: &data,
+            nodata: Some(-32767.0),
+        };
+        let mut whole = Vec::new();
+        write_tiled(&mut whole, w, h, f32_pixels(), &[], None).unwrap();
+        for rows in [1, 37, 256, 300, h] {
+            assert!(
+                streamed(w, h, f32_pixels(), rows, Flavour::Auto) == whole,
+                "float rows in bands of {rows}"
+            );
+        }
+        let colours = rgba(w, h);
+        let u8_pixels = || Pixels::U8 {
+            data: &colours,
+            bands: 4,
+        };
+        let mut whole = Vec::new();
+        write_tiled(&mut whole, w, h, u8_pixels(), &[], None).unwrap();
+        for rows in [3, 255, 513] {
+            assert!(
+                streamed(w, h, u8_pixels(), rows, Flavour::Auto) == whole,
+                "rgba rows in bands of {rows}"
+            );
+        }
+    }
+
+    #[test]
+    fn big_tiff_holds_the_same_levels_as_classic_tiff() {
+        let (w, h) = (600, 520);
+        let data = floats(w, h);
+        let pixels = || Pixels::F32 {
+            data: &data,
+            nodata: Some(-32767.0),
+        };
+        let classic = streamed(w, h, pixels(), 100, Flavour::Auto);
+        let big = streamed(w, h, pixels(), 100, Flavour::BigTiff);
+        assert_eq!(&classic[2..4], &42u16.to_le_bytes());
+        assert_eq!(&big[2..4], &43u16.to_le_bytes());
+        let (a, b) = (decode_levels(&classic), decode_levels(&big));
+        assert_eq!(a.len(), 3);
+        assert_eq!(a.len(), b.len());
+        for ((wa, ha, va), (wb, hb, vb)) in a.iter().zip(&b) {
+            assert_eq!((wa, ha), (wb, hb));
+            let (DecodingResult::F32(va), DecodingResult::F32(vb)) = (va, vb) else {
+                panic!("not f32")
+            };
+            assert!(va == vb, "level {wa} × {ha} differs");
+        }
+        let DecodingResult::F32(full) = &b[0].2 else {
+            panic!("not f32")
+        };
+        assert!(full == &data);
+    }
+
+    #[test]
+    fn rows_that_do_not_fit_the_file_are_refused() {
+        let spool = || std::io::Cursor::new(Vec::new());
+        let format = SampleFormat::U8 { bands: 3 };
+        let mut writer = TiledWriter::new(10, 4, format, spool());
+        let wrong_type = writer.push_rows(Pixels::F32 {
+            data: &[0.0; 10],
+            nodata: None,
+        });
+        assert!(matches!(wrong_type, Err(TiledError::Rows(m)) if m.contains("rows given to")));
+        let partial = writer.push_rows(Pixels::U8 {
+            data: &[0; 29],
+            bands: 3,
+        });
+        assert!(matches!(partial, Err(TiledError::Rows(m)) if m.contains("not whole rows")));
+        writer
+            .push_rows(Pixels::U8 {
+                data: &[0; 90],
+                bands: 3,
+            })
+            .unwrap();
+        assert_eq!(writer.rows_received(), 3);
+        let too_many = writer.push_rows(Pixels::U8 {
+            data: &[0; 60],
+            bands: 3,
+        });
+        assert!(matches!(too_many, Err(TiledError::Rows(_))));
+        let early = writer.finish(&mut Vec::new(), &[], None, Flavour::Auto);
+        assert!(matches!(early, Err(TiledError::Rows(m)) if m == "3 of 4 rows given"));
     }
 }

@@ -99,3 +99,107 @@ fn gdal_reads_crs_nodata_tiles_and_overviews_without_warnings() {
     }
     assert!(ortho_err.trim().is_empty(), "gdalinfo warned: {ortho_err}");
 }
+
+/// An orthomosaic written a band of rows at a time makes the file the whole-raster writer makes,
+/// leaves no spool file behind, and as BigTIFF (what files over 4 GiB become) GDAL reads it as
+/// it reads the classic one.
+#[test]
+fn a_raster_streamed_by_bands_and_as_big_tiff_reads_in_gdal() {
+    use timesift_io::geotiff::GeoTiffWriter;
+    use timesift_io::tiled_tiff::{Pixels, SampleFormat};
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (700, 530);
+    let data: Vec<u8> = (0..w * h * 4).map(|i| (i * 5 % 251) as u8).collect();
+    let whole_path = dir.path().join("whole.tif");
+    write_rgb8(
+        &whole_path,
+        &GeoRaster {
+            width: w,
+            height: h,
+            bands: 4,
+            data: data.clone(),
+            georef: georef(None),
+        },
+    )
+    .unwrap();
+    let stream = |name: &str, big: bool| {
+        let path = dir.path().join(name);
+        let mut writer =
+            GeoTiffWriter::create(&path, w, h, SampleFormat::U8 { bands: 4 }, &georef(None))
+                .unwrap();
+        if big {
+            writer = writer.big_tiff();
+        }
+        for band in data.chunks(w * 4 * 100) {
+            writer
+                .push_rows(Pixels::U8 {
+                    data: band,
+                    bands: 4,
+                })
+                .unwrap();
+        }
+        writer.finish().unwrap();
+        path
+    };
+    let streamed = stream("streamed.tif", false);
+    assert!(std::fs::read(&streamed).unwrap() == std::fs::read(&whole_path).unwrap());
+    let big = stream("big.tif", true);
+    let mut left: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["big.tif", "streamed.tif", "whole.tif"]);
+
+    // A writer dropped before it is finished leaves neither a file nor its spool.
+    let abandoned = dir.path().join("abandoned.tif");
+    let mut writer = GeoTiffWriter::create(
+        &abandoned,
+        w,
+        h,
+        SampleFormat::U8 { bands: 4 },
+        &georef(None),
+    )
+    .unwrap();
+    writer
+        .push_rows(Pixels::U8 {
+            data: &data[..w * 4 * 300],
+            bands: 4,
+        })
+        .unwrap();
+    drop(writer);
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
+
+    let Some((info, err)) = gdalinfo(&big) else {
+        println!("skipped: gdalinfo (Debian gdal-bin) is not installed");
+        return;
+    };
+    for expect in [
+        "Size is 700, 530",
+        "32754",
+        "Band 4 Block=256x256 Type=Byte, ColorInterp=Alpha",
+        "Overviews: 350x265",
+        "COMPRESSION=DEFLATE",
+    ] {
+        assert!(info.contains(expect), "{expect} not in:\n{info}");
+    }
+    assert!(err.trim().is_empty(), "gdalinfo warned: {err}");
+    // The same raster: GDAL's checksums of every band and overview agree.
+    let checksums = |text: &str| -> Vec<String> {
+        text.lines()
+            .filter(|l| l.contains("Checksum="))
+            .map(str::to_string)
+            .collect()
+    };
+    let with_checksums = |path: &Path| {
+        let out = Command::new("gdalinfo")
+            .args(["-checksum"])
+            .arg(path)
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let (a, b) = (with_checksums(&big), with_checksums(&streamed));
+    assert_eq!(checksums(&a).len(), 4);
+    assert_eq!(checksums(&a), checksums(&b));
+}

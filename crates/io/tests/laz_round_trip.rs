@@ -2,7 +2,8 @@
 
 use timesift_io::coords::Crs;
 use timesift_io::pointcloud::{
-    AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, write_las,
+    AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, read_las_positions,
+    write_las,
 };
 
 fn cloud(n: usize) -> PointCloud {
@@ -122,4 +123,27 @@ fn survey_wide_cloud_fits_at_millimetre_scale() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("too wide") && e.contains("huge.laz"), "{e}");
+}
+
+/// Positions alone (what DEM gridding reads): the same coordinates, bit for bit, as the full
+/// read, from LAZ (the x, y, z layers decompressed alone, over several batches and chunks) and
+/// from LAS; a truncated LAZ file is an error naming it.
+#[test]
+fn positions_alone_are_the_full_read_s() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = cloud(1_200_000);
+    for name in ["big.laz", "big.las"] {
+        let p = dir.path().join(name);
+        write_las(&p, &c, &LasWriteOptions::default()).unwrap();
+        let full = read_las(&p).unwrap();
+        let positions = read_las_positions(&p).unwrap();
+        assert!(positions.positions == full.positions, "{name}");
+        assert_eq!(positions.crs, Crs::Epsg(32754));
+        assert!(positions.colors.is_none() && positions.attributes.is_empty());
+    }
+    let bytes = std::fs::read(dir.path().join("big.laz")).unwrap();
+    let cut = dir.path().join("cut.laz");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let e = read_las_positions(&cut).unwrap_err().to_string();
+    assert!(e.contains("cut.laz"), "{e}");
 }

@@ -15,4 +15,7 @@ pub enum RasterError {
     /// An input has the wrong size or non-finite values.
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    /// The caller could not take the rows of a mosaic (writing them failed).
+    #[error("the mosaic's rows could not be written: {0}")]
+    Output(String),
 }

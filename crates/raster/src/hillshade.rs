@@ -56,36 +56,99 @@ pub fn downscale(
     height: usize,
     max_side: usize,
 ) -> (usize, usize, Vec<u8>) {
-    let k = width.max(height).div_ceil(max_side.max(1)).max(1);
-    let (w, h) = (width.div_ceil(k), height.div_ceil(k));
-    let colours = channels - 1;
-    let mut out = vec![0u8; w * h * channels];
-    let mut sum = vec![0u64; channels];
-    for r in 0..h {
-        for c in 0..w {
-            sum.iter_mut().for_each(|s| *s = 0);
-            let mut n = 0u64;
-            for y in r * k..((r + 1) * k).min(height) {
-                for x in c * k..((c + 1) * k).min(width) {
-                    let px = &data[(y * width + x) * channels..(y * width + x + 1) * channels];
-                    let a = px[colours] as u64;
-                    for b in 0..colours {
-                        sum[b] += a * px[b] as u64;
-                    }
-                    sum[colours] += a;
-                    n += 1;
-                }
-            }
-            let o = &mut out[(r * w + c) * channels..(r * w + c + 1) * channels];
-            for b in 0..colours {
-                if let Some(v) = (sum[b] + sum[colours] / 2).checked_div(sum[colours]) {
-                    o[b] = v as u8;
-                }
-            }
-            o[colours] = (sum[colours] / n.max(1)) as u8;
+    let mut small = Downscaler::new(channels, width, height, max_side);
+    small.push_rows(data);
+    small.finish()
+}
+
+/// [`downscale`] of a raster given a band of rows at a time (a preview of a mosaic larger
+/// than memory): holds one output row's sums.
+#[derive(Debug, Clone)]
+pub struct Downscaler {
+    channels: usize,
+    width: usize,
+    height: usize,
+    k: usize,
+    out_width: usize,
+    /// Input rows taken so far.
+    rows: usize,
+    /// Per output column of the output row being summed: alpha-weighted colour sums, the
+    /// alpha sum, and the cell count.
+    sums: Vec<u64>,
+    counts: Vec<u64>,
+    out: Vec<u8>,
+}
+
+impl Downscaler {
+    /// A downscaler of a `width` × `height` raster of `channels` channels (the last alpha) to
+    /// a longer side of at most `max_side`.
+    pub fn new(channels: usize, width: usize, height: usize, max_side: usize) -> Downscaler {
+        let k = width.max(height).div_ceil(max_side.max(1)).max(1);
+        let out_width = width.div_ceil(k);
+        Downscaler {
+            channels,
+            width,
+            height,
+            k,
+            out_width,
+            rows: 0,
+            sums: vec![0; out_width * channels],
+            counts: vec![0; out_width],
+            out: Vec::with_capacity(out_width * height.div_ceil(k) * channels),
         }
     }
-    (w, h, out)
+
+    /// Takes whole rows below those already given (rows beyond the height are ignored).
+    pub fn push_rows(&mut self, data: &[u8]) {
+        let (ch, colours) = (self.channels, self.channels.saturating_sub(1));
+        for row in data.chunks_exact(self.width * ch) {
+            if self.rows == self.height {
+                return;
+            }
+            for (x, px) in row.chunks_exact(ch).enumerate() {
+                let c = x / self.k;
+                let sum = &mut self.sums[c * ch..(c + 1) * ch];
+                let a = px[colours] as u64;
+                for b in 0..colours {
+                    sum[b] += a * px[b] as u64;
+                }
+                sum[colours] += a;
+                self.counts[c] += 1;
+            }
+            self.rows += 1;
+            if self.rows % self.k == 0 || self.rows == self.height {
+                self.emit_row();
+            }
+        }
+    }
+
+    /// One output row from the sums, which start again at zero.
+    fn emit_row(&mut self) {
+        let (ch, colours) = (self.channels, self.channels.saturating_sub(1));
+        let start = self.out.len();
+        self.out.resize(start + self.out_width * ch, 0);
+        let row = &mut self.out[start..];
+        for (c, (px, sum)) in row
+            .chunks_exact_mut(ch)
+            .zip(self.sums.chunks_exact(ch))
+            .enumerate()
+        {
+            for b in 0..colours {
+                if let Some(v) = (sum[b] + sum[colours] / 2).checked_div(sum[colours]) {
+                    px[b] = v as u8;
+                }
+            }
+            px[colours] = (sum[colours] / self.counts[c].max(1)) as u8;
+        }
+        self.sums.iter_mut().for_each(|s| *s = 0);
+        self.counts.iter_mut().for_each(|n| *n = 0);
+    }
+
+    /// The downscaled raster: (width, height, data), with the rows given so far.
+    pub fn finish(self) -> (usize, usize, Vec<u8>) {
+        let rows = self.out.len() / (self.out_width * self.channels).max(1);
+        (self.out_width, rows, self.out)
+    }
 }
 
 #[cfg(test)]
@@ -122,5 +185,44 @@ mod tests {
         let (w, h, out) = downscale(&data, 2, 4, 2, 2);
         assert_eq!((w, h), (2, 1));
         assert_eq!(out, vec![100, 191, 50, 255]);
+    }
+
+    #[test]
+    fn downscaling_by_bands_of_rows_gives_the_whole_raster_s_preview() {
+        // 23 × 17 RGBA to at most 5 on a side: blocks of 5 × 5, the last ones partial.
+        let (w, h) = (23, 17);
+        let data: Vec<u8> = (0..w * h * 4)
+            .map(|i| {
+                if i % 4 == 3 {
+                    (i * 13 % 256) as u8
+                } else {
+                    (i * 7 % 251) as u8
+                }
+            })
+            .collect();
+        let (sw, sh, whole) = downscale(&data, 4, w, h, 5);
+        assert_eq!((sw, sh), (5, 4));
+        // The first output cell, by hand: alpha-weighted colour and mean alpha of 5 × 5 cells.
+        let (mut red, mut alpha) = (0u64, 0u64);
+        for y in 0..5 {
+            for x in 0..5 {
+                let px = &data[(y * w + x) * 4..(y * w + x + 1) * 4];
+                red += px[3] as u64 * px[0] as u64;
+                alpha += px[3] as u64;
+            }
+        }
+        assert_eq!(whole[0] as u64, (red + alpha / 2) / alpha);
+        assert_eq!(whole[3] as u64, alpha / 25);
+        for band in [1, 4, 7, 17] {
+            let mut small = Downscaler::new(4, w, h, 5);
+            for rows in data.chunks(band * w * 4) {
+                small.push_rows(rows);
+            }
+            assert_eq!(
+                small.finish(),
+                (sw, sh, whole.clone()),
+                "bands of {band} rows"
+            );
+        }
     }
 }

@@ -54,8 +54,11 @@ mod ortho;
 
 pub use dem::{CellHeight, Dem, DemOptions, grid_cloud};
 pub use error::RasterError;
-pub use hillshade::{downscale, hillshade};
+pub use hillshade::{Downscaler, downscale, hillshade};
 pub use lattice::{
     Bounds, EpochFootprint, ExtentRule, GridOptions, Lattice, ProjectGrid, plan_grid, tidy_cell,
 };
-pub use ortho::{Ortho, OrthoOptions, OrthoStats, OrthoView, RgbImage, ViewImages, orthomosaic};
+pub use ortho::{
+    Ortho, OrthoOptions, OrthoStats, OrthoSummary, OrthoView, RgbImage, RowSink, ViewImages,
+    orthomosaic, orthomosaic_by_rows,
+};

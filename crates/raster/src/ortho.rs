@@ -119,6 +119,28 @@ pub struct Ortho {
     pub stats: OrthoStats,
 }
 
+/// Where [`orthomosaic_by_rows`] hands the mosaic: `(first_row, rgba)` with whole rows; an error
+/// stops the mosaic.
+pub type RowSink<'a> = dyn FnMut(usize, &[u8]) -> Result<(), String> + 'a;
+
+/// One band of tiles of the mosaic, with its figures.
+struct Band {
+    rgba: Vec<u8>,
+    jumps: JumpSums,
+    painted: usize,
+}
+
+/// What [`orthomosaic_by_rows`] made, its rows having gone to the caller.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OrthoSummary {
+    /// The lattice (the DEM's, subdivided).
+    pub lattice: Lattice,
+    /// Gain per view and channel (1 without compensation).
+    pub gains: Vec<[f64; 3]>,
+    /// Seam and coverage figures.
+    pub stats: OrthoStats,
+}
+
 /// A view with what the mosaic needs of it precomputed.
 struct PreparedView<'a> {
     view: &'a OrthoView,
@@ -139,8 +161,8 @@ struct Context<'a> {
     options: OrthoOptions,
 }
 
-/// Mosaics `views` onto the DEM (`heights` on `lattice`, NaN = none). `progress` is told
-/// (tiles done, tiles to do) as the work goes (the gain fit visits every tile once too).
+/// Mosaics `views` onto the DEM (`heights` on `lattice`, NaN = none), in memory; see
+/// [`orthomosaic_by_rows`] for mosaics larger than memory.
 pub fn orthomosaic(
     heights: &[f32],
     lattice: &Lattice,
@@ -149,6 +171,42 @@ pub fn orthomosaic(
     options: &OrthoOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Ortho, RasterError> {
+    let mut rgba = Vec::new();
+    let summary = orthomosaic_by_rows(
+        heights,
+        lattice,
+        views,
+        images,
+        options,
+        progress,
+        &mut |_, rows| {
+            rgba.extend_from_slice(rows);
+            Ok(())
+        },
+    )?;
+    Ok(Ortho {
+        lattice: summary.lattice,
+        rgba,
+        gains: summary.gains,
+        stats: summary.stats,
+    })
+}
+
+/// Mosaics `views` onto the DEM (`heights` on `lattice`, NaN = none) and hands the mosaic to
+/// `rows` a band at a time, top to bottom: `rows(first_row, rgba)` with whole rows of the
+/// ortho lattice (RGBA, alpha 0 where no image sees the cell), so that memory holds a few
+/// bands of tiles, never the mosaic (an error `rows` returns stops the work). `progress` is
+/// told (tiles done, tiles to do) as the work goes (the gain fit visits every tile once too).
+/// The rows do not depend on the number of threads.
+pub fn orthomosaic_by_rows(
+    heights: &[f32],
+    lattice: &Lattice,
+    views: &[OrthoView],
+    images: &dyn ViewImages,
+    options: &OrthoOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    rows: &mut RowSink<'_>,
+) -> Result<OrthoSummary, RasterError> {
     validate(heights, lattice, views, options)?;
     let finite = heights.iter().filter(|h| h.is_finite());
     let (min_height, max_height) = finite
@@ -183,42 +241,56 @@ pub fn orthomosaic(
 
     let ortho_lattice = lattice.subdivided(options.factor)?;
     let f = options.factor;
-    let ow = ortho_lattice.width();
-    let mut rgba = vec![0u8; ortho_lattice.len() * 4];
+    let (ow, oh) = (ortho_lattice.width(), ortho_lattice.height());
     let tiles_across = lattice.width().div_ceil(options.tile);
-    let band = options.tile * f * ow * 4;
-    let bands: Vec<Result<(JumpSums, usize), RasterError>> = rgba
-        .par_chunks_mut(band)
-        .enumerate()
-        .map(|(tile_row, out)| {
-            let mut jumps = JumpSums::default();
-            let mut painted = 0;
-            for tile_col in 0..tiles_across {
-                let core = tiles[tile_row * tiles_across + tile_col];
-                let tile = TileData::compute(&ctx, core, images, &gains)?;
-                painted += tile.paint(&ctx, out, tile_row * options.tile * f, &mut jumps);
-                tick();
-            }
-            Ok((jumps, painted))
-        })
-        .collect();
-    // Sums in band order, so the figures do not depend on the thread count.
-    let mut total = JumpSums::default();
+    let tiles_down = lattice.height().div_ceil(options.tile);
+    let band_rows = options.tile * f;
+    // Bands of tiles are made a batch at a time, in parallel, and handed over in order: a
+    // couple of bands per thread keeps the threads busy while bounding the memory.
+    let batch = 2 * rayon::current_num_threads().max(1);
+    let mut sums = JumpSums::default();
     let mut stats = OrthoStats::default();
-    for b in bands {
-        let (j, painted) = b?;
-        stats.painted_cells += painted;
-        total.seam += j.seam;
-        total.seam_n += j.seam_n;
-        total.interior += j.interior;
-        total.interior_n += j.interior_n;
+    for first in (0..tiles_down).step_by(batch) {
+        let bands: Vec<Result<Band, RasterError>> = (first..(first + batch).min(tiles_down))
+            .into_par_iter()
+            .map(|tile_row| {
+                let row0 = tile_row * band_rows;
+                let mut out = vec![0u8; band_rows.min(oh - row0) * ow * 4];
+                let mut jumps = JumpSums::default();
+                let mut painted = 0;
+                for tile_col in 0..tiles_across {
+                    let core = tiles[tile_row * tiles_across + tile_col];
+                    let tile = TileData::compute(&ctx, core, images, &gains)?;
+                    painted += tile.paint(&ctx, &mut out, row0, &mut jumps);
+                    tick();
+                }
+                Ok(Band {
+                    rgba: out,
+                    jumps,
+                    painted,
+                })
+            })
+            .collect();
+        // Sums in band order, so the figures do not depend on the thread count.
+        for (tile_row, band) in (first..).zip(bands) {
+            let Band {
+                rgba: out,
+                jumps: j,
+                painted,
+            } = band?;
+            stats.painted_cells += painted;
+            sums.seam += j.seam;
+            sums.seam_n += j.seam_n;
+            sums.interior += j.interior;
+            sums.interior_n += j.interior_n;
+            rows(tile_row * band_rows, &out).map_err(RasterError::Output)?;
+        }
     }
-    stats.seam_cells = total.seam_n;
-    stats.seam_jump = total.seam / total.seam_n.max(1) as f64;
-    stats.interior_jump = total.interior / total.interior_n.max(1) as f64;
-    Ok(Ortho {
+    stats.seam_cells = sums.seam_n;
+    stats.seam_jump = sums.seam / sums.seam_n.max(1) as f64;
+    stats.interior_jump = sums.interior / sums.interior_n.max(1) as f64;
+    Ok(OrthoSummary {
         lattice: ortho_lattice,
-        rgba,
         gains,
         stats,
     })
