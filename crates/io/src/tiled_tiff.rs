@@ -281,11 +281,17 @@ impl<S: Read + Write + Seek> TiledWriter<S> {
                 self.levels[0].height
             )));
         }
-        let owned = match pixels {
-            Pixels::F32 { data, .. } => Rows::F32(data.to_vec()),
-            Pixels::U8 { data, .. } => Rows::U8(data.to_vec()),
-        };
-        self.feed(owned)
+        // At most a band of tiles at a time, so that what waits for its tiles stays under two
+        // bands, however many rows come at once.
+        let band = TILE * row_len;
+        match pixels {
+            Pixels::F32 { data, .. } => data
+                .chunks(band)
+                .try_for_each(|rows| self.feed(Rows::F32(rows.to_vec()))),
+            Pixels::U8 { data, .. } => data
+                .chunks(band)
+                .try_for_each(|rows| self.feed(Rows::U8(rows.to_vec()))),
+        }
     }
 
     /// Gives `rows` to the full-resolution level; every complete band of tiles there is

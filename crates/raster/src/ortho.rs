@@ -28,6 +28,8 @@ const MAX_CANDIDATES: usize = 32;
 /// Weight of the pull of every gain towards 1, relative to the view's overlap terms: enough to
 /// fix the overall level (the mean gain stays near 1), too little to hold exposures apart.
 const GAIN_PRIOR: f64 = 1e-3;
+/// Memory for the bands of the mosaic made at once, beyond one per thread.
+const BANDS_IN_FLIGHT_BYTES: usize = 128 << 20;
 /// Fixed cost of a seam between two cells, so that equal-colour seams still stay short.
 const SEAM_BASE_COST: f32 = 0.05;
 
@@ -245,9 +247,12 @@ pub fn orthomosaic_by_rows(
     let tiles_across = lattice.width().div_ceil(options.tile);
     let tiles_down = lattice.height().div_ceil(options.tile);
     let band_rows = options.tile * f;
-    // Bands of tiles are made a batch at a time, in parallel, and handed over in order: a
-    // couple of bands per thread keeps the threads busy while bounding the memory.
-    let batch = 2 * rayon::current_num_threads().max(1);
+    // Bands of tiles are made a batch at a time, in parallel, and handed over in order: two
+    // bands per thread keep the threads busy, one per thread where bands are large (a wide
+    // mosaic), so that memory grows with the mosaic's width, never with its area.
+    let threads = rayon::current_num_threads().max(1);
+    let band_bytes = (band_rows * ow * 4).max(1);
+    let batch = (BANDS_IN_FLIGHT_BYTES / band_bytes).clamp(threads, 2 * threads);
     let mut sums = JumpSums::default();
     let mut stats = OrthoStats::default();
     for first in (0..tiles_down).step_by(batch) {
