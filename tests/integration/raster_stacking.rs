@@ -42,6 +42,12 @@ fn every_scene_s_epochs_share_the_dem_and_ortho_grids() {
         grey_images(dir);
         write_true_orientation(dir, &spec, 30.0).expect("orientation");
         let epochs = write_sampled_clouds(dir, &spec, 4.0, 0.5, 3).expect("clouds");
+        // Grids are what this test checks: the mosaic of grey images without its seam sweeps
+        // and gain fit (what they do is `run_raster`'s and the raster crate's to check).
+        let toml = dir.join("project.toml");
+        let text = std::fs::read_to_string(&toml).expect("project.toml")
+            + "\n[raster]\nseam_sweeps = 0\ngain_compensation = false\n";
+        std::fs::write(&toml, text).expect("project.toml");
         let (ok, err) = run(dir);
         assert!(ok, "{scene}: {err}");
         let grid: GridFile = read_json(&dir.join("out/grid.json")).expect("grid.json");
