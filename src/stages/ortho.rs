@@ -29,8 +29,11 @@ use crate::{Project, ProjectError};
 /// Version of the mosaicking, part of each ortho's settings.
 const ORTHO_ALGORITHM: u32 = 1;
 
-/// Decoded images kept: enough for the candidate views of the tiles two threads work on.
+/// Decoded images kept: enough for the candidate views of the tiles two threads work on...
 const IMAGE_CACHE: usize = 48;
+/// ...within this many bytes (48 decoded 20-megapixel photographs would take 2.9 GB). Images a
+/// tile still uses stay alive through the tile's own handles when the cache lets them go.
+const IMAGE_CACHE_BYTES: usize = 1536 << 20;
 
 /// The `ortho` stage.
 pub(super) struct OrthoStage;
@@ -141,8 +144,11 @@ impl ViewImages for ImageCache<'_> {
         });
         if let Ok(mut entries) = self.entries.lock() {
             entries.push_back((view, image.clone()));
-            while entries.len() > IMAGE_CACHE {
-                entries.pop_front();
+            let mut bytes: usize = entries.iter().map(|(_, image)| image.data.len()).sum();
+            while entries.len() > 1 && (entries.len() > IMAGE_CACHE || bytes > IMAGE_CACHE_BYTES) {
+                if let Some((_, image)) = entries.pop_front() {
+                    bytes -= image.data.len();
+                }
             }
         }
         Ok(image)
