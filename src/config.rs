@@ -386,6 +386,11 @@ pub struct DenseConfig {
     /// Half-size of the matching window, pixels. Default 5 (11 × 11, sampled every other pixel).
     #[serde(default = "default_window_radius")]
     pub window_radius: usize,
+    /// Intensity σ (0–1) of the matching window's bilateral weights: how much a window sample
+    /// of another colour than the centre counts. Smaller keeps a depth edge from spreading
+    /// into weakly textured ground beside it (a roof's depth into its shadow). Default 0.1.
+    #[serde(default = "default_sigma_color")]
+    pub sigma_color: f32,
     /// PatchMatch iterations of the photometric passes. Default 3.
     #[serde(default = "default_photometric_iterations")]
     pub iterations: usize,
@@ -415,6 +420,9 @@ fn default_min_images() -> usize {
 fn default_window_radius() -> usize {
     5
 }
+fn default_sigma_color() -> f32 {
+    timesift_dense::PatchMatchOptions::default().sigma_color
+}
 fn default_photometric_iterations() -> usize {
     3
 }
@@ -433,6 +441,7 @@ impl Default for DenseConfig {
             min_views: default_min_views(),
             min_images: default_min_images(),
             window_radius: default_window_radius(),
+            sigma_color: default_sigma_color(),
             iterations: default_photometric_iterations(),
             geometric_iterations: default_geometric_iterations(),
             max_cost: default_max_cost(),
@@ -493,6 +502,7 @@ impl DenseConfig {
         o.plan.level = self.level;
         o.plan.max_sources = self.max_sources;
         o.patchmatch.window_radius = self.window_radius;
+        o.patchmatch.sigma_color = self.sigma_color;
         o.patchmatch.photometric_iterations = self.iterations;
         o.patchmatch.geometric_iterations = self.geometric_iterations;
         o.filter.min_views = self.min_views;
@@ -907,6 +917,16 @@ impl ProjectConfig {
                 ));
             }
         }
+        if !(dense.sigma_color > 0.0 && dense.sigma_color <= 1.0) {
+            return Err(ProjectError::config(
+                path,
+                "dense.sigma_color",
+                format!(
+                    "expected an intensity σ in (0, 1], found {}",
+                    dense.sigma_color
+                ),
+            ));
+        }
         if !(dense.max_cost > 0.0 && dense.max_cost <= 2.0) {
             return Err(ProjectError::config(
                 path,
@@ -969,6 +989,31 @@ mod tests {
             let e = parse(line).unwrap_err().to_string();
             assert!(e.contains(key) && e.contains(what), "{line}: {e}");
             assert!(!e.contains('\n'), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_bilateral_sigma_reaches_the_matcher_and_bad_values_name_their_key() {
+        let with_dense = |line: &str| {
+            let text =
+                format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[dense]\n{line}\n");
+            ProjectConfig::parse(Path::new("project.toml"), &text)
+        };
+        // The documented default is the matcher's own, and a set value reaches it.
+        let documented = with_dense("sigma_color = 0.1").unwrap();
+        assert_eq!(documented.dense, DenseConfig::default());
+        let sharp = with_dense("sigma_color = 0.04").unwrap();
+        assert_eq!(sharp.dense.options().patchmatch.sigma_color, 0.04);
+        for bad in [
+            "sigma_color = 0.0",
+            "sigma_color = 1.5",
+            "sigma_color = -0.1",
+        ] {
+            let e = with_dense(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("dense.sigma_color") && e.contains("(0, 1]"),
+                "{bad}: {e}"
+            );
         }
     }
 

@@ -171,6 +171,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     );
     let _ = writeln!(
         text,
+        "# sigma_color = 0.1    # intensity σ of the window's bilateral weights (0-1)"
+    );
+    let _ = writeln!(
+        text,
         "# iterations = 3       # PatchMatch iterations per pass"
     );
     let _ = writeln!(text, "# geometric_iterations = 2");

@@ -297,6 +297,7 @@ fn map_settings(options: &DenseOptions, fingerprint: &str, images: &[usize]) -> 
         "max_sources": options.plan.max_sources,
         "window_radius": pm.window_radius,
         "window_step": pm.window_step,
+        "sigma_color": pm.sigma_color,
         "iterations": pm.photometric_iterations,
         "geometric_iterations": pm.geometric_iterations,
         "black_is_nodata": options.black_is_nodata,
