@@ -955,10 +955,15 @@ impl ProjectConfig {
 mod tests {
     use super::*;
 
-    fn parse(raster: &str) -> Result<ProjectConfig, ProjectError> {
+    /// A one-epoch project whose `[section]` holds `lines`.
+    fn parse_section(section: &str, lines: &str) -> Result<ProjectConfig, ProjectError> {
         let text =
-            format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[raster]\n{raster}\n");
+            format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[{section}]\n{lines}\n");
         ProjectConfig::parse(Path::new("project.toml"), &text)
+    }
+
+    fn parse(raster: &str) -> Result<ProjectConfig, ProjectError> {
+        parse_section("raster", raster)
     }
 
     #[test]
@@ -994,11 +999,7 @@ mod tests {
 
     #[test]
     fn the_bilateral_sigma_reaches_the_matcher_and_bad_values_name_their_key() {
-        let with_dense = |line: &str| {
-            let text =
-                format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[dense]\n{line}\n");
-            ProjectConfig::parse(Path::new("project.toml"), &text)
-        };
+        let with_dense = |line: &str| parse_section("dense", line);
         // The documented default is the matcher's own, and a set value reaches it.
         let documented = with_dense("sigma_color = 0.1").unwrap();
         assert_eq!(documented.dense, DenseConfig::default());
@@ -1019,11 +1020,7 @@ mod tests {
 
     #[test]
     fn inter_epoch_ties_and_outlier_bound_have_defaults_and_name_their_values() {
-        let with_align = |line: &str| {
-            let text =
-                format!("[[epoch]]\nname = \"a\"\nimages = \"images/a/*\"\n\n[align]\n{line}\n");
-            ProjectConfig::parse(Path::new("project.toml"), &text)
-        };
+        let with_align = |line: &str| parse_section("align", line);
         assert_eq!(
             with_align("").unwrap().align.inter_epoch_ties,
             InterEpochTies::Auto

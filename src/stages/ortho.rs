@@ -5,8 +5,9 @@
 //!
 //! Images are read on demand through a small cache, so memory holds the images of the tiles in
 //! flight, not the epoch; the mosaic is written a band of rows at a time as it is made, so
-//! memory never holds the mosaic either (an ortho over 4 GiB is written as BigTIFF). An epoch's ortho is redone only when its DEM, its orientation or the
-//! ortho options change (`work/raster/<epoch>.ortho.json`).
+//! memory never holds the mosaic either (an ortho over 4 GiB is written as BigTIFF). An epoch's
+//! ortho is redone only when its DEM, its orientation or the ortho options change
+//! (`work/raster/<epoch>.ortho.json`).
 
 use std::collections::VecDeque;
 use std::path::PathBuf;

@@ -365,7 +365,7 @@ fn gdal_grid_comparison(
     write_sampled_clouds(&work, spec, 1.0, 0.5, 11)?;
     let cloud_path = work.join("out/epochs").join(epoch).join("dense.laz");
     let dem_path = dir.join("out/epochs").join(epoch).join("dem.tif");
-    let cloud = timesift_io::pointcloud::read_las(&cloud_path)?;
+    let cloud = timesift_io::pointcloud::read_las_positions(&cloud_path)?;
     let like = read_f32(&dem_path)?;
     let t = like.georef.transform;
     let cell = t.pixel_width;

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use crate::IoError;
 
 /// The temporary path used while writing `path`: same folder, so the final rename is atomic.
-fn temporary_path(path: &Path) -> PathBuf {
+pub(crate) fn temporary_path(path: &Path) -> PathBuf {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())

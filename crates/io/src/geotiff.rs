@@ -227,11 +227,11 @@ impl GeoTiffWriter {
         if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
             std::fs::create_dir_all(parent).map_err(|e| IoError::io(parent, e))?;
         }
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let spool_path = path.with_file_name(format!(".{name}.tmp-{}.tiles", std::process::id()));
+        // A temporary name of the output's (`.<name>.tmp-<pid>.tiles`), which a later run
+        // removes if this process is killed.
+        let mut spool_path = fsutil::temporary_path(path).into_os_string();
+        spool_path.push(".tiles");
+        let spool_path = PathBuf::from(spool_path);
         let spool = std::fs::OpenOptions::new()
             .read(true)
             .write(true)

@@ -8,7 +8,10 @@
 use std::io::{BufReader, Seek, SeekFrom};
 use std::path::Path;
 
-use las::{Builder, Color, Point, Reader, Transform, Vector, Version, Vlr, Writer, point::Format};
+use las::{
+    Builder, Color, Point, PointData, PointDataBuilder, Reader, Transform, Vector, Version, Vlr,
+    Writer, point::Format,
+};
 
 use crate::coords::Crs;
 use crate::{IoError, fsutil};
@@ -304,16 +307,11 @@ pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
     let crs = crs_of(&header);
     let has_color = header.point_format().has_color;
     let data = reader.read_all().map_err(las_err)?;
-    let mut positions = Vec::with_capacity(data.len());
-    let mut colors = has_color.then(|| Vec::with_capacity(data.len()));
     // Column by column from the decompressed records: materialising a `las::Point` per record
     // allocates its extra bytes, which cost more than the decompression itself.
-    positions.extend(
-        data.x()
-            .zip(data.y())
-            .zip(data.z())
-            .map(|((x, y), z)| [x, y, z]),
-    );
+    let mut positions = Vec::with_capacity(data.len());
+    positions.extend(positions_of(&data));
+    let mut colors = has_color.then(|| Vec::with_capacity(data.len()));
     if let (Some(colors), Some(rgb)) = (colors.as_mut(), data.rgb()) {
         colors.extend(rgb.map(|(r, g, b)| [r, g, b]));
     }
@@ -363,21 +361,35 @@ pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
 /// The returned cloud has no colours and no attributes.
 pub fn read_las_positions(path: &Path) -> Result<PointCloud, IoError> {
     let las_err = |e: las::Error| IoError::invalid(path, format!("cannot read LAS: {e}"));
-    let reader = Reader::from_path(path).map_err(las_err)?;
+    let mut reader = Reader::from_path(path).map_err(las_err)?;
     let header = reader.header().clone();
-    drop(reader);
-    let crs = crs_of(&header);
-    let layered = header.point_format().is_extended;
-    let vlr = match header.laz_vlr() {
-        Ok(vlr) if layered && header.point_format().is_compressed => vlr,
-        // Uncompressed, or point-wise compression (formats 0 to 5): nothing to skip.
-        _ => {
-            let mut cloud = read_las(path)?;
-            cloud.colors = None;
-            cloud.attributes.clear();
-            return Ok(cloud);
+    let format = header.point_format();
+    let positions = match header.laz_vlr() {
+        Ok(vlr) if format.is_extended && format.is_compressed => {
+            drop(reader);
+            layered_laz_positions(path, &header, vlr)?
         }
+        // Uncompressed, or point-wise compression (formats 0 to 5): nothing to skip.
+        _ => positions_of(&reader.read_all().map_err(las_err)?).collect(),
     };
+    Ok(PointCloud {
+        positions,
+        colors: None,
+        attributes: Vec::new(),
+        crs: crs_of(&header),
+    })
+}
+
+/// The positions of a layered LAZ file, its x, y and z layers alone decompressed, a batch of
+/// records at a time (the chunks of a batch decompress in parallel): the header's point count is
+/// not trusted for an allocation, a corrupt file fails first.
+fn layered_laz_positions(
+    path: &Path,
+    header: &las::Header,
+    vlr: laz::LazVlr,
+) -> Result<Vec<[f64; 3]>, IoError> {
+    const BATCH: u64 = 1 << 20;
+    let las_err = |e: las::Error| IoError::invalid(path, format!("cannot read LAS: {e}"));
     let laz_err = |e: laz::LasZipError| IoError::invalid(path, format!("cannot read LAZ: {e}"));
     let mut file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
     let raw = las::raw::Header::read_from(&mut file).map_err(las_err)?;
@@ -387,38 +399,26 @@ pub fn read_las_positions(path: &Path) -> Result<PointCloud, IoError> {
     let mut decompressor =
         laz::ParLasZipDecompressor::selective(BufReader::new(file), vlr, selection)
             .map_err(laz_err)?;
-    let record_len = usize::from(header.point_format().len());
-    let t = header.transforms();
-    let coordinate = |record: &[u8], at: usize| {
-        i32::from_le_bytes([record[at], record[at + 1], record[at + 2], record[at + 3]])
-    };
-    // A batch of records at a time (the chunks of a batch decompress in parallel): the
-    // header's point count is not trusted for an allocation, a corrupt file fails first.
-    const BATCH: u64 = 1 << 20;
+    let mut records = PointDataBuilder::new().for_header(header).build();
     let mut positions = Vec::new();
-    let mut records = Vec::new();
     let mut left = header.number_of_points();
     while left > 0 {
         let batch = left.min(BATCH);
-        records.resize(batch as usize * record_len, 0);
         decompressor
-            .decompress_many(&mut records)
+            .decompress_many(records.resize_for(batch as usize))
             .map_err(laz_err)?;
-        positions.extend(records.chunks_exact(record_len).map(|r| {
-            [
-                t.x.direct(coordinate(r, 0)),
-                t.y.direct(coordinate(r, 4)),
-                t.z.direct(coordinate(r, 8)),
-            ]
-        }));
+        positions.extend(positions_of(&records));
         left -= batch;
     }
-    Ok(PointCloud {
-        positions,
-        colors: None,
-        attributes: Vec::new(),
-        crs,
-    })
+    Ok(positions)
+}
+
+/// The positions of decompressed records, from their x, y and z columns.
+fn positions_of(data: &PointData) -> impl Iterator<Item = [f64; 3]> + '_ {
+    data.x()
+        .zip(data.y())
+        .zip(data.z())
+        .map(|((x, y), z)| [x, y, z])
 }
 
 /// The CRS a LAS header names: an EPSG code found in its WKT, else local.

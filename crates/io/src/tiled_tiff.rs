@@ -119,6 +119,36 @@ impl Pixels<'_> {
             Pixels::U8 { data, .. } => data.len(),
         }
     }
+
+    /// The samples in `range`, same format.
+    fn slice(&self, range: std::ops::Range<usize>) -> Pixels<'_> {
+        match self {
+            Pixels::F32 { data, nodata } => Pixels::F32 {
+                data: &data[range],
+                nodata: *nodata,
+            },
+            Pixels::U8 { data, bands } => Pixels::U8 {
+                data: &data[range],
+                bands: *bands,
+            },
+        }
+    }
+
+    /// An owned copy.
+    fn to_rows(&self) -> Rows {
+        match self {
+            Pixels::F32 { data, .. } => Rows::F32(data.to_vec()),
+            Pixels::U8 { data, .. } => Rows::U8(data.to_vec()),
+        }
+    }
+
+    /// The 2 × 2 averages of these `w` × `h` pixels (nodata and transparent cells left out).
+    fn halved(&self, w: usize, h: usize) -> Rows {
+        match self {
+            Pixels::F32 { data, nodata } => Rows::F32(halve_f32(data, w, h, *nodata)),
+            Pixels::U8 { data, bands } => Rows::U8(halve_u8(data, w, h, *bands)),
+        }
+    }
 }
 
 /// The sample layout of a file, without its pixels.
@@ -192,6 +222,21 @@ impl Rows {
             (Rows::F32(a), Rows::F32(b)) => a.extend_from_slice(&b),
             (Rows::U8(a), Rows::U8(b)) if a.is_empty() => *a = b,
             (Rows::U8(a), Rows::U8(b)) => a.extend_from_slice(&b),
+            _ => unreachable!("one level holds one sample type"),
+        }
+    }
+
+    /// The first `samples` samples, as pixels of `format`.
+    fn head(&self, samples: usize, format: SampleFormat) -> Pixels<'_> {
+        match (self, format) {
+            (Rows::F32(v), SampleFormat::F32 { nodata }) => Pixels::F32 {
+                data: &v[..samples],
+                nodata,
+            },
+            (Rows::U8(v), SampleFormat::U8 { bands }) => Pixels::U8 {
+                data: &v[..samples],
+                bands,
+            },
             _ => unreachable!("one level holds one sample type"),
         }
     }
@@ -284,30 +329,22 @@ impl<S: Read + Write + Seek> TiledWriter<S> {
         // At most a band of tiles at a time, so that what waits for its tiles stays under two
         // bands, however many rows come at once.
         let band = TILE * row_len;
-        match pixels {
-            Pixels::F32 { data, .. } => data
-                .chunks(band)
-                .try_for_each(|rows| self.feed(Rows::F32(rows.to_vec()))),
-            Pixels::U8 { data, .. } => data
-                .chunks(band)
-                .try_for_each(|rows| self.feed(Rows::U8(rows.to_vec()))),
-        }
+        (0..pixels.len()).step_by(band).try_for_each(|start| {
+            let end = (start + band).min(pixels.len());
+            self.feed(pixels.slice(start..end).to_rows())
+        })
     }
 
     /// Gives `rows` to the full-resolution level; every complete band of tiles there is
     /// compressed and spooled, and its 2 × 2 averages go down a level, and so on.
     fn feed(&mut self, rows: Rows) -> Result<(), TiledError> {
-        let bands = self.format.bands();
-        let nodata = match self.format {
-            SampleFormat::F32 { nodata } => nodata,
-            SampleFormat::U8 { .. } => None,
-        };
+        let row_samples = self.format.bands();
         let n_levels = self.levels.len();
         let mut incoming = Some(rows);
         for k in 0..n_levels {
             let Some(rows) = incoming.take() else { break };
             let level = &mut self.levels[k];
-            let row_len = level.width * bands;
+            let row_len = level.width * row_samples;
             level.received += rows.len() / row_len;
             level.pending.append(rows);
             let mut halves = Rows::empty(self.format);
@@ -318,36 +355,16 @@ impl<S: Read + Write + Seek> TiledWriter<S> {
                     break;
                 }
                 let n = pending_rows.min(TILE);
-                let samples = n * row_len;
-                let (tiles, halved) = match &level.pending {
-                    Rows::F32(v) => {
-                        let band = &v[..samples];
-                        let pixels = Pixels::F32 { data: band, nodata };
-                        (
-                            compress_band(&pixels, level.width, n)?,
-                            (k + 1 < n_levels)
-                                .then(|| Rows::F32(halve_f32(band, level.width, n, nodata))),
-                        )
-                    }
-                    Rows::U8(v) => {
-                        let band = &v[..samples];
-                        let pixels = Pixels::U8 { data: band, bands };
-                        (
-                            compress_band(&pixels, level.width, n)?,
-                            (k + 1 < n_levels)
-                                .then(|| Rows::U8(halve_u8(band, level.width, n, bands))),
-                        )
-                    }
-                };
-                for tile in tiles {
+                let band = level.pending.head(n * row_len, self.format);
+                for tile in compress_band(&band, level.width, n)? {
                     self.spool.write_all(&tile).map_err(TiledError::Io)?;
                     level.tiles.push((self.spool_len, tile.len() as u32));
                     self.spool_len += tile.len() as u64;
                 }
-                level.pending.drain_front(samples);
-                if let Some(h) = halved {
-                    halves.append(h);
+                if k + 1 < n_levels {
+                    halves.append(band.halved(level.width, n));
                 }
+                level.pending.drain_front(n * row_len);
             }
             if halves.len() > 0 {
                 incoming = Some(halves);
@@ -410,21 +427,16 @@ impl<S: Read + Write + Seek> TiledWriter<S> {
             e.sort_by_key(|e| e.tag);
             ifds.push(e);
         }
-        let tile_lens: Vec<Vec<u32>> = self
-            .levels
-            .iter()
-            .map(|l| l.tiles.iter().map(|t| t.1).collect())
-            .collect();
-        let classic = Layout::of(&ifds, &tile_lens, false);
+        let classic = Layout::of(&ifds, &self.levels, false);
         let big = flavour == Flavour::BigTiff || classic.end > u32::MAX as u64;
         let layout = if big {
             // The offsets become 64-bit values (the entry keeps its count).
             for (k, e) in ifds.iter_mut().enumerate() {
                 if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
-                    *entry = Entry::long8s(324, &vec![0; tile_lens[k].len()]);
+                    *entry = Entry::long8s(324, &vec![0; self.levels[k].tiles.len()]);
                 }
             }
-            Layout::of(&ifds, &tile_lens, true)
+            Layout::of(&ifds, &self.levels, true)
         } else {
             classic
         };
@@ -521,7 +533,7 @@ struct Layout {
 
 impl Layout {
     /// Header, IFDs, their out-of-line values, tile data smallest level first.
-    fn of(ifds: &[Vec<Entry>], tile_lens: &[Vec<u32>], big: bool) -> Layout {
+    fn of(ifds: &[Vec<Entry>], levels: &[LevelState], big: bool) -> Layout {
         let (header, count, entry, next, inline) = if big {
             (16, 8, 20, 8, 8)
         } else {
@@ -547,9 +559,9 @@ impl Layout {
             }
             values.push(v);
         }
-        let mut tiles: Vec<Vec<u64>> = vec![Vec::new(); tile_lens.len()];
-        for k in (0..tile_lens.len()).rev() {
-            for &len in &tile_lens[k] {
+        let mut tiles: Vec<Vec<u64>> = vec![Vec::new(); levels.len()];
+        for k in (0..levels.len()).rev() {
+            for &(_, len) in &levels[k].tiles {
                 tiles[k].push(pos);
                 pos += len as u64;
             }
@@ -880,17 +892,7 @@ mod tests {
         let bands = pixels.format().bands();
         for r in (0..h).step_by(rows) {
             let range = r * w * bands..(r + rows).min(h) * w * bands;
-            let band = match &pixels {
-                Pixels::F32 { data, nodata } => Pixels::F32 {
-                    data: &data[range],
-                    nodata: *nodata,
-                },
-                Pixels::U8 { data, bands } => Pixels::U8 {
-                    data: &data[range],
-                    bands: *bands,
-                },
-            };
-            writer.push_rows(band).unwrap();
+            writer.push_rows(pixels.slice(range)).unwrap();
         }
         let mut out = Vec::new();
         writer.finish(&mut out, &[], None, flavour).unwrap();

@@ -278,17 +278,10 @@ pub fn orthomosaic_by_rows(
             .collect();
         // Sums in band order, so the figures do not depend on the thread count.
         for (tile_row, band) in (first..).zip(bands) {
-            let Band {
-                rgba: out,
-                jumps: j,
-                painted,
-            } = band?;
-            stats.painted_cells += painted;
-            sums.seam += j.seam;
-            sums.seam_n += j.seam_n;
-            sums.interior += j.interior;
-            sums.interior_n += j.interior_n;
-            rows(tile_row * band_rows, &out).map_err(RasterError::Output)?;
+            let band = band?;
+            stats.painted_cells += band.painted;
+            sums.add(&band.jumps);
+            rows(tile_row * band_rows, &band.rgba).map_err(RasterError::Output)?;
         }
     }
     stats.seam_cells = sums.seam_n;
@@ -695,6 +688,15 @@ struct JumpSums {
     seam_n: usize,
     interior: f64,
     interior_n: usize,
+}
+
+impl JumpSums {
+    fn add(&mut self, other: &JumpSums) {
+        self.seam += other.seam;
+        self.seam_n += other.seam_n;
+        self.interior += other.interior;
+        self.interior_n += other.interior_n;
+    }
 }
 
 /// One tile with its halo: visibility, colours and labels of every DEM cell.

@@ -192,23 +192,26 @@ fn flat_ground_is_reproduced_and_an_overexposed_view_is_compensated() {
     // Band by band (what a mosaic larger than memory is written from): whole rows, in order,
     // each band at most a tile of DEM cells tall, together the same mosaic; a band the caller
     // cannot take stops the work with its reason.
+    let by_rows = |rows: &mut timesift_raster::RowSink<'_>| {
+        orthomosaic_by_rows(
+            &heights,
+            &lattice,
+            &views,
+            &images,
+            &options,
+            &|_, _| {},
+            rows,
+        )
+    };
     let mut bands = Vec::new();
     let mut next_row = 0;
-    let summary = orthomosaic_by_rows(
-        &heights,
-        &lattice,
-        &views,
-        &images,
-        &options,
-        &|_, _| {},
-        &mut |first_row, rgba| {
-            assert_eq!(first_row, next_row);
-            assert_eq!(rgba.len() % (4 * ol.width()), 0);
-            next_row += rgba.len() / (4 * ol.width());
-            bands.push(rgba.to_vec());
-            Ok(())
-        },
-    )
+    let summary = by_rows(&mut |first_row, rgba| {
+        assert_eq!(first_row, next_row);
+        assert_eq!(rgba.len() % (4 * ol.width()), 0);
+        next_row += rgba.len() / (4 * ol.width());
+        bands.push(rgba.to_vec());
+        Ok(())
+    })
     .unwrap();
     assert_eq!(next_row, ol.height());
     assert_eq!(
@@ -218,22 +221,14 @@ fn flat_ground_is_reproduced_and_an_overexposed_view_is_compensated() {
     assert_eq!(bands.concat(), ortho.rgba);
     assert_eq!((summary.gains, summary.stats), (ortho.gains, ortho.stats));
     let mut taken = 0;
-    let full_disk = orthomosaic_by_rows(
-        &heights,
-        &lattice,
-        &views,
-        &images,
-        &options,
-        &|_, _| {},
-        &mut |_, _| {
-            taken += 1;
-            if taken == 2 {
-                Err("disk full".into())
-            } else {
-                Ok(())
-            }
-        },
-    );
+    let full_disk = by_rows(&mut |_, _| {
+        taken += 1;
+        if taken == 2 {
+            Err("disk full".into())
+        } else {
+            Ok(())
+        }
+    });
     assert_eq!(full_disk, Err(RasterError::Output("disk full".into())));
     assert_eq!(taken, 2);
 }
