@@ -374,7 +374,9 @@ pub struct DenseConfig {
     /// Resolution: 1 (full), 2 (half, Metashape's "high"), 4 or 8. Default 2.
     #[serde(default = "default_dense_level")]
     pub level: u32,
-    /// Most source views per image. Default 8.
+    /// Most source views per image (matched with it; the views that see parts of its field
+    /// that the best-scored ones miss come first). Filtering and fusion check its depths
+    /// against up to twice as many overlapping views. Default 8.
     #[serde(default = "default_max_sources")]
     pub max_sources: usize,
     /// Least sources that must agree with a depth for it to be kept. Default 2.

@@ -40,10 +40,10 @@ use crate::{Project, ProjectError};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
-const DENSE_ALGORITHM: u32 = 3;
+const DENSE_ALGORITHM: u32 = 4;
 
 /// Version of filtering and fusion, part of the cloud's settings.
-const FUSION_ALGORITHM: u32 = 4;
+const FUSION_ALGORITHM: u32 = 5;
 
 /// The `dense` stage.
 pub(super) struct DenseStage;
@@ -517,11 +517,13 @@ fn dense_epoch(
         plan: &plan,
         black_is_nodata: options.black_is_nodata,
         level: options.plan.level,
+        // A reference and its sources are matched together; filtering and fusion read maps,
+        // and only the reference's image for its colours.
         capacity: 2
             * (plan
                 .views
                 .iter()
-                .map(|v| v.neighbours.len())
+                .map(|v| v.sources.len())
                 .max()
                 .unwrap_or(0)
                 + 1),

@@ -233,15 +233,19 @@ fn set_level(dir: &Path, level: u32) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A copy of the project (images linked) whose orientation is the truth (sparse points on
-/// the true surface every 15 GSD).
+/// A copy of the project (its inputs linked: images, truth, calibration files, tables) whose
+/// orientation is the truth (sparse points on the true surface every 15 GSD).
 fn truth_copy(spec: &SceneSpec, dir: &Path, truth_dir: &Path) -> anyhow::Result<Project> {
     let _ = std::fs::remove_dir_all(truth_dir);
     std::fs::create_dir_all(truth_dir)?;
-    for entry in ["images", "truth"] {
+    for entry in std::fs::read_dir(dir)? {
+        let name = entry?.file_name();
+        if ["work", "out", "project.toml"].iter().any(|n| name == *n) {
+            continue;
+        }
         std::os::unix::fs::symlink(
-            std::fs::canonicalize(dir.join(entry))?,
-            truth_dir.join(entry),
+            std::fs::canonicalize(dir.join(&name))?,
+            truth_dir.join(&name),
         )?;
     }
     std::fs::copy(dir.join("project.toml"), truth_dir.join("project.toml"))?;

@@ -3,13 +3,15 @@
 //!
 //! The steps, each a function the caller can run, cache and resume on its own:
 //! 1. [`plan::plan_epoch`]: per view, the working pinhole camera at the chosen level, the pose
-//!    in a local frame, the source views (shared sparse points, triangulation angle, scale) and
-//!    the depth range (sparse-point depths).
+//!    in a local frame, the source views (shared sparse points, triangulation angle, scale;
+//!    every part of the field covered first), the wider set of overlapping views that filtering
+//!    and fusion check against, and the depth range (sparse-point depths).
 //! 2. [`undistort::UndistortMap`]: each original image resampled to its working camera, with the
 //!    pixels that may not produce depths (masks, no-data) marked.
 //! 3. [`patchmatch::run_pass`] for each pass of [`patchmatch::plan_schedule`], view by view:
 //!    coarse-to-fine PatchMatch (ACMH/ACMM) with a geometric-consistency term.
-//! 4. [`filter::filter_depth_map`]: depths that enough sources agree with, good cost, no speckle.
+//! 4. [`filter::filter_depth_map`]: depths that enough neighbours agree with, good cost, no
+//!    speckle.
 //! 5. [`fusion::fuse`]: consistent depths of several views merged into points.
 //!
 //! [`reconstruct_epoch`] chains them in memory for callers with few images (tests, examples).

@@ -11,8 +11,13 @@
 //! counts as points seen by every view they project into: blocks with few tie points between
 //! neighbours (film scans) keep every overlapping neighbour.
 //! Views with fewer than 3 shared points or whose 75th-percentile triangulation angle is below
-//! 1° (COLMAP's rule) are never sources. The best `max_sources` whose score is at least 3 % of
-//! the best are kept.
+//! 1° (COLMAP's rule) are never sources. Of those whose score is at least 3 % of the best, at
+//! most `max_sources` are kept: first, in score order, those that see a part of the reference's
+//! field (a coverage cell) that the ones kept so far leave without a source, then without a
+//! second, a third; then the best of the rest. By score alone the views that see a reference's
+//! borders (the block's edge, an oblique) would often be left out, and those borders get no
+//! depth. Filtering and fusion check a view's depths against more views than its sources: the
+//! others that qualify, best first, up to twice `max_sources` in all.
 //!
 //! Depth range (COLMAP's rule, over more points): the 1st and 99th percentiles of the depths of
 //! the sparse points in the view's field — its own and those of its co-visible views that
@@ -93,8 +98,11 @@ pub struct ViewPlan {
     /// Source views, best first; empty when no view qualifies (the view gets no depth map).
     pub sources: Vec<Source>,
     /// The views whose depth maps are checked against this one's (filtering, fusion): its
-    /// sources, then every view that has it among its sources. Symmetric, so that two views
-    /// that match each other in one direction only still confirm each other's depths.
+    /// sources, then the other views that overlap it (best-scored first, up to twice
+    /// `max_sources` with the sources), then every view that names it so. Symmetric, so that
+    /// two views that match each other in one direction only still confirm each other's
+    /// depths. Wider than the sources: where few views see a part of the field (a block's
+    /// edge), a depth confirmed by a view that was not a source there still makes a point.
     pub neighbours: Vec<usize>,
     /// Depth range (min, max), metres along the optical axis.
     pub depth_range: (f64, f64),
@@ -233,7 +241,7 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
                 &points,
             );
             let (depth_range, median_depth) = depth_range(a, &poses[a], &field, &points)?;
-            let sources = select_sources(
+            let (sources, overlapping) = select_sources(
                 a,
                 input,
                 &poses,
@@ -243,11 +251,16 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
                 median_depth,
                 options,
             );
+            // The views checked against this one: its sources, then the other views that
+            // qualify, best first, up to twice `max_sources` in all.
+            let mut links: Vec<usize> = sources.iter().map(|s| s.view).collect();
+            let room = (2 * options.max_sources).saturating_sub(links.len());
+            links.extend(overlapping.into_iter().take(room));
             Ok(ViewPlan {
                 camera: cameras[a],
                 cam_from_local: poses[a],
                 sources,
-                neighbours: Vec::new(),
+                neighbours: links,
                 depth_range,
             })
         })
@@ -255,18 +268,16 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
     let mut views = views;
     let mut reverse: Vec<Vec<usize>> = vec![Vec::new(); n];
     for (a, v) in views.iter().enumerate() {
-        for s in &v.sources {
-            reverse[s.view].push(a);
+        for &b in &v.neighbours {
+            reverse[b].push(a);
         }
     }
     for (a, v) in views.iter_mut().enumerate() {
-        let mut neighbours: Vec<usize> = v.sources.iter().map(|s| s.view).collect();
         for &b in &reverse[a] {
-            if !neighbours.contains(&b) {
-                neighbours.push(b);
+            if !v.neighbours.contains(&b) {
+                v.neighbours.push(b);
             }
         }
-        v.neighbours = neighbours;
     }
     Ok(EpochPlan {
         origin,
@@ -346,6 +357,8 @@ struct Candidate {
 /// side, at the median depth of the view's sparse points.
 const OVERLAP_SAMPLES: usize = 16;
 
+/// The sources of view `a` (at most `max_sources`, best score first), and the other views that
+/// qualify as sources, best first: they overlap `a`, for filtering and fusion.
 #[allow(clippy::too_many_arguments)]
 fn select_sources(
     a: usize,
@@ -356,7 +369,7 @@ fn select_sources(
     points: &[Vector3<f64>],
     median_depth: f64,
     options: &PlanOptions,
-) -> Vec<Source> {
+) -> (Vec<Source>, Vec<usize>) {
     let n = input.views.len();
     let mut candidates: Vec<Option<Candidate>> = (0..n).map(|_| None).collect();
     let cam_a = &cameras[a];
@@ -422,7 +435,7 @@ fn select_sources(
             }
         }
     }
-    let mut sources: Vec<Source> = candidates
+    let mut ranked: Vec<(Source, Vec<bool>)> = candidates
         .into_iter()
         .enumerate()
         .filter_map(|(b, c)| {
@@ -436,19 +449,87 @@ fn select_sources(
                 return None;
             }
             let area = c.cells.iter().filter(|&&x| x).count() as f64 / c.cells.len() as f64;
-            Some(Source {
+            let source = Source {
                 view: b,
                 score: c.score * area.max(0.01),
                 shared_points: c.angles.len(),
                 median_angle: q(0.5),
-            })
+            };
+            Some((source, c.cells))
         })
         .collect();
-    sources.sort_by(|x, y| y.score.total_cmp(&x.score).then(x.view.cmp(&y.view)));
-    let best = sources.first().map_or(0.0, |s| s.score);
-    sources.retain(|s| s.score >= MIN_RELATIVE_SCORE * best);
-    sources.truncate(options.max_sources);
-    sources
+    ranked.sort_by(|x, y| {
+        y.0.score
+            .total_cmp(&x.0.score)
+            .then(x.0.view.cmp(&y.0.view))
+    });
+    let best = ranked.first().map_or(0.0, |s| s.0.score);
+    ranked.retain(|s| s.0.score >= MIN_RELATIVE_SCORE * best);
+    let sources = choose_covering(&ranked, options.max_sources);
+    let overlapping = ranked
+        .iter()
+        .map(|(s, _)| s.view)
+        .filter(|v| !sources.iter().any(|s| s.view == *v))
+        .collect();
+    (sources, overlapping)
+}
+
+/// Sources that see a part of the reference's field, wanted for every part that enough
+/// candidates see: fusion keeps a point that the reference and two sources agree on, and one
+/// more stands in where one of them fails (a grazing or a much coarser view).
+const COVERING_SOURCES: usize = 3;
+
+/// Chooses at most `max` of the `ranked` candidates (best score first, each with the
+/// reference's coverage cells it sees), keeping that order.
+///
+/// The best-scored views all look at the middle of the reference's field, where most tie points
+/// are; taken by score alone, the few views that see its borders (the edge of the block, a
+/// neighbouring strip's margin, an oblique) can all fall beyond `max`, and then those parts of
+/// the field have no source and no depth. So the candidates are walked in score order once per
+/// depth of cover, 1 to [`COVERING_SOURCES`]: a candidate is chosen when it sees a cell with
+/// fewer chosen sources than that depth (and than the candidates can give the cell). The
+/// best-scored of the others then fill what is left.
+fn choose_covering(ranked: &[(Source, Vec<bool>)], max: usize) -> Vec<Source> {
+    let cells = ranked.first().map_or(0, |c| c.1.len());
+    let mut seen_by = vec![0usize; cells];
+    for (_, seen) in ranked {
+        for (n, &s) in seen_by.iter_mut().zip(seen) {
+            *n += usize::from(s);
+        }
+    }
+    let mut chosen = vec![false; ranked.len()];
+    let mut count = 0;
+    let mut cover = vec![0usize; cells];
+    for depth in 1..=COVERING_SOURCES {
+        for (k, (_, seen)) in ranked.iter().enumerate() {
+            if count == max {
+                break;
+            }
+            let lifts = (0..cells).any(|c| seen[c] && cover[c] < depth.min(seen_by[c]));
+            if !chosen[k] && lifts {
+                chosen[k] = true;
+                count += 1;
+                for (n, &s) in cover.iter_mut().zip(seen) {
+                    *n += usize::from(s);
+                }
+            }
+        }
+    }
+    for c in &mut chosen {
+        if count == max {
+            break;
+        }
+        if !*c {
+            *c = true;
+            count += 1;
+        }
+    }
+    ranked
+        .iter()
+        .zip(&chosen)
+        .filter(|(_, c)| **c)
+        .map(|((source, _), _)| *source)
+        .collect()
 }
 
 #[cfg(test)]
@@ -521,6 +602,36 @@ mod tests {
         assert!(near < 98.0 * 0.8 && far > 100.0 * 1.2, "{near} {far}");
         // The plan's local frame has small numbers.
         assert!(plan.views[0].cam_from_local.center().norm() < 100.0);
+    }
+
+    /// Four views near x = +25 m see the right three quarters of view 0's field and outscore the
+    /// one at −70 m, the only view that sees its left border. With room for two sources, the
+    /// second is that view, not a fourth look at the middle.
+    #[test]
+    fn sources_cover_the_borders_of_the_field_before_the_middle_twice() {
+        let input = strip(&[0.0, 20.0, 25.0, 30.0, 35.0, -70.0]);
+        let all = plan_epoch(&input, &PlanOptions::default()).unwrap();
+        let by_score: Vec<usize> = all.views[0].sources.iter().map(|s| s.view).collect();
+        let rank = by_score.iter().position(|&v| v == 5);
+        assert!(rank.is_some_and(|r| r >= 2), "{by_score:?}");
+        let two = PlanOptions {
+            max_sources: 2,
+            ..PlanOptions::default()
+        };
+        let plan = plan_epoch(&input, &two).unwrap();
+        let sources: Vec<usize> = plan.views[0].sources.iter().map(|s| s.view).collect();
+        assert_eq!(sources, vec![by_score[0], 5], "by score: {by_score:?}");
+        // Filtering and fusion look wider: the other overlapping views, up to twice as many.
+        let links = &plan.views[0].neighbours;
+        assert!(
+            links.len() >= 4 && sources.iter().all(|s| links.contains(s)),
+            "{links:?}"
+        );
+        // Sources stay in score order, and no more than asked for.
+        for v in &plan.views {
+            assert!(v.sources.len() <= 2);
+            assert!(v.sources.windows(2).all(|w| w[0].score >= w[1].score));
+        }
     }
 
     /// With tie points shared by two views only (few matches between film scans), the other

@@ -41,7 +41,10 @@ pub struct PatchMatchOptions {
     pub window_radius: usize,
     /// Step between window samples (2: every other pixel, the sparse window).
     pub window_step: usize,
-    /// Intensity σ of the bilateral weights (intensities 0–1).
+    /// Intensity σ of the bilateral weights (intensities 0–1). 0.1, between ACMM's (3 of 255,
+    /// 0.012) and COLMAP's (0.2). Smaller keeps a roof's depth out of the shadow beside it on
+    /// clean digital images, but weighs a scanned film's grain as if it were an edge: at 0.04
+    /// the `archival` scene's 1971 scans lost 15 points of completeness.
     pub sigma_color: f32,
     /// Iterations of photometric and hierarchy passes.
     pub photometric_iterations: usize,
