@@ -8,8 +8,9 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use nalgebra::Vector3;
 use timesift::Project;
+use timesift::film::ImageSource;
 use timesift::stages::dense_input;
-use timesift_dense::{ImageView, PlanOptions, UndistortMap, plan_epoch};
+use timesift_dense::{ImageView, Mask, PlanOptions, UndistortMap, plan_epoch};
 
 /// SGBM's clouds per epoch (world coordinates) and its wall times over every image.
 pub struct PeerResult {
@@ -27,6 +28,8 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
         seconds_1: 0.0,
         seconds_2: 0.0,
     };
+    // Images as the stages see them: a film scan resampled to its camera's frame, masked.
+    let source = ImageSource::of(project)?;
     for (e, epoch) in project.epochs.iter().enumerate() {
         let (images, input) = dense_input(project, e)?;
         let plan = plan_epoch(
@@ -40,17 +43,22 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
         std::fs::create_dir_all(&dir)?;
         let mut views = Vec::new();
         for (v, vp) in plan.views.iter().enumerate() {
-            let path = project.dir.join(&project.images[images[v]].name);
-            let decoded = timesift_io::image::read_rgb(&path)?;
+            let seen = source.read(project, images[v], false)?;
+            let decoded = seen.image;
+            let mask = seen.usable.map(|usable| Mask {
+                width: decoded.width as usize,
+                height: decoded.height as usize,
+                usable,
+            });
             let map = UndistortMap::new(&input.views[v].camera, vp.camera, level);
             let working = map.apply(
                 &ImageView {
                     width: decoded.width as usize,
                     height: decoded.height as usize,
-                    channels: 3,
+                    channels: decoded.channels as usize,
                     data: &decoded.data,
                 },
-                None,
+                mask.as_ref(),
                 true,
             )?;
             let png = dir.join(format!("{v}.png"));
