@@ -186,6 +186,20 @@ pub struct StageImage {
     pub usable: Option<Vec<bool>>,
 }
 
+impl StageImage {
+    /// The pixels, and the film and camera masks as dense matching takes them (`None`: every
+    /// pixel usable).
+    pub fn into_dense_parts(self) -> (ImageF32, Option<timesift_dense::Mask>) {
+        let (width, height) = (self.image.width as usize, self.image.height as usize);
+        let mask = self.usable.map(|usable| timesift_dense::Mask {
+            width,
+            height,
+            usable,
+        });
+        (self.image, mask)
+    }
+}
+
 /// How the stages see the project's images: the interior orientation of every scan.
 #[derive(Debug, Clone, Default)]
 pub struct ImageSource {

@@ -351,13 +351,10 @@ impl ImageCache<'_> {
         }
         let image_index = self.images[view];
         // A scan is seen in its camera's frame, its film mask kept out of matching.
-        let seen = self.source.read(self.project, image_index, false)?;
-        let decoded = seen.image;
-        let mask = seen.usable.map(|usable| timesift_dense::Mask {
-            width: decoded.width as usize,
-            height: decoded.height as usize,
-            usable,
-        });
+        let (decoded, mask) = self
+            .source
+            .read(self.project, image_index, false)?
+            .into_dense_parts();
         let camera = &self.views[view].camera;
         let key = camera_key(camera);
         let map = self

@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use timesift::Project;
 use timesift::film::ImageSource;
 use timesift::stages::dense_input;
-use timesift_dense::{ImageView, Mask, PlanOptions, UndistortMap, plan_epoch};
+use timesift_dense::{ImageView, PlanOptions, UndistortMap, plan_epoch};
 
 /// SGBM's clouds per epoch (world coordinates) and its wall times over every image.
 pub struct PeerResult {
@@ -43,13 +43,7 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
         std::fs::create_dir_all(&dir)?;
         let mut views = Vec::new();
         for (v, vp) in plan.views.iter().enumerate() {
-            let seen = source.read(project, images[v], false)?;
-            let decoded = seen.image;
-            let mask = seen.usable.map(|usable| Mask {
-                width: decoded.width as usize,
-                height: decoded.height as usize,
-                usable,
-            });
+            let (decoded, mask) = source.read(project, images[v], false)?.into_dense_parts();
             let map = UndistortMap::new(&input.views[v].camera, vp.camera, level);
             let working = map.apply(
                 &ImageView {
