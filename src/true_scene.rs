@@ -121,9 +121,10 @@ impl<'a> TrueEpoch<'a> {
         )
     }
 
-    /// Where camera `k` sees local point `x`, at least 4 pixels inside its image; `None` behind
-    /// it, outside, or beyond the fold of its distortion polynomial (where points far outside
-    /// the field project back into the image).
+    /// Where camera `k` sees local point `x`, at least 4 pixels inside its photograph (the
+    /// image; for a film scan, the frame inside its dark film edge, where the marks sit);
+    /// `None` behind it, outside, or beyond the fold of its distortion polynomial (where points
+    /// far outside the field project back into the image).
     pub fn pixel(&self, k: usize, x: &Vector3<f64>) -> Option<Vector2<f64>> {
         let (camera, pose) = &self.cameras[k];
         let p = project_world(camera, pose, x).ok()?;
@@ -132,7 +133,11 @@ impl<'a> TrueEpoch<'a> {
         if (back.x - ray.x / ray.z).abs() > 1e-6 || (back.y - ray.y / ray.z).abs() > 1e-6 {
             return None;
         }
-        let margin = 4.0;
+        let margin = 4.0
+            + self.spec.epochs[self.epoch]
+                .film
+                .as_ref()
+                .map_or(0.0, |f| f.edge);
         (p.x > margin
             && p.y > margin
             && p.x < camera.width() as f64 - margin

@@ -40,7 +40,7 @@ use crate::{Project, ProjectError};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
-const DENSE_ALGORITHM: u32 = 4;
+const DENSE_ALGORITHM: u32 = 5;
 
 /// Version of filtering and fusion, part of the cloud's settings.
 const FUSION_ALGORITHM: u32 = 5;

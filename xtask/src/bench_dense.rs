@@ -9,7 +9,8 @@
 //!   heightfield; the wall's depth for `soil-pit`), median and 90th percentile, in ground
 //!   sampling distances (GSD: median range of the images' central rays over the focal length);
 //! - completeness: of the evaluation cells whose centre on the true surface is seen by at least
-//!   three images, the fraction holding a fused point. Fusion makes one point per working pixel
+//!   three images (on the photograph: a film scan's dark edge, where its marks sit, sees
+//!   nothing), the fraction holding a fused point. Fusion makes one point per working pixel
 //!   of one image (each pixel joins one point), so a cell is 2 × 2 working pixels where the
 //!   images see the ground coarsest (2 × level × the 90th percentile of the local GSD).
 

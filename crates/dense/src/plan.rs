@@ -11,13 +11,14 @@
 //! counts as points seen by every view they project into: blocks with few tie points between
 //! neighbours (film scans) keep every overlapping neighbour.
 //! Views with fewer than 3 shared points or whose 75th-percentile triangulation angle is below
-//! 1° (COLMAP's rule) are never sources. Of those whose score is at least 3 % of the best, at
-//! most `max_sources` are kept: first, in score order, those that see a part of the reference's
-//! field (a coverage cell) that the ones kept so far leave without a source, then without a
-//! second, a third; then the best of the rest. By score alone the views that see a reference's
-//! borders (the block's edge, an oblique) would often be left out, and those borders get no
-//! depth. Filtering and fusion check a view's depths against more views than its sources: the
-//! others that qualify, best first, up to twice `max_sources` in all.
+//! 1° (COLMAP's rule) are never sources. Of the others, at most `max_sources` are kept: first,
+//! in score order, those that see a part of the reference's field (a coverage cell) that the
+//! ones kept so far leave without a source, then without a second, a third; then the best of
+//! the rest whose score is at least 3 % of the best. By score alone the views that see a
+//! reference's borders (the block's edge, an oblique, the strip's next-but-one image) would
+//! often be left out, and those borders get no depth. Filtering and fusion check a view's depths
+//! against more views than its sources: the others that score at least 3 % of the best, best
+//! first, up to twice `max_sources` in all.
 //!
 //! Depth range (COLMAP's rule, over more points): the 1st and 99th percentiles of the depths of
 //! the sparse points in the view's field — its own and those of its co-visible views that
@@ -139,7 +140,8 @@ const MIN_SOURCE_ANGLE_DEG: f64 = 1.0;
 const GOOD_ANGLES_DEG: (f64, f64) = (5.0, 45.0);
 /// Footprint ratios with full weight (OpenMVS).
 const GOOD_SCALE_RATIO: f64 = 1.6;
-/// Least score of a kept source relative to the best.
+/// Least score relative to the best of a source chosen for its score rather than for the part
+/// of the field it covers, and of an overlapping view that filtering and fusion check against.
 const MIN_RELATIVE_SCORE: f64 = 0.03;
 /// Coverage grid of the reference image (cells per side).
 const COVERAGE_CELLS: usize = 16;
@@ -464,8 +466,9 @@ fn select_sources(
             .then(x.0.view.cmp(&y.0.view))
     });
     let best = ranked.first().map_or(0.0, |s| s.0.score);
-    ranked.retain(|s| s.0.score >= MIN_RELATIVE_SCORE * best);
-    let sources = choose_covering(&ranked, options.max_sources);
+    let floor = MIN_RELATIVE_SCORE * best;
+    let sources = choose_covering(&ranked, options.max_sources, floor);
+    ranked.retain(|s| s.0.score >= floor);
     let overlapping = ranked
         .iter()
         .map(|(s, _)| s.view)
@@ -488,8 +491,13 @@ const COVERING_SOURCES: usize = 3;
 /// the field have no source and no depth. So the candidates are walked in score order once per
 /// depth of cover, 1 to [`COVERING_SOURCES`]: a candidate is chosen when it sees a cell with
 /// fewer chosen sources than that depth (and than the candidates can give the cell). The
-/// best-scored of the others then fill what is left.
-fn choose_covering(ranked: &[(Source, Vec<bool>)], max: usize) -> Vec<Source> {
+/// best-scored of the others whose score is at least `fill_floor` then fill what is left.
+///
+/// The covering walk has no score floor: a view that overlaps the reference by a sixth at a
+/// wide angle (the next-but-one image of a strip of film scans at 60 % overlap, few tie points)
+/// scores about 2 % of the best neighbour, yet it is the third view of that sixth of the field,
+/// without which fusion has no point there.
+fn choose_covering(ranked: &[(Source, Vec<bool>)], max: usize, fill_floor: f64) -> Vec<Source> {
     let cells = ranked.first().map_or(0, |c| c.1.len());
     let mut seen_by = vec![0usize; cells];
     for (_, seen) in ranked {
@@ -515,11 +523,11 @@ fn choose_covering(ranked: &[(Source, Vec<bool>)], max: usize) -> Vec<Source> {
             }
         }
     }
-    for c in &mut chosen {
+    for ((source, _), c) in ranked.iter().zip(&mut chosen) {
         if count == max {
             break;
         }
-        if !*c {
+        if !*c && source.score >= fill_floor {
             *c = true;
             count += 1;
         }
@@ -632,6 +640,30 @@ mod tests {
             assert!(v.sources.len() <= 2);
             assert!(v.sources.windows(2).all(|w| w[0].score >= w[1].score));
         }
+    }
+
+    /// A strip at 53 % overlap: view 2, the next-but-one, sees the last sixth of view 0's field
+    /// at about 48°, scoring under 3 % of view 1; it is still a source of view 0 (and view 0 of
+    /// view 2), for there it is the only third view.
+    #[test]
+    fn a_small_overlap_at_a_wide_angle_is_a_source_where_it_is_the_only_third_view() {
+        let input = strip(&[0.0, 47.0, 94.0]);
+        let plan = plan_epoch(&input, &PlanOptions::default()).unwrap();
+        let sources = |v: usize| -> Vec<(usize, f64)> {
+            plan.views[v]
+                .sources
+                .iter()
+                .map(|s| (s.view, s.score))
+                .collect()
+        };
+        let (s0, s2) = (sources(0), sources(2));
+        let score = |s: &[(usize, f64)], v: usize| s.iter().find(|x| x.0 == v).map(|x| x.1);
+        let (Some(near), Some(far)) = (score(&s0, 1), score(&s0, 2)) else {
+            panic!("view 0's sources: {s0:?}");
+        };
+        assert!(far < MIN_RELATIVE_SCORE * near, "{s0:?}");
+        assert!(score(&s2, 0).is_some(), "view 2's sources: {s2:?}");
+        assert!(plan.views[0].neighbours.contains(&2));
     }
 
     /// With tie points shared by two views only (few matches between film scans), the other
