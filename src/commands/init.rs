@@ -171,7 +171,11 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     );
     let _ = writeln!(
         text,
-        "# sigma_color = 0.1    # intensity σ of the window's bilateral weights (0-1)"
+        "# sigma_color = 0.04   # intensity σ of the window's bilateral weights (0-1);"
+    );
+    let _ = writeln!(
+        text,
+        "#                      # default 0.04 for digital images, 0.1 for film scans"
     );
     let _ = writeln!(
         text,

@@ -33,6 +33,7 @@ use timesift_io::pointcloud::{
 
 use super::cache::stage_error;
 use super::{PipelineStage, Stage};
+use crate::config::ImageKind;
 use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::report::{DenseReport, EpochDense, read_json, write_json};
@@ -96,7 +97,6 @@ pub fn dense_stage(project: &Project) -> Result<DenseReport, ProjectError> {
             message: format!("crs: {e}"),
         })?;
     let oriented = match_orientation(project, &cameras)?;
-    let options = project.config.dense.options();
     let mut report = if layout.dense_report().is_file() {
         read_json::<DenseReport>(&layout.dense_report()).unwrap_or_default()
     } else {
@@ -106,6 +106,12 @@ pub fn dense_stage(project: &Project) -> Result<DenseReport, ProjectError> {
         .epochs
         .retain(|name, _| project.epochs.iter().any(|e| &e.name == name));
     for (e, epoch) in project.epochs.iter().enumerate() {
+        let images = if project.film.contains_key(&epoch.camera_group) {
+            ImageKind::FilmScan
+        } else {
+            ImageKind::Digital
+        };
+        let options = project.config.dense.options(images);
         let summary = dense_epoch(project, e, &cameras, &model, &oriented, crs, &options)?;
         tracing::info!(
             epoch = %epoch.name,
