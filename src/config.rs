@@ -502,6 +502,11 @@ impl DenseConfig {
                 self.geometric_iterations, default.geometric_iterations
             ));
         }
+        if let Some(sigma) = self.sigma_color {
+            parts.push(format!(
+                "sigma_color {sigma} (default {SIGMA_COLOR_DIGITAL} digital, {SIGMA_COLOR_FILM} film)"
+            ));
+        }
         if parts.is_empty() {
             "defaults".into()
         } else {
@@ -1037,6 +1042,8 @@ mod tests {
         let set = with_dense("sigma_color = 0.07").unwrap();
         assert_eq!(sigma(&set.dense, ImageKind::Digital), 0.07);
         assert_eq!(sigma(&set.dense, ImageKind::FilmScan), 0.07);
+        assert!(set.dense.differences().contains("sigma_color 0.07"));
+        assert_eq!(unset.differences(), "defaults");
         for bad in [
             "sigma_color = 0.0",
             "sigma_color = 1.5",

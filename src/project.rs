@@ -537,6 +537,15 @@ impl Project {
         crate::layout::Layout::new(&self.dir)
     }
 
+    /// What epoch `e`'s images are: film scans when its camera group is film.
+    pub fn image_kind(&self, e: usize) -> crate::config::ImageKind {
+        if self.film.contains_key(&self.epochs[e].camera_group) {
+            crate::config::ImageKind::FilmScan
+        } else {
+            crate::config::ImageKind::Digital
+        }
+    }
+
     /// The film camera of image `i`, when its camera group is film.
     pub fn film_camera(&self, i: usize) -> Option<&crate::film::FilmCamera> {
         let epoch = &self.epochs[self.images.get(i)?.epoch.index()];

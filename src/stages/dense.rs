@@ -33,7 +33,6 @@ use timesift_io::pointcloud::{
 
 use super::cache::stage_error;
 use super::{PipelineStage, Stage};
-use crate::config::ImageKind;
 use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::report::{DenseReport, EpochDense, read_json, write_json};
@@ -106,12 +105,7 @@ pub fn dense_stage(project: &Project) -> Result<DenseReport, ProjectError> {
         .epochs
         .retain(|name, _| project.epochs.iter().any(|e| &e.name == name));
     for (e, epoch) in project.epochs.iter().enumerate() {
-        let images = if project.film.contains_key(&epoch.camera_group) {
-            ImageKind::FilmScan
-        } else {
-            ImageKind::Digital
-        };
-        let options = project.config.dense.options(images);
+        let options = project.config.dense.options(project.image_kind(e));
         let summary = dense_epoch(project, e, &cameras, &model, &oriented, crs, &options)?;
         tracing::info!(
             epoch = %epoch.name,
