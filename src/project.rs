@@ -539,17 +539,20 @@ impl Project {
 
     /// What epoch `e`'s images are: film scans when its camera group is film.
     pub fn image_kind(&self, e: usize) -> crate::config::ImageKind {
-        if self.film.contains_key(&self.epochs[e].camera_group) {
-            crate::config::ImageKind::FilmScan
-        } else {
-            crate::config::ImageKind::Digital
+        match self.epoch_film_camera(e) {
+            Some(_) => crate::config::ImageKind::FilmScan,
+            None => crate::config::ImageKind::Digital,
         }
     }
 
     /// The film camera of image `i`, when its camera group is film.
     pub fn film_camera(&self, i: usize) -> Option<&crate::film::FilmCamera> {
-        let epoch = &self.epochs[self.images.get(i)?.epoch.index()];
-        self.film.get(&epoch.camera_group)
+        self.epoch_film_camera(self.images.get(i)?.epoch.index())
+    }
+
+    /// The film camera of epoch `e`'s camera group, when it is film.
+    fn epoch_film_camera(&self, e: usize) -> Option<&crate::film::FilmCamera> {
+        self.film.get(&self.epochs.get(e)?.camera_group)
     }
 
     /// Absolute path of an image.

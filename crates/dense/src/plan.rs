@@ -649,20 +649,24 @@ mod tests {
     fn a_small_overlap_at_a_wide_angle_is_a_source_where_it_is_the_only_third_view() {
         let input = strip(&[0.0, 47.0, 94.0]);
         let plan = plan_epoch(&input, &PlanOptions::default()).unwrap();
-        let sources = |v: usize| -> Vec<(usize, f64)> {
-            plan.views[v]
-                .sources
-                .iter()
-                .map(|s| (s.view, s.score))
-                .collect()
+        // The score of `source` as a source of `view`, when it is one.
+        let score = |view: usize, source: usize| {
+            let sources = &plan.views[view].sources;
+            sources.iter().find(|s| s.view == source).map(|s| s.score)
         };
-        let (s0, s2) = (sources(0), sources(2));
-        let score = |s: &[(usize, f64)], v: usize| s.iter().find(|x| x.0 == v).map(|x| x.1);
-        let (Some(near), Some(far)) = (score(&s0, 1), score(&s0, 2)) else {
-            panic!("view 0's sources: {s0:?}");
+        let (Some(near), Some(far)) = (score(0, 1), score(0, 2)) else {
+            panic!("view 0's sources: {:?}", plan.views[0].sources);
         };
-        assert!(far < MIN_RELATIVE_SCORE * near, "{s0:?}");
-        assert!(score(&s2, 0).is_some(), "view 2's sources: {s2:?}");
+        assert!(
+            far < MIN_RELATIVE_SCORE * near,
+            "{:?}",
+            plan.views[0].sources
+        );
+        assert!(
+            score(2, 0).is_some(),
+            "view 2's sources: {:?}",
+            plan.views[2].sources
+        );
         assert!(plan.views[0].neighbours.contains(&2));
     }
 
