@@ -305,7 +305,7 @@ fn window_moments(
         // SAFETY: the CPU supports AVX2 and FMA, checked just above.
         return unsafe { window_moments_avx2(shape, window, grey, h, u, v) };
     }
-    window_moments_portable(shape, window, grey, h, u, v)
+    window_moments_sized(shape, window, grey, h, u, v)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -318,7 +318,28 @@ unsafe fn window_moments_avx2(
     u: f32,
     v: f32,
 ) -> Moments {
-    window_moments_portable(shape, window, grey, h, u, v)
+    window_moments_sized(shape, window, grey, h, u, v)
+}
+
+/// Window capacity of the default options' windows (radius 5, step 2: 36 samples, 40 padded).
+const SMALL_WINDOW: usize = 40;
+
+/// The kernel with scratch arrays no larger than the window needs: zeroing them is part of
+/// every call.
+#[inline(always)]
+fn window_moments_sized(
+    shape: &WindowShape,
+    window: &RefWindow,
+    grey: &Plane,
+    h: &[f32; 9],
+    u: f32,
+    v: f32,
+) -> Moments {
+    if shape.len() <= SMALL_WINDOW {
+        window_moments_portable::<SMALL_WINDOW>(shape, window, grey, h, u, v)
+    } else {
+        window_moments_portable::<MAX_WINDOW>(shape, window, grey, h, u, v)
+    }
 }
 
 /// The kernel, written in stages the compiler vectorises (positions, bilinear weights,
@@ -326,7 +347,7 @@ unsafe fn window_moments_avx2(
 /// Floating-point operations are never contracted or reordered, so every instruction set gives
 /// the same result.
 #[inline(always)]
-fn window_moments_portable(
+fn window_moments_portable<const CAP: usize>(
     shape: &WindowShape,
     window: &RefWindow,
     grey: &Plane,
@@ -336,9 +357,9 @@ fn window_moments_portable(
 ) -> Moments {
     let n = shape.len();
     let (dx, dy) = (&shape.dx[..n], &shape.dy[..n]);
-    let mut px = [0.0f32; MAX_WINDOW];
-    let mut py = [0.0f32; MAX_WINDOW];
-    let mut inside = [0.0f32; MAX_WINDOW];
+    let mut px = [0.0f32; CAP];
+    let mut py = [0.0f32; CAP];
+    let mut inside = [0.0f32; CAP];
     // Continuous positions relative to the band of pixel centres; samples beyond it are
     // clamped for the gather and weighted 0.
     let xmax = (grey.width - 1) as f32 - 1e-3;
@@ -358,7 +379,7 @@ fn window_moments_portable(
     // Integer corners and fractions (vectorised), then the scalar gather of the four corners,
     // then the interpolation (vectorised).
     let width = grey.width;
-    let mut index = [0u32; MAX_WINDOW];
+    let mut index = [0u32; CAP];
     for k in 0..n {
         let (i, j) = (px[k] as u32, py[k] as u32);
         px[k] -= i as f32;
@@ -366,14 +387,14 @@ fn window_moments_portable(
         index[k] = j * width as u32 + i;
     }
     let data = &grey.data;
-    let mut corners = [[0.0f32; 4]; MAX_WINDOW];
+    let mut corners = [[0.0f32; 4]; CAP];
     for k in 0..n {
         let at = index[k] as usize;
         let top = &data[at..at + 2];
         let bottom = &data[at + width..at + width + 2];
         corners[k] = [top[0], top[1], bottom[0], bottom[1]];
     }
-    let mut value = [0.0f32; MAX_WINDOW];
+    let mut value = [0.0f32; CAP];
     for k in 0..n {
         let [a, b, c, d] = corners[k];
         let top = a + (b - a) * px[k];
