@@ -260,7 +260,12 @@ pub fn ncc_cost(
     {
         return WORST;
     }
-    let m = window_moments(shape, window, src.grey, h, u, v);
+    // Scratch arrays no larger than the window needs: zeroing them is part of every call.
+    let m = if shape.len() <= SMALL_WINDOW {
+        window_moments::<SMALL_WINDOW>(shape, window, src.grey, h, u, v)
+    } else {
+        window_moments::<MAX_WINDOW>(shape, window, src.grey, h, u, v)
+    };
     // Most of the window must land inside the source.
     if !(m.weight >= MIN_INSIDE) {
         return WORST;
@@ -290,9 +295,13 @@ struct Moments {
     rs: f32,
 }
 
-/// The weighted sums of the reference and source samples, over the samples inside the source.
+/// Window capacity of the default options' windows (radius 5, step 2: 36 samples, 40 padded).
+const SMALL_WINDOW: usize = 40;
+
+/// The weighted sums of the reference and source samples, over the samples inside the source,
+/// with scratch arrays of `CAP` samples (at least the window's padded length).
 #[inline]
-fn window_moments(
+fn window_moments<const CAP: usize>(
     shape: &WindowShape,
     window: &RefWindow,
     grey: &Plane,
@@ -303,14 +312,14 @@ fn window_moments(
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU supports AVX2 and FMA, checked just above.
-        return unsafe { window_moments_avx2(shape, window, grey, h, u, v) };
+        return unsafe { window_moments_avx2::<CAP>(shape, window, grey, h, u, v) };
     }
-    window_moments_sized(shape, window, grey, h, u, v)
+    window_moments_portable::<CAP>(shape, window, grey, h, u, v)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn window_moments_avx2(
+unsafe fn window_moments_avx2<const CAP: usize>(
     shape: &WindowShape,
     window: &RefWindow,
     grey: &Plane,
@@ -318,28 +327,7 @@ unsafe fn window_moments_avx2(
     u: f32,
     v: f32,
 ) -> Moments {
-    window_moments_sized(shape, window, grey, h, u, v)
-}
-
-/// Window capacity of the default options' windows (radius 5, step 2: 36 samples, 40 padded).
-const SMALL_WINDOW: usize = 40;
-
-/// The kernel with scratch arrays no larger than the window needs: zeroing them is part of
-/// every call.
-#[inline(always)]
-fn window_moments_sized(
-    shape: &WindowShape,
-    window: &RefWindow,
-    grey: &Plane,
-    h: &[f32; 9],
-    u: f32,
-    v: f32,
-) -> Moments {
-    if shape.len() <= SMALL_WINDOW {
-        window_moments_portable::<SMALL_WINDOW>(shape, window, grey, h, u, v)
-    } else {
-        window_moments_portable::<MAX_WINDOW>(shape, window, grey, h, u, v)
-    }
+    window_moments_portable::<CAP>(shape, window, grey, h, u, v)
 }
 
 /// The kernel, written in stages the compiler vectorises (positions, bilinear weights,
