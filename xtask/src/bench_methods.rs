@@ -196,7 +196,8 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             }
         }
     }
-    let mut markdown = table(&rows) + &findings(&rows) + &tie_table(&tie_rows);
+    let mut markdown =
+        table(&rows) + &findings(&rows) + &reference_table(&rows) + &tie_table(&tie_rows);
     if bench.products {
         let dense = if bench.full_dense {
             DenseConfig::default()
@@ -220,6 +221,63 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
     )?;
     println!("written: {}", bench.out.join("methods.{md,json}").display());
     Ok(())
+}
+
+/// The reference epoch's check-point height error of every strategy against `independent`'s (the
+/// reference epoch oriented alone with its own control): does the rest of the block drag the
+/// reference datum? Measured (with the markers' click noise, as a user sees it) and the
+/// orientation's own (exact pixels of the check points, [`timesift::truth::orientation_check_errors`]).
+/// The reference is each scene's first epoch, as `synth` writes it.
+fn reference_table(rows: &[Row]) -> String {
+    let reference = |scene: &str, method: &str| {
+        rows.iter()
+            .find(|r| r.scene == scene && r.method == method)
+            .and_then(|r| r.accuracy.as_ref())
+    };
+    let mut s = String::from(
+        "\n## Reference epoch: check dH RMSE (m) against `independent`'s — measured · orientation \
+         alone\n\n| scene | GNSS | method | measured | ratio | orientation alone | ratio |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    let mut seen: Vec<(&str, &str)> = Vec::new();
+    for r in rows {
+        if r.method == "independent" || seen.contains(&(r.scene.as_str(), r.method.as_str())) {
+            continue;
+        }
+        seen.push((&r.scene, &r.method));
+        let (Some(a), Some(b)) = (
+            reference(&r.scene, &r.method),
+            reference(&r.scene, "independent"),
+        ) else {
+            continue;
+        };
+        let dh = |v: Option<[f64; 3]>| v.map(|v| v[2]);
+        let pair = |x: Option<f64>, y: Option<f64>| match (x, y) {
+            (Some(x), Some(y)) => (
+                format!("{x:.3} / {y:.3}"),
+                if y > 0.0 {
+                    format!("{:.2}", x / y)
+                } else {
+                    "–".into()
+                },
+            ),
+            _ => ("–".into(), "–".into()),
+        };
+        let (measured, measured_ratio) = pair(dh(a.check_rmse_m), dh(b.check_rmse_m));
+        let (alone, alone_ratio) =
+            pair(dh(a.check_rmse_noise_free_m), dh(b.check_rmse_noise_free_m));
+        s.push_str(&format!(
+            "| {} | {} | {} | {measured} | {measured_ratio} | {alone} | {alone_ratio} |\n",
+            r.scene,
+            if a.gnss_offset_error_m.is_some() || b.gnss_offset_error_m.is_some() {
+                "biased"
+            } else {
+                "none"
+            },
+            r.method,
+        ));
+    }
+    s
 }
 
 /// Per strategy and pair of epochs, the tie points both observe and their spread across and
@@ -287,15 +345,15 @@ fn evaluate(
 
 fn table(rows: &[Row]) -> String {
     let mut s = String::from(
-        "| scene | method | epoch | oriented | check RMSE dE/dN/dH (m) | (GSD) | epoch − ref. (m) \
-         | centre RMSE (m) | RMS px | observations | inter-epoch ties | GNSS offset − true bias (m) | (σ) \
+        "| scene | method | epoch | oriented | check RMSE dE/dN/dH (m) | (GSD) \
+         | orientation alone at the check points (m) | epoch − ref. (m) | centre RMSE (m) | RMS px | observations | inter-epoch ties | GNSS offset − true bias (m) | (σ) \
          | ties on stable ground vs truth: n, median (GSD), tilt (mm/m) | control's tilt σ (mm/m) | s |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let Some(a) = &r.accuracy else {
             s.push_str(&format!(
-                "| {} | {} | – | failed: {} | | | | | | | | | | | | {:.1} |\n",
+                "| {} | {} | – | failed: {} | | | | | | | | | | | | | {:.1} |\n",
                 r.scene,
                 r.method,
                 r.error.as_deref().unwrap_or("").replace('|', "/"),
@@ -304,7 +362,7 @@ fn table(rows: &[Row]) -> String {
             continue;
         };
         s.push_str(&format!(
-            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
             r.scene,
             r.method,
             a.epoch,
@@ -312,6 +370,7 @@ fn table(rows: &[Row]) -> String {
             a.images_given,
             triple(a.check_rmse_m, 3),
             triple(a.check_rmse_gsd, 2),
+            triple(a.check_rmse_noise_free_m, 3),
             triple(a.disagreement_m, 3),
             triple(a.centre_rmse_m, 3),
             a.rms_px.map_or("–".into(), |v| format!("{v:.3}")),

@@ -880,10 +880,13 @@ fn write_project(spec: &SceneSpec, dir: &Path) -> Result<(), SynthError> {
             Some(film) => film.pixel_mm,
             None => FILM_FRAME_MM / e.camera.width.max(e.camera.height) as f64,
         };
+        let what = match e.film {
+            Some(_) => "Calibration certificate of the film camera, and the scan resolution.",
+            None => "Calibration of the digital frame camera (its TIFFs carry no EXIF).",
+        };
         let _ = write!(
             s,
-            "\n# Calibration certificate of the film camera, and the scan resolution.\n\
-             [[camera]]\nname = \"{}\"\nfocal_mm = {:.3}\npixel_mm = {:.7}\n",
+            "\n# {what}\n[[camera]]\nname = \"{}\"\nfocal_mm = {:.3}\npixel_mm = {:.7}\n",
             e.name,
             e.camera.f * pixel_mm,
             pixel_mm

@@ -57,7 +57,18 @@ const EMBANKMENT: Ridge = Ridge {
 /// South-west and north-east corners.
 type Footprint = ((f64, f64), (f64, f64));
 
-pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
+/// How the epochs after the first were recorded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum LaterEpochs {
+    /// On film, scanned, as the first (`archival`).
+    Film,
+    /// By a digital frame camera of the same format and flight: colour, sensor noise only, no
+    /// scan, no fiducial marks (`archival-mixed`: one film epoch among digital ones, whose
+    /// reprojection noise is several times smaller, for the per-group outlier bound).
+    Digital,
+}
+
+pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<SceneSpec, SynthError> {
     let mut rng = SeededRng::new(seed);
     let snap = |x: f64| snap_to_cell_boundary(x, CELL);
     let noise = Noise::new(seed ^ 71);
@@ -231,6 +242,12 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         camera.b1 = 0.0004 * f * rng.normal();
         camera.b2 = 0.0004 * f * rng.normal();
         camera.k1 = 0.004 * rng.normal();
+        // Drawn for every epoch, so that the film epochs of both variants are the same.
+        let digital = e > 0 && later == LaterEpochs::Digital;
+        if digital {
+            // A digital frame camera: no film deformation for b1 and b2 to stand for.
+            (camera.b1, camera.b2) = (0.0, 0.0);
+        }
         let altitude = 125.0 + f_mm / 1000.0 * scale_number;
         // Film-era flights: more attitude and position scatter than a drone.
         let (min, max, overlap) = match scale {
@@ -244,9 +261,8 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         let images = flight
             .poses(&camera, &mut rng)
             .into_iter()
-            .map(|pose| ImageSpec {
-                pose,
-                effects: Effects {
+            .map(|pose| {
+                let film = Effects {
                     exposure: 1.3 + 0.12 * rng.normal(),
                     vignetting: 0.3,
                     noise_sigma: 2.0,
@@ -255,7 +271,22 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
                     scratches: rng.below(3) as u32,
                     seed: rng.next_u64(),
                     channels: Channels::Grey,
-                },
+                };
+                let effects = if digital {
+                    Effects {
+                        exposure: 1.2,
+                        vignetting: 0.1,
+                        noise_sigma: 1.0,
+                        grain: 0.0,
+                        dust_per_mp: 0.0,
+                        scratches: 0,
+                        channels: Channels::Rgb,
+                        ..film
+                    }
+                } else {
+                    film
+                };
+                ImageSpec { pose, effects }
             })
             .collect();
         epochs.push(EpochSpec {
@@ -270,13 +301,15 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             shadows: true,
             supersampling: 2,
             format: ImageFormat::Tiff,
-            film: Some(FilmSpec::eight_marks(
-                &camera,
-                230.0 / w as f64,
-                patterns[e],
-                // The certificate's origin is its own, a little off the marks' centre.
-                Vector2::new(0.004 * (e as f64 + 1.0), -0.003 * e as f64),
-            )),
+            film: (!digital).then(|| {
+                FilmSpec::eight_marks(
+                    &camera,
+                    230.0 / w as f64,
+                    patterns[e],
+                    // The certificate's origin is its own, a little off the marks' centre.
+                    Vector2::new(0.004 * (e as f64 + 1.0), -0.003 * e as f64),
+                )
+            }),
         });
     }
     let mut unstable = vec![
@@ -289,7 +322,10 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
     ];
     unstable.push(buffer(&RIVER, 20.0));
     let mut spec = new_scene(
-        "archival",
+        match later {
+            LaterEpochs::Film => "archival",
+            LaterEpochs::Digital => "archival-mixed",
+        },
         "EPSG:2154",
         Vector3::new(731_500.0, 6_271_200.0, 0.0),
         Frame::Ground,
@@ -319,4 +355,31 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         &[],
     );
     Ok(spec)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_mixed_variant_keeps_the_film_epoch_and_flies_the_others_digitally() {
+        let film = build(Scale::Small, 3, LaterEpochs::Film).unwrap();
+        let mixed = build(Scale::Small, 3, LaterEpochs::Digital).unwrap();
+        assert_eq!(film.epochs[0], mixed.epochs[0]);
+        assert!(mixed.epochs[0].film.is_some());
+        for (a, b) in film.epochs.iter().zip(&mixed.epochs).skip(1) {
+            assert!(b.film.is_none(), "{}", b.name);
+            assert_eq!((b.camera.b1, b.camera.b2), (0.0, 0.0));
+            assert_eq!((a.camera.f, a.camera.k1), (b.camera.f, b.camera.k1));
+            for (x, y) in a.images.iter().zip(&b.images) {
+                assert_eq!(x.pose, y.pose);
+                assert_eq!(y.effects.channels, Channels::Rgb);
+                assert_eq!((y.effects.grain, y.effects.dust_per_mp), (0.0, 0.0));
+            }
+        }
+        // The same ground, control and change.
+        assert_eq!(film.regions, mixed.regions);
+        assert_eq!(film.gcps, mixed.gcps);
+        assert_eq!(film.checkpoints, mixed.checkpoints);
+    }
 }

@@ -59,13 +59,15 @@ pub const SCENES: [&str; 7] = [
 
 /// Scenes beyond the table, built on request only (the tests and benches that walk
 /// [`SCENES`] leave them out): `corridor`, a coastal corridor flown along its axis, where a roll
-/// about the axis shows only in the DEMs.
-pub const EXTRA_SCENES: [&str; 1] = ["corridor"];
+/// about the axis shows only in the DEMs; `archival-mixed`, `archival` with its later three
+/// epochs taken by a digital frame camera, so one noisy film epoch sits among clean digital ones.
+pub const EXTRA_SCENES: [&str; 2] = ["corridor", "archival-mixed"];
 
 /// The scene called `name`.
 pub fn build(name: &str, scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
     match name {
-        "archival" => archival::build(scale, seed),
+        "archival" => archival::build(scale, seed, archival::LaterEpochs::Film),
+        "archival-mixed" => archival::build(scale, seed, archival::LaterEpochs::Digital),
         "glacier" => glacier::build(scale, seed),
         "orchard" => orchard::build(scale, seed),
         "soil-pit" => soil_pit::build(scale, seed),
