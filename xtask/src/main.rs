@@ -83,9 +83,10 @@ enum Task {
         /// small or full.
         #[arg(long, default_value = "small")]
         scale: String,
-        /// Seed of the scenes.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        /// Seeds of the scenes, comma-separated: every scene is rendered and run once per
+        /// seed, and the reference-epoch table pools the seeds.
+        #[arg(long, value_delimiter = ',', default_value = "1")]
+        seed: Vec<u64>,
         /// Output folder (scenes, outputs per strategy, methods.md, methods.json).
         #[arg(long, default_value = "target/bench-methods")]
         out: PathBuf,
@@ -468,7 +469,7 @@ fn main() -> anyhow::Result<()> {
                     .collect()
             }),
             scale,
-            seed,
+            seeds: seed,
             out,
         })?,
         Task::Synth {
