@@ -35,7 +35,7 @@ pub struct EpochAccuracy {
     /// Check-point RMSE of the orientation alone (dE, dN, dH), metres: see
     /// [`orientation_check_errors`]. `None` for film epochs and without check points measured in
     /// two oriented images.
-    pub check_rmse_noise_free_m: Option<[f64; 3]>,
+    pub orientation_check_rmse_m: Option<[f64; 3]>,
     /// Check points measured in the epoch.
     pub check_points: usize,
     /// RMS over check points of (this epoch's intersection − the reference epoch's), metres.
@@ -301,7 +301,7 @@ pub fn epoch_accuracy(
             datum_tilt_sigma_mm_per_m: epoch.datum_tilt.map(|t| t.sigma_max_mm_per_m),
             check_rmse_m: check,
             check_rmse_gsd: check.map(|c| c.map(|v| v / gsd)),
-            check_rmse_noise_free_m: rms3(&orientation_check_errors(project, &ours, &truth, name)),
+            orientation_check_rmse_m: rms3(&orientation_check_errors(project, &ours, &truth, name)),
             check_points: vectors.len(),
             disagreement_m: rms3(&disagreement),
             centre_rmse_m: rms3(&centres),
