@@ -298,9 +298,6 @@ fn reference_table(rows: &[Row]) -> String {
     }
     let ratio = |pairs: &[(Option<f64>, Option<f64>)]| -> (String, String) {
         let both: Vec<(f64, f64)> = pairs.iter().filter_map(|&(x, y)| Some((x?, y?))).collect();
-        if both.is_empty() {
-            return ("–".into(), "–".into());
-        }
         let each: Vec<String> = both
             .iter()
             .map(|(x, y)| {
@@ -311,10 +308,10 @@ fn reference_table(rows: &[Row]) -> String {
                 }
             })
             .collect();
-        let rms = |pick: fn(&(f64, f64)) -> f64| {
-            (both.iter().map(|p| pick(p).powi(2)).sum::<f64>() / both.len() as f64).sqrt()
+        let (xs, ys): (Vec<f64>, Vec<f64>) = both.iter().copied().unzip();
+        let (Some(x), Some(y)) = (rms(&xs), rms(&ys)) else {
+            return ("–".into(), "–".into());
         };
-        let (x, y) = (rms(|p| p.0), rms(|p| p.1));
         (
             format!("{x:.3} / {y:.3}"),
             if y > 0.0 {
@@ -347,6 +344,11 @@ fn reference_table(rows: &[Row]) -> String {
         ));
     }
     s
+}
+
+/// Root mean square; `None` for no values.
+fn rms(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
 }
 
 /// Per strategy and pair of epochs, the tie points both observe and their spread across and
@@ -479,9 +481,6 @@ fn findings(rows: &[Row]) -> String {
             methods.push(&r.method);
         }
     }
-    let rms = |v: &[f64]| {
-        (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
-    };
     // (check dH RMS in GSD, later epochs' dH disagreement RMS in m) per scene and method.
     let summary = |scene: &str, method: &str| -> Summary {
         let epochs: Vec<&EpochAccuracy> = rows
