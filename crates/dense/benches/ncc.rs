@@ -76,6 +76,34 @@ fn benches(c: &mut Criterion) {
             black_box(sum)
         })
     });
+    // As PatchMatch calls it: the reference window filled once per pixel, then a few dozen
+    // hypotheses and sources scored against it (here 16 planes at each of 256 pixels).
+    let pixels: Vec<(usize, usize, RefWindow)> = hypotheses
+        .iter()
+        .take(256)
+        .filter_map(|&(i, j, _, _)| {
+            let mut window = RefWindow::new(&shape);
+            window
+                .fill(&shape, &reference, i, j)
+                .then_some((i, j, window))
+        })
+        .collect();
+    let planes: Vec<[f32; 9]> = hypotheses
+        .iter()
+        .take(16)
+        .map(|&(_, _, n, w)| homography(&src, &k_ref, &n, w))
+        .collect();
+    c.bench_function("ncc_cost alone, 16 planes at 256 pixels", |bench| {
+        bench.iter(|| {
+            let mut sum = 0.0f32;
+            for (i, j, window) in &pixels {
+                for h in &planes {
+                    sum += ncc_cost(&shape, window, &src, h, *i as f32 + 0.5, *j as f32 + 0.5);
+                }
+            }
+            black_box(sum)
+        })
+    });
 }
 
 criterion_group!(dense, benches);

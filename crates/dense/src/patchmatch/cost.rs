@@ -317,6 +317,12 @@ fn window_moments<const CAP: usize>(
     window_moments_portable::<CAP>(shape, window, grey, h, u, v)
 }
 
+/// [`window_moments_portable`] with explicit AVX2: eight samples per step in registers, the
+/// four bilinear corners fetched by gathers. The same operations in the same order (no fused
+/// multiply–add), so the result is the portable kernel's bit for bit (a test checks it).
+///
+/// # Safety
+/// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn window_moments_avx2<const CAP: usize>(
@@ -327,7 +333,147 @@ unsafe fn window_moments_avx2<const CAP: usize>(
     u: f32,
     v: f32,
 ) -> Moments {
-    window_moments_portable::<CAP>(shape, window, grey, h, u, v)
+    use std::arch::x86_64::*;
+    let n = shape.len();
+    let (width, height) = (grey.width, grey.height);
+    // The gathers read without bounds checks: every sample is clamped into the band of pixel
+    // centres, so its four corners lie inside a plane of at least 2 × 2 whose data is complete.
+    // Anything else (never built by this crate) takes the checked path.
+    let gatherable = width >= 2
+        && height >= 2
+        && width * height <= grey.data.len()
+        && width * height < i32::MAX as usize
+        && n % LANES == 0
+        && n <= CAP
+        && window.weight.len() >= n
+        && window.value.len() >= n
+        && shape.dy.len() >= n;
+    if !gatherable {
+        return window_moments_portable::<CAP>(shape, window, grey, h, u, v);
+    }
+    let splat = |x: f32| _mm256_set1_ps(x);
+    let (h0, h1, h2, h3, h4, h5, h6, h7, h8) = (
+        splat(h[0]),
+        splat(h[1]),
+        splat(h[2]),
+        splat(h[3]),
+        splat(h[4]),
+        splat(h[5]),
+        splat(h[6]),
+        splat(h[7]),
+        splat(h[8]),
+    );
+    let (uu, vv) = (splat(u), splat(v));
+    let (zero, one, half) = (splat(0.0), splat(1.0), splat(0.5));
+    let xmax = splat((width - 1) as f32 - 1e-3);
+    let ymax = splat((height - 1) as f32 - 1e-3);
+    let row = _mm256_set1_epi32(width as i32);
+    let data = grey.data.as_ptr() as *const i64;
+    let order = _mm256_setr_epi32(0, 1, 4, 5, 2, 3, 6, 7);
+    // Pass 1: the interpolated source value and the effective weight of every sample.
+    let mut value = [0.0f32; CAP];
+    let mut weight = [0.0f32; CAP];
+    for k0 in (0..n).step_by(LANES) {
+        // SAFETY (all loads, gathers and stores of this loop): k0 + LANES ≤ n ≤ CAP and n ≤
+        // the lengths of the shape's and window's vectors, checked above; the gathers are
+        // proven in bounds where they are.
+        unsafe {
+            let x = _mm256_add_ps(uu, _mm256_loadu_ps(shape.dx.as_ptr().add(k0)));
+            let y = _mm256_add_ps(vv, _mm256_loadu_ps(shape.dy.as_ptr().add(k0)));
+            let den = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(h6, x), _mm256_mul_ps(h7, y)),
+                h8,
+            );
+            let iz = _mm256_div_ps(one, den);
+            let nx = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(h0, x), _mm256_mul_ps(h1, y)),
+                h2,
+            );
+            let ny = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(h3, x), _mm256_mul_ps(h4, y)),
+                h5,
+            );
+            let sx = _mm256_sub_ps(_mm256_mul_ps(nx, iz), half);
+            let sy = _mm256_sub_ps(_mm256_mul_ps(ny, iz), half);
+            // A NaN position (only from a homography of overflowing entries) would be clamped
+            // differently by min/max than by f32::clamp: leave such windows to the portable kernel.
+            if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_UNORD_Q>(sx, sy)) != 0 {
+                return window_moments_portable::<CAP>(shape, window, grey, h, u, v);
+            }
+            // f32::clamp, for numbers.
+            let cx = _mm256_min_ps(_mm256_max_ps(sx, zero), xmax);
+            let cy = _mm256_min_ps(_mm256_max_ps(sy, zero), ymax);
+            let inside = _mm256_and_ps(
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_EQ_OQ>(cx, sx),
+                    _mm256_cmp_ps::<_CMP_EQ_OQ>(cy, sy),
+                ),
+                one,
+            );
+            let i = _mm256_cvttps_epi32(cx);
+            let j = _mm256_cvttps_epi32(cy);
+            let fx = _mm256_sub_ps(cx, _mm256_cvtepi32_ps(i));
+            let fy = _mm256_sub_ps(cy, _mm256_cvtepi32_ps(j));
+            let at = _mm256_add_epi32(_mm256_mullo_epi32(j, row), i);
+            // Each corner pair (left, right) is one 8-byte gather; the indices are ordered
+            // (0 1 4 5 | 2 3 6 7) so that unpacking the pairs gives the samples in order.
+            let at = _mm256_permutevar8x32_epi32(at, order);
+            let below = _mm256_add_epi32(at, row);
+            // SAFETY: 0 ≤ i ≤ width − 2 and 0 ≤ j ≤ height − 2 (positions clamped below
+            // width − 1 and height − 1), so both corners of a pair lie below width × height ≤ len.
+            let pairs = |index: __m256i| {
+                let first = _mm256_i32gather_epi64::<4>(data, _mm256_castsi256_si128(index));
+                let second =
+                    _mm256_i32gather_epi64::<4>(data, _mm256_extracti128_si256::<1>(index));
+                let (first, second) = (_mm256_castsi256_ps(first), _mm256_castsi256_ps(second));
+                (
+                    _mm256_shuffle_ps::<0b10_00_10_00>(first, second),
+                    _mm256_shuffle_ps::<0b11_01_11_01>(first, second),
+                )
+            };
+            let (a, b) = pairs(at);
+            let (c, d) = pairs(below);
+            let top = _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), fx));
+            let bottom = _mm256_add_ps(c, _mm256_mul_ps(_mm256_sub_ps(d, c), fx));
+            let val = _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy));
+            _mm256_storeu_ps(value.as_mut_ptr().add(k0), val);
+            let w = _mm256_mul_ps(_mm256_loadu_ps(window.weight.as_ptr().add(k0)), inside);
+            _mm256_storeu_ps(weight.as_mut_ptr().add(k0), w);
+        }
+    }
+    // Pass 2: the sums, relative to one sample's value as in the portable kernel.
+    let offset = splat(value[shape.samples / 2]);
+    let mut acc = [zero; 6];
+    for k0 in (0..n).step_by(LANES) {
+        // SAFETY: as in pass 1.
+        unsafe {
+            let w = _mm256_loadu_ps(weight.as_ptr().add(k0));
+            let r = _mm256_loadu_ps(window.value.as_ptr().add(k0));
+            let s = _mm256_sub_ps(_mm256_loadu_ps(value.as_ptr().add(k0)), offset);
+            let wr = _mm256_mul_ps(w, r);
+            let ws = _mm256_mul_ps(w, s);
+            acc[0] = _mm256_add_ps(acc[0], w);
+            acc[1] = _mm256_add_ps(acc[1], wr);
+            acc[2] = _mm256_add_ps(acc[2], _mm256_mul_ps(wr, r));
+            acc[3] = _mm256_add_ps(acc[3], ws);
+            acc[4] = _mm256_add_ps(acc[4], _mm256_mul_ps(ws, s));
+            acc[5] = _mm256_add_ps(acc[5], _mm256_mul_ps(wr, s));
+        }
+    }
+    let sum = |a: __m256| {
+        let mut lanes = [0.0f32; LANES];
+        // SAFETY: `lanes` holds LANES = 8 floats.
+        unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), a) };
+        lanes.iter().fold(0.0f32, |t, &x| t + x)
+    };
+    Moments {
+        weight: sum(acc[0]),
+        r: sum(acc[1]),
+        rr: sum(acc[2]),
+        s: sum(acc[3]),
+        ss: sum(acc[4]),
+        rs: sum(acc[5]),
+    }
 }
 
 /// The kernel, written in stages the compiler vectorises (positions, bilinear weights,
@@ -589,5 +735,59 @@ mod tests {
         };
         assert!(window.fill(&shape, &grey, 30, 25));
         assert_eq!(ncc_cost(&shape, &window, &flat_src, &h, 30.5, 25.5), WORST);
+    }
+
+    /// The AVX2 kernel is the portable one bit for bit: random textures, windows of both
+    /// capacities, homographies that tilt, scale and shift the window, pixels up to and beyond
+    /// the borders (clamped samples, windows partly outside the source).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_avx2_kernel_gives_the_portable_kernels_bits() {
+        use proptest::prelude::*;
+        if !(std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")) {
+            eprintln!(
+                "skipped: this CPU has no AVX2 and FMA, so the portable kernel is the only one"
+            );
+            return;
+        }
+        let bits = |m: Moments| [m.weight, m.r, m.rr, m.s, m.ss, m.rs].map(f32::to_bits);
+        let config = ProptestConfig {
+            cases: 256,
+            ..ProptestConfig::default()
+        };
+        proptest!(config, |(
+            seed in 0u64..1_000_000,
+            (width, height) in (2usize..90, 2usize..70),
+            step in 1usize..=2,
+            (u, v) in (-8.0f32..100.0, -8.0f32..80.0),
+            scale in 0.5f32..2.0,
+            (skew, tilt_x, tilt_y) in (-0.3f32..0.3, -0.004f32..0.004, -0.004f32..0.004),
+            (shift_x, shift_y) in (-20.0f32..20.0, -20.0f32..20.0),
+        )| {
+            let mut rng = timesift_core::SeededRng::new(seed);
+            let mut grey = Plane::filled(width, height, 0.0);
+            for x in &mut grey.data {
+                *x = rng.uniform() as f32;
+            }
+            let shape = WindowShape::new(5, step, 5.0, 0.1).expect("window");
+            let mut window = RefWindow::new(&shape);
+            let (i, j) = (u.clamp(0.0, (width - 1) as f32), v.clamp(0.0, (height - 1) as f32));
+            window.fill(&shape, &grey, i as usize, j as usize);
+            let h = [scale, skew, shift_x, -skew, scale, shift_y, tilt_x, tilt_y, 1.0];
+            let portable = if shape.len() <= SMALL_WINDOW {
+                window_moments_portable::<SMALL_WINDOW>(&shape, &window, &grey, &h, u, v)
+            } else {
+                window_moments_portable::<MAX_WINDOW>(&shape, &window, &grey, &h, u, v)
+            };
+            // SAFETY: AVX2 and FMA were detected above.
+            let avx2 = unsafe {
+                if shape.len() <= SMALL_WINDOW {
+                    window_moments_avx2::<SMALL_WINDOW>(&shape, &window, &grey, &h, u, v)
+                } else {
+                    window_moments_avx2::<MAX_WINDOW>(&shape, &window, &grey, &h, u, v)
+                }
+            };
+            prop_assert_eq!(bits(avx2), bits(portable));
+        });
     }
 }
