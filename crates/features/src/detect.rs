@@ -227,31 +227,25 @@ fn refine(
         }
         // An extremum half-way between samples can send the fit round a cycle of them (back and
         // forth, or round a square in space and scale): it is then found, between them.
-        let returning = step != [0, 0, 0]
-            && visited[..step_count].contains(&(x + step[0], y + step[1], s + step[2]));
+        let next = (x + step[0], y + step[1], s + step[2]);
+        let returning = step != [0, 0, 0] && visited[..step_count].contains(&next);
         // Half-way on all three axes, the fit can wander round the cube of eight samples around
         // the extremum without coming back to one within the step budget: a last move that
         // stays inside the cube the walk has spanned ends it there, as a return does. (Only
         // walks that would otherwise end without a keypoint take this branch.)
-        let next = (x + step[0], y + step[1], s + step[2]);
+        let (lo, hi) = visited[..=step_count]
+            .iter()
+            .fold((next, next), |(lo, hi), v| {
+                (
+                    (lo.0.min(v.0), lo.1.min(v.1), lo.2.min(v.2)),
+                    (hi.0.max(v.0), hi.1.max(v.1), hi.2.max(v.2)),
+                )
+            });
         let cornered = step_count + 1 == MAX_REFINE_STEPS
             && step != [0, 0, 0]
-            && [
-                |v: &(isize, isize, isize)| v.0,
-                |v: &(isize, isize, isize)| v.1,
-                |v: &(isize, isize, isize)| v.2,
-            ]
-            .iter()
-            .all(|axis| {
-                let values = visited[..=step_count]
-                    .iter()
-                    .chain(std::iter::once(&next))
-                    .map(axis);
-                let (lo, hi) = values.fold((isize::MAX, isize::MIN), |(lo, hi), v| {
-                    (lo.min(v), hi.max(v))
-                });
-                hi - lo <= 1
-            });
+            && hi.0 - lo.0 <= 1
+            && hi.1 - lo.1 <= 1
+            && hi.2 - lo.2 <= 1;
         let returning = returning || cornered;
         if returning {
             offset = offset.map(|o| o.clamp(-0.5 - SCALE_SLACK, 0.5 + SCALE_SLACK));

@@ -352,17 +352,7 @@ unsafe fn window_moments_avx2<const CAP: usize>(
         return window_moments_portable::<CAP>(shape, window, grey, h, u, v);
     }
     let splat = |x: f32| _mm256_set1_ps(x);
-    let (h0, h1, h2, h3, h4, h5, h6, h7, h8) = (
-        splat(h[0]),
-        splat(h[1]),
-        splat(h[2]),
-        splat(h[3]),
-        splat(h[4]),
-        splat(h[5]),
-        splat(h[6]),
-        splat(h[7]),
-        splat(h[8]),
-    );
+    let [h0, h1, h2, h3, h4, h5, h6, h7, h8] = h.map(splat);
     let (uu, vv) = (splat(u), splat(v));
     let (zero, one, half) = (splat(0.0), splat(1.0), splat(0.5));
     let xmax = splat((width - 1) as f32 - 1e-3);
@@ -464,7 +454,7 @@ unsafe fn window_moments_avx2<const CAP: usize>(
         let mut lanes = [0.0f32; LANES];
         // SAFETY: `lanes` holds LANES = 8 floats.
         unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), a) };
-        lanes.iter().fold(0.0f32, |t, &x| t + x)
+        sum_lanes(&lanes)
     };
     Moments {
         weight: sum(acc[0]),
@@ -554,15 +544,21 @@ fn window_moments_portable<const CAP: usize>(
             acc[5][l] += wr * s;
         }
     }
-    let sum = |a: &[f32; LANES]| a.iter().fold(0.0f32, |t, &x| t + x);
     Moments {
-        weight: sum(&acc[0]),
-        r: sum(&acc[1]),
-        rr: sum(&acc[2]),
-        s: sum(&acc[3]),
-        ss: sum(&acc[4]),
-        rs: sum(&acc[5]),
+        weight: sum_lanes(&acc[0]),
+        r: sum_lanes(&acc[1]),
+        rr: sum_lanes(&acc[2]),
+        s: sum_lanes(&acc[3]),
+        ss: sum_lanes(&acc[4]),
+        rs: sum_lanes(&acc[5]),
     }
+}
+
+/// The lanes of an accumulator added in lane order: both kernels end with it, so their sums
+/// round alike.
+#[inline(always)]
+fn sum_lanes(lanes: &[f32; LANES]) -> f32 {
+    lanes.iter().fold(0.0f32, |t, &x| t + x)
 }
 
 /// The geometric-consistency term (ACMM): the reference pixel (u, v) at depth `depth` is
