@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use crate::commands::compare::DemReport;
-use crate::config::{AlignConfig, DenseConfig};
+use crate::config::DenseConfig;
 use crate::report::read_json;
 use crate::stages::{Stage, epoch_pairs, run};
 use crate::truth::{
@@ -20,29 +20,10 @@ use crate::{Project, ProjectError};
 /// The demo scene.
 pub const DEMO_SCENE: &str = "landslide";
 
-/// The demo's keypoint limit per image (`[align] max_keypoints`, default 40000). Its 512 × 384
-/// images give about 2900 SIFT keypoints each; the strongest 2000, spread over the image, are
-/// plenty for 25 images per epoch and halve the time of matching (every pair's descriptors are
-/// compared exhaustively) and a third of align's, which README's 5 minutes from a fresh clone
-/// need.
-pub const DEMO_MAX_KEYPOINTS: usize = 2000;
-
-/// Sets the demo's lighter options in the project file the scene writer produced: the keypoint
-/// limit inside its `[align]` table, and a `[dense]` section ([`DenseConfig::quick`]). The whole
-/// demo then stays within a few minutes on two cores.
+/// Appends the demo's `[dense]` section ([`DenseConfig::quick`]) to the project file the scene
+/// writer produced: the whole demo then stays within a few minutes on two cores.
 fn append_demo_settings(path: &Path) -> Result<(), ProjectError> {
-    let text = std::fs::read_to_string(path).map_err(|e| timesift_io::IoError::io(path, e))?;
-    let missing_align = || ProjectError::Path {
-        path: path.to_path_buf(),
-        message: "the scene writer's project file has no `[align]` table for the demo's settings"
-            .into(),
-    };
-    let align = text.find("\n[align]\n").ok_or_else(missing_align)? + "\n[align]\n".len();
-    let mut text = format!(
-        "{}# The demo's keypoint limit (see `timesift demo`).\nmax_keypoints = {DEMO_MAX_KEYPOINTS}\n{}",
-        &text[..align],
-        &text[align..]
-    );
+    let mut text = std::fs::read_to_string(path).map_err(|e| timesift_io::IoError::io(path, e))?;
     let dense = toml::to_string(&DenseConfig::quick()).map_err(|e| ProjectError::Path {
         path: path.to_path_buf(),
         message: e.to_string(),
@@ -88,24 +69,14 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
     append_demo_settings(&dir.join("project.toml"))?;
     let mut text = format!(
         "demo: scene `{DEMO_SCENE}`, {} epochs, {} images rendered into {} ({:.0} s)\n\
-         demo settings: [align] max_keypoints {DEMO_MAX_KEYPOINTS} (default {}); [dense] {}\n",
+         demo settings: [dense] {}\n",
         spec.epochs.len(),
         written.images,
         dir.display(),
         start.elapsed().as_secs_f64(),
-        AlignConfig::default().max_keypoints,
         DenseConfig::quick().differences()
     );
     let project = Project::load(dir)?;
-    if project.config.align.max_keypoints != DEMO_MAX_KEYPOINTS {
-        return Err(ProjectError::Path {
-            path: dir.join("project.toml"),
-            message: format!(
-                "the demo's keypoint limit did not reach [align] (max_keypoints {})",
-                project.config.align.max_keypoints
-            ),
-        });
-    }
     let start = Instant::now();
     let outcomes = run(&project, Some(Stage::Features), Some(Stage::Report))?;
     let gsd = ground_sampling_distance(&project)?;
