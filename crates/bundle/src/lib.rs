@@ -71,6 +71,7 @@ pub mod loss;
 pub mod precision;
 pub mod problem;
 mod reduced;
+mod schur;
 pub mod solver;
 
 pub use error::BundleError;

@@ -12,8 +12,8 @@ use nalgebra::{DMatrix, DVector};
 /// The fixed sparsity pattern of `S` (lower triangle) and its symbolic factorisation.
 pub(crate) struct SparsePattern {
     n: usize,
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
+    pub(crate) col_ptr: Vec<usize>,
+    pub(crate) row_idx: Vec<usize>,
     /// `None` for patterns used only for products (the iterative solver).
     symbolic: Option<SymbolicLlt<usize>>,
 }

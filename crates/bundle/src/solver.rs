@@ -6,12 +6,15 @@
 //! step and back-substitutes the point steps. Damping, step acceptance and the three termination
 //! tests follow Ceres's Levenberg–Marquardt, so final costs compare with Ceres's.
 
+use std::sync::OnceLock;
+
 use nalgebra::{DVector, SMatrix, SVector, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
 use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
 
 use crate::problem::{BundleProblem, CenterPrior, PointPrior, PriorOffset, ScaleBar};
 use crate::reduced::{Reduced, SparsePattern};
+use crate::schur::{self, BlockRows, Coupling, damped_inverses};
 use crate::{BundleError, Loss};
 
 /// Options of [`solve`].
@@ -327,10 +330,41 @@ struct Normal<const D: usize> {
     e: Vec<f64>,
     /// Observations of each eliminated block.
     point_obs: Vec<Vec<usize>>,
-    /// Whether observations of one block can share reduced columns (a camera group with free
-    /// intrinsics used by several images); when not, elimination skips the column merge.
-    shared_columns: bool,
     cost: f64,
+    /// The blocks' rows merged and sorted for elimination, built on first use (the iterative
+    /// solver never needs them).
+    rows: OnceLock<BlockRows<D>>,
+}
+
+impl<const D: usize> Normal<D> {
+    fn coupling(&self) -> Coupling<'_> {
+        Coupling {
+            obs_cols: &self.obs_cols,
+            cols: &self.cols,
+            e: &self.e,
+            point_obs: &self.point_obs,
+        }
+    }
+
+    fn block_rows(&self) -> &BlockRows<D> {
+        self.rows.get_or_init(|| {
+            BlockRows::new(
+                self.g_c.len(),
+                &self.coupling(),
+                rayon::current_num_threads(),
+            )
+        })
+    }
+
+    /// Hands the previous linearisation's block rows to this one when their structure still
+    /// holds (refilled with this one's values).
+    fn reuse_rows(&mut self, previous: &mut Normal<D>) {
+        if let Some(mut rows) = previous.rows.take() {
+            if rows.refill(&self.coupling()) {
+                let _ = self.rows.set(rows);
+            }
+        }
+    }
 }
 
 /// The reduced camera system `S = U − E V⁻¹ Eᵀ` of the squared (non-robust) cost at the current
@@ -344,15 +378,11 @@ pub(crate) fn reduced_system(
     let nm = linearize::<3>(p, layout, &Loss::Trivial, &storage);
     let mut s = nm.u.clone();
     let mut rhs = nm.g_c.clone();
-    let n = rhs.len();
-    let ok = match &mut s {
-        Reduced::Dense(m) => {
-            let data = m.as_mut_slice();
-            eliminate_blocks(&nm, 0.0, &mut rhs, |r, c, v| data[r + c * n] += v).is_some()
-        }
-        sparse => eliminate_blocks(&nm, 0.0, &mut rhs, |r, c, v| sparse.add(r, c, v)).is_some(),
+    let Some(v_inv) = damped_inverses(&nm.v, 0.0) else {
+        return Ok(None);
     };
-    Ok(ok.then_some(s))
+    schur::eliminate(nm.block_rows(), &v_inv, &nm.g_p, &mut s, &mut rhs);
+    Ok(Some(s))
 }
 
 /// Jacobian of the camera centre `C = −Rᵀ t` with respect to the pose update of
@@ -492,14 +522,8 @@ fn linearize<const D: usize>(
         cols: Vec::with_capacity(p.observations.len() * 9),
         e: Vec::with_capacity(p.observations.len() * 3 * D),
         point_obs: vec![Vec::new(); layout.num_free_points],
-        shared_columns: {
-            let mut users = vec![0usize; p.groups.len()];
-            for im in &p.images {
-                users[im.group] += 1;
-            }
-            (0..p.groups.len()).any(|g| layout.group_offset[g].is_some() && users[g] > 1)
-        },
         cost: 0.0,
+        rows: OnceLock::new(),
     };
     let mut d_int = [0.0; 2 * MAX_INTRINSICS];
     let mut jc = [[0.0f64; MAX_COLS]; 2];
@@ -698,164 +722,6 @@ struct Step<const D: usize> {
     points: Vec<SVector<f64, D>>,
 }
 
-/// Eliminates the blocks: `S −= Ê V⁻¹ Êᵀ` and `rhs −= Ê V⁻¹ g` per block, where `Ê` stacks the
-/// block's coupling rows by distinct reduced-side column (rows of observations that share a column,
-/// such as a camera group's intrinsics, are summed first — exact, and far fewer products when many
-/// observations of a block share columns); returns the damped `V⁻¹` of every block.
-fn eliminate_blocks<const D: usize>(
-    nm: &Normal<D>,
-    lambda: f64,
-    rhs: &mut DVector<f64>,
-    mut add: impl FnMut(usize, usize, f64),
-) -> Option<Vec<SMatrix<f64, D, D>>> {
-    let clamp = |d: f64| d.clamp(1e-6, 1e32);
-    let mut v_inv = Vec::with_capacity(nm.v.len());
-    // Scratch, reused across blocks: local index of each reduced column, the block's columns,
-    // its stacked coupling rows Ê and F = Ê V⁻¹.
-    let mut local = vec![usize::MAX; nm.g_c.len()];
-    let mut cols: Vec<usize> = Vec::new();
-    let mut e_hat: Vec<[f64; D]> = Vec::new();
-    let mut f_hat: Vec<[f64; D]> = Vec::new();
-    for (pi, v) in nm.v.iter().enumerate() {
-        let mut vd = *v;
-        for c in 0..D {
-            vd[(c, c)] += lambda * clamp(v[(c, c)]);
-        }
-        let inv = vd.try_inverse()?;
-        let obs = &nm.point_obs[pi];
-        if !nm.shared_columns {
-            eliminate_pairwise(nm, pi, &inv, rhs, &mut add);
-            v_inv.push(inv);
-            continue;
-        }
-        // Count distinct columns; when no two observations share one, the pairwise loop over
-        // observations does the same work without the merge.
-        let mut rows = 0;
-        cols.clear();
-        for &a in obs {
-            let (sa, ca) = nm.obs_cols[a];
-            rows += ca;
-            for &col in &nm.cols[sa..sa + ca] {
-                if local[col] == usize::MAX {
-                    local[col] = cols.len();
-                    cols.push(col);
-                }
-            }
-        }
-        for &c in &cols {
-            local[c] = usize::MAX;
-        }
-        if cols.len() == rows {
-            eliminate_pairwise(nm, pi, &inv, rhs, &mut add);
-            v_inv.push(inv);
-            continue;
-        }
-        cols.clear();
-        e_hat.clear();
-        for &a in obs {
-            let (sa, ca) = nm.obs_cols[a];
-            for ra in 0..ca {
-                let col = nm.cols[sa + ra];
-                if local[col] == usize::MAX {
-                    local[col] = cols.len();
-                    cols.push(col);
-                    e_hat.push([0.0; D]);
-                }
-                let row = &mut e_hat[local[col]];
-                let e = &nm.e[(sa + ra) * D..(sa + ra) * D + D];
-                for c in 0..D {
-                    row[c] += e[c];
-                }
-            }
-        }
-        let vg = inv * nm.g_p[pi];
-        f_hat.clear();
-        for (l, row) in e_hat.iter().enumerate() {
-            let mut f = [0.0; D];
-            let mut dot = 0.0;
-            for c in 0..D {
-                let mut acc = 0.0;
-                for k in 0..D {
-                    acc += row[k] * inv[(k, c)];
-                }
-                f[c] = acc;
-                dot += row[c] * vg[c];
-            }
-            rhs[cols[l]] -= dot;
-            f_hat.push(f);
-        }
-        for (l1, f) in f_hat.iter().enumerate() {
-            let c1 = cols[l1];
-            for (l2, e) in e_hat.iter().enumerate().skip(l1) {
-                let mut v = 0.0;
-                for c in 0..D {
-                    v += f[c] * e[c];
-                }
-                add(c1, cols[l2], -v);
-                if l1 != l2 {
-                    add(cols[l2], c1, -v);
-                }
-            }
-        }
-        for &c in &cols {
-            local[c] = usize::MAX;
-        }
-        v_inv.push(inv);
-    }
-    Some(v_inv)
-}
-
-/// `S −= E_a V⁻¹ E_bᵀ` over pairs of observations of block `pi` (upper pairs, mirrored) and
-/// `rhs −= E_a V⁻¹ g`: for blocks whose observations share no reduced column.
-fn eliminate_pairwise<const D: usize>(
-    nm: &Normal<D>,
-    pi: usize,
-    inv: &SMatrix<f64, D, D>,
-    rhs: &mut DVector<f64>,
-    add: &mut impl FnMut(usize, usize, f64),
-) {
-    let mut fa = [[0.0f64; D]; MAX_COLS];
-    let obs = &nm.point_obs[pi];
-    let vg = inv * nm.g_p[pi];
-    for (ia, &a) in obs.iter().enumerate() {
-        let (sa, ca) = nm.obs_cols[a];
-        let ea = &nm.e[sa * D..(sa + ca) * D];
-        for ra in 0..ca {
-            let row = &ea[D * ra..D * ra + D];
-            let mut dot = 0.0;
-            for c in 0..D {
-                let mut acc = 0.0;
-                for k in 0..D {
-                    acc += row[k] * inv[(k, c)];
-                }
-                fa[ra][c] = acc;
-                dot += row[c] * vg[c];
-            }
-            rhs[nm.cols[sa + ra]] -= dot;
-        }
-        for &b in &obs[ia..] {
-            let (sb, cb) = nm.obs_cols[b];
-            let eb = &nm.e[sb * D..(sb + cb) * D];
-            let cols_b = &nm.cols[sb..sb + cb];
-            for ra in 0..ca {
-                let row = nm.cols[sa + ra];
-                let f = &fa[ra];
-                for (rb, &col) in cols_b.iter().enumerate() {
-                    let erow = &eb[D * rb..D * rb + D];
-                    let mut v = 0.0;
-                    for c in 0..D {
-                        v += f[c] * erow[c];
-                    }
-                    add(row, col, -v);
-                    if a != b {
-                        add(col, row, -v);
-                    }
-                }
-            }
-        }
-    }
-}
-
 fn damped_step<const D: usize>(
     nm: &Normal<D>,
     lambda: f64,
@@ -871,14 +737,8 @@ fn damped_step<const D: usize>(
         s.add(i, i, lambda * clamp(nm.u.diagonal(i)));
     }
     let mut rhs = nm.g_c.clone();
-    // One monomorphised elimination per storage, so the dense inner loop indexes a slice.
-    let v_inv = match &mut s {
-        Reduced::Dense(m) => {
-            let data = m.as_mut_slice();
-            eliminate_blocks(nm, lambda, &mut rhs, |r, c, v| data[r + c * n] += v)?
-        }
-        sparse => eliminate_blocks(nm, lambda, &mut rhs, |r, c, v| sparse.add(r, c, v))?,
-    };
+    let v_inv = damped_inverses(&nm.v, lambda)?;
+    schur::eliminate(nm.block_rows(), &v_inv, &nm.g_p, &mut s, &mut rhs);
     let cameras = if n > 0 {
         -s.solve(&rhs)?
     } else {
@@ -916,20 +776,6 @@ fn back_substitute<const D: usize>(
         .collect()
 }
 
-/// Damped inverses of the eliminated blocks.
-fn damped_inverses<const D: usize>(nm: &Normal<D>, lambda: f64) -> Option<Vec<SMatrix<f64, D, D>>> {
-    let clamp = |d: f64| d.clamp(1e-6, 1e32);
-    nm.v.iter()
-        .map(|v| {
-            let mut vd = *v;
-            for c in 0..D {
-                vd[(c, c)] += lambda * clamp(v[(c, c)]);
-            }
-            vd.try_inverse()
-        })
-        .collect()
-}
-
 /// The damped step by preconditioned conjugate gradients on `S x = −rhs`, with `S` applied as
 /// `(U + λD) x − Σ_b E_b V_b⁻¹ E_bᵀ x` and a block-Jacobi preconditioner made of the diagonal
 /// blocks of `U + λD − Σ_a F_a E_aᵀ` (each observation's own contribution).
@@ -940,7 +786,7 @@ fn iterative_step<const D: usize>(
 ) -> Option<Step<D>> {
     let n = nm.g_c.len();
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
-    let v_inv = damped_inverses(nm, lambda)?;
+    let v_inv = damped_inverses(&nm.v, lambda)?;
     let damping = DVector::from_fn(n, |i, _| lambda * clamp(nm.u.diagonal(i)));
     // Right-hand side: g_c − Σ E V⁻¹ g_p.
     let mut rhs = nm.g_c.clone();
@@ -1345,7 +1191,9 @@ fn run<const D: usize>(
                 termination = Termination::FunctionTolerance;
                 break;
             }
-            nm = linearize::<D>(problem, layout, &options.loss, &storage);
+            let mut next = linearize::<D>(problem, layout, &options.loss, &storage);
+            next.reuse_rows(&mut nm);
+            nm = next;
         } else {
             radius /= nu;
             nu *= 2.0;
