@@ -6,8 +6,9 @@
 //! pairs of columns spends its time on indexing, and on small blocks elimination was most of a
 //! bundle adjustment's time, on one core. Here each block's rows are merged by column, sorted by
 //! it and cut into segments of consecutive columns of one observation (a pose, an intrinsics
-//! group, a point) once per linearisation ([`BlockRows`]), stored segment by segment with the
-//! `D` components apart, so that a segment pair's products are a short vector loop over rows.
+//! group, a point) once per structure ([`BlockRows`], refilled with each linearisation's values),
+//! stored segment by segment with the `D` components apart, so that a segment pair's products are
+//! a short vector loop over rows.
 //! Only `S`'s lower triangle — all that its Cholesky factorisation reads — is written, in bands of
 //! whole columns, one task per band: tasks never write the same memory, and every entry receives
 //! its blocks' products one per block in block order, each computed with the same operands and
@@ -24,7 +25,7 @@ use crate::reduced::{Reduced, SparsePattern};
 /// Longest segment: the reduced-side columns of one observation (a pose, a point, intrinsics).
 const SEGMENT_MAX: usize = 9 + timesift_core::camera::MAX_INTRINSICS;
 
-/// Blocks per task when computing `F = Ê V⁻¹`; fixed, though any value gives the same result.
+/// Blocks per task when building or refilling [`BlockRows`]; any value gives the same result.
 const BLOCKS_PER_CHUNK: usize = 1024;
 
 /// The coupling rows of one linearisation: per observation its reduced-side columns and its rows
@@ -319,27 +320,20 @@ pub(crate) fn eliminate<const D: usize>(
         v_inv,
         vg: &vg,
     };
-    let bands = &rows.bands;
     let rhs = rhs.as_mut_slice();
     match s {
         Reduced::Dense(m) => {
             let n = m.nrows();
             let data = m.as_mut_slice();
-            let mut tasks = Vec::with_capacity(bands.len());
-            let (mut data_rest, mut rhs_rest) = (&mut *data, rhs);
-            for w in bands.windows(2) {
-                let (d, dr) = data_rest.split_at_mut((w[1] - w[0]) * n);
-                let (r, rr) = rhs_rest.split_at_mut(w[1] - w[0]);
-                let band = DenseBand {
+            let mut rest = &mut *data;
+            products.subtract_in_bands(rhs, |cols| {
+                let (band, r) = std::mem::take(&mut rest).split_at_mut(cols.len() * n);
+                rest = r;
+                DenseBand {
                     n,
-                    c0: w[0],
-                    data: d,
-                };
-                tasks.push((w[0]..w[1], band, r));
-                (data_rest, rhs_rest) = (dr, rr);
-            }
-            tasks.into_par_iter().for_each(|(cols, mut band, rhs)| {
-                products.subtract_band(cols, &mut band, rhs);
+                    c0: cols.start,
+                    data: band,
+                }
             });
             // The upper triangle, for readers other than the factorisation.
             for c in 0..n {
@@ -349,22 +343,17 @@ pub(crate) fn eliminate<const D: usize>(
             }
         }
         Reduced::Sparse { pattern, values } => {
-            let mut tasks = Vec::with_capacity(bands.len());
-            let (mut values_rest, mut rhs_rest) = (values.as_mut_slice(), rhs);
-            for w in bands.windows(2) {
-                let len = pattern.col_ptr[w[1]] - pattern.col_ptr[w[0]];
-                let (v, vr) = values_rest.split_at_mut(len);
-                let (r, rr) = rhs_rest.split_at_mut(w[1] - w[0]);
-                let band = SparseBand {
+            let mut rest = values.as_mut_slice();
+            products.subtract_in_bands(rhs, |cols| {
+                let base = pattern.col_ptr[cols.start];
+                let len = pattern.col_ptr[cols.end] - base;
+                let (band, r) = std::mem::take(&mut rest).split_at_mut(len);
+                rest = r;
+                SparseBand {
                     pattern,
-                    base: pattern.col_ptr[w[0]],
-                    values: v,
-                };
-                tasks.push((w[0]..w[1], band, r));
-                (values_rest, rhs_rest) = (vr, rr);
-            }
-            tasks.into_par_iter().for_each(|(cols, mut band, rhs)| {
-                products.subtract_band(cols, &mut band, rhs);
+                    base,
+                    values: band,
+                }
             });
         }
     }
@@ -466,6 +455,26 @@ impl BlockView<'_> {
 type PairWork<'s> = (bool, &'s Segment, &'s Segment, Range<usize>);
 
 impl<const D: usize> Products<'_, D> {
+    /// Runs [`Self::subtract_band`] on every band of columns, one task each; `band_of` hands out
+    /// the storage of consecutive bands, in order.
+    fn subtract_in_bands<B: LowerBand + Send>(
+        &self,
+        rhs: &mut [f64],
+        mut band_of: impl FnMut(Range<usize>) -> B,
+    ) {
+        let bands = &self.rows.bands;
+        let mut tasks = Vec::with_capacity(bands.len());
+        let mut rest = rhs;
+        for w in bands.windows(2) {
+            let (rhs, r) = std::mem::take(&mut rest).split_at_mut(w[1] - w[0]);
+            rest = r;
+            tasks.push((w[0]..w[1], band_of(w[0]..w[1]), rhs));
+        }
+        tasks.into_par_iter().for_each(|(cols, mut band, rhs)| {
+            self.subtract_band(cols, &mut band, rhs);
+        });
+    }
+
     /// Every block's products on the lower-triangle columns `band_cols`, in block order.
     fn subtract_band(&self, band_cols: Range<usize>, band: &mut impl LowerBand, rhs: &mut [f64]) {
         let rows = self.rows;
@@ -480,6 +489,8 @@ impl<const D: usize> Products<'_, D> {
                 continue;
             }
             // F = Ê V⁻¹ of the block, each entry summed in component order as the pairwise loop did.
+            // Recomputed by every band the block reaches: cheaper than writing and reading back F
+            // for all blocks (D² products per entry against D per entry pair).
             let e = &rows.e[first.entry * D..(last.entry + last.len) * D];
             let inv = &self.v_inv[b];
             f.clear();
@@ -575,15 +586,9 @@ impl<const D: usize> Products<'_, D> {
         let (row_src, col_src) = view.sources(f_from_rows);
         let rows = view.segment::<D>(row_src, a);
         let mut acc = [0.0f64; SEGMENT_MAX];
-        let acc = &mut acc[..a.len];
         for cl in cols {
-            let w = view.column::<D>(col_src, b, cl);
-            acc.fill(0.0);
-            for (k, &w) in w.iter().enumerate() {
-                for (o, &x) in acc.iter_mut().zip(&rows[k * a.len..(k + 1) * a.len]) {
-                    *o += x * w;
-                }
-            }
+            let acc = &mut acc[..a.len];
+            column_products(rows, a.len, 0, &view.column::<D>(col_src, b, cl), acc);
             band.subtract_run(b.col + cl, a.col, acc);
         }
     }
@@ -603,16 +608,28 @@ impl<const D: usize> Products<'_, D> {
         let rows = view.segment::<D>(row_src, a);
         let mut acc = [0.0f64; SEGMENT_MAX];
         for cl in cols {
-            let w = view.column::<D>(col_src, a, cl);
             let acc = &mut acc[..a.len - cl];
-            acc.fill(0.0);
-            for (k, &w) in w.iter().enumerate() {
-                let src = &rows[k * a.len + cl..(k + 1) * a.len];
-                for (o, &x) in acc.iter_mut().zip(src) {
-                    *o += x * w;
-                }
-            }
+            column_products(rows, a.len, cl, &view.column::<D>(col_src, a, cl), acc);
             band.subtract_run(a.col + cl, a.col + cl, acc);
+        }
+    }
+}
+
+/// `out[r] = Σ_k rows[k · stride + r0 + r] · w[k]` over a segment's component-major rows, summed
+/// from zero in component order (the pairwise loop's order).
+fn column_products<const D: usize>(
+    rows: &[f64],
+    stride: usize,
+    r0: usize,
+    w: &[f64; D],
+    out: &mut [f64],
+) {
+    out.fill(0.0);
+    let len = out.len();
+    for (k, &w) in w.iter().enumerate() {
+        let src = &rows[k * stride + r0..k * stride + r0 + len];
+        for (o, &x) in out.iter_mut().zip(src) {
+            *o += x * w;
         }
     }
 }
