@@ -270,6 +270,17 @@ pub enum PairSelection {
     Preselect,
 }
 
+impl PairSelection {
+    /// The name in project.toml.
+    pub fn name(self) -> &'static str {
+        match self {
+            PairSelection::Auto => "auto",
+            PairSelection::Exhaustive => "exhaustive",
+            PairSelection::Preselect => "preselect",
+        }
+    }
+}
+
 /// `[align]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

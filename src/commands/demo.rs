@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use crate::commands::compare::DemReport;
-use crate::config::DenseConfig;
+use crate::config::{DenseConfig, PairSelection};
 use crate::report::read_json;
 use crate::stages::{Stage, epoch_pairs, run};
 use crate::truth::{
@@ -20,18 +20,60 @@ use crate::{Project, ProjectError};
 /// The demo scene.
 pub const DEMO_SCENE: &str = "landslide";
 
-/// Appends the demo's `[dense]` section ([`DenseConfig::quick`]) to the project file the scene
-/// writer produced: the whole demo then stays within a few minutes on two cores.
-fn append_demo_settings(path: &Path) -> Result<(), ProjectError> {
-    let mut text = std::fs::read_to_string(path).map_err(|e| timesift_io::IoError::io(path, e))?;
-    let dense = toml::to_string(&DenseConfig::quick()).map_err(|e| ProjectError::Path {
+/// The demo's dense matching: [`DenseConfig::quick`] without the geometric-consistency pass.
+/// On the demo scene that pass takes a third of the dense stage (19 of 54 s on 2 cores) for
+/// little the demo shows: the DEMs' NMAD against the truth is 138 mm with it and 140 mm
+/// without, the region volumes move by a few per cent either way; the stable-area DoD's NMAD
+/// grows from 83 to 92 mm. Projects keep the pass by default (`[dense] geometric_iterations`).
+fn demo_dense() -> DenseConfig {
+    DenseConfig {
+        geometric_iterations: 0,
+        ..DenseConfig::quick()
+    }
+}
+
+/// The demo's pair selection: the spatial pairs, then only those whose largest-scale keypoints
+/// match ([`PairSelection::Preselect`]). A third of the demo's spatial pairs do not overlap;
+/// preselection drops them before full matching (match stage 26 → 19 s) and keeps 867 of the
+/// 875 pairs that verify, for the same orientation to a tenth of a millimetre.
+const DEMO_PAIRS: PairSelection = PairSelection::Preselect;
+
+/// Writes the demo's settings into the project file the scene writer produced: the pair
+/// selection into its `[align]` table and a `[dense]` table ([`demo_dense`]), so that the whole
+/// demo stays within a few minutes on two cores. The writer's text is kept as written (a person
+/// reads it), the settings are inserted after the `[align]` header and appended, and the
+/// result must parse; `timesift demo` prints what differs from the defaults.
+fn write_demo_settings(path: &Path) -> Result<(), ProjectError> {
+    let text = std::fs::read_to_string(path).map_err(|e| timesift_io::IoError::io(path, e))?;
+    let invalid = |message: String| ProjectError::Path {
         path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
-    text.push_str("\n# The demo's lighter dense matching (see `timesift demo`).\n[dense]\n");
-    text.push_str(&dense);
+        message,
+    };
+    let pairs = format!(
+        "# The demo's pair selection (see `timesift demo`).\npair_selection = \"{}\"\n",
+        DEMO_PAIRS.name()
+    );
+    let mut out = String::with_capacity(text.len() + 512);
+    let mut inserted = false;
+    for line in text.lines() {
+        out.push_str(line);
+        out.push('\n');
+        if line.trim() == "[align]" && !inserted {
+            out.push_str(&pairs);
+            inserted = true;
+        }
+    }
+    if !inserted {
+        out.push_str("\n[align]\n");
+        out.push_str(&pairs);
+    }
+    let dense = toml::to_string(&demo_dense()).map_err(|e| invalid(e.to_string()))?;
+    out.push_str("\n# The demo's lighter dense matching (see `timesift demo`).\n[dense]\n");
+    out.push_str(&dense);
+    out.parse::<toml::Table>()
+        .map_err(|e| invalid(format!("the demo's settings do not parse: {e}")))?;
     timesift_io::fsutil::write_atomically(path, |w| {
-        w.write_all(text.as_bytes())
+        w.write_all(out.as_bytes())
             .map_err(|e| timesift_io::IoError::io(path, e))
     })?;
     Ok(())
@@ -66,15 +108,17 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
         path: dir.to_path_buf(),
         message: e.to_string(),
     })?;
-    append_demo_settings(&dir.join("project.toml"))?;
+    write_demo_settings(&dir.join("project.toml"))?;
     let mut text = format!(
         "demo: scene `{DEMO_SCENE}`, {} epochs, {} images rendered into {} ({:.0} s)\n\
-         demo settings: [dense] {}\n",
+         demo settings: [align] pair_selection {} (default {}); [dense] {}\n",
         spec.epochs.len(),
         written.images,
         dir.display(),
         start.elapsed().as_secs_f64(),
-        DenseConfig::quick().differences()
+        DEMO_PAIRS.name(),
+        PairSelection::default().name(),
+        demo_dense().differences()
     );
     let project = Project::load(dir)?;
     let start = Instant::now();
@@ -181,4 +225,55 @@ fn products_against_truth(project: &Project, gsd: f64) -> Result<String, Project
         ));
     }
     Ok(text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::ProjectConfig;
+
+    const EPOCHS: &str =
+        "crs = \"EPSG:32632\"\n\n[[epoch]]\nname = \"a\"\nimages = \"images/a/*.jpg\"\n";
+
+    fn settings_of(text: &str) -> Result<(String, ProjectConfig), ProjectError> {
+        let dir = tempfile::tempdir().map_err(|e| timesift_io::IoError::io(Path::new("."), e))?;
+        let path = dir.path().join("project.toml");
+        std::fs::write(&path, text).map_err(|e| timesift_io::IoError::io(&path, e))?;
+        write_demo_settings(&path)?;
+        let written =
+            std::fs::read_to_string(&path).map_err(|e| timesift_io::IoError::io(&path, e))?;
+        let config = ProjectConfig::parse(&path, &written)?;
+        Ok((written, config))
+    }
+
+    #[test]
+    fn settings_join_the_writers_align_table_and_keep_its_text() -> Result<(), ProjectError> {
+        let text =
+            format!("# written by the scene writer\n{EPOCHS}\n[align]\nmethod = \"independent\"\n");
+        let (written, config) = settings_of(&text)?;
+        assert!(written.starts_with(&text[..text.len() - "method = \"independent\"\n".len()]));
+        assert_eq!(written.matches("[align]").count(), 1);
+        assert_eq!(config.align.pair_selection, PairSelection::Preselect);
+        assert_eq!(config.align.method, crate::config::AlignMethod::Independent);
+        assert_eq!(config.dense, demo_dense());
+        assert_eq!(config.dense.geometric_iterations, 0);
+        Ok(())
+    }
+
+    #[test]
+    fn settings_add_an_align_table_when_there_is_none() -> Result<(), ProjectError> {
+        let (written, config) = settings_of(EPOCHS)?;
+        assert_eq!(written.matches("[align]").count(), 1);
+        assert_eq!(config.align.pair_selection, PairSelection::Preselect);
+        assert_eq!(config.dense, demo_dense());
+        Ok(())
+    }
+
+    #[test]
+    fn settings_refuse_a_project_file_that_does_not_parse() {
+        let err = settings_of("[align\nmethod = 1\n").map(|_| ());
+        let message = format!("{:?}", err);
+        assert!(message.contains("project.toml"), "{message}");
+        assert!(message.contains("do not parse"), "{message}");
+    }
 }
