@@ -6,8 +6,12 @@ use exr::prelude::*;
 
 use crate::{IoError, fsutil};
 
-/// Writes named f32 channels of one `width × height` image to an EXR file (ZIP-compressed,
-/// lossless). Each channel holds `width * height` row-major values.
+/// Writes named f32 channels of one `width × height` image to an EXR file (run-length encoded
+/// in tiles of 64 × 64: lossless). Each channel holds `width * height` row-major values.
+///
+/// Not ZIP: on depth and normal maps (noisy floats) it saved 8–10 % of the bytes for 6 of the
+/// 64 CPU-seconds of the demo's dense stage, writing and reading the maps (35.5 → 32.0 s wall on
+/// 2 cores); run-length encoding still shrinks the filtered maps' empty areas.
 pub fn write_f32_channels(
     path: &Path,
     width: usize,
@@ -33,7 +37,7 @@ pub fn write_f32_channels(
     let layer = Layer::new(
         (width, height),
         LayerAttributes::default(),
-        Encoding::SMALL_LOSSLESS,
+        Encoding::FAST_LOSSLESS,
         AnyChannels::sort(list),
     );
     let tmp = fsutil::temporary_sibling(path);
