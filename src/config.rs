@@ -318,6 +318,11 @@ pub struct AlignConfig {
     /// Default `group`: each camera group's own.
     #[serde(default)]
     pub outlier_bound: OutlierBoundConfig,
+    /// `timesift`: after the first block, join tie points of two epochs that it puts within
+    /// two ground pixels of each other and whose descriptors match into inter-epoch ties, and
+    /// orient the block again with them (twice the orientation's time). Default `false`.
+    #[serde(default)]
+    pub join_epoch_ties: bool,
 }
 
 /// `[align] outlier_bound`: whose noise the observation outlier bound (4 σ) follows.
@@ -374,6 +379,7 @@ impl Default for AlignConfig {
             gcps_in_all_epochs: false,
             inter_epoch_ties: InterEpochTies::default(),
             outlier_bound: OutlierBoundConfig::default(),
+            join_epoch_ties: false,
         }
     }
 }
@@ -1096,6 +1102,17 @@ mod tests {
                 .outlier_bound,
             OutlierBoundConfig::Pooled
         );
+        assert!(!with_align("").unwrap().align.join_epoch_ties);
+        assert!(
+            with_align("join_epoch_ties = true")
+                .unwrap()
+                .align
+                .join_epoch_ties
+        );
+        let e = with_align("join_epoch_ties = \"yes\"")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("join_epoch_ties"), "{e}");
         let e = with_align("outlier_bound = \"camera\"")
             .unwrap_err()
             .to_string();

@@ -33,6 +33,10 @@ pub struct AlignReport {
     /// changed.
     #[serde(default)]
     pub inter_epoch_ties_split_off_stable: usize,
+    /// Tie points of two epochs joined into inter-epoch ties by descriptor once the first block
+    /// put them together (`[align] join_epoch_ties`).
+    #[serde(default)]
+    pub inter_epoch_ties_joined: usize,
     /// Regions found changed from the block's own inter-epoch ties (`[align] inter_epoch_ties =
     /// "auto"` without stable areas); 0 otherwise.
     #[serde(default)]

@@ -152,7 +152,11 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     let _ = writeln!(text, "# gcps_in_all_epochs = false");
     let _ = writeln!(
         text,
-        "# inter_epoch_ties = \"auto\"  # with stable.csv only ties on it join the epochs; without, none on ground the ties show changed (\"stable\": stable.csv only; \"all\")\n"
+        "# inter_epoch_ties = \"auto\"  # with stable.csv only ties on it join the epochs; without, none on ground the ties show changed (\"stable\": stable.csv only; \"all\")"
+    );
+    let _ = writeln!(
+        text,
+        "# join_epoch_ties = false  # true: after the first block, join two epochs' tie points that it puts together and whose descriptors match; orient again (twice the time)\n"
     );
     let _ = writeln!(text, "[dense]");
     let _ = writeln!(

@@ -135,6 +135,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
             OutlierBoundConfig::Group => OutlierBound::PerGroup,
             OutlierBoundConfig::Pooled => OutlierBound::Pooled,
         },
+        join_epoch_ties: project.config.align.join_epoch_ties,
         ..SfmOptions::default()
     };
     options.self_calibration.min_images = 3;
@@ -822,6 +823,7 @@ fn report(
         tie_points: rec.points.len(),
         inter_epoch_ties_split_as_moved: block.moved_ties_split,
         inter_epoch_ties_split_off_stable: block.unstable_ties_split,
+        inter_epoch_ties_joined: block.joined_ties,
         changed_regions: block.changed_regions,
         observation_bound_px: block.observation_bound_px,
         group_noise: (0..rec.cameras.len())

@@ -45,6 +45,7 @@ fn project(dir: &Path) {
         tie_points: 90,
         inter_epoch_ties_split_as_moved: 0,
         inter_epoch_ties_split_off_stable: 0,
+        inter_epoch_ties_joined: 0,
         changed_regions: 0,
         observation_bound_px: Some(2.0),
         group_noise: Vec::new(),

@@ -52,7 +52,9 @@ pub struct MethodsBench {
     /// `all`, `plain` (every tie and no GNSS offsets: the single block before they existed),
     /// `pooled` (the project's ties, one observation outlier bound for the whole block instead
     /// of each camera group's own), or `auto-blind` (the regional change detection, the stable
-    /// areas hidden from the align stage; the products are still judged on them).
+    /// areas hidden from the align stage; the products are still judged on them), or
+    /// `joined` (the project's ties and a second look for inter-epoch ties by descriptor,
+    /// `[align] join_epoch_ties = true`).
     pub ties: Vec<String>,
 }
 
@@ -67,12 +69,15 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
             project.config.gnss.offsets = timesift::config::GnssOffsets::None;
         }
         "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
+        "joined" => project.config.align.join_epoch_ties = true,
         "auto-blind" => {
             project.config.align.inter_epoch_ties = InterEpochTies::Auto;
             project.stable_areas.clear();
         }
         other => {
-            anyhow::bail!("--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind)")
+            anyhow::bail!(
+                "--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind, joined)"
+            )
         }
     }
     Ok(project)

@@ -100,7 +100,8 @@ enum Task {
         /// Inter-epoch ties of the single-block strategies, one run each: default, all, plain
         /// (all ties and no GNSS offsets: the plain single block), pooled (one outlier bound
         /// for the whole block, not one per camera group), auto-blind (change detected from the
-        /// ties, stable areas hidden from align).
+        /// ties, stable areas hidden from align), joined (a second look for inter-epoch ties by
+        /// descriptor after the first block).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
     },

@@ -152,6 +152,9 @@ pub struct Georeferenced {
     /// Epoch groups of inter-epoch tie points split off for lying off the stable ground
     /// ([`crate::Block::stable_ground`]).
     pub unstable_ties_split: usize,
+    /// Inter-epoch ties joined by descriptor after a first block (`timesift` with
+    /// [`crate::SfmOptions::join_epoch_ties`]; 0 otherwise).
+    pub joined_ties: usize,
     /// Regions of the block found changed from its own inter-epoch ties
     /// ([`crate::ChangeDetection::Regional`]), over every round; 0 without the detection.
     pub changed_regions: usize,
@@ -443,6 +446,7 @@ pub fn georeference(
         rms_px,
         focal_held: focal_fixed,
         moved_ties_split: 0,
+        joined_ties: 0,
         unstable_ties_split: 0,
         changed_regions: 0,
         observation_bound_px: bound,

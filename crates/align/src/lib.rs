@@ -12,7 +12,9 @@
 //! (inter-epoch tie points on surfaces that moved or off the stable ground, split by epoch),
 //! `stable_ground` (the caller's stable areas as a grid), `changed` (without them, the regions
 //! whose inter-epoch ties differ between epochs on average), `stable` (the `stp`
-//! strategy over a caller-given descriptor matcher).
+//! strategy over a caller-given descriptor matcher), `joined` (`timesift` with an optional
+//! second look: two epochs' own tie points that the first block puts together and the matcher
+//! pairs become inter-epoch ties).
 //!
 //! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
 //! reads no file and knows nothing of descriptors (`stp` asks a [`StableMatcher`]); an epoch is a partition of the images and a
@@ -99,6 +101,7 @@ mod error;
 mod georef;
 mod incremental;
 mod init;
+mod joined;
 mod manual;
 mod model;
 mod moved;
@@ -118,6 +121,7 @@ pub use georef::{
     georeference, ground_point_residuals,
 };
 pub use incremental::reconstruct;
+pub use joined::JoinedSingleBlock;
 pub use manual::{MIN_REFERENCE_IMAGES, ManualStablePoints, NaturalPoint};
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{ChangeDetection, OutlierBound, SelfCalibration, SfmOptions};

@@ -68,7 +68,7 @@ pub trait Strategy {
 /// `matcher` does.
 pub fn strategy<'m>(name: &str, matcher: &'m dyn StableMatcher) -> Option<Box<dyn Strategy + 'm>> {
     match name {
-        "timesift" => Some(Box::new(SingleBlock)),
+        "timesift" => Some(Box::new(crate::joined::JoinedSingleBlock { matcher })),
         "independent" => Some(Box::new(Independent)),
         "chunk" => Some(Box::new(ChunkAlignment)),
         "msfm" => Some(Box::new(ProgressiveMerge)),
@@ -177,6 +177,7 @@ impl Strategy for ChunkAlignment {
                     residuals: Vec::new(),
                     focal_held: sub.focal_held_during_sfm(),
                     moved_ties_split: 0,
+                    joined_ties: 0,
                     unstable_ties_split: 0,
                     changed_regions: 0,
                     observation_bound_px: None,
@@ -616,6 +617,7 @@ pub(crate) fn merge(input: &SfmInput, parts: Vec<Georeferenced>) -> Georeference
         rms_px,
         focal_held,
         moved_ties_split: 0,
+        joined_ties: 0,
         unstable_ties_split: 0,
         changed_regions: 0,
         observation_bound_px: bound,

@@ -7,9 +7,9 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    Independent, ManualStablePoints, Marker, NaturalPoint, OfferedTiePoint, OffsetPrior,
-    ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock, StableMatch,
-    StableMatcher, StableSearch, StableTiePoints, Strategy, georeference, reconstruct,
+    Independent, JoinedSingleBlock, ManualStablePoints, Marker, NaturalPoint, OfferedTiePoint,
+    OffsetPrior, ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock,
+    StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy, georeference, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -707,6 +707,15 @@ impl StableMatcher for SameTrack {
     }
 }
 
+/// How many epochs observe a point.
+fn epoch_count(block: &Block, p: &timesift_align::SparsePoint) -> usize {
+    p.observations
+        .iter()
+        .map(|e| block.epoch_of[e.image.index()])
+        .collect::<std::collections::BTreeSet<usize>>()
+        .len()
+}
+
 /// Tie points on a surface that moved between the epochs (a slide 4 m in radius around
 /// (4, 0), 6 cm ≈ 2.7 px eastwards in the second epoch) are split by epoch; the stable ones keep
 /// tying the epochs.
@@ -726,14 +735,10 @@ fn tie_points_on_a_moved_surface_stop_tying_the_epochs() {
     let ties = |g: &Georeferenced| {
         let (mut on, mut off) = (0, 0);
         for p in &g.reconstruction.points {
-            let epochs: std::collections::BTreeSet<usize> = p
-                .observations
-                .iter()
-                .map(|e| block.epoch_of[e.image.index()])
-                .collect();
-            if epochs.len() == 2 && from_centre(&p.position) < 3.0 {
+            let epochs = epoch_count(&block, p);
+            if epochs == 2 && from_centre(&p.position) < 3.0 {
                 on += 1;
-            } else if epochs.len() == 2 && from_centre(&p.position) > 5.0 {
+            } else if epochs == 2 && from_centre(&p.position) > 5.0 {
                 off += 1;
             }
         }
@@ -1051,4 +1056,106 @@ fn regional_change_detection_finds_nothing_where_nothing_changed() {
     );
     assert_eq!(detected.changed_regions, 0);
     assert_eq!(detected.unstable_ties_split, 0);
+}
+
+/// Two epochs whose feature matching joined only one scene point in twenty across them (the
+/// others are a track per epoch), and whose second epoch sees a slide (a disc 4 m in radius
+/// around (4, 0)) moved 0.5 m east: the second look joins the stable points' two tracks into
+/// inter-epoch ties, not the slide's (beyond the search radius), and the epochs then agree
+/// better than on the few ties the matching found.
+#[test]
+fn a_second_look_joins_the_epochs_tie_points_of_one_stable_ground_point() {
+    let on_slide = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm() < 4.0;
+    let s = scene_with_motion(17, 0.3, 1500, &|i, x| {
+        if i >= 10 && on_slide(x) {
+            Vector3::new(0.5, 0.0, 0.0)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let mut block = two_epoch_block(&s, Vector3::new(1.0, -0.5, 0.8));
+    // The scene's own tracks are one per point: matching by them is matching by the truth.
+    let matcher = SameTrack::new(&s.input);
+    let mut tracks = Vec::new();
+    for (k, track) in s.input.tracks.iter().enumerate() {
+        if k % 20 == 0 && !on_slide(&s.points[k]) {
+            tracks.push(track.clone());
+            continue;
+        }
+        for epoch in 0..2 {
+            let elements: Vec<TrackElement> = track
+                .elements
+                .iter()
+                .filter(|e| block.epoch_of[e.image.index()] == epoch)
+                .copied()
+                .collect();
+            if elements.len() >= 2 {
+                tracks.push(Track { elements });
+            }
+        }
+    }
+    block.sfm.tracks = tracks;
+    // Inter-epoch ties off the slide and on it (by the scene point they measure: the block's
+    // frame is the biased priors', not the truth's).
+    let ties = |g: &Georeferenced| {
+        let (mut stable, mut slide) = (0, 0);
+        for p in &g.reconstruction.points {
+            if epoch_count(&block, p) < 2 {
+                continue;
+            }
+            if on_slide(&s.points[matcher.track_of[&p.observations[0]]]) {
+                slide += 1;
+            } else {
+                stable += 1;
+            }
+        }
+        (stable, slide)
+    };
+    let options = SfmOptions::default();
+    let few = SingleBlock.orient(&block, &options).unwrap();
+    let off = JoinedSingleBlock { matcher: &matcher }
+        .orient(
+            &block,
+            &SfmOptions {
+                join_epoch_ties: false,
+                ..options.clone()
+            },
+        )
+        .unwrap();
+    let joined = JoinedSingleBlock { matcher: &matcher }
+        .orient(
+            &block,
+            &SfmOptions {
+                join_epoch_ties: true,
+                ..options.clone()
+            },
+        )
+        .unwrap();
+    let (few_stable, few_slide) = ties(&few);
+    let (stable, slide) = ties(&joined);
+    println!(
+        "matching alone: {few_stable} ties ({few_slide} on the slide), misfit {:.4} m; \
+         second look: {} joined, {stable} ties ({slide} on the slide), misfit {:.4} m",
+        rigid_misfit(&few, &s),
+        joined.joined_ties,
+        rigid_misfit(&joined, &s)
+    );
+    assert_eq!(
+        off, few,
+        "join_epoch_ties = false is the plain single block"
+    );
+    assert_eq!(off.joined_ties, 0);
+    assert_eq!(few_slide, 0);
+    // About 19 in 20 of the stable points seen in both epochs were left apart.
+    assert!(
+        joined.joined_ties >= 10 * few_stable,
+        "{} joined",
+        joined.joined_ties
+    );
+    assert!(
+        stable >= 10 * few_stable,
+        "{stable} ties against {few_stable}"
+    );
+    assert_eq!(slide, 0, "the slide moved beyond the search radius");
+    assert!(rigid_misfit(&joined, &s) < rigid_misfit(&few, &s));
 }

@@ -1,0 +1,327 @@
+//! `timesift` with a second look for inter-epoch ties: the feature matching pairs images, and
+//! across epochs (decades of film, a season of vegetation) most image pairs fall short of
+//! verification, so few tie points join the epochs although much of the ground looks the same.
+//! Once the first block is oriented, a stable ground point seen in two epochs is there twice,
+//! as one epoch's tie point and the other's, a few ground pixels apart. Every two epochs' tie
+//! points of their own are offered to the caller's descriptor matcher (the one `stp` uses)
+//! within a radius of two ground pixels; the pairs it accepts — mutual, clearly the best by
+//! descriptor, and agreeing on one 3-D similarity within a ground pixel, which ground that
+//! moved does not — become inter-epoch ties (their tracks joined), and the
+//! block is oriented again with them. The second block still splits what the first did: ties
+//! off the stable ground, and ties that miss by more than the noise.
+//!
+//! What is offered: points whose track lies in one epoch (a track the first block split, for
+//! moving or for lying off the stable ground, spans epochs and is never offered again), with
+//! two observations at least; with stable ground given and a datum, only points on it.
+//!
+//! Opt-in (`SfmOptions::join_epoch_ties`), for twice the orientation's time. Measured with
+//! `cargo xtask bench-methods --ties default,joined` on the synthetic scenes, it joined 0
+//! (glacier, shore) to 462 (archival-mixed) ties. Where it joined few (campus 4, landslide 13)
+//! nothing moved; on `orchard` (126: vegetation between the stable tracks) the stable-ground
+//! tie points' tilt went from 1.34–1.41 to 1.16–1.25 mm/m; on `archival` (36, film decades
+//! apart) the later epochs' check dH RMSE from 1.90 / 3.40 / 1.94 to 1.19 / 2.99 / 1.69 m; on
+//! the `corridor` (189) the tilt from 0.24–0.36 to 0.33–0.44 mm/m. Two epochs' keypoints at one
+//! ground point are seldom one point to a fraction of a pixel: with a 3-D tolerance of 3 ground
+//! pixels instead of 1, the corridor's 827 joins raised the second block's moved-point splits
+//! by 664.
+
+use timesift_core::{Track, TrackElement};
+
+use crate::AlignError;
+use crate::georef::{Datum, Georeferenced};
+use crate::options::SfmOptions;
+use crate::stable::{OfferedTiePoint, StableMatcher, StableSearch};
+use crate::strategy::{Block, SingleBlock, Strategy, median_ground_pixel};
+
+/// Horizontal search radius, ground pixels: how far apart one block puts a ground point's two
+/// epochs' tie points (each triangulated from its own epoch's images).
+const JOIN_RADIUS_PX: f64 = 2.0;
+/// 3-D tolerance of the similarity the pairs must agree on, ground pixels. Looser joins what the
+/// second block's moved-point test splits again (see the module's measurements).
+const JOIN_TOLERANCE_PX: f64 = 1.0;
+/// Fewest tie points of its own an epoch offers before a pair of epochs is searched.
+const MIN_OFFERED: usize = 20;
+
+/// `timesift`: one block, then a second look for inter-epoch ties by descriptor
+/// ([`crate::SfmOptions::join_epoch_ties`]).
+pub struct JoinedSingleBlock<'m> {
+    /// Descriptor matching of tie points.
+    pub matcher: &'m dyn StableMatcher,
+}
+
+impl Strategy for JoinedSingleBlock<'_> {
+    fn name(&self) -> &'static str {
+        "timesift"
+    }
+
+    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
+        let first = SingleBlock.orient(block, options)?;
+        if !options.join_epoch_ties || block.epoch_names.len() < 2 {
+            return Ok(first);
+        }
+        let joined = join_ties(block, &first, self.matcher);
+        if joined.joined == 0 {
+            return Ok(first);
+        }
+        let mut second_block = block.clone();
+        second_block.sfm.tracks = joined.tracks;
+        let mut second = SingleBlock.orient(&second_block, options)?;
+        second.joined_ties = joined.joined;
+        Ok(second)
+    }
+}
+
+/// The block's tracks with the joined ones, and how many joins were made.
+struct Joined {
+    /// Index for index with the block's tracks: a joined track at the lowest index of the
+    /// tracks it joins (so a point of it names a track whose elements include its own), the
+    /// others of the join emptied.
+    tracks: Vec<Track>,
+    /// Pairs of tie points joined.
+    joined: usize,
+}
+
+/// Searches every two epochs for tie points of their own that are one ground point, and joins
+/// their tracks. A matcher that finds too few pairs for its similarity joins nothing there.
+fn join_ties(block: &Block, placed: &Georeferenced, matcher: &dyn StableMatcher) -> Joined {
+    let rec = &placed.reconstruction;
+    let tracks = &block.sfm.tracks;
+    let epoch_of_image = |e: &TrackElement| block.epoch_of.get(e.image.index()).copied();
+    let stable = block
+        .stable_ground
+        .as_ref()
+        .filter(|_| placed.datum != Datum::Local);
+    // Per epoch, the points it may offer.
+    let mut offered: Vec<Vec<usize>> = vec![Vec::new(); block.epoch_names.len()];
+    for (k, p) in rec.points.iter().enumerate() {
+        let Some(track) = tracks.get(p.track) else {
+            continue;
+        };
+        let Some(epoch) = track.elements.first().and_then(epoch_of_image) else {
+            continue;
+        };
+        let own = track
+            .elements
+            .iter()
+            .all(|e| epoch_of_image(e) == Some(epoch));
+        if own
+            && p.observations.len() >= 2
+            && stable.is_none_or(|s| s.contains(&p.position))
+            && let Some(list) = offered.get_mut(epoch)
+        {
+            list.push(k);
+        }
+    }
+    let ground_px = median_ground_pixel(rec);
+    let search = StableSearch {
+        radius: JOIN_RADIUS_PX * ground_px,
+        tolerance: JOIN_TOLERANCE_PX * ground_px,
+    };
+    let mut sets = TrackSets::new(tracks);
+    let mut joined = 0;
+    let offer = |points: &[usize]| -> Vec<OfferedTiePoint<'_>> {
+        points
+            .iter()
+            .map(|&k| OfferedTiePoint {
+                position: rec.points[k].position,
+                observations: &rec.points[k].observations,
+            })
+            .collect()
+    };
+    for a in 0..offered.len() {
+        for b in a + 1..offered.len() {
+            if offered[a].len() < MIN_OFFERED || offered[b].len() < MIN_OFFERED {
+                continue;
+            }
+            let pairs = match matcher.stable_pairs(
+                &offer(&offered[a]),
+                &offer(&offered[b]),
+                &search,
+            ) {
+                Ok(pairs) => pairs,
+                Err(message) => {
+                    tracing::debug!(
+                        epochs = %format!("{} and {}", block.epoch_names[a], block.epoch_names[b]),
+                        %message,
+                        "no inter-epoch ties joined"
+                    );
+                    continue;
+                }
+            };
+            let mut here = 0;
+            for m in pairs {
+                let (Some(&ka), Some(&kb)) = (offered[a].get(m.reference), offered[b].get(m.other))
+                else {
+                    continue;
+                };
+                if sets.join(rec.points[ka].track, rec.points[kb].track) {
+                    here += 1;
+                }
+            }
+            tracing::info!(
+                epochs = %format!("{} and {}", block.epoch_names[a], block.epoch_names[b]),
+                joined = here,
+                "inter-epoch ties joined by descriptor"
+            );
+            joined += here;
+        }
+    }
+    Joined {
+        tracks: sets.into_tracks(),
+        joined,
+    }
+}
+
+/// Disjoint sets of tracks (union–find), each joined set's elements kept sorted by image at
+/// its root; two sets are joined only when no image is in both (a track has one keypoint per
+/// image).
+struct TrackSets<'a> {
+    tracks: &'a [Track],
+    parent: Vec<usize>,
+    /// Elements of a joined set, at its root; `None` for a track never joined.
+    joined: Vec<Option<Vec<TrackElement>>>,
+}
+
+impl<'a> TrackSets<'a> {
+    fn new(tracks: &'a [Track]) -> TrackSets<'a> {
+        TrackSets {
+            tracks,
+            parent: (0..tracks.len()).collect(),
+            joined: vec![None; tracks.len()],
+        }
+    }
+
+    fn root(&mut self, mut t: usize) -> usize {
+        while self.parent[t] != t {
+            self.parent[t] = self.parent[self.parent[t]];
+            t = self.parent[t];
+        }
+        t
+    }
+
+    fn elements_of(&self, root: usize) -> &[TrackElement] {
+        self.joined[root]
+            .as_deref()
+            .unwrap_or(&self.tracks[root].elements)
+    }
+
+    /// Joins the sets of tracks `a` and `b`; false when they are one set already, either is
+    /// out of range, or they share an image.
+    fn join(&mut self, a: usize, b: usize) -> bool {
+        if a >= self.parent.len() || b >= self.parent.len() {
+            return false;
+        }
+        let (ra, rb) = (self.root(a), self.root(b));
+        if ra == rb {
+            return false;
+        }
+        let (low, high) = (ra.min(rb), ra.max(rb));
+        let Some(merged) = merge_by_image(self.elements_of(low), self.elements_of(high)) else {
+            return false;
+        };
+        self.parent[high] = low;
+        self.joined[low] = Some(merged);
+        self.joined[high] = None;
+        true
+    }
+
+    /// The tracks after the joins, index for index with the input.
+    fn into_tracks(mut self) -> Vec<Track> {
+        (0..self.tracks.len())
+            .map(|t| {
+                if self.root(t) != t {
+                    Track {
+                        elements: Vec::new(),
+                    }
+                } else {
+                    match self.joined[t].take() {
+                        Some(elements) => Track { elements },
+                        None => self.tracks[t].clone(),
+                    }
+                }
+            })
+            .collect()
+    }
+}
+
+/// Two element lists sorted by image, merged; `None` when an image is in both.
+fn merge_by_image(x: &[TrackElement], y: &[TrackElement]) -> Option<Vec<TrackElement>> {
+    let mut out = Vec::with_capacity(x.len() + y.len());
+    let (mut i, mut j) = (0, 0);
+    while i < x.len() && j < y.len() {
+        match x[i].image.cmp(&y[j].image) {
+            std::cmp::Ordering::Less => {
+                out.push(x[i]);
+                i += 1;
+            }
+            std::cmp::Ordering::Greater => {
+                out.push(y[j]);
+                j += 1;
+            }
+            std::cmp::Ordering::Equal => return None,
+        }
+    }
+    out.extend_from_slice(&x[i..]);
+    out.extend_from_slice(&y[j..]);
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use timesift_core::{FeatureIndex, ImageId};
+
+    use super::*;
+
+    fn track(elements: &[(usize, usize)]) -> Track {
+        Track {
+            elements: elements
+                .iter()
+                .map(|&(image, feature)| TrackElement {
+                    image: ImageId::from(image),
+                    feature: FeatureIndex::from(feature),
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn joined_tracks_sit_at_their_lowest_index_sorted_by_image() {
+        let tracks = vec![
+            track(&[(0, 1), (2, 1)]),
+            track(&[(1, 4), (3, 4)]),
+            track(&[(4, 0), (5, 0)]),
+            track(&[(6, 2), (7, 2)]),
+        ];
+        let mut sets = TrackSets::new(&tracks);
+        assert!(sets.join(2, 0));
+        // Through the set of 0 and 2, transitively.
+        assert!(sets.join(1, 2));
+        assert!(!sets.join(0, 1), "one set already");
+        assert!(!sets.join(0, 9), "out of range");
+        let joined = sets.into_tracks();
+        assert_eq!(
+            joined[0],
+            track(&[(0, 1), (1, 4), (2, 1), (3, 4), (4, 0), (5, 0)])
+        );
+        assert!(joined[1].elements.is_empty() && joined[2].elements.is_empty());
+        assert_eq!(joined[3], tracks[3]);
+    }
+
+    #[test]
+    fn tracks_that_share_an_image_are_not_joined() {
+        let tracks = vec![
+            track(&[(0, 1), (2, 1)]),
+            track(&[(2, 5), (3, 5)]),
+            track(&[(3, 6), (4, 6)]),
+        ];
+        let mut sets = TrackSets::new(&tracks);
+        assert!(!sets.join(0, 1), "image 2 in both");
+        assert!(sets.join(0, 2));
+        // 1 shares image 3 with the set of 0 and 2 now.
+        assert!(!sets.join(1, 2));
+        let joined = sets.into_tracks();
+        assert_eq!(joined[0], track(&[(0, 1), (2, 1), (3, 6), (4, 6)]));
+        assert_eq!(joined[1], tracks[1]);
+        assert!(joined[2].elements.is_empty());
+    }
+}
