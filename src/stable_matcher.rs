@@ -1,4 +1,5 @@
-//! The descriptor half of the `stp` strategy for the align stage: the descriptors of the tie
+//! The descriptor half of the `stp` strategy, and of `timesift`'s second look for inter-epoch
+//! ties (`[align] join_epoch_ties`), for the align stage: the descriptors of the tie
 //! points' observations come from the project's feature files (`work/features/<image>.feat`),
 //! read one image at a time and only for the keypoints asked for, then
 //! `timesift-matching::stp` pairs the points.

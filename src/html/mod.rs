@@ -225,22 +225,22 @@ fn summary_section(inputs: &Inputs, warnings: &[String]) -> String {
     let a = &inputs.align;
     let mut s = format!(
         "<p>{} of {} images oriented in one run of the <b>{}</b> strategy; datum: {}; RMS \
-         reprojection error {} px; {} tie points, of which {}{} split as moved between epochs \
+         reprojection error {} px; {}{} tie points, of which {} split as moved between epochs \
          and {} split for lying off the stable areas{}.</p>",
         a.images_oriented,
         a.images_given,
         esc(&a.method),
         esc(&a.datum),
         num(a.rms_reprojection_px, 3),
-        a.tie_points,
         if a.inter_epoch_ties_joined > 0 {
             format!(
-                "{} joined across epochs by descriptor after a first block, ",
+                "{} inter-epoch ties joined by descriptor after a first block, then ",
                 a.inter_epoch_ties_joined
             )
         } else {
             String::new()
         },
+        a.tie_points,
         a.inter_epoch_ties_split_as_moved,
         a.inter_epoch_ties_split_off_stable,
         if a.changed_regions > 0 {

@@ -44,6 +44,10 @@ const MIN_OFFERED: usize = 20;
 
 /// `timesift`: one block, then a second look for inter-epoch ties by descriptor
 /// ([`crate::SfmOptions::join_epoch_ties`]).
+///
+/// After a join, a point names the lowest-indexed of the caller's tracks it joined, and its
+/// observations may include keypoints of the others: unlike the other strategies', they are
+/// not all in `block.sfm.tracks[point.track]`.
 pub struct JoinedSingleBlock<'m> {
     /// Descriptor matching of tie points.
     pub matcher: &'m dyn StableMatcher,
@@ -65,9 +69,20 @@ impl Strategy for JoinedSingleBlock<'_> {
         }
         let mut second_block = block.clone();
         second_block.sfm.tracks = joined.tracks;
-        let mut second = SingleBlock.orient(&second_block, options)?;
-        second.joined_ties = joined.joined;
-        Ok(second)
+        match SingleBlock.orient(&second_block, options) {
+            Ok(mut second) => {
+                second.joined_ties = joined.joined;
+                Ok(second)
+            }
+            Err(e) => {
+                tracing::warn!(
+                    "the block with {} joined inter-epoch ties did not orient ({e}); keeping the \
+                     first block",
+                    joined.joined
+                );
+                Ok(first)
+            }
+        }
     }
 }
 
@@ -117,7 +132,7 @@ fn join_ties(block: &Block, placed: &Georeferenced, matcher: &dyn StableMatcher)
         radius: JOIN_RADIUS_PX * ground_px,
         tolerance: JOIN_TOLERANCE_PX * ground_px,
     };
-    let mut sets = TrackSets::new(tracks);
+    let mut sets = TrackSets::new(tracks, &block.epoch_of);
     let mut joined = 0;
     let offer = |points: &[usize]| -> Vec<OfferedTiePoint<'_>> {
         points
@@ -140,7 +155,7 @@ fn join_ties(block: &Block, placed: &Georeferenced, matcher: &dyn StableMatcher)
             ) {
                 Ok(pairs) => pairs,
                 Err(message) => {
-                    tracing::debug!(
+                    tracing::info!(
                         epochs = %format!("{} and {}", block.epoch_names[a], block.epoch_names[b]),
                         %message,
                         "no inter-epoch ties joined"
@@ -173,19 +188,22 @@ fn join_ties(block: &Block, placed: &Georeferenced, matcher: &dyn StableMatcher)
 }
 
 /// Disjoint sets of tracks (union–find), each joined set's elements kept sorted by image at
-/// its root; two sets are joined only when no image is in both (a track has one keypoint per
-/// image).
+/// its root; two sets are joined only when no epoch is in both: a join ties epochs, and two
+/// tracks of one epoch that the first block kept apart are two points (joins are transitive
+/// over pairs of epochs, so a set can meet one epoch twice).
 struct TrackSets<'a> {
     tracks: &'a [Track],
+    epoch_of: &'a [usize],
     parent: Vec<usize>,
     /// Elements of a joined set, at its root; `None` for a track never joined.
     joined: Vec<Option<Vec<TrackElement>>>,
 }
 
 impl<'a> TrackSets<'a> {
-    fn new(tracks: &'a [Track]) -> TrackSets<'a> {
+    fn new(tracks: &'a [Track], epoch_of: &'a [usize]) -> TrackSets<'a> {
         TrackSets {
             tracks,
+            epoch_of,
             parent: (0..tracks.len()).collect(),
             joined: vec![None; tracks.len()],
         }
@@ -205,8 +223,16 @@ impl<'a> TrackSets<'a> {
             .unwrap_or(&self.tracks[root].elements)
     }
 
+    /// Epochs (bit per epoch, the first 64; a later epoch counts as the 64th) of a set.
+    fn epochs_of(&self, root: usize) -> u64 {
+        self.elements_of(root)
+            .iter()
+            .filter_map(|e| self.epoch_of.get(e.image.index()))
+            .fold(0, |bits, &epoch| bits | 1 << epoch.min(63))
+    }
+
     /// Joins the sets of tracks `a` and `b`; false when they are one set already, either is
-    /// out of range, or they share an image.
+    /// out of range, or they share an epoch.
     fn join(&mut self, a: usize, b: usize) -> bool {
         if a >= self.parent.len() || b >= self.parent.len() {
             return false;
@@ -216,6 +242,9 @@ impl<'a> TrackSets<'a> {
             return false;
         }
         let (low, high) = (ra.min(rb), ra.max(rb));
+        if self.epochs_of(low) & self.epochs_of(high) != 0 {
+            return false;
+        }
         let Some(merged) = merge_by_image(self.elements_of(low), self.elements_of(high)) else {
             return false;
         };
@@ -286,13 +315,15 @@ mod tests {
 
     #[test]
     fn joined_tracks_sit_at_their_lowest_index_sorted_by_image() {
+        // Images 0–7 in epochs 0, 1, 0, 1, 2, 2, 3, 3: one epoch per track.
+        let epoch_of = [0, 1, 0, 1, 2, 2, 3, 3];
         let tracks = vec![
             track(&[(0, 1), (2, 1)]),
             track(&[(1, 4), (3, 4)]),
             track(&[(4, 0), (5, 0)]),
             track(&[(6, 2), (7, 2)]),
         ];
-        let mut sets = TrackSets::new(&tracks);
+        let mut sets = TrackSets::new(&tracks, &epoch_of);
         assert!(sets.join(2, 0));
         // Through the set of 0 and 2, transitively.
         assert!(sets.join(1, 2));
@@ -308,20 +339,32 @@ mod tests {
     }
 
     #[test]
-    fn tracks_that_share_an_image_are_not_joined() {
+    fn two_tracks_of_one_epoch_are_not_joined_even_through_another_epoch() {
+        // Tracks 0 and 2 in epoch 0, track 1 in epoch 1.
+        let epoch_of = [0, 0, 1, 1, 0, 0];
         let tracks = vec![
-            track(&[(0, 1), (2, 1)]),
+            track(&[(0, 1), (1, 1)]),
             track(&[(2, 5), (3, 5)]),
-            track(&[(3, 6), (4, 6)]),
+            track(&[(4, 6), (5, 6)]),
         ];
-        let mut sets = TrackSets::new(&tracks);
-        assert!(!sets.join(0, 1), "image 2 in both");
-        assert!(sets.join(0, 2));
-        // 1 shares image 3 with the set of 0 and 2 now.
-        assert!(!sets.join(1, 2));
+        let mut sets = TrackSets::new(&tracks, &epoch_of);
+        assert!(!sets.join(0, 2), "one epoch");
+        assert!(sets.join(0, 1));
+        assert!(!sets.join(2, 1), "epoch 0 is in the set of 0 and 1 already");
         let joined = sets.into_tracks();
-        assert_eq!(joined[0], track(&[(0, 1), (2, 1), (3, 6), (4, 6)]));
-        assert_eq!(joined[1], tracks[1]);
-        assert!(joined[2].elements.is_empty());
+        assert_eq!(joined[0], track(&[(0, 1), (1, 1), (2, 5), (3, 5)]));
+        assert!(joined[1].elements.is_empty());
+        assert_eq!(joined[2], tracks[2]);
+    }
+
+    #[test]
+    fn element_lists_with_an_image_in_both_do_not_merge() {
+        let (x, y) = (track(&[(0, 1), (2, 1)]), track(&[(2, 5), (3, 5)]));
+        assert_eq!(merge_by_image(&x.elements, &y.elements), None);
+        let z = track(&[(1, 7), (4, 7)]);
+        assert_eq!(
+            merge_by_image(&x.elements, &z.elements),
+            Some(track(&[(0, 1), (1, 7), (2, 1), (4, 7)]).elements)
+        );
     }
 }

@@ -17,7 +17,7 @@
 //! pairs become inter-epoch ties).
 //!
 //! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
-//! reads no file and knows nothing of descriptors (`stp` asks a [`StableMatcher`]); an epoch is a partition of the images and a
+//! reads no file and knows nothing of descriptors (`stp` and `timesift`'s second look ask a [`StableMatcher`]); an epoch is a partition of the images and a
 //! reference index, nothing more; every random choice is
 //! seeded, so a run is reproducible; the frame of a reconstruction is arbitrary (first image at
 //! the origin) until georeferencing.

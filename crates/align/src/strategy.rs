@@ -2,7 +2,9 @@
 //! multi-epoch input: epochs are only a partition of the images (which epoch each image belongs
 //! to, which one carries the datum); what a strategy does with that partition is the strategy.
 //!
-//! - [`SingleBlock`] (`timesift`): all epochs in one reconstruction and one georeferencing.
+//! - [`SingleBlock`] (`timesift`): all epochs in one reconstruction and one georeferencing;
+//!   [`crate::JoinedSingleBlock`] (module `joined`), what `timesift` names, adds an optional
+//!   second look for inter-epoch ties by descriptor.
 //! - [`Independent`]: each epoch reconstructed and georeferenced with its own priors and markers.
 //! - [`ChunkAlignment`] (`chunk`): each epoch reconstructed alone; the reference epoch
 //!   georeferenced; every other epoch mapped onto it by one 7-parameter similarity from the
@@ -64,8 +66,8 @@ pub trait Strategy {
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError>;
 }
 
-/// The strategy called `name`, or `None` for an unknown one. `stp` compares descriptors, which
-/// `matcher` does.
+/// The strategy called `name`, or `None` for an unknown one. `stp`, and `timesift` with
+/// [`SfmOptions::join_epoch_ties`], compare descriptors, which `matcher` does.
 pub fn strategy<'m>(name: &str, matcher: &'m dyn StableMatcher) -> Option<Box<dyn Strategy + 'm>> {
     match name {
         "timesift" => Some(Box::new(crate::joined::JoinedSingleBlock { matcher })),
