@@ -54,7 +54,8 @@ pub struct MethodsBench {
     /// of each camera group's own), or `auto-blind` (the regional change detection, the stable
     /// areas hidden from the align stage; the products are still judged on them), or
     /// `joined` (the project's ties and a second look for inter-epoch ties by descriptor,
-    /// `[align] join_epoch_ties = true`).
+    /// `[align] join_epoch_ties = true`), or `refgnss` (the GNSS priors of the reference epoch
+    /// only: whether the other epochs' priors move the reference epoch's datum).
     pub ties: Vec<String>,
 }
 
@@ -70,13 +71,24 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
         "joined" => project.config.align.join_epoch_ties = true,
+        "refgnss" => {
+            // By image name, as gnss.csv names them.
+            let r = project.reference_epoch;
+            let keep: std::collections::HashSet<String> = project
+                .images
+                .iter()
+                .filter(|i| i.epoch == r)
+                .map(|i| i.name.clone())
+                .collect();
+            project.gnss.retain(|g| keep.contains(&g.image));
+        }
         "auto-blind" => {
             project.config.align.inter_epoch_ties = InterEpochTies::Auto;
             project.stable_areas.clear();
         }
         other => {
             anyhow::bail!(
-                "--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind, joined)"
+                "--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind, joined, refgnss)"
             )
         }
     }
