@@ -132,34 +132,31 @@ fn join_ties(block: &Block, placed: &Georeferenced, matcher: &dyn StableMatcher)
         radius: JOIN_RADIUS_PX * ground_px,
         tolerance: JOIN_TOLERANCE_PX * ground_px,
     };
+    // Each epoch's offer, made once for every pair it is in.
+    let offers: Vec<Vec<OfferedTiePoint<'_>>> = offered
+        .iter()
+        .map(|points| {
+            points
+                .iter()
+                .map(|&k| OfferedTiePoint {
+                    position: rec.points[k].position,
+                    observations: &rec.points[k].observations,
+                })
+                .collect()
+        })
+        .collect();
     let mut sets = TrackSets::new(tracks, &block.epoch_of);
     let mut joined = 0;
-    let offer = |points: &[usize]| -> Vec<OfferedTiePoint<'_>> {
-        points
-            .iter()
-            .map(|&k| OfferedTiePoint {
-                position: rec.points[k].position,
-                observations: &rec.points[k].observations,
-            })
-            .collect()
-    };
-    for a in 0..offered.len() {
-        for b in a + 1..offered.len() {
-            if offered[a].len() < MIN_OFFERED || offered[b].len() < MIN_OFFERED {
+    for a in 0..offers.len() {
+        for b in a + 1..offers.len() {
+            if offers[a].len() < MIN_OFFERED || offers[b].len() < MIN_OFFERED {
                 continue;
             }
-            let pairs = match matcher.stable_pairs(
-                &offer(&offered[a]),
-                &offer(&offered[b]),
-                &search,
-            ) {
+            let epochs = format!("{} and {}", block.epoch_names[a], block.epoch_names[b]);
+            let pairs = match matcher.stable_pairs(&offers[a], &offers[b], &search) {
                 Ok(pairs) => pairs,
                 Err(message) => {
-                    tracing::info!(
-                        epochs = %format!("{} and {}", block.epoch_names[a], block.epoch_names[b]),
-                        %message,
-                        "no inter-epoch ties joined"
-                    );
+                    tracing::info!(%epochs, %message, "no inter-epoch ties joined");
                     continue;
                 }
             };
@@ -173,11 +170,7 @@ fn join_ties(block: &Block, placed: &Georeferenced, matcher: &dyn StableMatcher)
                     here += 1;
                 }
             }
-            tracing::info!(
-                epochs = %format!("{} and {}", block.epoch_names[a], block.epoch_names[b]),
-                joined = here,
-                "inter-epoch ties joined by descriptor"
-            );
+            tracing::info!(%epochs, joined = here, "inter-epoch ties joined by descriptor");
             joined += here;
         }
     }
