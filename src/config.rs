@@ -187,6 +187,26 @@ pub struct GnssConfig {
     /// receiver's bias changes from flight to flight) or `none` (priors taken as unbiased).
     #[serde(default)]
     pub offsets: GnssOffsets,
+    /// Which flights' priors are weighed by their own scatter about their offset, where below
+    /// the stated σ: `controlled` (the default: the flights of the images that control points
+    /// are marked in, every flight when none are), `all` or `none` (every prior with its
+    /// stated σ).
+    #[serde(default)]
+    pub weigh_by_scatter: WeighByScatter,
+}
+
+/// `[gnss] weigh_by_scatter`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WeighByScatter {
+    /// The flights that share images with control points (every flight without control): the
+    /// others are placed by the tie points, and their positions weighed tight fight that.
+    #[default]
+    Controlled,
+    /// Every flight.
+    All,
+    /// None.
+    None,
 }
 
 /// `[gnss] offsets`: the GNSS bias model.
@@ -218,6 +238,7 @@ impl Default for GnssConfig {
             sxy: default_sxy(),
             sz: default_sz(),
             offsets: GnssOffsets::default(),
+            weigh_by_scatter: WeighByScatter::default(),
         }
     }
 }
@@ -1027,6 +1048,30 @@ mod tests {
         assert_eq!(c.raster.dem_cell, CellSize::Metres(0.5));
         assert_eq!(c.raster.ortho_cell, CellSize::Metres(0.1));
         assert_eq!(c.raster.extent, Extent::Bounds([0.0, 1.0, 10.5, 20.0]));
+    }
+
+    #[test]
+    fn weigh_by_scatter_defaults_to_the_controlled_flights_and_names_its_values() {
+        let with_gnss = |line: &str| parse_section("gnss", line);
+        assert_eq!(
+            with_gnss("").unwrap().gnss.weigh_by_scatter,
+            WeighByScatter::Controlled
+        );
+        for (value, expected) in [
+            ("controlled", WeighByScatter::Controlled),
+            ("all", WeighByScatter::All),
+            ("none", WeighByScatter::None),
+        ] {
+            let line = format!("weigh_by_scatter = \"{value}\"");
+            assert_eq!(with_gnss(&line).unwrap().gnss.weigh_by_scatter, expected);
+        }
+        let e = with_gnss("weigh_by_scatter = \"epoch\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("weigh_by_scatter") && e.contains("controlled") && e.contains("none"),
+            "{e}"
+        );
     }
 
     #[test]

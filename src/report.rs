@@ -140,10 +140,14 @@ pub struct GnssOffset {
     #[serde(default)]
     pub focal_correlation: Option<f64>,
     /// The scatter of the flight's positions about the offset (horizontal per axis,
-    /// vertical), metres, estimated from its priors; below the stated accuracy, the final
-    /// adjustment weighs the priors by it.
+    /// vertical), metres, estimated from its priors.
     #[serde(default)]
     pub within_flight_sigma_m: Option<[f64; 2]>,
+    /// Whether the final adjustment weighed the flight's priors by that scatter (where below
+    /// the stated accuracy): the flights that share images with control points, or every
+    /// flight when no control point is marked.
+    #[serde(default)]
+    pub scatter_weighs_priors: bool,
 }
 
 /// The reprojection noise of one camera group, pixels.

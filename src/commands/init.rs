@@ -251,6 +251,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
     );
     let _ = writeln!(
         text,
+        "# weigh_by_scatter = \"controlled\"  # flights weighed by their scatter: \"controlled\" (those with control points), \"all\" or \"none\""
+    );
+    let _ = writeln!(
+        text,
         "\n# A known calibration (e.g. a film camera's certificate and the scan resolution):\n\
          # [[camera]]\n\
          # name = {}      # camera group\n\

@@ -496,7 +496,15 @@ fn orientation_section(
                     format!(" ± {:.2} / {:.2} / {:.2}", s[0], s[1], s[2])
                 });
                 let within = o.within_flight_sigma_m.map_or(String::new(), |s| {
-                    format!(" (scatter within the flight {:.2} / {:.2})", s[0], s[1])
+                    let weighs = if o.scatter_weighs_priors {
+                        ", weighing its priors"
+                    } else {
+                        ""
+                    };
+                    format!(
+                        " (scatter within the flight {:.2} / {:.2}{weighs})",
+                        s[0], s[1]
+                    )
                 });
                 format!(
                     "{:.2} / {:.2} / {:.2}{std}{within}",

@@ -15,7 +15,8 @@ use rayon::prelude::*;
 use timesift_align::{
     Block, CentrePrior, ChangeDetection, Datum, FocalSource, GeoreferenceInput, Georeferenced,
     GroundPoint, HeightObservation, Marker, NaturalPoint, OffsetPrior, OutlierBound, PointResidual,
-    SfmImage, SfmInput, SfmOptions, StableGround, datum_tilt, ground_point_residuals,
+    ScatterWeighing, SfmImage, SfmInput, SfmOptions, StableGround, datum_tilt,
+    ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -23,7 +24,7 @@ use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use super::{PipelineStage, Stage};
-use crate::config::{AlignMethod, GnssOffsets, InterEpochTies, OutlierBoundConfig};
+use crate::config::{AlignMethod, GnssOffsets, InterEpochTies, OutlierBoundConfig, WeighByScatter};
 use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::project::GivenFocal;
@@ -134,6 +135,11 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         outlier_bound: match project.config.align.outlier_bound {
             OutlierBoundConfig::Group => OutlierBound::PerGroup,
             OutlierBoundConfig::Pooled => OutlierBound::Pooled,
+        },
+        scatter_weighing: match project.config.gnss.weigh_by_scatter {
+            WeighByScatter::Controlled => ScatterWeighing::Controlled,
+            WeighByScatter::All => ScatterWeighing::All,
+            WeighByScatter::None => ScatterWeighing::None,
         },
         join_epoch_ties: project.config.align.join_epoch_ties,
         ..SfmOptions::default()
@@ -809,6 +815,7 @@ fn report(
                         priors: o.priors,
                         focal_correlation: o.focal_correlation,
                         within_flight_sigma_m: o.within_flight_sigma,
+                        scatter_weighs_priors: o.scatter_weighs_priors,
                     }),
             },
         );

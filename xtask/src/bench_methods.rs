@@ -55,7 +55,9 @@ pub struct MethodsBench {
     /// areas hidden from the align stage; the products are still judged on them), or
     /// `joined` (the project's ties and a second look for inter-epoch ties by descriptor,
     /// `[align] join_epoch_ties = true`), or `refgnss` (the GNSS priors of the reference epoch
-    /// only: whether the other epochs' priors move the reference epoch's datum).
+    /// only: whether the other epochs' priors move the reference epoch's datum), or
+    /// `scatter-all` (every flight's GNSS priors weighed by their scatter about their offset,
+    /// `[gnss] weigh_by_scatter = "all"`, as before the default became the controlled flights).
     pub ties: Vec<String>,
 }
 
@@ -71,6 +73,9 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
         "joined" => project.config.align.join_epoch_ties = true,
+        "scatter-all" => {
+            project.config.gnss.weigh_by_scatter = timesift::config::WeighByScatter::All
+        }
         "refgnss" => {
             // By image name, as gnss.csv names them.
             let r = project.reference_epoch;
@@ -88,7 +93,7 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         other => {
             anyhow::bail!(
-                "--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind, joined, refgnss)"
+                "--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind, joined, refgnss, scatter-all)"
             )
         }
     }

@@ -101,7 +101,8 @@ enum Task {
         /// (all ties and no GNSS offsets: the plain single block), pooled (one outlier bound
         /// for the whole block, not one per camera group), auto-blind (change detected from the
         /// ties, stable areas hidden from align), joined (a second look for inter-epoch ties by
-        /// descriptor after the first block), refgnss (only the reference epoch's GNSS priors).
+        /// descriptor after the first block), refgnss (only the reference epoch's GNSS priors),
+        /// scatter-all (every flight's GNSS priors weighed by their scatter).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
     },

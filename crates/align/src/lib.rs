@@ -124,7 +124,7 @@ pub use incremental::reconstruct;
 pub use joined::JoinedSingleBlock;
 pub use manual::{MIN_REFERENCE_IMAGES, ManualStablePoints, NaturalPoint};
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
-pub use options::{ChangeDetection, OutlierBound, SelfCalibration, SfmOptions};
+pub use options::{ChangeDetection, OutlierBound, ScatterWeighing, SelfCalibration, SfmOptions};
 pub use stable::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};
 pub use stable_ground::StableGround;
 pub use strategy::{

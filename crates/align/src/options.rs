@@ -80,6 +80,9 @@ pub struct SfmOptions {
     pub change_detection: ChangeDetection,
     /// Whose noise sets the observation outlier bound once a block is adjusted.
     pub outlier_bound: OutlierBound,
+    /// Which flights' GNSS priors the final adjustment weighs by their own scatter about their
+    /// offset rather than by their stated σ.
+    pub scatter_weighing: ScatterWeighing,
     /// `timesift` with a descriptor matcher ([`crate::JoinedSingleBlock`]): after the first
     /// block, tie points of two epochs that the block puts within two ground pixels of each
     /// other and whose descriptors match are joined into inter-epoch ties, and the block is
@@ -116,6 +119,24 @@ pub enum OutlierBound {
     Pooled,
 }
 
+/// Which flights' GNSS priors are weighed by their scatter about their offset
+/// ([`SfmOptions::scatter_weighing`]), where below the stated σ: a receiver's stated accuracy
+/// covers its bias, which the offset carries, and the scatter within a flight is often several
+/// times smaller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ScatterWeighing {
+    /// The flights that share images with control points; every flight when no control point
+    /// is marked. The other flights keep their stated σ: they are placed through the tie
+    /// points, and weighed tight their positions fight that placement (see
+    /// `georef::scatter_weighed_flights` for the measurement).
+    #[default]
+    Controlled,
+    /// Every flight (before this choice existed): for comparisons.
+    All,
+    /// None: every prior with its stated σ.
+    None,
+}
+
 impl Default for SfmOptions {
     fn default() -> Self {
         SfmOptions {
@@ -139,6 +160,7 @@ impl Default for SfmOptions {
             moved_point_factor: 5.0,
             change_detection: ChangeDetection::default(),
             outlier_bound: OutlierBound::default(),
+            scatter_weighing: ScatterWeighing::default(),
             join_epoch_ties: false,
             seed: 0xa1_16e,
         }
