@@ -379,18 +379,13 @@ fn exact_check_errors(
                     .ok()?;
                     Some(PixelObservation {
                         camera,
-                        // Intersected in a frame centred on the point: projected coordinates
-                        // (millions of metres) leave the DLT start without a null space.
-                        pose: Pose::from_rotation_and_center(
-                            pose.rotation,
-                            &(pose.center() - point.position),
-                        ),
+                        pose,
                         pixel,
                         sigma_px: 1.0,
                     })
                 })
                 .collect();
-            Some(intersect_weighted(&observations).ok()?.position)
+            Some(intersect_weighted(&observations).ok()?.position - point.position)
         })
         .collect()
 }

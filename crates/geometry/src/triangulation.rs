@@ -40,6 +40,11 @@ pub fn triangulate_two_view_midpoint(
 
 /// Multi-view linear (DLT) triangulation from `(cam_from_world, ray)` pairs, minimising the
 /// algebraic error `Σ |[r]× (R X + t)|²` over homogeneous X.
+///
+/// Solved in a frame centred on the cameras and scaled to their spread (Hartley's
+/// normalisation): in projected coordinates (hundreds of thousands of metres) the translation
+/// column would otherwise dwarf the rotation's and the smallest eigenvector would drown in
+/// rounding, failing as "rays do not intersect".
 pub fn triangulate_dlt(views: &[(Pose, Vector3<f64>)]) -> Result<Vector3<f64>, GeometryError> {
     let solver = "DLT triangulation";
     if views.len() < 2 {
@@ -49,15 +54,29 @@ pub fn triangulate_dlt(views: &[(Pose, Vector3<f64>)]) -> Result<Vector3<f64>, G
             got: views.len(),
         });
     }
+    for (pose, _) in views {
+        check_finite(solver, pose.translation.iter())?;
+    }
+    let centres: Vec<Vector3<f64>> = views.iter().map(|(pose, _)| pose.center()).collect();
+    let origin = centres.iter().sum::<Vector3<f64>>() / centres.len() as f64;
+    let spread = (centres
+        .iter()
+        .map(|c| (c - origin).norm_squared())
+        .sum::<f64>()
+        / centres.len() as f64)
+        .sqrt();
+    // Coincident centres: any scale, the degeneracy test below refuses them.
+    let scale = if spread > 0.0 { spread } else { 1.0 };
     let mut ata = Matrix4::<f64>::zeros();
     for (pose, ray) in views {
         check_finite(solver, ray.iter())?;
         let r = ray.normalize();
         let rot = pose.rotation_matrix();
         let skew = r.cross_matrix();
-        // Rows of [r]× [R | t].
+        // Rows of [r]× [R | t'] for the normalised point X' = (X − origin) / scale:
+        // R X + t = scale · (R X' + t'), t' = (R origin + t) / scale.
         let m = skew * rot;
-        let mt = skew * pose.translation;
+        let mt = skew * ((rot * origin + pose.translation) / scale);
         for row in 0..3 {
             let a = nalgebra::Vector4::new(m[(row, 0)], m[(row, 1)], m[(row, 2)], mt[row]);
             ata += a * a.transpose();
@@ -87,7 +106,7 @@ pub fn triangulate_dlt(views: &[(Pose, Vector3<f64>)]) -> Result<Vector3<f64>, G
             reason: "point at infinity",
         });
     }
-    Ok(Vector3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
+    Ok(origin + Vector3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]) * scale)
 }
 
 /// Angle (radians) at `point` between the rays to two camera centres.

@@ -210,6 +210,37 @@ proptest! {
         prop_assert!(m2 < 21.1, "Mahalanobis² {m2}");
     }
 
+    /// In projected coordinates (UTM: hundreds of thousands of metres east, millions north) a
+    /// drone's nadir views of a ground point still intersect in it: the DLT is solved in a
+    /// frame of the cameras' own (without it, these failed as "rays do not intersect").
+    #[test]
+    fn triangulation_in_projected_coordinates(seed in any::<u64>()) {
+        let mut rng = SeededRng::new(seed);
+        let cam = camera();
+        let origin = Vector3::new(rng.uniform_range(2e5, 8e5), rng.uniform_range(1e6, 9e6), rng.uniform_range(0.0, 3e3));
+        let point = origin + Vector3::new(rng.uniform_range(-50.0, 50.0), rng.uniform_range(-50.0, 50.0), rng.uniform_range(-5.0, 5.0));
+        // Three nadir views 60 m up, 10-20 m apart.
+        let poses: Vec<Pose> = (0..3).map(|k| {
+            let center = point + Vector3::new(15.0 * k as f64 - 15.0 + rng.normal(), rng.uniform_range(-5.0, 5.0), 60.0);
+            Pose::look_at(&center, &(point + Vector3::new(0.0, 1e-3, 0.0))).unwrap()
+        }).collect();
+        let views: Vec<(Pose, Vector3<f64>)> = poses.iter().map(|p| {
+            let q = p.transform_point(&point);
+            (*p, q / q.z)
+        }).collect();
+        let x = triangulate_dlt(&views).unwrap();
+        // Rounding of coordinates near 1e7 m is about 1e-9 m; the poses carry more.
+        prop_assert!((x - point).norm() < 1e-5, "{:e} m off", (x - point).norm());
+        let obs: Vec<PixelObservation> = poses.iter().map(|p| PixelObservation {
+            camera: &cam,
+            pose: *p,
+            pixel: timesift_core::project_world(&cam, p, &point).unwrap(),
+            sigma_px: SIGMA_PX,
+        }).collect();
+        let r = intersect_weighted(&obs).unwrap();
+        prop_assert!((r.position - point).norm() < 1e-5, "{:e} m off", (r.position - point).norm());
+    }
+
     #[test]
     fn umeyama_similarity_and_rigid(seed in any::<u64>()) {
         let mut rng = SeededRng::new(seed);
