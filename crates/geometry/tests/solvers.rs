@@ -29,6 +29,17 @@ fn config(cases: u32) -> ProptestConfig {
     }
 }
 
+/// Each pose with its exact ray to `point` (normalised camera coordinates).
+fn exact_rays(poses: &[Pose], point: &Vector3<f64>) -> Vec<(Pose, Vector3<f64>)> {
+    poses
+        .iter()
+        .map(|p| {
+            let q = p.transform_point(point);
+            (*p, q / q.z)
+        })
+        .collect()
+}
+
 /// Angular noise of 0.5 px at the synthetic focal length.
 const SIGMA_PX: f64 = 0.5;
 
@@ -185,10 +196,7 @@ proptest! {
             let center = point + dir * 30.0 + Vector3::new(rng.normal(), rng.normal(), rng.normal());
             Pose::look_at(&center, &point).unwrap()
         }).collect();
-        let views: Vec<(Pose, Vector3<f64>)> = poses.iter().map(|p| {
-            let q = p.transform_point(&point);
-            (*p, q / q.z)
-        }).collect();
+        let views = exact_rays(&poses, &point);
         let x = triangulate_dlt(&views).unwrap();
         prop_assert!((x - point).norm() < 1e-8 * 30.0);
         let m = triangulate_two_view_midpoint(&views[0].0, &views[0].1, &views[1].0, &views[1].1).unwrap();
@@ -224,10 +232,7 @@ proptest! {
             let center = point + Vector3::new(15.0 * k as f64 - 15.0 + rng.normal(), rng.uniform_range(-5.0, 5.0), 60.0);
             Pose::look_at(&center, &(point + Vector3::new(0.0, 1e-3, 0.0))).unwrap()
         }).collect();
-        let views: Vec<(Pose, Vector3<f64>)> = poses.iter().map(|p| {
-            let q = p.transform_point(&point);
-            (*p, q / q.z)
-        }).collect();
+        let views = exact_rays(&poses, &point);
         let x = triangulate_dlt(&views).unwrap();
         // Rounding of coordinates near 1e7 m is about 1e-9 m; the poses carry more.
         prop_assert!((x - point).norm() < 1e-5, "{:e} m off", (x - point).norm());
