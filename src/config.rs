@@ -205,8 +205,9 @@ pub enum WeighByScatter {
     Controlled,
     /// Every flight.
     All,
-    /// None.
-    None,
+    /// No flight (`"none"`): every prior with its stated σ.
+    #[serde(rename = "none")]
+    NoFlight,
 }
 
 /// `[gnss] offsets`: the GNSS bias model.
@@ -1060,7 +1061,7 @@ mod tests {
         for (value, expected) in [
             ("controlled", WeighByScatter::Controlled),
             ("all", WeighByScatter::All),
-            ("none", WeighByScatter::None),
+            ("none", WeighByScatter::NoFlight),
         ] {
             let line = format!("weigh_by_scatter = \"{value}\"");
             assert_eq!(with_gnss(&line).unwrap().gnss.weigh_by_scatter, expected);

@@ -144,8 +144,8 @@ pub struct GnssOffset {
     #[serde(default)]
     pub within_flight_sigma_m: Option<[f64; 2]>,
     /// Whether the final adjustment weighed the flight's priors by that scatter (where below
-    /// the stated accuracy): the flights that share images with control points, or every
-    /// flight when no control point is marked.
+    /// the stated accuracy): by default the flights of the images control points are marked
+    /// in, or every flight when no control point is marked (`[gnss] weigh_by_scatter`).
     #[serde(default)]
     pub scatter_weighs_priors: bool,
 }

@@ -139,7 +139,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         scatter_weighing: match project.config.gnss.weigh_by_scatter {
             WeighByScatter::Controlled => ScatterWeighing::Controlled,
             WeighByScatter::All => ScatterWeighing::All,
-            WeighByScatter::None => ScatterWeighing::None,
+            WeighByScatter::NoFlight => ScatterWeighing::NoFlight,
         },
         join_epoch_ties: project.config.align.join_epoch_ties,
         ..SfmOptions::default()

@@ -367,7 +367,7 @@ pub fn georeference(
     let mut group_sigma_px = Vec::new();
     let mut gnss_offsets = Vec::new();
     let mut within_flight = vec![None; geo.prior_offsets.len()];
-    let scatter_weighed = scatter_weighed_flights(geo, &priors, options.scatter_weighing);
+    let scatter_weighed = scatter_weighed_flights(geo, options.scatter_weighing);
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
         // First adjustment: every focal length but the calibrated ones free, with its
@@ -396,15 +396,16 @@ pub fn georeference(
                 precision: round == 0 || (round == last && !geo.prior_offsets.is_empty()),
             })?;
             if round == last {
-                gnss_offsets =
-                    estimated_offsets(geo, &priors, &state.offsets, &within_flight, &adjusted)
-                        .into_iter()
-                        .zip(&scatter_weighed)
-                        .map(|(offset, &weighs)| EstimatedOffset {
-                            scatter_weighs_priors: weighs && offset.within_flight_sigma.is_some(),
-                            ..offset
-                        })
-                        .collect();
+                gnss_offsets = estimated_offsets(
+                    geo,
+                    &priors,
+                    &state.offsets,
+                    &adjusted,
+                    FlightNoise {
+                        sigma: &within_flight,
+                        weighs: &scatter_weighed,
+                    },
+                );
             }
             tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
             if round == 1 {
@@ -478,13 +479,19 @@ pub fn georeference(
     })
 }
 
+/// Per flight, its scatter about its offset and whether that weighed its priors.
+struct FlightNoise<'a> {
+    sigma: &'a [Option<[f64; 2]>],
+    weighs: &'a [bool],
+}
+
 /// The offsets of the final adjustment with their precision and the priors that carried them.
 fn estimated_offsets(
     geo: &GeoreferenceInput,
     priors: &[CentrePrior],
     values: &[Vector3<f64>],
-    within_flight: &[Option<[f64; 2]>],
     adjusted: &crate::adjust::Adjusted,
+    noise: FlightNoise<'_>,
 ) -> Vec<EstimatedOffset> {
     geo.prior_offsets
         .iter()
@@ -505,8 +512,9 @@ fn estimated_offsets(
                     .as_ref()
                     .and_then(|c| c.get(o).copied().flatten())
                     .filter(|_| carried > 0),
-                within_flight_sigma: within_flight.get(o).copied().flatten(),
-                scatter_weighs_priors: false,
+                within_flight_sigma: noise.sigma.get(o).copied().flatten(),
+                scatter_weighs_priors: noise.weighs.get(o).copied().unwrap_or(false)
+                    && noise.sigma.get(o).copied().flatten().is_some(),
             }
         })
         .collect()
@@ -556,9 +564,10 @@ fn within_flight_noise(
 }
 
 /// Per estimated offset: whether its priors are weighed by the flight's own scatter
-/// ([`within_flight_noise`]) in the final adjustment. [`ScatterWeighing::Controlled`]: where
-/// control points are marked in images of some flights, those flights only; where none are,
-/// every flight.
+/// ([`within_flight_noise`]) in the final adjustment. [`ScatterWeighing::Controlled`]: with
+/// control points marked (in two images or more), the flights of the images they are marked
+/// in, and no other (control marked only in images without GNSS, a film epoch's, leaves every
+/// flight with its stated σ); without control, every flight.
 ///
 /// Why: with control, the datum is the control's, and the flights that share images with it
 /// are where their scatter-weighed heights add what the control leaves loose (a corridor's
@@ -570,35 +579,37 @@ fn within_flight_noise(
 /// only the controlled one, 0.040 m with the other flights' priors left out altogether, and
 /// 0.042 m for the first epoch oriented alone (`independent`); the later epochs' improved too
 /// (0.082 / 0.073 / 0.057 → 0.067 / 0.060 / 0.046 m).
-fn scatter_weighed_flights(
-    geo: &GeoreferenceInput,
-    priors: &[CentrePrior],
-    weighing: ScatterWeighing,
-) -> Vec<bool> {
+fn scatter_weighed_flights(geo: &GeoreferenceInput, weighing: ScatterWeighing) -> Vec<bool> {
     let flights = geo.prior_offsets.len();
     match weighing {
         ScatterWeighing::All => return vec![true; flights],
-        ScatterWeighing::None => return vec![false; flights],
+        ScatterWeighing::NoFlight => return vec![false; flights],
         ScatterWeighing::Controlled => {}
     }
-    let mut controlled = vec![false; flights];
-    let flight_of: std::collections::HashMap<usize, usize> = priors
+    // Control the adjustment can use: a control point marked in two images or more.
+    let control: Vec<&GroundPoint> = geo
+        .points
+        .iter()
+        .filter(|p| !p.check && p.markers.len() >= 2)
+        .collect();
+    if control.is_empty() {
+        return vec![true; flights];
+    }
+    // Every prior's flight, rejected ones too: a flight is the receiver's, whatever the
+    // placement kept of it.
+    let flight_of: std::collections::HashMap<usize, usize> = geo
+        .centre_priors
         .iter()
         .filter_map(|p| Some((p.image, p.offset?)))
         .collect();
-    for point in geo.points.iter().filter(|p| !p.check) {
-        for marker in &point.markers {
-            let flight = flight_of.get(&marker.image);
-            if let Some(flag) = flight.and_then(|&o| controlled.get_mut(o)) {
-                *flag = true;
-            }
+    let mut controlled = vec![false; flights];
+    for marker in control.iter().flat_map(|p| &p.markers) {
+        let flight = flight_of.get(&marker.image);
+        if let Some(flag) = flight.and_then(|&o| controlled.get_mut(o)) {
+            *flag = true;
         }
     }
-    if controlled.iter().any(|&c| c) {
-        controlled
-    } else {
-        vec![true; controlled.len()]
-    }
+    controlled
 }
 
 /// Weighs each prior that carries an offset as [`EstimatedOffset::prior_sigma`] says.
@@ -825,7 +836,7 @@ mod tests {
             marker_sigma_px: 0.5,
         };
         assert_eq!(
-            scatter_weighed_flights(&geo, &priors, ScatterWeighing::Controlled),
+            scatter_weighed_flights(&geo, ScatterWeighing::Controlled),
             [true, false, false]
         );
         geo.points[0].markers.push(Marker {
@@ -833,18 +844,37 @@ mod tests {
             pixel: Vector2::zeros(),
         });
         assert_eq!(
-            scatter_weighed_flights(&geo, &priors, ScatterWeighing::Controlled),
+            scatter_weighed_flights(&geo, ScatterWeighing::Controlled),
             [true, false, true]
         );
         for (weighing, expected) in [
             (ScatterWeighing::All, [true; 3]),
-            (ScatterWeighing::None, [false; 3]),
+            (ScatterWeighing::NoFlight, [false; 3]),
         ] {
-            assert_eq!(scatter_weighed_flights(&geo, &priors, weighing), expected);
+            assert_eq!(scatter_weighed_flights(&geo, weighing), expected);
         }
+        // Control marked only in images without GNSS (a film epoch's): no flight is weighed.
+        let mut film = geo.clone();
+        film.points[0].markers = vec![7, 8]
+            .into_iter()
+            .map(|image| Marker {
+                image,
+                pixel: Vector2::zeros(),
+            })
+            .collect();
+        assert_eq!(
+            scatter_weighed_flights(&film, ScatterWeighing::Controlled),
+            [false; 3]
+        );
+        // A control point in one image only fixes nothing: as without control.
+        film.points[0].markers.truncate(1);
+        assert_eq!(
+            scatter_weighed_flights(&film, ScatterWeighing::Controlled),
+            [true; 3]
+        );
         geo.points.remove(0);
         assert_eq!(
-            scatter_weighed_flights(&geo, &priors, ScatterWeighing::Controlled),
+            scatter_weighed_flights(&geo, ScatterWeighing::Controlled),
             [true; 3]
         );
     }

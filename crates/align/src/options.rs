@@ -125,16 +125,16 @@ pub enum OutlierBound {
 /// times smaller.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ScatterWeighing {
-    /// The flights that share images with control points; every flight when no control point
-    /// is marked. The other flights keep their stated σ: they are placed through the tie
-    /// points, and weighed tight their positions fight that placement (see
-    /// `georef::scatter_weighed_flights` for the measurement).
+    /// The flights of the images control points are marked in; every flight when no control
+    /// point is marked. The other flights keep their stated σ: they are placed through the tie
+    /// points, and on `synth orchard` weighing them by their scatter moved the controlled
+    /// epoch's datum (`georef::scatter_weighed_flights` has the figures).
     #[default]
     Controlled,
     /// Every flight (before this choice existed): for comparisons.
     All,
-    /// None: every prior with its stated σ.
-    None,
+    /// No flight: every prior with its stated σ.
+    NoFlight,
 }
 
 impl Default for SfmOptions {

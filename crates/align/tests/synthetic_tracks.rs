@@ -7,9 +7,10 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    Independent, JoinedSingleBlock, ManualStablePoints, Marker, NaturalPoint, OfferedTiePoint,
-    OffsetPrior, ProgressiveMerge, Reconstruction, SfmImage, SfmInput, SfmOptions, SingleBlock,
-    StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy, georeference, reconstruct,
+    GroundPoint, Independent, JoinedSingleBlock, ManualStablePoints, Marker, NaturalPoint,
+    OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing, SfmImage,
+    SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
+    Strategy, georeference, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -657,6 +658,79 @@ fn a_gnss_offset_per_epoch_takes_the_bias_in_one_block() {
     println!("epochs off by {a:?} and {b:?}");
     assert!(a.norm() < 0.03 && (a - b).norm() < 0.03, "{a:?} {b:?}");
     assert!(rigid_misfit(&single, &s) < 0.05);
+}
+
+/// Two flights with GNSS scattered by 0.2 m within each, stated at 3 m, control points marked
+/// in the first: by default only the first flight's priors are weighed by their scatter, and
+/// the second keeps its stated σ; with `ScatterWeighing::All` both are.
+#[test]
+fn only_the_controlled_flight_is_weighed_by_its_scatter() {
+    let s = scene(7, 0.3, 1500);
+    let mut rng = SeededRng::new(11);
+    let mut block = two_epoch_block(&s, Vector3::zeros());
+    let biases = [Vector3::new(0.5, -0.3, 1.0), Vector3::new(2.0, -1.0, 1.5)];
+    block.ground.prior_offsets = ["first", "second"]
+        .iter()
+        .map(|name| OffsetPrior {
+            name: (*name).into(),
+            sigma_xy: 3.0,
+            sigma_z: 3.0,
+        })
+        .collect();
+    for p in &mut block.ground.centre_priors {
+        let e = block.epoch_of[p.image];
+        let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.2;
+        p.position = s.poses[p.image].center() + biases[e] + noise;
+        (p.sigma_xy, p.sigma_z, p.offset) = (3.0, 3.0, Some(e));
+    }
+    let cam = camera();
+    block.ground.points = s
+        .points
+        .iter()
+        .enumerate()
+        .map(|(k, x)| GroundPoint {
+            name: format!("GCP{k}"),
+            position: *x,
+            sigma_xy: 0.01,
+            sigma_z: 0.01,
+            check: false,
+            markers: (0..10)
+                .filter_map(|image| {
+                    let pixel = project_world(&cam, &s.poses[image], x).ok()?;
+                    let inside =
+                        (0.0..1000.0).contains(&pixel.x) && (0.0..800.0).contains(&pixel.y);
+                    inside.then_some(Marker { image, pixel })
+                })
+                .collect(),
+            marker_sigma_px: None,
+        })
+        .filter(|p| p.markers.len() >= 3)
+        .take(4)
+        .collect();
+    assert_eq!(block.ground.points.len(), 4);
+    let flags = |weighing: ScatterWeighing| {
+        let options = SfmOptions {
+            scatter_weighing: weighing,
+            ..SfmOptions::default()
+        };
+        let g = SingleBlock.orient(&block, &options).unwrap();
+        assert_eq!(g.gnss_offsets.len(), 2);
+        g.gnss_offsets
+            .iter()
+            .map(|o| {
+                let noise = o.within_flight_sigma.expect("ten priors: a scatter");
+                assert!(noise[0] < 1.0 && noise[1] < 1.0, "{noise:?}");
+                (o.scatter_weighs_priors, o.prior_sigma(3.0, 3.0))
+            })
+            .collect::<Vec<_>>()
+    };
+    let controlled = flags(ScatterWeighing::Controlled);
+    println!("controlled: {controlled:?}");
+    assert!(controlled[0].0 && controlled[0].1.1 < 1.0);
+    assert_eq!(controlled[1], (false, (3.0, 3.0)));
+    let all = flags(ScatterWeighing::All);
+    println!("all: {all:?}");
+    assert!(all.iter().all(|(weighs, sigma)| *weighs && sigma.1 < 1.0));
 }
 
 /// The descriptor matching of `stp` replaced by the truth of the synthetic tracks: two offered

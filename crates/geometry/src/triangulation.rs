@@ -57,16 +57,24 @@ pub fn triangulate_dlt(views: &[(Pose, Vector3<f64>)]) -> Result<Vector3<f64>, G
     for (pose, _) in views {
         check_finite(solver, pose.translation.iter())?;
     }
-    let centres: Vec<Vector3<f64>> = views.iter().map(|(pose, _)| pose.center()).collect();
-    let origin = centres.iter().sum::<Vector3<f64>>() / centres.len() as f64;
-    let spread = (centres
+    let n = views.len() as f64;
+    let origin = views
         .iter()
-        .map(|c| (c - origin).norm_squared())
+        .fold(Vector3::zeros(), |sum, (pose, _)| sum + pose.center())
+        / n;
+    let spread = (views
+        .iter()
+        .map(|(pose, _)| (pose.center() - origin).norm_squared())
         .sum::<f64>()
-        / centres.len() as f64)
+        / n)
         .sqrt();
-    // Coincident centres: any scale, the degeneracy test below refuses them.
-    let scale = if spread > 0.0 { spread } else { 1.0 };
+    // Centres that coincide to rounding keep the unit scale: blown up to one, their rounding
+    // would pass for a baseline. (Distinct rays from one centre intersect there.)
+    let scale = if spread > 1e-12 * (origin.norm() + 1.0) {
+        spread
+    } else {
+        1.0
+    };
     let mut ata = Matrix4::<f64>::zeros();
     for (pose, ray) in views {
         check_finite(solver, ray.iter())?;

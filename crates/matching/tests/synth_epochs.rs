@@ -119,8 +119,7 @@ fn inter_epoch_matches_exist_and_are_right() {
             let ok = (|| {
                 let ra = cameras[*a].unproject(&pa).ok()?;
                 let rb = cameras[*b].unproject(&pb).ok()?;
-                // Midpoint, not DLT: the scene is in UTM, where the DLT's algebraic system is
-                // too badly conditioned (it reports the rays as not meeting).
+                // Two views: the midpoint of their rays' closest approach.
                 let x = triangulate_two_view_midpoint(&poses[*a], &ra, &poses[*b], &rb).ok()?;
                 let ea = (project_world(&cameras[*a], &poses[*a], &x).ok()? - pa).norm();
                 let eb = (project_world(&cameras[*b], &poses[*b], &x).ok()? - pb).norm();
