@@ -199,8 +199,9 @@ pub struct GnssConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum WeighByScatter {
-    /// The flights that share images with control points (every flight without control): the
-    /// others are placed by the tie points, and their positions weighed tight fight that.
+    /// The flights of the images control points are marked in (every flight without control):
+    /// the others are placed by the tie points (`timesift_align::ScatterWeighing::Controlled`
+    /// gives the measurements both ways).
     #[default]
     Controlled,
     /// Every flight.

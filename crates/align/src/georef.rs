@@ -367,6 +367,8 @@ pub fn georeference(
     let mut group_sigma_px = Vec::new();
     let mut gnss_offsets = Vec::new();
     let mut within_flight = vec![None; geo.prior_offsets.len()];
+    // Per flight, the scatter that weighs its priors (`None`: they keep the stated σ).
+    let mut weighing = vec![None; geo.prior_offsets.len()];
     let scatter_weighed = scatter_weighed_flights(geo, options.scatter_weighing);
     if datum != Datum::Local {
         let mut state = State::with_reconstruction(input, options, &track_of, merged);
@@ -403,7 +405,7 @@ pub fn georeference(
                     &adjusted,
                     FlightNoise {
                         sigma: &within_flight,
-                        weighs: &scatter_weighed,
+                        weighing: &weighing,
                     },
                 );
             }
@@ -415,7 +417,7 @@ pub fn georeference(
                     "observation outlier bound from the block's noise"
                 );
                 within_flight = within_flight_noise(&priors, &state.rec, &state.offsets);
-                let weighing: Vec<Option<[f64; 2]>> = within_flight
+                weighing = within_flight
                     .iter()
                     .zip(&scatter_weighed)
                     .map(|(noise, &weighs)| noise.filter(|_| weighs))
@@ -479,10 +481,11 @@ pub fn georeference(
     })
 }
 
-/// Per flight, its scatter about its offset and whether that weighed its priors.
+/// Per flight, its scatter about its offset, and the scatter that weighed its priors (the same
+/// where it did, `None` where the priors kept their stated σ).
 struct FlightNoise<'a> {
     sigma: &'a [Option<[f64; 2]>],
-    weighs: &'a [bool],
+    weighing: &'a [Option<[f64; 2]>],
 }
 
 /// The offsets of the final adjustment with their precision and the priors that carried them.
@@ -513,8 +516,7 @@ fn estimated_offsets(
                     .and_then(|c| c.get(o).copied().flatten())
                     .filter(|_| carried > 0),
                 within_flight_sigma: noise.sigma.get(o).copied().flatten(),
-                scatter_weighs_priors: noise.weighs.get(o).copied().unwrap_or(false)
-                    && noise.sigma.get(o).copied().flatten().is_some(),
+                scatter_weighs_priors: noise.weighing.get(o).is_some_and(Option::is_some),
             }
         })
         .collect()
