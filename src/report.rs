@@ -260,6 +260,10 @@ pub struct EpochDense {
     pub level: u32,
     /// PatchMatch passes (coarse to fine).
     pub passes: usize,
+    /// With `[dense] refine`, the share of the final maps' depths matched again at twice the
+    /// resolution (the rest keep the level's planes); none without refinement.
+    #[serde(default)]
+    pub refined_share: Option<f64>,
     /// Depth maps computed in this run (the rest came from the cache).
     pub depth_maps_computed: usize,
     /// Fused points.

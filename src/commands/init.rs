@@ -163,6 +163,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         text,
         "# level = 2            # 1 full resolution, 2 half (default), 4, 8"
     );
+    let _ = writeln!(
+        text,
+        "# refine = true        # match again at twice the resolution where the level matches poorly (crowns, boulders, edges)"
+    );
     let _ = writeln!(text, "# max_sources = 8      # source views per image");
     let _ = writeln!(
         text,

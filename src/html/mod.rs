@@ -781,12 +781,18 @@ fn products_section(project: &Project, inputs: &Inputs) -> String {
         let ortho = page::png_file_uri(&layout.ortho_preview(name));
         let _ = write!(
             s,
-            "<h3>Epoch {}</h3><p>{} dense points (mean {} images per point); {} DEM cells with \
+            "<h3>Epoch {}</h3><p>{} dense points (mean {} images per point{}); {} DEM cells with \
              a height ({} filled); ortho painted over {} % of them, colour step across seams {} \
              against {} within images.</p>{}",
             esc(name),
             dense.map_or("–".into(), |d| d.points.to_string()),
             num(dense.map(|d| d.mean_images_per_point), 1),
+            dense
+                .and_then(|d| d.refined_share)
+                .map_or(String::new(), |f| format!(
+                    "; {:.0} % of the depths matched again at twice the resolution",
+                    100.0 * f
+                )),
             raster.map_or("–".into(), |r| r.dem_cells.to_string()),
             raster.map_or("–".into(), |r| r.dem_cells_filled.to_string()),
             num(

@@ -40,10 +40,10 @@ use crate::{Project, ProjectError};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
-const DENSE_ALGORITHM: u32 = 5;
+const DENSE_ALGORITHM: u32 = 6;
 
 /// Version of filtering and fusion, part of the cloud's settings.
-const FUSION_ALGORITHM: u32 = 5;
+const FUSION_ALGORITHM: u32 = 6;
 
 /// The `dense` stage.
 pub(super) struct DenseStage;
@@ -294,6 +294,10 @@ fn map_settings(options: &DenseOptions, fingerprint: &str, images: &[usize]) -> 
     serde_json::json!({
         "algorithm": DENSE_ALGORITHM,
         "level": options.plan.level,
+        "refine": options.plan.refine,
+        "refine_min_cost": pm.refine.min_cost,
+        "refine_min_bend": pm.refine.min_bend,
+        "refine_grow": pm.refine.grow,
         "max_sources": options.plan.max_sources,
         "window_radius": pm.window_radius,
         "window_step": pm.window_step,
@@ -409,6 +413,7 @@ fn write_map(path: &Path, map: &DepthMap) -> Result<(), ProjectError> {
     }
     let channel = |k: usize| map.normal.iter().map(|n| n[k]).collect::<Vec<f32>>();
     let (nx, ny, nz) = (channel(0), channel(1), channel(2));
+    let upsampled: Vec<f32> = map.upsampled.iter().map(|&u| f32::from(u)).collect();
     timesift_io::exr::write_f32_channels(
         path,
         map.width,
@@ -419,6 +424,7 @@ fn write_map(path: &Path, map: &DepthMap) -> Result<(), ProjectError> {
             ("ny", &ny),
             ("nz", &nz),
             ("cost", &map.cost),
+            ("upsampled", &upsampled),
         ],
     )?;
     Ok(())
@@ -428,12 +434,13 @@ fn write_map(path: &Path, map: &DepthMap) -> Result<(), ProjectError> {
 /// recomputed).
 fn read_map(path: &Path) -> Option<DepthMap> {
     let read = timesift_io::exr::read_f32_channels(path).ok()?;
-    let (depth, nx, ny, nz, cost) = (
+    let (depth, nx, ny, nz, cost, upsampled) = (
         read.channel("depth")?,
         read.channel("nx")?,
         read.channel("ny")?,
         read.channel("nz")?,
         read.channel("cost")?,
+        read.channel("upsampled")?,
     );
     Some(DepthMap {
         width: read.width,
@@ -443,6 +450,7 @@ fn read_map(path: &Path) -> Option<DepthMap> {
             .map(|k| [nx[k], ny[k], nz[k]])
             .collect(),
         cost: cost.to_vec(),
+        upsampled: upsampled.iter().map(|&u| u > 0.5).collect(),
     })
 }
 
@@ -513,7 +521,7 @@ fn dense_epoch(
         views: &input.views,
         plan: &plan,
         black_is_nodata: options.black_is_nodata,
-        level: options.plan.level,
+        level: plan.level,
         // A reference and its sources are matched together; filtering and fusion read maps,
         // and only the reference's image for its colours.
         capacity: 2
@@ -557,8 +565,11 @@ fn dense_epoch(
         })
     };
     let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
+    let (mut with_depth, mut upsampled) = (0usize, 0usize);
     for (view, vp) in plan.views.iter().enumerate() {
         let own = final_map(view)?;
+        with_depth += own.valid_count();
+        upsampled += own.upsampled.iter().filter(|&&u| u).count();
         let neighbours = vp
             .neighbours
             .iter()
@@ -596,6 +607,8 @@ fn dense_epoch(
         images_with_sources: plan.views.iter().filter(|v| !v.sources.is_empty()).count(),
         level: options.plan.level,
         passes: passes.len(),
+        refined_share: (plan.refined_scales > 0 && with_depth > 0)
+            .then(|| (with_depth - upsampled) as f64 / with_depth as f64),
         depth_maps_computed: computed,
         points: cloud.len(),
         mean_images_per_point: mean_images,

@@ -40,8 +40,8 @@ pub fn quick_dense_level_4(dir: &Path) {
     let quick = timesift::config::DenseConfig::quick();
     let text = std::fs::read_to_string(&toml).expect("project.toml")
         + &format!(
-            "\n[dense]\nlevel = 4\nmax_sources = {}\niterations = {}\ngeometric_iterations = {}\n",
-            quick.max_sources, quick.iterations, quick.geometric_iterations
+            "\n[dense]\nlevel = 4\nrefine = {}\nmax_sources = {}\niterations = {}\ngeometric_iterations = {}\n",
+            quick.refine, quick.max_sources, quick.iterations, quick.geometric_iterations
         );
     std::fs::write(&toml, text).expect("project.toml");
 }

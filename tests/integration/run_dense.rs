@@ -14,14 +14,19 @@ use timesift_synth::writer::{WriteOptions, write_scene};
 
 /// A rendered soil-pit project oriented by its truth, dense matching at level 4 with the quick
 /// settings (`DenseConfig::quick`: this file tests the stage's files, resumption and errors; the
-/// accuracy of the maps is `timesift-dense`'s tests'); with each epoch cut to its first `images`
-/// images (a row along the wall).
+/// accuracy of the maps is `timesift-dense`'s tests') but refined at level 2 as by default, so
+/// that the refinement's maps go through the cache too; with each epoch cut to its first
+/// `images` images (a row along the wall).
 fn project(images: usize) -> tempfile::TempDir {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut spec = build("soil-pit", Scale::Small, 1).expect("scene");
     spec.keep_first_images(images);
     write_scene(&spec, dir.path(), &WriteOptions::default()).expect("write");
     quick_dense_level_4(dir.path());
+    let toml = dir.path().join("project.toml");
+    let text = std::fs::read_to_string(&toml).expect("project.toml");
+    assert!(text.contains("refine = false"));
+    std::fs::write(&toml, text.replace("refine = false", "refine = true")).expect("project.toml");
     let points = write_true_orientation(dir.path(), &spec, 15.0).expect("orientation");
     assert!(points > 100, "{points} sparse points");
     dir

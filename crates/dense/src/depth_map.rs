@@ -16,6 +16,11 @@ pub struct DepthMap {
     pub normal: Vec<[f32; 3]>,
     /// Matching cost per pixel; 2 where the depth is unknown.
     pub cost: Vec<f32>,
+    /// Per pixel, whether its plane was taken from the next coarser scale (upsampled) rather
+    /// than matched at this map's resolution: a refinement pass matches again only where the
+    /// coarser scale was poor. Such a pixel stands for a 2 × 2 block, so fusion starts one
+    /// point per block of them (the cloud keeps the coarser density where nothing was refined).
+    pub upsampled: Vec<bool>,
 }
 
 /// Cost of a pixel without a depth (the worst NCC cost).
@@ -30,6 +35,7 @@ impl DepthMap {
             depth: vec![0.0; width * height],
             normal: vec![[0.0; 3]; width * height],
             cost: vec![NO_COST; width * height],
+            upsampled: vec![false; width * height],
         }
     }
 
@@ -41,6 +47,9 @@ impl DepthMap {
     /// Checks that every channel has `width * height` values.
     pub fn is_consistent(&self) -> bool {
         let n = self.width * self.height;
-        self.depth.len() == n && self.normal.len() == n && self.cost.len() == n
+        self.depth.len() == n
+            && self.normal.len() == n
+            && self.cost.len() == n
+            && self.upsampled.len() == n
     }
 }

@@ -286,6 +286,7 @@ pub fn filter_depth_map(
                 out.depth[k] = d;
                 out.normal[k] = map.normal[k];
                 out.cost[k] = map.cost[k];
+                out.upsampled[k] = map.upsampled[k];
             }
         }
     }
@@ -363,6 +364,7 @@ pub fn remove_speckles(
                 map.depth[k] = 0.0;
                 map.normal[k] = [0.0; 3];
                 map.cost[k] = NO_COST;
+                map.upsampled[k] = false;
             }
         }
         next += 1;

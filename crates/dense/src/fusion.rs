@@ -3,6 +3,8 @@
 //! views that have this one as a source) whose depth at its projection agrees (reprojection, relative depth and normal tolerances) join it; a point
 //! needs at least `min_images` images (never one) and becomes the mean of its members —
 //! position, colour and normal — with the number of images. Every member pixel is used once.
+//! Pixels whose plane a refinement kept from the coarser scale ([`DepthMap::upsampled`]) stand
+//! for 2 × 2 blocks: one point starts per block, so flat ground keeps the level's density.
 //!
 //! Views are visited in order and loaded through a caller's function, with a small cache, so
 //! memory holds a reference view and its sources, not the block. The result does not depend on
@@ -210,6 +212,12 @@ pub fn fuse<E: From<DenseError>>(
                 if !(d > 0.0) || is_used(&used[view], k) {
                     continue;
                 }
+                // A plane upsampled from the coarser scale stands for its 2 × 2 block: one
+                // point starts per block, at its even corner (its other pixels may still join
+                // points, and a block any of whose pixels joined one starts none).
+                if map.upsampled[k] && (i % 2 == 1 || j % 2 == 1) {
+                    continue;
+                }
                 set_used(&mut used[view], k);
                 let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
                 let x = camera.ray(u, v) * d as f64;
@@ -248,6 +256,12 @@ pub fn fuse<E: From<DenseError>>(
                 }
                 for &(o, pixel) in &members {
                     set_used(&mut used[other_view[o]], pixel);
+                    // An upsampled pixel's block starts no other point: its anchor is used.
+                    let map = others[o].map;
+                    if map.upsampled[pixel] {
+                        let (x, y) = (pixel % map.width, pixel / map.width);
+                        set_used(&mut used[other_view[o]], (y & !1) * map.width + (x & !1));
+                    }
                 }
                 let inv = 1.0 / count as f64;
                 let mean_ref = sum_x * inv;

@@ -9,7 +9,10 @@
 //! 2. [`undistort::UndistortMap`]: each original image resampled to its working camera, with the
 //!    pixels that may not produce depths (masks, no-data) marked.
 //! 3. [`patchmatch::run_pass`] for each pass of [`patchmatch::plan_schedule`], view by view:
-//!    coarse-to-fine PatchMatch (ACMH/ACMM) with a geometric-consistency term.
+//!    coarse-to-fine PatchMatch (ACMH/ACMM) with a geometric-consistency term; with
+//!    [`PlanOptions::refine`] (the default), the working images are at twice the resolution of
+//!    the level, the passes stop at the level, and a last refinement matches again only where
+//!    the level's maps are poor ([`patchmatch::refine`]: tree crowns, boulders, edges).
 //! 4. [`filter::filter_depth_map`]: depths that enough neighbours agree with, good cost, no
 //!    speckle.
 //! 5. [`fusion::fuse`]: consistent depths of several views merged into points.
@@ -113,6 +116,7 @@ pub use error::DenseError;
 pub use filter::{FilterOptions, filter_depth_map};
 pub use fusion::{FusedCloud, FusionOptions, FusionView, fuse};
 pub use image::{ImageView, Mask, Plane, WorkingImage};
+pub use patchmatch::refine::RefineOptions;
 pub use patchmatch::{Pass, PassInput, PassKind, PatchMatchOptions, plan_schedule, run_pass};
 pub use plan::{EpochInput, EpochPlan, PlanOptions, SparsePoint, View, ViewPlan, plan_epoch};
 pub use undistort::{UndistortMap, working_camera};
@@ -157,7 +161,7 @@ pub fn reconstruct_epoch(
         .zip(&plan.views)
         .zip(images.iter().zip(masks))
         .map(|((view, vp), (image, mask))| {
-            UndistortMap::new(&view.camera, vp.camera, options.plan.level).apply(
+            UndistortMap::new(&view.camera, vp.camera, plan.level).apply(
                 image,
                 *mask,
                 options.black_is_nodata,

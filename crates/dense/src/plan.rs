@@ -65,6 +65,10 @@ pub struct PlanOptions {
     pub level: u32,
     /// Most source views per reference view.
     pub max_sources: usize,
+    /// Whether to match again at half the level (twice the resolution) where matching at the
+    /// level is poor (see [`crate::patchmatch::refine`]). The working images are then made at
+    /// half the level; at level 1 there is no finer resolution and this does nothing.
+    pub refine: bool,
 }
 
 impl Default for PlanOptions {
@@ -72,6 +76,7 @@ impl Default for PlanOptions {
         PlanOptions {
             level: 2,
             max_sources: 8,
+            refine: true,
         }
     }
 }
@@ -117,8 +122,11 @@ pub struct EpochPlan {
     pub origin: Vector3<f64>,
     /// Per view, in the order of [`EpochInput::views`].
     pub views: Vec<ViewPlan>,
-    /// The level the plan was made for.
+    /// The level of the working cameras: the requested level, or half of it when refining.
     pub level: u32,
+    /// The finest pyramid scales matched only where the coarser one is poor: 1 when the plan
+    /// refines (the requested level is pyramid scale 1 of the working images), else 0.
+    pub refined_scales: usize,
 }
 
 impl EpochPlan {
@@ -217,10 +225,12 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
         .map(|v| v.cam_from_world * world_from_local)
         .collect();
     let centres: Vec<Vector3<f64>> = poses.iter().map(Pose::center).collect();
+    let refined_scales = usize::from(options.refine && options.level > 1);
+    let level = options.level >> refined_scales;
     let cameras = input
         .views
         .iter()
-        .map(|v| working_camera(&v.camera, options.level))
+        .map(|v| working_camera(&v.camera, level))
         .collect::<Result<Vec<_>, _>>()?;
     let points: Vec<Vector3<f64>> = input.points.iter().map(|p| p.position - origin).collect();
     // Points of each view.
@@ -284,7 +294,8 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
     Ok(EpochPlan {
         origin,
         views,
-        level: options.level,
+        level,
+        refined_scales,
     })
 }
 

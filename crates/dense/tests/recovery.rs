@@ -96,3 +96,69 @@ fn a_sphere_is_recovered_to_sub_pixel_depth() {
     assert!(maps.median < 0.5 && maps.p90 < 1.0 && maps.filled > 0.75);
     assert!(fused.median < 0.25 && fused.p90 < 0.6 && fused.filled > 10_000.0);
 }
+
+/// Heights of a fused cloud gridded as a DEM (median per cell of `cell` metres), against the
+/// truth: (mean signed error over the cells on crowns, points per m² on the ground away from
+/// them).
+fn crown_dem(r: &Rendered, options: &DenseOptions, cell: f64) -> (f64, f64, usize) {
+    let views = r.views();
+    let masks = vec![None; views.len()];
+    let result = reconstruct_epoch(&r.input, &views, &masks, options).expect("dense");
+    let cloud = &result.cloud;
+    let (x0, y0, size) = (-4.0, -3.0, ((8.0 / cell) as usize, (6.0 / cell) as usize));
+    let mut cells: Vec<Vec<f64>> = vec![Vec::new(); size.0 * size.1];
+    let mut ground_points = 0usize;
+    for p in &cloud.positions {
+        let (i, j) = ((p.x - x0) / cell, (p.y - y0) / cell);
+        if i < 0.0 || j < 0.0 || i >= size.0 as f64 || j >= size.1 as f64 {
+            continue;
+        }
+        cells[j as usize * size.0 + i as usize].push(p.z);
+        if !common::near_crown(p.x, p.y, 0.5) {
+            ground_points += 1;
+        }
+    }
+    let mut errors = Vec::new();
+    let mut ground_cells = 0usize;
+    for j in 0..size.1 {
+        for i in 0..size.0 {
+            let (x, y) = (x0 + (i as f64 + 0.5) * cell, y0 + (j as f64 + 0.5) * cell);
+            let mut zs = std::mem::take(&mut cells[j * size.0 + i]);
+            if !common::near_crown(x, y, 0.5) {
+                ground_cells += 1;
+            }
+            if zs.is_empty() || !common::near_crown(x, y, 0.0) {
+                continue;
+            }
+            errors.push(quantile(&mut zs, 0.5) - common::crown_height(x, y));
+        }
+    }
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    let density = ground_points as f64 / (ground_cells as f64 * cell * cell);
+    (mean, density, errors.len())
+}
+
+#[test]
+fn refinement_at_twice_the_resolution_measures_narrow_crowns_and_keeps_the_ground_density() {
+    let scene = common::crowns(320, 240);
+    // At level 2 a pixel covers 7.8 cm; the DEM cell is two of them.
+    let cell = 0.16;
+    let mut plain = options(2);
+    plain.plan.refine = false;
+    let refined = options(2);
+    let (mean_plain, density_plain, cells_plain) = crown_dem(&scene, &plain, cell);
+    let (mean_refined, density_refined, cells_refined) = crown_dem(&scene, &refined, cell);
+    println!(
+        "crowns: mean height error {mean_plain:+.3} m over {cells_plain} cells at level 2, \
+         {mean_refined:+.3} m over {cells_refined} cells refined; ground points per m² \
+         {density_plain:.1} and {density_refined:.1}"
+    );
+    assert!(
+        mean_refined.abs() < 0.5 * mean_plain.abs(),
+        "refinement should at least halve the crowns' bias"
+    );
+    assert!(
+        (density_refined / density_plain - 1.0).abs() < 0.2,
+        "flat ground keeps the level's density"
+    );
+}

@@ -14,10 +14,15 @@
 //! photometric at the coarsest scale from random planes, one geometric pass there; then for
 //! each finer scale, a hierarchy pass (the coarser planes upsampled by joint bilateral
 //! upsampling, refined photometrically, kept unless a new plane is clearly better: ACMM's
-//! detail restorer) and a geometric pass.
+//! detail restorer) and a geometric pass. When the plan refines (working images at half the
+//! requested level, [`crate::plan::EpochPlan::refined_scales`]), those passes stop at scale 1
+//! (the requested level) and a refinement pass follows at scale 0: the planes upsampled, and
+//! matched again only where the coarser map was poor ([`refine::refine_selection`]); its
+//! geometric pass updates only the pixels it matched.
 
 mod board;
 pub mod cost;
+pub mod refine;
 mod update;
 pub mod upsample;
 
@@ -32,6 +37,7 @@ use crate::image::{Mask, Plane, WorkingImage};
 use crate::plan::EpochPlan;
 use board::{Board, OtherHalf, PixelState};
 use cost::{RefCamera, SourceView, WindowShape};
+use refine::{RefineOptions, refine_selection};
 use update::{MAX_SOURCES, PassContext, Scratch, random_normal};
 
 /// Options of the PatchMatch passes.
@@ -56,7 +62,7 @@ pub struct PatchMatchOptions {
     pub geometric_max_px: f32,
     /// The coarsest scale is the first whose longer side is at most this many pixels.
     pub coarsest_size: usize,
-    /// Most pyramid scales.
+    /// Most pyramid scales (besides the refined ones of a plan that refines).
     pub max_scales: usize,
     /// Relative depth perturbation of the refinement (ACMH: 0.02).
     pub depth_perturbation: f32,
@@ -64,6 +70,8 @@ pub struct PatchMatchOptions {
     pub normal_perturbation: f32,
     /// Seed of every random draw.
     pub seed: u64,
+    /// Where a refinement pass matches again (plans that refine).
+    pub refine: RefineOptions,
 }
 
 impl Default for PatchMatchOptions {
@@ -81,6 +89,7 @@ impl Default for PatchMatchOptions {
             depth_perturbation: 0.02,
             normal_perturbation: 0.01 * std::f32::consts::PI,
             seed: 1,
+            refine: RefineOptions::default(),
         }
     }
 }
@@ -113,7 +122,7 @@ impl PatchMatchOptions {
         if !(self.normal_perturbation > 0.0) {
             return bad("normal_perturbation: expected a positive angle");
         }
-        Ok(())
+        self.refine.validate()
     }
 }
 
@@ -127,6 +136,10 @@ pub enum PassKind {
     /// From the previous pass at the same scale, photometric plus geometric consistency with
     /// the sources' maps of the previous pass.
     Geometric,
+    /// From the previous (coarser) pass upsampled, like a hierarchy pass, but matched again
+    /// only at the pixels [`refine::refine_selection`] picks; the others keep the upsampled
+    /// plane and are marked [`DepthMap::upsampled`].
+    Refine,
 }
 
 /// One pass over every view of an epoch.
@@ -140,29 +153,29 @@ pub struct Pass {
     pub iterations: usize,
 }
 
-/// The passes for an epoch whose largest working image is `max_side` pixels long.
-pub fn schedule(max_side: usize, options: &PatchMatchOptions) -> Vec<Pass> {
-    let mut coarsest = 0;
-    let mut side = max_side;
-    while side > options.coarsest_size && coarsest + 1 < options.max_scales {
+/// The passes for an epoch whose largest working image is `max_side` pixels long, the finest
+/// `refined_scales` of them refinement passes, each followed by a geometric pass over the
+/// pixels it matched (the scales above are scheduled as they would be for a working image that
+/// many times halved).
+pub fn schedule(max_side: usize, refined_scales: usize, options: &PatchMatchOptions) -> Vec<Pass> {
+    let mut coarsest = refined_scales;
+    let mut side = max_side >> refined_scales;
+    while side > options.coarsest_size && coarsest + 1 < options.max_scales + refined_scales {
         side /= 2;
         coarsest += 1;
     }
-    let mut passes = vec![Pass {
-        kind: PassKind::Photometric,
-        scale: coarsest,
-        iterations: options.photometric_iterations,
-    }];
-    if options.geometric_iterations > 0 {
+    // Per scale, coarse to fine: what starts it, then its geometric pass.
+    let kinds = std::iter::once((PassKind::Photometric, coarsest))
+        .chain(
+            (refined_scales..coarsest)
+                .rev()
+                .map(|s| (PassKind::Hierarchy, s)),
+        )
+        .chain((0..refined_scales).rev().map(|s| (PassKind::Refine, s)));
+    let mut passes = Vec::new();
+    for (kind, scale) in kinds {
         passes.push(Pass {
-            kind: PassKind::Geometric,
-            scale: coarsest,
-            iterations: options.geometric_iterations,
-        });
-    }
-    for scale in (0..coarsest).rev() {
-        passes.push(Pass {
-            kind: PassKind::Hierarchy,
+            kind,
             scale,
             iterations: options.photometric_iterations,
         });
@@ -185,7 +198,7 @@ pub fn plan_schedule(plan: &EpochPlan, options: &PatchMatchOptions) -> Vec<Pass>
         .map(|v| v.camera.width.max(v.camera.height))
         .max()
         .unwrap_or(0);
-    schedule(max_side, options)
+    schedule(max_side, plan.refined_scales, options)
 }
 
 /// The images and maps one view's pass reads.
@@ -338,7 +351,7 @@ pub fn run_pass(
             0.0
         },
         geometric_max_px: options.geometric_max_px,
-        hierarchy: pass.kind == PassKind::Hierarchy,
+        hierarchy: matches!(pass.kind, PassKind::Hierarchy | PassKind::Refine),
         depth_perturbation: options.depth_perturbation,
         normal_perturbation: options.normal_perturbation,
         seed: pixel_pass_seed(options.seed, view, pass_index),
@@ -347,12 +360,33 @@ pub fn run_pass(
     let start = starting_planes(&ctx, vp, pass, input, &camera)?;
     let mut board = Board::new(camera.width, camera.height);
     initialise(&ctx, &mut board, &start);
+    // Pixels matched at this scale: every one, or those a refinement picks.
+    let selected = match (pass.kind, input.previous) {
+        (PassKind::Refine, Some(coarse)) => Some(refine_selection(
+            coarse,
+            &vp.camera.at_scale(pass.scale + 1),
+            camera.width,
+            camera.height,
+            &options.refine,
+        )),
+        // After a refinement: the pixels it matched (the others keep their upsampled plane).
+        (PassKind::Geometric, Some(previous)) if previous.upsampled.iter().any(|&u| u) => {
+            Some(previous.upsampled.iter().map(|&u| !u).collect())
+        }
+        _ => None,
+    };
     for iteration in 0..pass.iterations {
         for colour in [0, 1] {
-            half_pass(&ctx, &mut board, colour, iteration);
+            half_pass(&ctx, &mut board, colour, iteration, selected.as_deref());
         }
     }
-    Ok(median_filtered(&board))
+    let mut map = median_filtered(&board, selected.as_deref());
+    if let Some(selected) = &selected {
+        for ((up, &chosen), &d) in map.upsampled.iter_mut().zip(selected).zip(&map.depth) {
+            *up = !chosen && d > 0.0;
+        }
+    }
+    Ok(map)
 }
 
 fn pixel_pass_seed(seed: u64, view: usize, pass_index: usize) -> u64 {
@@ -371,7 +405,7 @@ fn starting_planes(
     let n = camera.width * camera.height;
     match pass.kind {
         PassKind::Photometric => Ok((vec![0.0; n], vec![[0.0; 3]; n])),
-        PassKind::Geometric | PassKind::Hierarchy => {
+        PassKind::Geometric | PassKind::Hierarchy | PassKind::Refine => {
             let previous = input.previous.ok_or_else(|| {
                 DenseError::InvalidInput(format!(
                     "a {:?} pass needs the view's map of the previous pass",
@@ -459,8 +493,14 @@ fn initialise(ctx: &PassContext<'_>, board: &mut Board, start: &(Vec<f32>, Vec<[
     }
 }
 
-/// Updates every pixel of one colour, rows in parallel.
-fn half_pass(ctx: &PassContext<'_>, board: &mut Board, colour: usize, iteration: usize) {
+/// Updates every pixel of one colour (or only those `selected`), rows in parallel.
+fn half_pass(
+    ctx: &PassContext<'_>,
+    board: &mut Board,
+    colour: usize,
+    iteration: usize,
+    selected: Option<&[bool]>,
+) {
     let (width, height, half_width) = (board.width, board.height, board.half_width);
     let (first, second) = board.cells.split_at_mut(1);
     let (mine, theirs) = if colour == 0 {
@@ -479,7 +519,7 @@ fn half_pass(ctx: &PassContext<'_>, board: &mut Board, colour: usize, iteration:
         |scratch, (y, row)| {
             for (k, cell) in row.iter_mut().enumerate() {
                 let x = Board::column(colour, y, k);
-                if x < width {
+                if x < width && selected.is_none_or(|s| s[y * width + x]) {
                     ctx.update(&other, scratch, cell, x, y, iteration);
                 }
             }
@@ -514,8 +554,9 @@ const MEDIAN_NEIGHBOURS: [(i64, i64); 20] = [
 const MEDIAN_KEEP_COST: f32 = 0.001;
 
 /// The final map of a pass: depths through ACMH's sparse median filter (removing isolated
-/// outliers inside smooth regions), normals and costs as they are.
-fn median_filtered(board: &Board) -> DepthMap {
+/// outliers inside smooth regions), normals and costs as they are. Pixels the pass did not
+/// match (outside `selected`) keep their plane's depth: it was filtered at its own scale.
+fn median_filtered(board: &Board, selected: Option<&[bool]>) -> DepthMap {
     let (w, h) = (board.width, board.height);
     let mut map = DepthMap::empty(w, h);
     for y in 0..h {
@@ -537,7 +578,8 @@ fn median_filtered(board: &Board) -> DepthMap {
             (0..w).map(move |x| {
                 let i = y * w + x;
                 let d = depths[i];
-                if !(d > 0.0) || costs[i] < MEDIAN_KEEP_COST {
+                let matched = selected.is_none_or(|s| s[i]);
+                if !(d > 0.0) || costs[i] < MEDIAN_KEEP_COST || !matched {
                     return d;
                 }
                 let mut values = [0.0f32; 21];
@@ -574,7 +616,7 @@ mod tests {
     #[test]
     fn schedule_goes_coarse_to_fine() {
         let options = PatchMatchOptions::default();
-        let passes = schedule(1500, &options);
+        let passes = schedule(1500, 0, &options);
         // 1500 → 750 → 375: three scales.
         let kinds: Vec<(PassKind, usize)> = passes.iter().map(|p| (p.kind, p.scale)).collect();
         assert_eq!(
@@ -588,6 +630,34 @@ mod tests {
                 (PassKind::Geometric, 0),
             ]
         );
-        assert_eq!(schedule(300, &options).len(), 2);
+        assert_eq!(schedule(300, 0, &options).len(), 2);
+    }
+
+    #[test]
+    fn a_refining_schedule_runs_the_same_passes_one_scale_up_then_refines() {
+        let options = PatchMatchOptions::default();
+        let kinds = |max_side: usize, refined: usize| -> Vec<(PassKind, usize)> {
+            schedule(max_side, refined, &options)
+                .iter()
+                .map(|p| (p.kind, p.scale))
+                .collect()
+        };
+        // Working images of 3000 pixels refined once: the 1500-pixel schedule at scales 1–3.
+        let plain: Vec<(PassKind, usize)> = kinds(1500, 0)
+            .into_iter()
+            .map(|(k, s)| (k, s + 1))
+            .collect();
+        let mut expected = plain;
+        expected.extend([(PassKind::Refine, 0), (PassKind::Geometric, 0)]);
+        assert_eq!(kinds(3000, 1), expected);
+        assert_eq!(
+            kinds(600, 1),
+            vec![
+                (PassKind::Photometric, 1),
+                (PassKind::Geometric, 1),
+                (PassKind::Refine, 0),
+                (PassKind::Geometric, 0),
+            ]
+        );
     }
 }

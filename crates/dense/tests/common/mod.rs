@@ -289,3 +289,92 @@ pub fn sphere(width: u32, height: u32) -> Rendered {
     let object = Box::new(move |p: &Vector3<f64>| ((p - centre).norm() - radius).abs() < 0.01);
     render_all(scene, cam, poses, points, distance, object)
 }
+
+/// Crowns on flat ground, as an orchard's trees: (x, y, radius, height), metres.
+pub const CROWNS: [(f64, f64, f64, f64); 6] = [
+    (-2.0, -1.5, 0.65, 1.1),
+    (0.2, -1.8, 0.6, 1.0),
+    (2.3, -1.2, 0.7, 1.2),
+    (-1.6, 1.4, 0.7, 1.1),
+    (0.6, 1.1, 0.6, 1.2),
+    (2.6, 1.8, 0.65, 1.0),
+];
+
+/// Height of the crowns' scene at (x, y): each crown `h (1 − r²/R²)²` inside its radius R (a
+/// rounded dome whose flanks are steeper than 50°), 0 elsewhere.
+pub fn crown_height(x: f64, y: f64) -> f64 {
+    CROWNS
+        .iter()
+        .map(|&(cx, cy, r, h)| {
+            let q = ((x - cx).powi(2) + (y - cy).powi(2)) / (r * r);
+            if q < 1.0 { h * (1.0 - q).powi(2) } else { 0.0 }
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Whether (x, y) is within a crown's radius grown by `margin` metres.
+pub fn near_crown(x: f64, y: f64, margin: f64) -> bool {
+    CROWNS
+        .iter()
+        .any(|&(cx, cy, r, _)| (x - cx).hypot(y - cy) < r + margin)
+}
+
+/// Six narrow crowns on textured flat ground (a 0.04 m mesh of [`crown_height`]) under a
+/// 3 × 2 nadir block 10 m up: at half resolution a crown is about 10 pixels across, so a
+/// matching window of 11 pixels on its flank always holds crown and ground.
+pub fn crowns(width: u32, height: u32) -> Rendered {
+    let (half, step): (f64, f64) = (9.5, 0.04);
+    let n = (2.0 * half / step).round() as u32;
+    let mut vertices = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (-half + step * i as f64, -half + step * j as f64);
+            vertices.push(Vector3::new(x, y, crown_height(x, y)));
+        }
+    }
+    let (mut triangles, mut materials) = (Vec::new(), Vec::new());
+    for j in 0..n {
+        for i in 0..n {
+            let a = j * (n + 1) + i;
+            let (b, c, d) = (a + 1, a + n + 1, a + n + 2);
+            let centre = vertices[a as usize] + vertices[d as usize];
+            let material = usize::from(near_crown(centre.x / 2.0, centre.y / 2.0, 0.0));
+            triangles.push([a, b, d]);
+            triangles.push([a, d, c]);
+            materials.extend([material, material]);
+        }
+    }
+    let mut crown_cover = cover(31);
+    if let Material::Cover {
+        scale, dark, light, ..
+    } = &mut crown_cover
+    {
+        *scale = 0.5;
+        *dark = Vector3::new(0.04, 0.1, 0.03);
+        *light = Vector3::new(0.25, 0.45, 0.2);
+    }
+    let scene = Scene::new(
+        &vertices,
+        &triangles,
+        materials,
+        vec![cover(32), crown_cover],
+    )
+    .expect("scene");
+    let f = 0.8 * width as f64;
+    let cam = camera(width, height, f);
+    let mut poses = Vec::new();
+    for (i, j) in [(0, 0), (1, 0), (2, 0), (0, 1), (1, 1), (2, 1)] {
+        let c = Vector3::new(-2.5 + 2.5 * i as f64, -1.25 + 2.5 * j as f64, 10.0);
+        let target = Vector3::new(0.1 * (i as f64 - 1.0), 0.0, 0.0);
+        poses.push(nadir_towards(&c, &target));
+    }
+    let mut points = Vec::new();
+    for a in -10..=10 {
+        for b in -8..=8 {
+            let (x, y) = (0.5 * a as f64, 0.5 * b as f64);
+            points.push(Vector3::new(x, y, crown_height(x, y)));
+        }
+    }
+    let distance = Box::new(|p: &Vector3<f64>| (p.z - crown_height(p.x, p.y)).abs());
+    render_all(scene, cam, poses, points, distance, Box::new(|_| true))
+}
