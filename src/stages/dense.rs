@@ -40,10 +40,10 @@ use crate::{Project, ProjectError};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
-const DENSE_ALGORITHM: u32 = 6;
+const DENSE_ALGORITHM: u32 = 7;
 
 /// Version of filtering and fusion, part of the cloud's settings.
-const FUSION_ALGORITHM: u32 = 6;
+const FUSION_ALGORITHM: u32 = 7;
 
 /// The `dense` stage.
 pub(super) struct DenseStage;

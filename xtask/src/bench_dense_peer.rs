@@ -36,6 +36,8 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
             &input,
             &PlanOptions {
                 level,
+                // The peer matches once, at the level itself.
+                refine: false,
                 ..PlanOptions::default()
             },
         )?;
@@ -44,7 +46,7 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
         let mut views = Vec::new();
         for (v, vp) in plan.views.iter().enumerate() {
             let (decoded, mask) = source.read(project, images[v], false)?.into_dense_parts();
-            let map = UndistortMap::new(&input.views[v].camera, vp.camera, level);
+            let map = UndistortMap::new(&input.views[v].camera, vp.camera, plan.level);
             let working = map.apply(
                 &ImageView {
                     width: decoded.width as usize,

@@ -4,7 +4,8 @@
 //! needs at least `min_images` images (never one) and becomes the mean of its members —
 //! position, colour and normal — with the number of images. Every member pixel is used once.
 //! Pixels whose plane a refinement kept from the coarser scale ([`DepthMap::upsampled`]) stand
-//! for 2 × 2 blocks: one point starts per block, so flat ground keeps the level's density.
+//! for 2 × 2 blocks: a block that a point already stands for (one of its pixels started or
+//! joined it) starts no other, so flat ground keeps the level's density.
 //!
 //! Views are visited in order and loaded through a caller's function, with a small cache, so
 //! memory holds a reference view and its sources, not the block. The result does not depend on
@@ -142,6 +143,8 @@ pub fn fuse<E: From<DenseError>>(
     };
     // Used pixels per view, as bits.
     let mut used: Vec<Vec<u64>> = vec![Vec::new(); plan.views.len()];
+    // Per view, the 2 × 2 blocks of upsampled pixels that a point already stands for, as bits.
+    let mut blocks: Vec<Vec<u64>> = vec![Vec::new(); plan.views.len()];
     let mut cloud = FusedCloud::default();
     let tolerances = Tolerances {
         max_px: options.max_reprojection_px,
@@ -197,10 +200,12 @@ pub fn fuse<E: From<DenseError>>(
         for (v, o) in other_view.iter().zip(&others) {
             if used[*v].is_empty() {
                 used[*v] = vec![0; (o.map.width * o.map.height).div_ceil(64)];
+                blocks[*v] = vec![0; block_count(o.map).div_ceil(64)];
             }
         }
         if used[view].is_empty() {
             used[view] = vec![0; (map.width * map.height).div_ceil(64)];
+            blocks[view] = vec![0; block_count(map).div_ceil(64)];
         }
         let world_from_ref = vp.cam_from_local.inverse();
         let rotation = world_from_ref.rotation_matrix();
@@ -212,10 +217,11 @@ pub fn fuse<E: From<DenseError>>(
                 if !(d > 0.0) || is_used(&used[view], k) {
                     continue;
                 }
-                // A plane upsampled from the coarser scale stands for its 2 × 2 block: one
-                // point starts per block, at its even corner (its other pixels may still join
-                // points, and a block any of whose pixels joined one starts none).
-                if map.upsampled[k] && (i % 2 == 1 || j % 2 == 1) {
+                // A plane upsampled from the coarser scale stands for its 2 × 2 block: a block
+                // that a point already stands for (one of its pixels started or joined one)
+                // starts no other; its pixels may still join points.
+                let block = map.upsampled[k].then(|| block_of(map, k));
+                if block.is_some_and(|b| is_used(&blocks[view], b)) {
                     continue;
                 }
                 set_used(&mut used[view], k);
@@ -254,13 +260,14 @@ pub fn fuse<E: From<DenseError>>(
                 if count < options.min_images {
                     continue;
                 }
+                if let Some(b) = block {
+                    set_used(&mut blocks[view], b);
+                }
                 for &(o, pixel) in &members {
                     set_used(&mut used[other_view[o]], pixel);
-                    // An upsampled pixel's block starts no other point: its anchor is used.
                     let map = others[o].map;
                     if map.upsampled[pixel] {
-                        let (x, y) = (pixel % map.width, pixel / map.width);
-                        set_used(&mut used[other_view[o]], (y & !1) * map.width + (x & !1));
+                        set_used(&mut blocks[other_view[o]], block_of(map, pixel));
                     }
                 }
                 let inv = 1.0 / count as f64;
@@ -300,6 +307,17 @@ pub fn fuse<E: From<DenseError>>(
 #[inline]
 fn is_used(bits: &[u64], k: usize) -> bool {
     bits[k / 64] >> (k % 64) & 1 == 1
+}
+
+/// Number of 2 × 2 blocks of a map (the last row and column of an odd size are blocks too).
+fn block_count(map: &DepthMap) -> usize {
+    map.width.div_ceil(2) * map.height.div_ceil(2)
+}
+
+/// The 2 × 2 block of pixel `k` of a map.
+fn block_of(map: &DepthMap, k: usize) -> usize {
+    let (x, y) = (k % map.width, k / map.width);
+    (y / 2) * map.width.div_ceil(2) + x / 2
 }
 
 #[inline]

@@ -2,7 +2,8 @@
 //! slanted planes, filtering, and fusion into one coloured cloud (step 3 of Time-SIFT).
 //!
 //! The steps, each a function the caller can run, cache and resume on its own:
-//! 1. [`plan::plan_epoch`]: per view, the working pinhole camera at the chosen level, the pose
+//! 1. [`plan::plan_epoch`]: per view, the working pinhole camera at the chosen level (at half
+//!    of it when refining), the pose
 //!    in a local frame, the source views (shared sparse points, triangulation angle, scale;
 //!    every part of the field covered first), the wider set of overlapping views that filtering
 //!    and fusion check against, and the depth range (sparse-point depths).

@@ -17,8 +17,9 @@
 //! detail restorer) and a geometric pass. When the plan refines (working images at half the
 //! requested level, [`crate::plan::EpochPlan::refined_scales`]), those passes stop at scale 1
 //! (the requested level) and a refinement pass follows at scale 0: the planes upsampled, and
-//! matched again only where the coarser map was poor ([`refine::refine_selection`]); its
-//! geometric pass updates only the pixels it matched.
+//! matched again only where the coarser map was poor ([`refine::refine_selection`]) or its
+//! upsampled plane is unusable; its geometric pass updates only the pixels not marked
+//! upsampled.
 
 mod board;
 pub mod cost;
@@ -154,9 +155,10 @@ pub struct Pass {
 }
 
 /// The passes for an epoch whose largest working image is `max_side` pixels long, the finest
-/// `refined_scales` of them refinement passes, each followed by a geometric pass over the
-/// pixels it matched (the scales above are scheduled as they would be for a working image that
-/// many times halved).
+/// `refined_scales` of them refinement passes (the scales above are scheduled as they would be
+/// for a working image that many times halved). With `geometric_iterations > 0`, every scale
+/// ends with a geometric pass; after a refinement it updates only the pixels not marked
+/// upsampled (those it matched, and any left without a depth).
 pub fn schedule(max_side: usize, refined_scales: usize, options: &PatchMatchOptions) -> Vec<Pass> {
     let mut coarsest = refined_scales;
     let mut side = max_side >> refined_scales;
@@ -360,15 +362,22 @@ pub fn run_pass(
     let start = starting_planes(&ctx, vp, pass, input, &camera)?;
     let mut board = Board::new(camera.width, camera.height);
     initialise(&ctx, &mut board, &start);
-    // Pixels matched at this scale: every one, or those a refinement picks.
+    // Pixels matched at this scale: every one, or those a refinement picks (and those whose
+    // upsampled plane is unusable: they start from a random plane, which must be matched).
     let selected = match (pass.kind, input.previous) {
-        (PassKind::Refine, Some(coarse)) => Some(refine_selection(
-            coarse,
-            &vp.camera.at_scale(pass.scale + 1),
-            camera.width,
-            camera.height,
-            &options.refine,
-        )),
+        (PassKind::Refine, Some(coarse)) => {
+            let mut picked = refine_selection(
+                coarse,
+                &vp.camera.at_scale(pass.scale + 1),
+                camera.width,
+                camera.height,
+                &options.refine,
+            );
+            for (k, p) in picked.iter_mut().enumerate() {
+                *p = *p || !usable_start(&ctx, &start, k % camera.width, k / camera.width);
+            }
+            Some(picked)
+        }
         // After a refinement: the pixels it matched (the others keep their upsampled plane).
         (PassKind::Geometric, Some(previous)) if previous.upsampled.iter().any(|&u| u) => {
             Some(previous.upsampled.iter().map(|&u| !u).collect())
@@ -450,6 +459,20 @@ fn starting_planes(
     }
 }
 
+/// Whether pixel (x, y)'s starting plane is usable: in the depth range and facing the camera
+/// (else [`initialise`] draws a random plane).
+fn usable_start(
+    ctx: &PassContext<'_>,
+    (depth, normal): &(Vec<f32>, Vec<[f32; 3]>),
+    x: usize,
+    y: usize,
+) -> bool {
+    let i = y * ctx.grey.width + x;
+    let ray = ctx.k_ref.ray(x as f32 + 0.5, y as f32 + 0.5);
+    let facing = normal[i][0] * ray[0] + normal[i][1] * ray[1] + normal[i][2] * ray[2] < 0.0;
+    depth[i] >= ctx.depth_range.0 && depth[i] <= ctx.depth_range.1 && facing
+}
+
 /// Fills the board from the starting planes (random where there is none), with each plane's
 /// cost over its best views.
 fn initialise(ctx: &PassContext<'_>, board: &mut Board, start: &(Vec<f32>, Vec<[f32; 3]>)) {
@@ -470,13 +493,7 @@ fn initialise(ctx: &PassContext<'_>, board: &mut Board, start: &(Vec<f32>, Vec<[
                         }
                         let i = y * width + x;
                         let ray = ctx.k_ref.ray(x as f32 + 0.5, y as f32 + 0.5);
-                        let facing =
-                            normal[i][0] * ray[0] + normal[i][1] * ray[1] + normal[i][2] * ray[2]
-                                < 0.0;
-                        let (d, n) = if depth[i] >= ctx.depth_range.0
-                            && depth[i] <= ctx.depth_range.1
-                            && facing
-                        {
+                        let (d, n) = if usable_start(ctx, start, x, y) {
                             (depth[i], normal[i])
                         } else {
                             let mut rng =
