@@ -340,7 +340,6 @@ struct ImageCache<'a> {
     views: &'a [View],
     plan: &'a EpochPlan,
     black_is_nodata: bool,
-    level: u32,
     capacity: usize,
     entries: VecDeque<(usize, Arc<WorkingImage>)>,
 }
@@ -361,10 +360,9 @@ impl ImageCache<'_> {
             .into_dense_parts();
         let camera = &self.views[view].camera;
         let key = camera_key(camera);
-        let map = self
-            .maps
-            .entry(key)
-            .or_insert_with(|| UndistortMap::new(camera, self.plan.views[view].camera, self.level));
+        let map = self.maps.entry(key).or_insert_with(|| {
+            UndistortMap::new(camera, self.plan.views[view].camera, self.plan.level)
+        });
         let working = map
             .apply(
                 &ImageView {
@@ -521,7 +519,6 @@ fn dense_epoch(
         views: &input.views,
         plan: &plan,
         black_is_nodata: options.black_is_nodata,
-        level: plan.level,
         // A reference and its sources are matched together; filtering and fusion read maps,
         // and only the reference's image for its colours.
         capacity: 2

@@ -18,8 +18,8 @@ pub struct DepthMap {
     pub cost: Vec<f32>,
     /// Per pixel, whether its plane was taken from the next coarser scale (upsampled) rather
     /// than matched at this map's resolution: a refinement pass matches again only where the
-    /// coarser scale was poor. Such a pixel stands for a 2 × 2 block, so fusion starts one
-    /// point per block of them (the cloud keeps the coarser density where nothing was refined).
+    /// coarser scale was poor. Such a pixel stands for a 2 × 2 block: fusion makes at most one
+    /// point per block (the cloud keeps the coarser density where nothing was refined).
     pub upsampled: Vec<bool>,
 }
 
