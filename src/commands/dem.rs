@@ -94,7 +94,7 @@ pub fn dem(request: &DemRequest) -> Result<DemSummary, ProjectError> {
             });
         }
         (Some(like), None) => {
-            let grid = timesift_io::geotiff::read_f32(like)?;
+            let grid = timesift_io::geotiff::read_grid(like)?;
             let t = grid.georef.transform;
             let lattice = Lattice::with_cells(
                 t.origin_x,

@@ -366,7 +366,7 @@ fn gdal_grid_comparison(
     let cloud_path = work.join("out/epochs").join(epoch).join("dense.laz");
     let dem_path = dir.join("out/epochs").join(epoch).join("dem.tif");
     let cloud = timesift_io::pointcloud::read_las_positions(&cloud_path)?;
-    let like = read_f32(&dem_path)?;
+    let like = timesift_io::geotiff::read_grid(&dem_path)?;
     let t = like.georef.transform;
     let cell = t.pixel_width;
     let csv = work.join("points.csv");

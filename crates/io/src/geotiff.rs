@@ -366,7 +366,40 @@ fn decoding_limits() -> Limits {
     limits
 }
 
+/// The size and georeference of a GeoTIFF, its samples not decoded: what is needed to put other
+/// data on its grid (`timesift dem --like`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RasterGrid {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Placement, CRS and nodata.
+    pub georef: GeoReference,
+}
+
+/// Reads the size and georeference of a GeoTIFF without decoding its samples.
+pub fn read_grid(path: &Path) -> Result<RasterGrid, IoError> {
+    let (_, _, grid) = open_georeferenced(path)?;
+    Ok(grid)
+}
+
 fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
+    let (mut decoder, colortype, grid) = open_georeferenced(path)?;
+    let samples = decoder.read_image().map_err(|e| tiff_err(path, e))?;
+    Ok(Decoded {
+        width: grid.width,
+        height: grid.height,
+        colortype,
+        samples,
+        georef: grid.georef,
+    })
+}
+
+/// A decoder positioned on the first image, with the image's colour type, size and georeference.
+fn open_georeferenced(
+    path: &Path,
+) -> Result<(Decoder<BufReader<File>>, ColorType, RasterGrid), IoError> {
     let file = File::open(path).map_err(|e| IoError::io(path, e))?;
     let err = |e| tiff_err(path, e);
     let mut decoder = Decoder::new(BufReader::new(file))
@@ -493,7 +526,6 @@ fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
         })
         .transpose()?;
 
-    let samples = decoder.read_image().map_err(err)?;
     let (pw, ph) = (scale[0], -scale[1]);
     let shift = if pixel_is_point { 0.5 } else { 0.0 };
     let transform = GeoTransform {
@@ -502,18 +534,17 @@ fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
         pixel_width: pw,
         pixel_height: ph,
     };
-    Ok(Decoded {
+    let grid = RasterGrid {
         width: width as usize,
         height: height as usize,
-        colortype,
-        samples,
         georef: GeoReference {
             transform,
             crs,
             nodata,
             pixel_is_point,
         },
-    })
+    };
+    Ok((decoder, colortype, grid))
 }
 
 /// Reads a single-band GeoTIFF of any common numeric sample type as f32.

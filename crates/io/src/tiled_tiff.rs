@@ -617,6 +617,12 @@ impl<W: Write> Positioned<'_, W> {
     }
 }
 
+/// Deflate's level: 4 rather than zlib's default 6. After the predictor, what is left in a DEM
+/// or an ortho is mostly sensor and matching noise, which longer match searches barely shrink:
+/// on the synthetic orchard (a 480 × 360 DEM, its spread and counts; a 4-band ortho) level 4
+/// wrote 25–36 % faster than 6 for files 0.7–2 % larger (level 1: 13–60 % larger).
+const DEFLATE_LEVEL: u32 = 4;
+
 /// Cuts a band of `h` ≤ [`TILE`] rows into tiles (edge tiles padded with zeros), applies the
 /// predictor and compresses each, in parallel.
 fn compress_band(band: &Pixels<'_>, w: usize, h: usize) -> Result<Vec<Vec<u8>>, TiledError> {
@@ -657,7 +663,7 @@ fn compress_band(band: &Pixels<'_>, w: usize, h: usize) -> Result<Vec<Vec<u8>>, 
                     }
                 }
             }
-            let mut z = ZlibEncoder::new(Vec::new(), Compression::new(6));
+            let mut z = ZlibEncoder::new(Vec::new(), Compression::new(DEFLATE_LEVEL));
             z.write_all(&raw)?;
             z.finish()
         })

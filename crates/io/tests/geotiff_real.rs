@@ -3,12 +3,13 @@
 use std::path::PathBuf;
 
 use timesift_io::coords::Crs;
-use timesift_io::geotiff::{read_f32, read_rgb8, write_f32, write_rgb8};
+use timesift_io::geotiff::{read_f32, read_grid, read_rgb8, write_f32, write_rgb8};
 
 fn shared_data() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data")
 }
 
+/// Also: the header alone read by `read_grid` is the full read's size and georeference.
 #[test]
 fn sandpyper_dsm_round_trip_is_identical() {
     let dir = tempfile::tempdir().unwrap();
@@ -26,6 +27,10 @@ fn sandpyper_dsm_round_trip_is_identical() {
             assert_eq!(original.georef.transform.pixel_width, 1.001249756097561);
             assert!((original.georef.transform.origin_x - 731413.76093).abs() < 1e-9);
         }
+        // The header alone (what `timesift dem --like` reads) says the same as the full read.
+        let grid = read_grid(&src).unwrap();
+        assert_eq!((grid.width, grid.height), (original.width, original.height));
+        assert_eq!(grid.georef, original.georef);
         let out = dir.path().join(src.file_name().unwrap());
         write_f32(&out, &original).unwrap();
         let back = read_f32(&out).unwrap();

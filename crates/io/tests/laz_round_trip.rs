@@ -127,7 +127,8 @@ fn survey_wide_cloud_fits_at_millimetre_scale() {
 
 /// Positions alone (what DEM gridding reads): the same coordinates, bit for bit, as the full
 /// read, from LAZ (the x, y, z layers decompressed alone, over several batches and chunks) and
-/// from LAS; a truncated LAZ file is an error naming it.
+/// from LAS; a truncated LAZ file, or one whose header counts more points than its chunks hold,
+/// is an error naming it.
 #[test]
 fn positions_alone_are_the_full_read_s() {
     let dir = tempfile::tempdir().unwrap();
@@ -146,4 +147,13 @@ fn positions_alone_are_the_full_read_s() {
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
     let e = read_las_positions(&cut).unwrap_err().to_string();
     assert!(e.contains("cut.laz"), "{e}");
+    // A header counting one point more than its 24 full chunks hold: an error, not a point
+    // made of nothing (LAS 1.4 keeps the count twice: a u32 at byte 107, a u64 at byte 247).
+    let mut more = bytes.clone();
+    more[107..111].copy_from_slice(&1_200_001u32.to_le_bytes());
+    more[247..255].copy_from_slice(&1_200_001u64.to_le_bytes());
+    let over = dir.path().join("over.laz");
+    std::fs::write(&over, &more).unwrap();
+    let e = read_las_positions(&over).unwrap_err().to_string();
+    assert!(e.contains("over.laz") && e.contains("1200001"), "{e}");
 }
