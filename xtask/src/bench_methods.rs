@@ -50,6 +50,8 @@ pub struct MethodsBench {
     /// Which inter-epoch ties the single-block strategies keep, one run per entry (rows named
     /// `method+ties` beyond the first): `default` (the project's: stable areas when given),
     /// `all`, `plain` (every tie and no GNSS offsets: the single block before they existed),
+    /// `before` (`plain` with one outlier bound for the whole block: the single block as issue
+    /// 22 found it; without offsets no flight is weighed by its scatter),
     /// `pooled` (the project's ties, one observation outlier bound for the whole block instead
     /// of each camera group's own), or `auto-blind` (the regional change detection, the stable
     /// areas hidden from the align stage; the products are still judged on them), or
@@ -72,6 +74,11 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
             project.config.gnss.offsets = timesift::config::GnssOffsets::None;
         }
         "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
+        "before" => {
+            project.config.align.inter_epoch_ties = InterEpochTies::All;
+            project.config.gnss.offsets = timesift::config::GnssOffsets::None;
+            project.config.align.outlier_bound = OutlierBoundConfig::Pooled;
+        }
         "joined" => project.config.align.join_epoch_ties = true,
         "scatter-all" => {
             project.config.gnss.weigh_by_scatter = timesift::config::WeighByScatter::All
@@ -93,7 +100,7 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         other => {
             anyhow::bail!(
-                "--ties: unknown \"{other}\" (default, all, plain, pooled, auto-blind, joined, refgnss, scatter-all)"
+                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, joined, refgnss, scatter-all)"
             )
         }
     }

@@ -98,7 +98,8 @@ enum Task {
         #[arg(long)]
         full_dense: bool,
         /// Inter-epoch ties of the single-block strategies, one run each: default, all, plain
-        /// (all ties and no GNSS offsets: the plain single block), pooled (one outlier bound
+        /// (all ties and no GNSS offsets: the plain single block), before (plain with a pooled
+        /// outlier bound: the single block as issue 22 found it), pooled (one outlier bound
         /// for the whole block, not one per camera group), auto-blind (change detected from the
         /// ties, stable areas hidden from align), joined (a second look for inter-epoch ties by
         /// descriptor after the first block), refgnss (only the reference epoch's GNSS priors),

@@ -382,22 +382,49 @@ pub fn read_las_positions(path: &Path) -> Result<PointCloud, IoError> {
 }
 
 /// The positions of a layered LAZ file, its x, y and z layers alone decompressed. The chunks
-/// decompress in parallel, each into a buffer of its thread that is turned into positions while
-/// it is in cache: no buffer of every record is made (for a cloud of 600,000 points that buffer
-/// and its page faults cost as much as the conversion and half as much as the decoding). The
-/// header's point count is checked against the chunk table before anything is allocated from it.
+/// decompress in parallel, each into a record buffer of the worker that takes it, turned into
+/// positions while it is in cache: no buffer of every record is made (for a cloud of 600,000
+/// points that buffer and its page faults cost as much as the conversion and half as much as
+/// the decoding). Before positions are allocated, the items must be the layered ones of the
+/// header's record length, the header's point count the chunk table's, and every chunk's bytes
+/// in the file. The whole file is read at once: it is a fifth of the positions it holds.
 fn layered_laz_positions(
     path: &Path,
     header: &las::Header,
     vlr: laz::LazVlr,
 ) -> Result<Vec<[f64; 3]>, IoError> {
-    /// Points decompressed per group of chunks: bounds what a corrupt count can allocate.
+    /// Points decompressed per group of whole chunks: the positions grow by a group at a time.
     const BATCH: u64 = 1 << 20;
     let las_err = |e: las::Error| IoError::invalid(path, format!("cannot read LAS: {e}"));
     let laz_err = |e: laz::LasZipError| IoError::invalid(path, format!("cannot read LAZ: {e}"));
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
     let mut source = std::io::Cursor::new(bytes.as_slice());
     let raw = las::raw::Header::read_from(&mut source).map_err(las_err)?;
+    // The decoder lays out each item at its own size, whatever the file states: a record of
+    // other sizes (or not starting with x, y, z) would be misread.
+    let layered_size = |item: &laz::LazItem| match item.item_type() {
+        laz::LazItemType::Point14 => Some(30),
+        laz::LazItemType::RGB14 => Some(6),
+        laz::LazItemType::RGBNIR14 => Some(8),
+        laz::LazItemType::WavePacket14 => Some(29),
+        laz::LazItemType::Byte14(n) => Some(n),
+        _ => None,
+    };
+    let items = vlr.items();
+    let record_len = usize::from(raw.point_data_record_length);
+    let sizes_agree = items
+        .iter()
+        .all(|item| layered_size(item) == Some(item.size()));
+    let stated: usize = items.iter().map(|item| usize::from(item.size())).sum();
+    if items.first().map(laz::LazItem::item_type) != Some(laz::LazItemType::Point14)
+        || !sizes_agree
+        || stated != record_len
+    {
+        return Err(IoError::invalid(
+            path,
+            format!("its LAZ items do not make the header's {record_len}-byte layered records"),
+        ));
+    }
     source.set_position(u64::from(raw.offset_to_point_data));
     let mut chunks = laz::laszip::ChunkTable::read_from(&mut source, &vlr)
         .map_err(laz_err)?
@@ -409,8 +436,9 @@ fn layered_laz_positions(
         let n_chunks = chunks.len();
         let before_last = (n_chunks as u64).saturating_sub(1) * u64::from(vlr.chunk_size());
         match chunks.last_mut() {
+            // A last chunk may be empty (a writer that closes a chunk at the end regardless).
             Some(last)
-                if point_count > before_last && point_count - before_last <= last.point_count =>
+                if point_count >= before_last && point_count - before_last <= last.point_count =>
             {
                 last.point_count = point_count - before_last
             }
@@ -434,7 +462,9 @@ fn layered_laz_positions(
             format!("the header counts {point_count} points, the chunk table {listed}"),
         ));
     }
-    let mut data = &bytes[source.position() as usize..];
+    let mut data = bytes
+        .get(source.position() as usize..)
+        .ok_or_else(|| IoError::invalid(path, "truncated LAZ point data"))?;
     let mut pieces = Vec::with_capacity(chunks.len());
     for chunk in &chunks {
         let len = usize::try_from(chunk.byte_count).unwrap_or(usize::MAX);
@@ -445,7 +475,6 @@ fn layered_laz_positions(
         pieces.push((piece, *chunk));
         data = rest;
     }
-    let record_len = usize::from(vlr.items_size() as u16);
     let t = header.transforms();
     let selection = laz::DecompressionSelection::xy_returns_channel().decompress_z();
     let mut positions: Vec<[f64; 3]> = Vec::new();

@@ -127,8 +127,8 @@ fn survey_wide_cloud_fits_at_millimetre_scale() {
 
 /// Positions alone (what DEM gridding reads): the same coordinates, bit for bit, as the full
 /// read, from LAZ (the x, y, z layers decompressed alone, over several batches and chunks) and
-/// from LAS; a truncated LAZ file, or one whose header counts more points than its chunks hold,
-/// is an error naming it.
+/// from LAS; a truncated LAZ file, one whose header counts more points than its chunks hold, or
+/// one whose LAZ items state other sizes than the decoder's, is an error naming it.
 #[test]
 fn positions_alone_are_the_full_read_s() {
     let dir = tempfile::tempdir().unwrap();
@@ -156,4 +156,33 @@ fn positions_alone_are_the_full_read_s() {
     std::fs::write(&over, &more).unwrap();
     let e = read_las_positions(&over).unwrap_err().to_string();
     assert!(e.contains("over.laz") && e.contains("1200001"), "{e}");
+    // LAZ items that do not make the records the decoder lays out (the point item stated as 4
+    // bytes, not 30): an error, not a misread or a panic. The laszip VLR's items follow its
+    // 54-byte VLR header and 34 bytes of settings; the first item's size is its second u16.
+    let vlr = bytes
+        .windows(14)
+        .position(|w| w == b"laszip encoded")
+        .expect("a laszip VLR")
+        - 2;
+    let size_at = vlr + 54 + 34 + 2;
+    assert_eq!(
+        &bytes[size_at - 2..size_at + 2],
+        &[10, 0, 30, 0],
+        "Point14, 30 bytes"
+    );
+    let mut small = bytes.clone();
+    small[size_at] = 4;
+    let items = dir.path().join("items.laz");
+    std::fs::write(&items, &small).unwrap();
+    let e = read_las_positions(&items).unwrap_err().to_string();
+    assert!(e.contains("items.laz") && e.contains("LAZ items"), "{e}");
+}
+
+/// An empty cloud reads back empty through the positions alone.
+#[test]
+fn positions_of_an_empty_cloud_are_none() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("empty.laz");
+    write_las(&p, &cloud(0), &LasWriteOptions::default()).unwrap();
+    assert!(read_las_positions(&p).unwrap().positions.is_empty());
 }
