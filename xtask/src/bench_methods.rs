@@ -69,16 +69,14 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
     match ties {
         "default" => {}
         "all" => project.config.align.inter_epoch_ties = InterEpochTies::All,
-        "plain" => {
+        "plain" | "before" => {
             project.config.align.inter_epoch_ties = InterEpochTies::All;
             project.config.gnss.offsets = timesift::config::GnssOffsets::None;
+            if ties == "before" {
+                project.config.align.outlier_bound = OutlierBoundConfig::Pooled;
+            }
         }
         "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
-        "before" => {
-            project.config.align.inter_epoch_ties = InterEpochTies::All;
-            project.config.gnss.offsets = timesift::config::GnssOffsets::None;
-            project.config.align.outlier_bound = OutlierBoundConfig::Pooled;
-        }
         "joined" => project.config.align.join_epoch_ties = true,
         "scatter-all" => {
             project.config.gnss.weigh_by_scatter = timesift::config::WeighByScatter::All

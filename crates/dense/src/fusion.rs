@@ -198,15 +198,9 @@ pub fn fuse<E: From<DenseError>>(
             .map(|&v| cache.find(v).expect("just loaded").rgb.as_slice())
             .collect();
         for (v, o) in other_view.iter().zip(&others) {
-            if used[*v].is_empty() {
-                used[*v] = vec![0; (o.map.width * o.map.height).div_ceil(64)];
-                blocks[*v] = vec![0; block_count(o.map).div_ceil(64)];
-            }
+            allocate_bits(&mut used[*v], &mut blocks[*v], o.map);
         }
-        if used[view].is_empty() {
-            used[view] = vec![0; (map.width * map.height).div_ceil(64)];
-            blocks[view] = vec![0; block_count(map).div_ceil(64)];
-        }
+        allocate_bits(&mut used[view], &mut blocks[view], map);
         let world_from_ref = vp.cam_from_local.inverse();
         let rotation = world_from_ref.rotation_matrix();
         let mut members: Vec<(usize, usize)> = Vec::with_capacity(others.len());
@@ -309,9 +303,13 @@ fn is_used(bits: &[u64], k: usize) -> bool {
     bits[k / 64] >> (k % 64) & 1 == 1
 }
 
-/// Number of 2 × 2 blocks of a map (the last row and column of an odd size are blocks too).
-fn block_count(map: &DepthMap) -> usize {
-    map.width.div_ceil(2) * map.height.div_ceil(2)
+/// A view's used-pixel and claimed-block bits, allocated the first time fusion meets it.
+fn allocate_bits(used: &mut Vec<u64>, blocks: &mut Vec<u64>, map: &DepthMap) {
+    if used.is_empty() {
+        *used = vec![0; (map.width * map.height).div_ceil(64)];
+        // The last row and column of an odd size are blocks too.
+        *blocks = vec![0; (map.width.div_ceil(2) * map.height.div_ceil(2)).div_ceil(64)];
+    }
 }
 
 /// The 2 × 2 block of pixel `k` of a map.

@@ -349,11 +349,9 @@ pub fn write_u8(path: &Path, raster: &GeoRaster<u8>) -> Result<(), IoError> {
 
 /// The decoded samples of a GeoTIFF before conversion.
 struct Decoded {
-    width: usize,
-    height: usize,
+    grid: RasterGrid,
     colortype: ColorType,
     samples: DecodingResult,
-    georef: GeoReference,
 }
 
 /// Decoding limits: large enough for the rasters of a survey (8 GiB decoded), finite so that a
@@ -388,11 +386,9 @@ fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
     let (mut decoder, colortype, grid) = open_georeferenced(path)?;
     let samples = decoder.read_image().map_err(|e| tiff_err(path, e))?;
     Ok(Decoded {
-        width: grid.width,
-        height: grid.height,
+        grid,
         colortype,
         samples,
-        georef: grid.georef,
     })
 }
 
@@ -559,11 +555,11 @@ pub fn read_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
     }
     let data = samples_f32(path, d.samples)?;
     Ok(GeoRaster {
-        width: d.width,
-        height: d.height,
+        width: d.grid.width,
+        height: d.grid.height,
         bands: 1,
         data,
-        georef: d.georef,
+        georef: d.grid.georef,
     })
 }
 
@@ -573,24 +569,24 @@ pub fn read_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
 pub fn read_bands_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
     let d = read_georeferenced(path)?;
     let data = samples_f32(path, d.samples)?;
-    let pixels = d.width * d.height;
+    let pixels = d.grid.width * d.grid.height;
     if pixels == 0 || data.len() % pixels != 0 {
         return Err(IoError::invalid(
             path,
             format!(
                 "{} samples for {} × {} pixels",
                 data.len(),
-                d.width,
-                d.height
+                d.grid.width,
+                d.grid.height
             ),
         ));
     }
     Ok(GeoRaster {
-        width: d.width,
-        height: d.height,
+        width: d.grid.width,
+        height: d.grid.height,
         bands: data.len() / pixels,
         data,
-        georef: d.georef,
+        georef: d.grid.georef,
     })
 }
 
@@ -632,11 +628,11 @@ pub fn read_rgb8(path: &Path) -> Result<GeoRaster<u8>, IoError> {
         return Err(IoError::invalid(path, "unexpected sample type"));
     };
     Ok(GeoRaster {
-        width: d.width,
-        height: d.height,
+        width: d.grid.width,
+        height: d.grid.height,
         bands,
         data,
-        georef: d.georef,
+        georef: d.grid.georef,
     })
 }
 

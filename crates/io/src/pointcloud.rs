@@ -386,10 +386,10 @@ pub fn read_las_positions(path: &Path) -> Result<PointCloud, IoError> {
 /// decompress in parallel, each into a record buffer of the worker that takes it, turned into
 /// positions while it is in cache: no buffer of every record is made (for a cloud of 600,000
 /// points that buffer and its page faults cost as much as the conversion and half as much as
-/// the decoding). Before positions are allocated, the items must be the layered ones of the
-/// header's record length, the header's point count the chunk table's, and every chunk's bytes
-/// in the file. The compressed bytes are read a group of chunks at a time (a dense cloud's LAZ
-/// file is about 0.8 of the positions it holds: reading it whole would nearly double the peak).
+/// the decoding). Before positions are allocated, the items must be the point format's own,
+/// the header's point count the chunk table's, and every chunk's bytes in the file. The
+/// compressed bytes are read a group of chunks at a time (a dense cloud's LAZ file is about 0.8
+/// of the positions it holds: reading it whole would nearly double the peak).
 fn layered_laz_positions(
     path: &Path,
     header: &las::Header,
@@ -404,26 +404,22 @@ fn layered_laz_positions(
     let file_len = file.metadata().map_err(io_err)?.len();
     let mut source = BufReader::new(file);
     let raw = las::raw::Header::read_from(&mut source).map_err(las_err)?;
-    // The decoder lays out each item at its own size, whatever the file states: a record of
-    // other sizes (or not starting with x, y, z) would be misread.
-    let layered_size = |item: &laz::LazItem| match item.item_type() {
-        laz::LazItemType::Point14 => Some(30),
-        laz::LazItemType::RGB14 => Some(6),
-        laz::LazItemType::RGBNIR14 => Some(8),
-        laz::LazItemType::WavePacket14 => Some(29),
-        laz::LazItemType::Byte14(n) => Some(n),
-        _ => None,
+    // The decoder lays out each item at its own size, whatever the file states: items other
+    // than the point format's own would be misread. (las derived the format's extra bytes from
+    // the header's record length, so the expected items add up to it.)
+    let format = header.point_format();
+    let expected = format
+        .to_u8()
+        .ok()
+        .and_then(|id| {
+            laz::LazItemRecordBuilder::default_for_point_format_id(id, format.extra_bytes).ok()
+        })
+        .unwrap_or_default();
+    let layout = |items: &[laz::LazItem]| -> Vec<(laz::LazItemType, u16)> {
+        items.iter().map(|i| (i.item_type(), i.size())).collect()
     };
-    let items = vlr.items();
-    let record_len = usize::from(raw.point_data_record_length);
-    let sizes_agree = items
-        .iter()
-        .all(|item| layered_size(item) == Some(item.size()));
-    let stated: usize = items.iter().map(|item| usize::from(item.size())).sum();
-    if items.first().map(laz::LazItem::item_type) != Some(laz::LazItemType::Point14)
-        || !sizes_agree
-        || stated != record_len
-    {
+    let record_len = usize::from(format.len());
+    if expected.is_empty() || layout(vlr.items()) != layout(&expected) {
         return Err(IoError::invalid(
             path,
             format!("its LAZ items do not make the header's {record_len}-byte layered records"),
@@ -496,26 +492,18 @@ fn layered_laz_positions(
         let group_bytes: u64 = group.iter().map(|c| c.byte_count).sum();
         compressed.resize(group_bytes as usize, 0);
         source.read_exact(&mut compressed).map_err(io_err)?;
-        let mut pieces = Vec::with_capacity(group.len());
-        let mut unread = compressed.as_slice();
-        for chunk in group {
-            let (piece, tail) = unread.split_at(chunk.byte_count as usize);
-            pieces.push((piece, chunk));
-            unread = tail;
-        }
         let start = positions.len();
         positions.resize(start + n_points as usize, [0.0; 3]);
-        let mut outputs = Vec::with_capacity(group.len());
-        let mut free = &mut positions[start..];
+        let mut jobs = Vec::with_capacity(group.len());
+        let (mut unread, mut free) = (compressed.as_slice(), &mut positions[start..]);
         for chunk in group {
-            let (out, tail) = free.split_at_mut(chunk.point_count as usize);
-            outputs.push(out);
-            free = tail;
+            let (piece, bytes_left) = unread.split_at(chunk.byte_count as usize);
+            let (out, points_left) = free.split_at_mut(chunk.point_count as usize);
+            jobs.push((piece, chunk, out));
+            (unread, free) = (bytes_left, points_left);
         }
-        pieces
-            .into_par_iter()
-            .zip(outputs)
-            .try_for_each_init(Vec::new, |records: &mut Vec<u8>, ((piece, chunk), out)| {
+        jobs.into_par_iter()
+            .try_for_each_init(Vec::new, |records: &mut Vec<u8>, (piece, chunk, out)| {
                 records.resize(out.len() * record_len, 0);
                 laz::par_decompress_selective(
                     piece,
@@ -526,20 +514,15 @@ fn layered_laz_positions(
                 )?;
                 for (p, record) in out.iter_mut().zip(records.chunks_exact(record_len)) {
                     // Point formats 6 to 10 begin with x, y and z as little-endian i32.
-                    let coordinate = |k: usize| {
-                        let b = [
+                    let n = |k: usize| {
+                        i32::from_le_bytes([
                             record[4 * k],
                             record[4 * k + 1],
                             record[4 * k + 2],
                             record[4 * k + 3],
-                        ];
-                        f64::from(i32::from_le_bytes(b))
+                        ])
                     };
-                    *p = [
-                        coordinate(0) * t.x.scale + t.x.offset,
-                        coordinate(1) * t.y.scale + t.y.offset,
-                        coordinate(2) * t.z.scale + t.z.offset,
-                    ];
+                    *p = [t.x.direct(n(0)), t.y.direct(n(1)), t.z.direct(n(2))];
                 }
                 Ok::<(), laz::LasZipError>(())
             })
