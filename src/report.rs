@@ -170,6 +170,12 @@ pub struct PointResiduals {
     pub points: Vec<PointResidual>,
     /// RMSE over the measured points, `None` when none was measured.
     pub rmse: Option<Rmse>,
+    /// The RMSE that the markers' own accuracy alone gives over the same points (the RMS of
+    /// their `markers_sigma`): what `rmse` would be, in expectation, with a perfect orientation.
+    /// A measured RMSE near it says the check points cannot tell this orientation from a better
+    /// one. `None` in reports written before it existed.
+    #[serde(default)]
+    pub markers_rmse: Option<Rmse>,
 }
 
 /// One ground point's residual.
@@ -188,6 +194,10 @@ pub struct PointResidual {
     /// Height residual.
     #[serde(rename = "dH")]
     pub dh: Option<f64>,
+    /// Standard deviations (E, N, H) of the intersected position from the markers' accuracy
+    /// alone, through the adjusted cameras, metres.
+    #[serde(default)]
+    pub markers_sigma: Option<[f64; 3]>,
 }
 
 impl PointResidual {

@@ -36,6 +36,9 @@ pub struct EpochAccuracy {
     /// [`orientation_check_errors`]. `None` for film epochs and without check points measured in
     /// two oriented images.
     pub orientation_check_rmse_m: Option<[f64; 3]>,
+    /// The check-point RMSE the markers' own accuracy alone gives (report.json's
+    /// `markers_rmse`), metres: the floor of `check_rmse_m` under a perfect orientation.
+    pub check_markers_rmse_m: Option<[f64; 3]>,
     /// Check points measured in the epoch.
     pub check_points: usize,
     /// RMS over check points of (this epoch's intersection − the reference epoch's), metres.
@@ -302,6 +305,7 @@ pub fn epoch_accuracy(
             check_rmse_m: check,
             check_rmse_gsd: check.map(|c| c.map(|v| v / gsd)),
             orientation_check_rmse_m: rms3(&orientation_check_errors(project, &ours, &truth, name)),
+            check_markers_rmse_m: epoch.check_points.markers_rmse.map(|r| [r.de, r.dn, r.dh]),
             check_points: vectors.len(),
             disagreement_m: rms3(&disagreement),
             centre_rmse_m: rms3(&centres),

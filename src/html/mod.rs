@@ -383,6 +383,7 @@ fn residual_rows(kind: &str, r: &PointResiduals, rows: &mut Vec<Vec<String>>) {
             mm(p.de, 1),
             mm(p.dn, 1),
             mm(p.dh, 1),
+            mm(p.markers_sigma.map(|s| s[2]), 1),
         ]);
     }
     if let Some(rmse) = &r.rmse {
@@ -392,6 +393,17 @@ fn residual_rows(kind: &str, r: &PointResiduals, rows: &mut Vec<Vec<String>>) {
             mm(Some(rmse.de), 1),
             mm(Some(rmse.dn), 1),
             mm(Some(rmse.dh), 1),
+            String::new(),
+        ]);
+    }
+    if let Some(rmse) = &r.markers_rmse {
+        rows.push(vec![
+            format!("<i>{} RMSE from the markers alone</i>", esc(kind)),
+            String::new(),
+            mm(Some(rmse.de), 1),
+            mm(Some(rmse.dn), 1),
+            mm(Some(rmse.dh), 1),
+            String::new(),
         ]);
     }
 }
@@ -635,9 +647,23 @@ fn orientation_section(
             residual_rows("check", &r.check_points, &mut rows);
             if !rows.is_empty() {
                 s.push_str(&table(
-                    &["point", "images", "dE mm", "dN mm", "dH mm"],
+                    &[
+                        "point",
+                        "images",
+                        "dE mm",
+                        "dN mm",
+                        "dH mm",
+                        "σH of its markers mm",
+                    ],
                     &rows,
                 ));
+                s.push_str(
+                    "<p>σH of its markers: how far the point's height is off from the clicks \
+                     alone, through these cameras (the markers' stated accuracy). The RMSE from \
+                     the markers alone is what the check points would show with a perfect \
+                     orientation: a check RMSE near it cannot tell this orientation from a \
+                     better one.</p>",
+                );
             }
         }
     }

@@ -611,9 +611,11 @@ fn write_outputs(
 fn residuals_of(residuals: &[PointResidual], check: bool) -> PointResiduals {
     let rows: Vec<&PointResidual> = residuals.iter().filter(|r| r.check == check).collect();
     let measured: Vec<Vector3<f64>> = rows.iter().filter_map(|r| r.residual).collect();
-    let rmse = |k: usize| {
-        (measured.iter().map(|d| d[k] * d[k]).sum::<f64>() / measured.len() as f64).sqrt()
-    };
+    let sigmas: Vec<Vector3<f64>> = rows
+        .iter()
+        .filter(|r| r.residual.is_some())
+        .filter_map(|r| r.markers_sigma)
+        .collect();
     PointResiduals {
         points: rows
             .iter()
@@ -623,15 +625,24 @@ fn residuals_of(residuals: &[PointResidual], check: bool) -> PointResiduals {
                 de: r.residual.map(|d| d.x),
                 dn: r.residual.map(|d| d.y),
                 dh: r.residual.map(|d| d.z),
+                markers_sigma: r.markers_sigma.map(|s| s.into()),
             })
             .collect(),
-        rmse: (!measured.is_empty()).then(|| Rmse {
-            de: rmse(0),
-            dn: rmse(1),
-            dh: rmse(2),
-            n: measured.len(),
-        }),
+        rmse: rmse_of(&measured),
+        markers_rmse: rmse_of(&sigmas),
     }
+}
+
+/// RMS per component of `vectors`, `None` when there are none.
+fn rmse_of(vectors: &[Vector3<f64>]) -> Option<Rmse> {
+    let rms =
+        |k: usize| (vectors.iter().map(|d| d[k] * d[k]).sum::<f64>() / vectors.len() as f64).sqrt();
+    (!vectors.is_empty()).then(|| Rmse {
+        de: rms(0),
+        dn: rms(1),
+        dh: rms(2),
+        n: vectors.len(),
+    })
 }
 
 /// Per pair of epochs, the tie points both observe, and their spread across and along the

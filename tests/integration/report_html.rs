@@ -7,7 +7,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use crate::common::timesift;
-use timesift::report::{AlignReport, EpochOrientation, PointResiduals, write_json};
+use timesift::report::{
+    AlignReport, EpochOrientation, PointResidual, PointResiduals, Rmse, write_json,
+};
 
 fn project(dir: &Path) {
     for epoch in ["2018", "2019"] {
@@ -24,7 +26,30 @@ fn project(dir: &Path) {
         "crs = \"local\"\n[[epoch]]\nname = \"2018\"\n[[epoch]]\nname = \"2019\"\n",
     )
     .expect("toml");
-    let epoch = |oriented| EpochOrientation {
+    // One check point in 2018: 120 mm off in height, of which its two markers alone allow 87.
+    let check = PointResiduals {
+        points: vec![PointResidual {
+            name: "CHK1".into(),
+            images: 2,
+            de: Some(0.01),
+            dn: Some(-0.02),
+            dh: Some(0.12),
+            markers_sigma: Some([0.011, 0.013, 0.087]),
+        }],
+        rmse: Some(Rmse {
+            de: 0.01,
+            dn: 0.02,
+            dh: 0.12,
+            n: 1,
+        }),
+        markers_rmse: Some(Rmse {
+            de: 0.011,
+            dn: 0.013,
+            dh: 0.087,
+            n: 1,
+        }),
+    };
+    let epoch = |oriented, check_points| EpochOrientation {
         images_given: 2,
         images_oriented: oriented,
         rms_reprojection_px: Some(0.4),
@@ -32,7 +57,7 @@ fn project(dir: &Path) {
         tie_points: 50,
         inter_epoch_tie_points: 10,
         control_points: PointResiduals::default(),
-        check_points: PointResiduals::default(),
+        check_points,
         gnss_offset: None,
         datum_tilt: None,
     };
@@ -54,7 +79,10 @@ fn project(dir: &Path) {
         focal_length_held: vec![false],
         cameras: Vec::new(),
         seconds: 1.0,
-        epochs: BTreeMap::from([("2018".into(), epoch(2)), ("2019".into(), epoch(1))]),
+        epochs: BTreeMap::from([
+            ("2018".into(), epoch(2, check)),
+            ("2019".into(), epoch(1, PointResiduals::default())),
+        ]),
         epoch_pairs: Vec::new(),
     };
     write_json(&dir.join("out/report.json"), &report).expect("report.json");
@@ -77,6 +105,10 @@ fn a_report_of_the_orientation_alone_has_every_section_and_says_what_is_missing(
     assert!(html.contains("out/tiepoints.ply is missing"));
     assert!(html.contains("Not computed (change stage)"));
     assert!(!html.contains("src=\"http"), "no network resource");
+    // The check point's height error beside what its markers alone allow, and their RMSE.
+    assert!(html.contains("σH of its markers mm"), "{html}");
+    assert!(html.contains("<td>120.0</td><td>87.0</td>"), "{html}");
+    assert!(html.contains("check RMSE from the markers alone"), "{html}");
 
     // A stats.json that is not a DEM comparison: named in a warning.
     let stats = dir.join("out/change/2018__2019/stats.json");

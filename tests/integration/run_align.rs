@@ -148,5 +148,21 @@ fn check_epochs(report: &serde_json::Value, gsd: f64) {
             horizontal <= gsd && dn <= 1.5 * gsd,
             "{name}: check points dE {de} dN {dn} dH {dh} against GSD {gsd}"
         );
+        // Each measured check point carries the σ its markers alone give, and the markers'
+        // RMSE is their RMS over the same points.
+        let points = epoch["check_points"]["points"].as_array().unwrap();
+        let sigmas: Vec<f64> = points
+            .iter()
+            .filter(|p| !p["dH"].is_null())
+            .map(|p| p["markers_sigma"][2].as_f64().expect("σH of the markers"))
+            .collect();
+        assert!(
+            sigmas.iter().all(|s| s.is_finite() && *s > 0.0),
+            "{sigmas:?}"
+        );
+        let markers = &epoch["check_points"]["markers_rmse"];
+        assert_eq!(markers["n"].as_u64(), Some(sigmas.len() as u64));
+        let rms = (sigmas.iter().map(|s| s * s).sum::<f64>() / sigmas.len() as f64).sqrt();
+        assert!((markers["dH"].as_f64().unwrap() - rms).abs() < 1e-9 * rms.max(1.0));
     }
 }

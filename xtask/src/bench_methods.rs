@@ -287,6 +287,8 @@ fn reference_table(rows: &[Row]) -> String {
         method: String,
         gnss: bool,
         runs: Vec<(Pair, Pair)>,
+        /// Per seed, the method's check dH RMSE from the markers alone.
+        markers: Vec<Option<f64>>,
     }
     let mut groups: Vec<Group> = Vec::new();
     let mut seen: Vec<(&str, &str)> = Vec::new();
@@ -306,6 +308,7 @@ fn reference_table(rows: &[Row]) -> String {
             (dh(b.check_rmse_m), dh(b.orientation_check_rmse_m)),
         );
         let gnss = a.gnss_offset_error_m.is_some() || b.gnss_offset_error_m.is_some();
+        let markers = dh(a.check_markers_rmse_m);
         let base = r.scene.split('#').next().unwrap_or(&r.scene);
         match groups
             .iter_mut()
@@ -314,12 +317,14 @@ fn reference_table(rows: &[Row]) -> String {
             Some(g) => {
                 g.gnss |= gnss;
                 g.runs.push(entry);
+                g.markers.push(markers);
             }
             None => groups.push(Group {
                 scene: base.to_string(),
                 method: r.method.clone(),
                 gnss,
                 runs: vec![entry],
+                markers: vec![markers],
             }),
         }
     }
@@ -350,22 +355,27 @@ fn reference_table(rows: &[Row]) -> String {
     };
     let mut s = String::from(
         "\n## Reference epoch: check dH RMSE (m) against `independent`'s — measured · orientation \
-         alone (RMSE over the seeds run; ratio pooled, then per seed)\n\n| scene | GNSS | method \
-         | seeds | measured | ratio | orientation alone | ratio |\n|---|---|---|---|---|---|---|---|\n",
+         alone (RMSE over the seeds run; ratio pooled, then per seed), and the method's check dH \
+         RMSE from the markers' accuracy alone (the measured figure's floor with a perfect \
+         orientation)\n\n| scene | GNSS | method | seeds | measured | ratio | orientation alone | \
+         ratio | markers alone |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for Group {
         scene,
         method,
         gnss,
         runs,
+        markers,
     } in &groups
     {
+        let markers: Vec<f64> = markers.iter().flatten().copied().collect();
+        let markers = rms(&markers).map_or("–".into(), |m| format!("{m:.3}"));
         let measured: Vec<Pair> = runs.iter().map(|(a, b)| (a.0, b.0)).collect();
         let alone: Vec<Pair> = runs.iter().map(|(a, b)| (a.1, b.1)).collect();
         let (m, m_ratio) = ratio(&measured);
         let (o, o_ratio) = ratio(&alone);
         s.push_str(&format!(
-            "| {scene} | {} | {method} | {} | {m} | {m_ratio} | {o} | {o_ratio} |\n",
+            "| {scene} | {} | {method} | {} | {m} | {m_ratio} | {o} | {o_ratio} | {markers} |\n",
             if *gnss { "biased" } else { "none" },
             runs.len(),
         ));

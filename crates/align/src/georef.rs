@@ -7,7 +7,7 @@
 use nalgebra::{Vector2, Vector3};
 use timesift_geometry::ransac::{RansacOptions, ransac};
 use timesift_geometry::similarity::{SimilarityEstimator, TransformKind, umeyama};
-use timesift_geometry::triangulation::{PixelObservation, intersect_weighted};
+use timesift_geometry::triangulation::{IntersectedPoint, PixelObservation, intersect_weighted};
 
 use timesift_bundle::Loss;
 
@@ -94,6 +94,11 @@ pub struct PointResidual {
     /// Intersected minus surveyed (dE, dN, dH), metres; `None` with fewer than two oriented
     /// images.
     pub residual: Option<Vector3<f64>>,
+    /// Standard deviations (E, N, H) of the intersected position that the markers' own accuracy
+    /// alone gives, through the adjusted cameras, metres. A point clicked in two images with a
+    /// short baseline can be off by more in height than the whole orientation: this is the part
+    /// of `residual` the orientation cannot be blamed for.
+    pub markers_sigma: Option<Vector3<f64>>,
 }
 
 /// A GNSS offset as estimated: what the receiver's positions of one flight were off by.
@@ -190,7 +195,7 @@ fn intersect(
     rec: &Reconstruction,
     markers: &[Marker],
     sigma_px: f64,
-) -> (usize, Option<Vector3<f64>>) {
+) -> (usize, Option<IntersectedPoint>) {
     let observations: Vec<PixelObservation<'_>> = markers
         .iter()
         .filter_map(|m| {
@@ -204,10 +209,7 @@ fn intersect(
         })
         .collect();
     let n = observations.len();
-    (
-        n,
-        intersect_weighted(&observations).ok().map(|p| p.position),
-    )
+    (n, intersect_weighted(&observations).ok())
 }
 
 fn correspondences(
@@ -231,9 +233,9 @@ fn correspondences(
         }
     }
     for point in geo.points.iter().filter(|p| !p.check) {
-        if let (_, Some(position)) = intersect(input, rec, &point.markers, point.marker_sigma(geo))
+        if let (_, Some(point_at)) = intersect(input, rec, &point.markers, point.marker_sigma(geo))
         {
-            c.src.push(position);
+            c.src.push(point_at.position);
             c.dst.push(point.position);
             c.sigma.push(point.sigma_xy.max(point.sigma_z));
             c.from_control += 1;
@@ -691,9 +693,9 @@ fn marked_points(
         .filter(|p| !p.check)
         .filter_map(|p| {
             let sigma = p.marker_sigma(geo);
-            let (_, position) = intersect(input, rec, &p.markers, sigma);
+            let (_, point) = intersect(input, rec, &p.markers, sigma);
             Some(MarkedPoint {
-                position: position?,
+                position: point?.position,
                 markers: p
                     .markers
                     .iter()
@@ -722,12 +724,13 @@ pub fn ground_point_residuals(
                 .filter(|m| keep(m.image))
                 .copied()
                 .collect();
-            let (images, position) = intersect(input, rec, &markers, p.marker_sigma(geo));
+            let (images, point) = intersect(input, rec, &markers, p.marker_sigma(geo));
             PointResidual {
                 name: p.name.clone(),
                 check: p.check,
                 images,
-                residual: position.map(|x| x - p.position),
+                residual: point.map(|x| x.position - p.position),
+                markers_sigma: point.map(|x| x.covariance.diagonal().map(|v| v.max(0.0).sqrt())),
             }
         })
         .collect()

@@ -10,7 +10,7 @@ use timesift_align::{
     GroundPoint, Independent, JoinedSingleBlock, ManualStablePoints, Marker, NaturalPoint,
     OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing, SfmImage,
     SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
-    Strategy, georeference, reconstruct,
+    Strategy, georeference, ground_point_residuals, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -1232,4 +1232,82 @@ fn a_second_look_joins_the_epochs_tie_points_of_one_stable_ground_point() {
     );
     assert_eq!(slide, 0, "the slide moved beyond the search radius");
     assert!(rigid_misfit(&joined, &s) < rigid_misfit(&few, &s));
+}
+
+/// A check point clicked with the stated accuracy through the true cameras, so that its clicks
+/// are all its residual holds: the σ `ground_point_residuals` reports from the markers alone is
+/// the scatter of the residuals over many clickings, in every axis, and a point clicked in two
+/// neighbouring images is looser in height than one clicked in every image that sees it.
+#[test]
+fn a_ground_point_s_markers_sigma_is_the_scatter_of_its_clicks() {
+    let s = scene(3, 0.0, 10);
+    let cam = camera();
+    let rec = Reconstruction {
+        cameras: vec![cam.clone()],
+        poses: s.poses.iter().copied().map(Some).collect(),
+        points: Vec::new(),
+    };
+    let point = Vector3::new(0.5, -0.5, 1.2);
+    let seen: Vec<(usize, Vector2<f64>)> = (0..s.poses.len())
+        .filter_map(|image| {
+            let pixel = project_world(&cam, &s.poses[image], &point).ok()?;
+            let inside = (0.0..1000.0).contains(&pixel.x) && (0.0..800.0).contains(&pixel.y);
+            inside.then_some((image, pixel))
+        })
+        .collect();
+    assert!(seen.len() >= 6, "{} images see the point", seen.len());
+    let sigma_px = 0.5;
+    let mut rng = SeededRng::new(5);
+    let trials = 2000;
+    let mut height_sigma = Vec::new();
+    for images in [2, seen.len()] {
+        let mut squares = Vector3::zeros();
+        let mut reported = Vector3::zeros();
+        for _ in 0..trials {
+            let markers = seen[..images]
+                .iter()
+                .map(|&(image, pixel)| Marker {
+                    image,
+                    pixel: pixel + Vector2::new(rng.normal(), rng.normal()) * sigma_px,
+                })
+                .collect();
+            let geo = GeoreferenceInput {
+                centre_priors: Vec::new(),
+                prior_offsets: Vec::new(),
+                points: vec![GroundPoint {
+                    name: "CHK1".into(),
+                    position: point,
+                    sigma_xy: 0.01,
+                    sigma_z: 0.01,
+                    check: true,
+                    markers,
+                    marker_sigma_px: None,
+                }],
+                marker_sigma_px: sigma_px,
+            };
+            let residual = &ground_point_residuals(&s.input, &rec, &geo, &|_| true)[0];
+            assert_eq!(residual.images, images);
+            let d = residual.residual.expect("intersected");
+            squares += d.component_mul(&d);
+            reported += residual.markers_sigma.expect("a covariance");
+        }
+        let scatter = (squares / trials as f64).map(f64::sqrt);
+        let reported = reported / trials as f64;
+        println!("{images} images: scatter {scatter:?}, reported {reported:?}");
+        for k in 0..3 {
+            assert!(
+                (scatter[k] / reported[k] - 1.0).abs() < 0.1,
+                "axis {k}: scatter {} against reported {}",
+                scatter[k],
+                reported[k]
+            );
+        }
+        height_sigma.push(reported.z);
+    }
+    assert!(
+        height_sigma[0] > 2.0 * height_sigma[1],
+        "two images {} m, all {} m",
+        height_sigma[0],
+        height_sigma[1]
+    );
 }
