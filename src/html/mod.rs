@@ -396,16 +396,20 @@ fn residual_rows(kind: &str, r: &PointResiduals, rows: &mut Vec<Vec<String>>) {
             String::new(),
         ]);
     }
-    if let Some(rmse) = &r.markers_rmse {
-        rows.push(vec![
-            format!("<i>{} RMSE from the markers alone</i>", esc(kind)),
-            String::new(),
-            mm(Some(rmse.de), 1),
-            mm(Some(rmse.dn), 1),
-            mm(Some(rmse.dh), 1),
-            String::new(),
-        ]);
-    }
+}
+
+/// The check points' RMSE from their markers alone, as a row of [`residual_rows`]' table. Not
+/// for control points: the adjustment fits them, so their residuals fall below it.
+fn markers_rmse_row(check: &PointResiduals) -> Option<Vec<String>> {
+    let rmse = check.markers_rmse?;
+    Some(vec![
+        "<i>check RMSE from the markers alone</i>".into(),
+        String::new(),
+        mm(Some(rmse.de), 1),
+        mm(Some(rmse.dn), 1),
+        mm(Some(rmse.dh), 1),
+        String::new(),
+    ])
 }
 
 fn residual_map(
@@ -645,6 +649,7 @@ fn orientation_section(
             let mut rows = Vec::new();
             residual_rows("control", &r.control_points, &mut rows);
             residual_rows("check", &r.check_points, &mut rows);
+            rows.extend(markers_rmse_row(&r.check_points));
             if !rows.is_empty() {
                 s.push_str(&table(
                     &[
@@ -658,11 +663,11 @@ fn orientation_section(
                     &rows,
                 ));
                 s.push_str(
-                    "<p>σH of its markers: how far the point's height is off from the clicks \
-                     alone, through these cameras (the markers' stated accuracy). The RMSE from \
-                     the markers alone is what the check points would show with a perfect \
-                     orientation: a check RMSE near it cannot tell this orientation from a \
-                     better one.</p>",
+                    "<p>σH of its markers: the standard deviation of the point's intersected height \
+                     that its markers' stated accuracy alone gives through these cameras. The \
+                     check RMSE from the markers alone is what the check points would show, in \
+                     expectation, with a perfect orientation: a check RMSE near it cannot tell \
+                     this orientation from a better one.</p>",
                 );
             }
         }
