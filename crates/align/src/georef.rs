@@ -96,8 +96,8 @@ pub struct PointResidual {
     pub residual: Option<Vector3<f64>>,
     /// Standard deviations (E, N, H) of the intersected position that the markers' own accuracy
     /// alone gives, through the adjusted cameras, metres. A point clicked in two images with a
-    /// short baseline can be off by more in height than the whole orientation: this is the part
-    /// of `residual` the orientation cannot be blamed for.
+    /// short baseline can be off by more in height than the whole orientation: this is the
+    /// scatter of `residual` that the orientation cannot be blamed for.
     pub markers_sigma: Option<Vector3<f64>>,
 }
 
