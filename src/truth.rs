@@ -43,6 +43,10 @@ pub struct EpochAccuracy {
     pub check_points: usize,
     /// RMS over check points of (this epoch's intersection − the reference epoch's), metres.
     pub disagreement_m: Option<[f64; 3]>,
+    /// The same of the orientations alone (each epoch's [`orientation_check_errors`]), metres:
+    /// without the clicks of two epochs' markers, what the epochs' DEMs disagree by at the check
+    /// points.
+    pub orientation_disagreement_m: Option<[f64; 3]>,
     /// Camera-centre RMSE (dE, dN, dH) against the truth, metres.
     pub centre_rmse_m: Option<[f64; 3]>,
     /// Tie points also observed in another epoch.
@@ -252,6 +256,13 @@ fn check_residuals(epoch: &EpochOrientation) -> Vec<(String, Vector3<f64>)> {
         .collect()
 }
 
+/// Per point named in both, `a`'s vector minus `b`'s.
+fn differences(a: &[(String, Vector3<f64>)], b: &[(String, Vector3<f64>)]) -> Vec<Vector3<f64>> {
+    a.iter()
+        .filter_map(|(n, d)| b.iter().find(|r| &r.0 == n).map(|r| d - r.1))
+        .collect()
+}
+
 /// Compares the orientation in `out` (a folder holding cameras.json and report.json) of the
 /// synthetic `project` with its truth.
 pub fn epoch_accuracy(
@@ -275,14 +286,13 @@ pub fn epoch_accuracy(
         .get(reference_name)
         .map(check_residuals)
         .unwrap_or_default();
+    let reference_alone = orientation_check_errors(project, &ours, &truth, reference_name);
     let mut rows = Vec::new();
     for (name, epoch) in epochs {
         let checks = check_residuals(epoch);
+        let alone = orientation_check_errors(project, &ours, &truth, name);
         let vectors: Vec<Vector3<f64>> = checks.iter().map(|c| c.1).collect();
-        let disagreement: Vec<Vector3<f64>> = checks
-            .iter()
-            .filter_map(|(n, d)| reference.iter().find(|r| &r.0 == n).map(|r| d - r.1))
-            .collect();
+        let disagreement = differences(&checks, &reference);
         let centres: Vec<Vector3<f64>> = ours
             .images
             .iter()
@@ -304,7 +314,8 @@ pub fn epoch_accuracy(
             datum_tilt_sigma_mm_per_m: epoch.datum_tilt.map(|t| t.sigma_max_mm_per_m),
             check_rmse_m: check,
             check_rmse_gsd: check.map(|c| c.map(|v| v / gsd)),
-            orientation_check_rmse_m: rms3(&orientation_check_errors(project, &ours, &truth, name)),
+            orientation_check_rmse_m: rms3(&alone.iter().map(|c| c.1).collect::<Vec<_>>()),
+            orientation_disagreement_m: rms3(&differences(&alone, &reference_alone)),
             check_markers_rmse_m: epoch.check_points.markers_rmse.map(|r| [r.de, r.dn, r.dh]),
             check_points: vectors.len(),
             disagreement_m: rms3(&disagreement),
@@ -336,7 +347,7 @@ pub fn orientation_check_errors(
     ours: &Reconstruction,
     truth: &Reconstruction,
     epoch: &str,
-) -> Vec<Vector3<f64>> {
+) -> Vec<(String, Vector3<f64>)> {
     let film = project
         .epochs
         .iter()
@@ -355,7 +366,7 @@ fn exact_check_errors(
     ours: &Reconstruction,
     truth: &Reconstruction,
     epoch: &str,
-) -> Vec<Vector3<f64>> {
+) -> Vec<(String, Vector3<f64>)> {
     fn oriented<'r>(
         rec: &'r Reconstruction,
         image: &str,
@@ -389,7 +400,8 @@ fn exact_check_errors(
                     })
                 })
                 .collect();
-            Some(intersect_weighted(&observations).ok()?.position - point.position)
+            let error = intersect_weighted(&observations).ok()?.position - point.position;
+            Some((point.name.clone(), error))
         })
         .collect()
 }
@@ -809,12 +821,13 @@ mod tests {
         // The markers' pixels are not used: the true ones are projected.
         let same = exact_check_errors(&points, &markers, &truth, &truth, "e");
         assert_eq!(same.len(), 1);
-        assert!(same[0].norm() < 1e-6, "{:?}", same[0]);
+        assert_eq!(same[0].0, "CHK1");
+        assert!(same[0].1.norm() < 1e-6, "{:?}", same[0]);
         // Every camera moved by the same vector: the intersection moves by it.
         let shift = Vector3::new(0.1, -0.2, 0.3);
         let (moved, _, _) = three_views(shift);
         let error = exact_check_errors(&points, &markers, &moved, &truth, "e");
-        assert!((error[0] - shift).norm() < 1e-6, "{:?}", error[0]);
+        assert!((error[0].1 - shift).norm() < 1e-6, "{:?}", error[0]);
         // Marked in one oriented image, or in another epoch's: no intersection.
         assert!(exact_check_errors(&points, &markers[..1], &moved, &truth, "e").is_empty());
         assert!(exact_check_errors(&points, &markers, &moved, &truth, "f").is_empty());

@@ -454,14 +454,14 @@ fn evaluate(
 fn table(rows: &[Row]) -> String {
     let mut s = String::from(
         "| scene | method | epoch | oriented | check RMSE dE/dN/dH (m) | (GSD) \
-         | orientation alone at the check points (m) | epoch − ref. (m) | centre RMSE (m) | RMS px | observations | inter-epoch ties | GNSS offset − true bias (m) | (σ) \
+         | orientation alone at the check points (m) | epoch − ref. (m) | the same, orientation alone (m) | centre RMSE (m) | RMS px | observations | inter-epoch ties | GNSS offset − true bias (m) | (σ) \
          | ties on stable ground vs truth: n, median (GSD), tilt (mm/m) | control's tilt σ (mm/m) | s |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let Some(a) = &r.accuracy else {
             s.push_str(&format!(
-                "| {} | {} | – | failed: {} | | | | | | | | | | | | | {:.1} |\n",
+                "| {} | {} | – | failed: {} | | | | | | | | | | | | | | {:.1} |\n",
                 r.scene,
                 r.method,
                 r.error.as_deref().unwrap_or("").replace('|', "/"),
@@ -470,7 +470,7 @@ fn table(rows: &[Row]) -> String {
             continue;
         };
         s.push_str(&format!(
-            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
             r.scene,
             r.method,
             a.epoch,
@@ -480,6 +480,7 @@ fn table(rows: &[Row]) -> String {
             triple(a.check_rmse_gsd, 2),
             triple(a.orientation_check_rmse_m, 3),
             triple(a.disagreement_m, 3),
+            triple(a.orientation_disagreement_m, 3),
             triple(a.centre_rmse_m, 3),
             a.rms_px.map_or("–".into(), |v| format!("{v:.3}")),
             a.observations,
