@@ -611,11 +611,8 @@ fn write_outputs(
 fn residuals_of(residuals: &[PointResidual], check: bool) -> PointResiduals {
     let rows: Vec<&PointResidual> = residuals.iter().filter(|r| r.check == check).collect();
     let measured: Vec<Vector3<f64>> = rows.iter().filter_map(|r| r.residual).collect();
-    let sigmas: Vec<Vector3<f64>> = rows
-        .iter()
-        .filter(|r| r.residual.is_some())
-        .filter_map(|r| r.markers_sigma)
-        .collect();
+    // Both come from one intersection: a point with a residual has its σ.
+    let sigmas: Vec<Vector3<f64>> = rows.iter().filter_map(|r| r.markers_sigma).collect();
     PointResiduals {
         points: rows
             .iter()

@@ -174,6 +174,8 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             &timesift_synth::writer::WriteOptions::default(),
         )?;
         let project = Project::load(&dir)?;
+        // The scene's true click σ over the accuracy the project states: see `evaluate`.
+        let clicks = spec.marker_sigma / project.config.align.marker_accuracy_px;
         let start = Instant::now();
         run(&project, Some(Stage::Features), Some(Stage::Match))?;
         println!(
@@ -224,7 +226,6 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
                             .into_iter()
                             .map(|p| (scene.clone(), name.clone(), p)),
                     );
-                    let clicks = spec.marker_sigma / project.config.align.marker_accuracy_px;
                     rows.extend(evaluate(
                         scene, name, &project, &kept, gsd, seconds, clicks,
                     )?);
@@ -289,9 +290,9 @@ fn reference_table(rows: &[Row]) -> String {
         scene: String,
         method: String,
         gnss: bool,
-        runs: Vec<(Pair, Pair)>,
-        /// Per seed, the method's check dH RMSE from the markers alone.
-        markers: Vec<Option<f64>>,
+        /// Per seed: the method's pair, `independent`'s, and the method's check dH RMSE from
+        /// the markers alone.
+        runs: Vec<(Pair, Pair, Option<f64>)>,
     }
     let mut groups: Vec<Group> = Vec::new();
     let mut seen: Vec<(&str, &str)> = Vec::new();
@@ -309,9 +310,9 @@ fn reference_table(rows: &[Row]) -> String {
         let entry = (
             (dh(a.check_rmse_m), dh(a.orientation_check_rmse_m)),
             (dh(b.check_rmse_m), dh(b.orientation_check_rmse_m)),
+            dh(a.check_markers_rmse_m),
         );
         let gnss = a.gnss_offset_error_m.is_some() || b.gnss_offset_error_m.is_some();
-        let markers = dh(a.check_markers_rmse_m);
         let base = r.scene.split('#').next().unwrap_or(&r.scene);
         match groups
             .iter_mut()
@@ -320,14 +321,12 @@ fn reference_table(rows: &[Row]) -> String {
             Some(g) => {
                 g.gnss |= gnss;
                 g.runs.push(entry);
-                g.markers.push(markers);
             }
             None => groups.push(Group {
                 scene: base.to_string(),
                 method: r.method.clone(),
                 gnss,
                 runs: vec![entry],
-                markers: vec![markers],
             }),
         }
     }
@@ -368,13 +367,12 @@ fn reference_table(rows: &[Row]) -> String {
         method,
         gnss,
         runs,
-        markers,
     } in &groups
     {
-        let markers: Vec<f64> = markers.iter().flatten().copied().collect();
+        let markers: Vec<f64> = runs.iter().filter_map(|r| r.2).collect();
         let markers = rms(&markers).map_or("–".into(), |m| format!("{m:.3}"));
-        let measured: Vec<Pair> = runs.iter().map(|(a, b)| (a.0, b.0)).collect();
-        let alone: Vec<Pair> = runs.iter().map(|(a, b)| (a.1, b.1)).collect();
+        let measured: Vec<Pair> = runs.iter().map(|(a, b, _)| (a.0, b.0)).collect();
+        let alone: Vec<Pair> = runs.iter().map(|(a, b, _)| (a.1, b.1)).collect();
         let (m, m_ratio) = ratio(&measured);
         let (o, o_ratio) = ratio(&alone);
         s.push_str(&format!(
