@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
+use timesift_align::Method;
 
 use crate::ProjectError;
 
@@ -245,27 +246,6 @@ impl Default for GnssConfig {
     }
 }
 
-/// Co-registration strategy (DESIGN.md).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum AlignMethod {
-    /// One bundle block for all epochs (the default).
-    #[default]
-    Timesift,
-    /// Epochs oriented alone, then merged progressively into one block.
-    Msfm,
-    /// Epochs oriented alone, then aligned to the reference by a Helmert transform.
-    Chunk,
-    /// Stable tie points of the reference epoch as control for the others.
-    Stp,
-    /// Each epoch oriented and georeferenced alone.
-    Independent,
-    /// Natural stable points measured by hand (`stable_points.csv` and their markers),
-    /// intersected in the reference epoch, as control points of the others (Garieri's
-    /// Method 1).
-    Manual,
-}
-
 /// Feature detector and descriptor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -310,7 +290,7 @@ impl PairSelection {
 pub struct AlignConfig {
     /// Strategy. Default `timesift`.
     #[serde(default)]
-    pub method: AlignMethod,
+    pub method: Method,
     /// Epoch carrying the datum. Default: the first epoch.
     #[serde(default)]
     pub reference_epoch: Option<String>,
@@ -392,7 +372,7 @@ fn default_marker_px() -> f64 {
 impl Default for AlignConfig {
     fn default() -> Self {
         AlignConfig {
-            method: AlignMethod::default(),
+            method: Method::default(),
             reference_epoch: None,
             features: FeatureMethod::default(),
             pair_selection: PairSelection::default(),

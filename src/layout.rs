@@ -1,6 +1,6 @@
 //! Every path of a project directory that timesift reads or writes, in one place: the inputs'
 //! defaults live in `config`, everything under `work/` (resumable intermediate results) and
-//! `out/` (the products of DESIGN.md) is named here and nowhere else.
+//! `out/` (the products of docs/design.md) is named here and nowhere else.
 
 use std::path::{Path, PathBuf};
 
@@ -133,7 +133,7 @@ impl Layout {
         dir.join("settings.json")
     }
 
-    // ---- out/: the products of DESIGN.md ----------------------------------------------------
+    // ---- out/: the products of docs/design.md ----------------------------------------------------
 
     /// `out/`.
     pub fn out_dir(&self) -> PathBuf {
@@ -165,7 +165,7 @@ impl Layout {
         self.out_dir().join("fiducials.json")
     }
 
-    /// `out/fiducials.csv`: every measured mark (DESIGN.md: `image,mark,u,v,residual_px`).
+    /// `out/fiducials.csv`: every measured mark (docs/design.md: `image,mark,u,v,residual_px`).
     pub fn fiducials_csv(&self) -> PathBuf {
         self.out_dir().join("fiducials.csv")
     }
@@ -267,7 +267,7 @@ impl Layout {
         self.out_dir().join("change").join(format!("{a}__{b}"))
     }
 
-    /// Every output file DESIGN.md names for a project of these epochs (present or not), in a
+    /// Every output file docs/design.md names for a project of these epochs (present or not), in a
     /// fixed order: what `timesift info` lists.
     pub fn outputs(&self, epochs: &[&str]) -> Vec<PathBuf> {
         let mut files = vec![

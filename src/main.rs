@@ -76,7 +76,7 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
-    /// Keypoints and descriptors of one image, written in the text format of DESIGN.md.
+    /// Keypoints and descriptors of one image, written in the text format of docs/design.md.
     Features(features::FeaturesRequest),
     /// Grid any point cloud (LAS/LAZ) into a DEM GeoTIFF, on a cell size or another raster's grid.
     Dem(dem::DemRequest),

@@ -15,7 +15,7 @@ use crate::ProjectError;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AlignReport {
     /// Strategy (`[align] method`).
-    pub method: String,
+    pub method: timesift_align::Method,
     /// What fixed the datum (`Local`, `Gnss…`, `ControlPoints…`).
     pub datum: String,
     /// Images in the project.

@@ -415,7 +415,7 @@ pub fn triple(v: Option<[f64; 3]>, digits: usize) -> String {
 
 /// Where the centre of a four-quadrant target (black and white quadrants alternating, the
 /// targets `synth` paints) lies in an RGBA raster, searched within `search` cells of `near`.
-/// Positions are in cells with the pixel convention of DESIGN.md (the centre of cell (i, j) is
+/// Positions are in cells with the pixel convention of docs/design.md (the centre of cell (i, j) is
 /// (i + 0.5, j + 0.5)); `radius` is the target's radius in cells.
 ///
 /// The score of a candidate centre is the X-corner response on rings inside the disc: opposite

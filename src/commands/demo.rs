@@ -270,7 +270,7 @@ mod tests {
         assert!(written.starts_with(&text[..text.len() - "method = \"independent\"\n".len()]));
         assert_eq!(written.matches("[align]").count(), 1);
         assert_eq!(config.align.pair_selection, PairSelection::Preselect);
-        assert_eq!(config.align.method, crate::config::AlignMethod::Independent);
+        assert_eq!(config.align.method, timesift_align::Method::Independent);
         assert_eq!(config.dense, demo_dense());
         assert_eq!(config.dense.geometric_iterations, 0);
         Ok(())

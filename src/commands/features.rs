@@ -1,4 +1,4 @@
-//! `timesift features`: keypoints and descriptors of one image, in the text format of DESIGN.md,
+//! `timesift features`: keypoints and descriptors of one image, in the text format of docs/design.md,
 //! so that features can be inspected and compared outside timesift.
 
 use std::path::{Path, PathBuf};

@@ -17,7 +17,7 @@ pub struct InfoReport {
     /// World frame.
     pub crs: String,
     /// Co-registration strategy.
-    pub method: String,
+    pub method: timesift_align::Method,
     /// Reference epoch.
     pub reference_epoch: String,
     /// Epochs in order.
@@ -179,7 +179,7 @@ pub fn info(project: &Project) -> Result<InfoReport, ProjectError> {
     Ok(InfoReport {
         project: project.dir.display().to_string(),
         crs: project.crs.to_string(),
-        method: format!("{:?}", project.config.align.method).to_lowercase(),
+        method: project.config.align.method,
         reference_epoch: project.epochs[project.reference_epoch.index()].name.clone(),
         epochs: project
             .epochs

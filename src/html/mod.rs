@@ -175,7 +175,7 @@ pub fn build_report(project: &Project) -> Result<ReportPage, ProjectError> {
         t = esc(&title),
         style = page::STYLE,
         v = env!("CARGO_PKG_VERSION"),
-        m = esc(&inputs.align.method),
+        m = inputs.align.method,
         n = project.epochs.len(),
     );
     debug_assert_eq!(ids, SECTIONS);
@@ -229,7 +229,7 @@ fn summary_section(inputs: &Inputs, warnings: &[String]) -> String {
          and {} split for lying off the stable areas{}.</p>",
         a.images_oriented,
         a.images_given,
-        esc(&a.method),
+        a.method,
         esc(&a.datum),
         num(a.rms_reprojection_px, 3),
         if a.inter_epoch_ties_joined > 0 {

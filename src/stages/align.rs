@@ -1,6 +1,6 @@
 //! The `align` stage of `timesift run`: tracks from the verified matches under `work/`, incremental
 //! structure from motion, georeferencing from GNSS priors and control points, then the outputs
-//! of DESIGN.md: `out/cameras.json`, `out/colmap/`, `out/tiepoints.ply` and `out/report.json`.
+//! of docs/design.md: `out/cameras.json`, `out/colmap/`, `out/tiepoints.ply` and `out/report.json`.
 //!
 //! The orientation runs in a local frame: the project CRS minus an origin (the mean of the priors
 //! and control points, whole metres) so that solvers never see UTM-sized coordinates; the origin
@@ -13,10 +13,10 @@ use std::time::Instant;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
-    Block, CentrePrior, ChangeDetection, Datum, FocalSource, GeoreferenceInput, Georeferenced,
-    GroundPoint, HeightObservation, Marker, NaturalPoint, OffsetPrior, OutlierBound, PointResidual,
-    ScatterWeighing, SfmImage, SfmInput, SfmOptions, StableGround, datum_tilt,
-    ground_point_residuals,
+    Block, CentrePrior, ChangeDetection, Datum, DatumControl, FocalSource, GeoreferenceInput,
+    Georeferenced, GroundPoint, HeightObservation, Marker, NaturalPoint, OffsetPrior, OutlierBound,
+    PointResidual, ScatterWeighing, SfmImage, SfmInput, SfmOptions, StableGround, Strategy,
+    datum_tilt, ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -24,7 +24,7 @@ use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use super::{PipelineStage, Stage};
-use crate::config::{AlignMethod, GnssOffsets, InterEpochTies, OutlierBoundConfig, WeighByScatter};
+use crate::config::{GnssOffsets, InterEpochTies, OutlierBoundConfig, WeighByScatter};
 use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::project::GivenFocal;
@@ -146,17 +146,11 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     };
     options.self_calibration.min_images = 3;
     tracing::debug!(cameras = ?input.cameras, "initial cameras");
-    let name = method_name(project.config.align.method);
     let matcher = FeatureFileMatcher {
         features_dir: project.layout().features_dir(),
         seed: options.seed,
     };
-    let strategy = timesift_align::strategy(name, &matcher).ok_or_else(|| {
-        stage_error(format!(
-            "align.method = \"{name}\" is unknown (available: {})",
-            timesift_align::AVAILABLE.join(", ")
-        ))
-    })?;
+    let strategy = timesift_align::strategy(project.config.align.method, &matcher);
     let block_input = Block {
         sfm: input,
         ground: geo,
@@ -176,6 +170,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         geo,
         &frame,
         &block,
+        &*strategy,
         start.elapsed().as_secs_f64(),
     )
 }
@@ -229,17 +224,6 @@ fn stable_ground(
         "inter-epoch ties only on the stable areas"
     );
     Ok(Some(ground))
-}
-
-fn method_name(m: AlignMethod) -> &'static str {
-    match m {
-        AlignMethod::Timesift => "timesift",
-        AlignMethod::Msfm => "msfm",
-        AlignMethod::Chunk => "chunk",
-        AlignMethod::Stp => "stp",
-        AlignMethod::Independent => "independent",
-        AlignMethod::Manual => "manual",
-    }
 }
 
 /// Keypoints of every image, tracks over every verified pair, initial cameras per group.
@@ -510,6 +494,7 @@ fn write_outputs(
     geo: &GeoreferenceInput,
     frame: &LocalFrame,
     block: &Georeferenced,
+    strategy: &dyn Strategy,
     seconds: f64,
 ) -> Result<AlignReport, ProjectError> {
     let layout = project.layout();
@@ -603,7 +588,7 @@ fn write_outputs(
         .collect();
     let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
     timesift_io::ply::write_tiepoints(&layout.tiepoints_ply(), &epoch_names, &tiepoints)?;
-    let report = report(project, input, geo, block, &tiepoints, seconds);
+    let report = report(project, input, geo, block, strategy, &tiepoints, seconds);
     write_json(&layout.report_json(), &report)?;
     Ok(report)
 }
@@ -703,22 +688,19 @@ fn epoch_pair_ties(
 }
 
 /// How loosely the control an epoch's orientation rests on fixes its datum's tilt
-/// ([`timesift_align::datum_tilt`]): in a single block (`timesift`, `msfm`) the control of every
-/// epoch, oriented alone (`independent`, and the reference epoch of the other strategies) its
-/// own; `None` for the later epochs of `chunk`, `stp` and `manual` (their datum comes through
+/// ([`timesift_align::datum_tilt`]), by whose control fixes it ([`DatumControl`]): in a single
+/// block the control of every epoch, oriented alone (and the reference epoch of the strategies
+/// that go through it) its own; `None` for the later epochs of those (their datum comes through
 /// the reference epoch, which the prediction does not follow) and without a datum.
 fn datum_tilt_of_epoch(
     project: &Project,
     geo: &GeoreferenceInput,
     block: &Georeferenced,
+    control: DatumControl,
     epoch: usize,
 ) -> Option<DatumTiltReport> {
-    let single_block = matches!(
-        project.config.align.method,
-        AlignMethod::Timesift | AlignMethod::Msfm
-    );
-    let own_only = project.config.align.method == AlignMethod::Independent
-        || epoch == project.reference_epoch.index();
+    let single_block = control == DatumControl::WholeBlock;
+    let own_only = control == DatumControl::OwnEpoch || epoch == project.reference_epoch.index();
     if block.datum == Datum::Local || !(single_block || own_only) {
         return None;
     }
@@ -770,6 +752,7 @@ fn report(
     input: &SfmInput,
     geo: &GeoreferenceInput,
     block: &Georeferenced,
+    strategy: &dyn Strategy,
     tiepoints: &[timesift_io::ply::TiePoint],
     seconds: f64,
 ) -> AlignReport {
@@ -812,7 +795,7 @@ fn report(
                 inter_epoch_tie_points: inter,
                 control_points: residuals_of(&per_epoch, false),
                 check_points: residuals_of(&per_epoch, true),
-                datum_tilt: datum_tilt_of_epoch(project, geo, block, e),
+                datum_tilt: datum_tilt_of_epoch(project, geo, block, strategy.datum_control(), e),
                 gnss_offset: block
                     .gnss_offsets
                     .iter()
@@ -830,16 +813,16 @@ fn report(
     }
     AlignReport {
         epoch_pairs: epoch_pair_ties(project, tiepoints),
-        method: method_name(project.config.align.method).to_string(),
+        method: strategy.method(),
         datum: format!("{:?}", block.datum),
         images_given: project.images.len(),
         images_oriented: rec.num_oriented(),
         rms_reprojection_px: block.rms_px.is_finite().then_some(block.rms_px),
         tie_points: rec.points.len(),
-        inter_epoch_ties_split_as_moved: block.moved_ties_split,
-        inter_epoch_ties_split_off_stable: block.unstable_ties_split,
-        inter_epoch_ties_joined: block.joined_ties,
-        changed_regions: block.changed_regions,
+        inter_epoch_ties_split_as_moved: block.diagnostics.moved_ties_split,
+        inter_epoch_ties_split_off_stable: block.diagnostics.unstable_ties_split,
+        inter_epoch_ties_joined: block.diagnostics.joined_ties,
+        changed_regions: block.diagnostics.changed_regions,
         observation_bound_px: block.observation_bound_px,
         group_noise: (0..rec.cameras.len())
             .map(|g| GroupNoise {
@@ -847,8 +830,8 @@ fn report(
                 bound_px: block.group_bound_px.get(g).copied(),
             })
             .collect(),
-        components_dropped: block.dropped_components,
-        gnss_priors_rejected: block.rejected_priors,
+        components_dropped: block.diagnostics.dropped_components,
+        gnss_priors_rejected: block.diagnostics.rejected_priors,
         focal_length_held: block.focal_held.clone(),
         cameras: rec
             .cameras

@@ -212,7 +212,7 @@ fn measure_one(project: &Project, i: usize, film: &FilmCamera) -> (ScanReport, V
     (report, crops)
 }
 
-/// `out/fiducials.csv` (DESIGN.md): every mark with a position, its residual after the scan's
+/// `out/fiducials.csv` (docs/design.md): every mark with a position, its residual after the scan's
 /// interior orientation.
 fn fiducials_csv(report: &FiducialsReport) -> String {
     let mut text = String::from("image,mark,u,v,residual_px\n");

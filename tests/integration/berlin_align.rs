@@ -28,7 +28,7 @@ fn berlin_is_oriented_from_exif_gps_and_reports_gcp_residuals() {
     )
     .unwrap();
     // OpenSfM's GCPs: WGS84 positions, observations in normalised coordinates
-    // ((pixel index + 0.5 − size / 2) / max(width, height)), i.e. DESIGN.md pixels
+    // ((pixel index + 0.5 − size / 2) / max(width, height)), i.e. docs/design.md pixels
     // u = x · max(w, h) + w / 2.
     let gcp: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(berlin().join("ground_control_points.json")).unwrap(),

@@ -1,4 +1,4 @@
-//! `timesift features`: the text format of DESIGN.md on a real photo, the budget, the mask, and
+//! `timesift features`: the text format of docs/design.md on a real photo, the budget, the mask, and
 //! clear errors.
 
 use std::path::PathBuf;

@@ -1,4 +1,4 @@
-//! Stacking, the contract of DESIGN.md, on every `synth` scene: all epochs' `dem.tif` share one
+//! Stacking, the contract of docs/design.md, on every `synth` scene: all epochs' `dem.tif` share one
 //! geotransform and size — those of `out/grid.json` — and so do all epochs' `ortho.tif` (the DEM
 //! lattice subdivided). The scenes are written without rendering (the true orientation, the
 //! true surfaces sampled as dense clouds, uniform grey images of the cameras' sizes), so every

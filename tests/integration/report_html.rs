@@ -62,7 +62,7 @@ fn project(dir: &Path) {
         datum_tilt: None,
     };
     let report = AlignReport {
-        method: "timesift".into(),
+        method: timesift_align::Method::Timesift,
         datum: "Local".into(),
         images_given: 4,
         images_oriented: 3,

@@ -1,7 +1,7 @@
 """OpenCV's semi-global matcher on rectified neighbour pairs, for `cargo xtask bench dense`.
 
 Input: a views.json written by the bench (per view: undistorted grey image, pinhole camera f,
-cx, cy in the DESIGN.md pixel convention, pose cam_from_local R, t, the best source view, the
+cx, cy in the docs/design.md pixel convention, pose cam_from_local R, t, the best source view, the
 depth range). For each view with a source: stereo rectification of the pair (the left image is
 the one whose camera lies to the left), StereoSGBM over the disparity range the depth range
 allows, left-right check and speckle filter built into SGBM, triangulation of every valid
@@ -20,7 +20,7 @@ import numpy as np
 
 
 def camera_matrix(v):
-    # DESIGN.md: pixel centres at i + 0.5; OpenCV: at i.
+    # docs/design.md: pixel centres at i + 0.5; OpenCV: at i.
     return np.array([[v["f"], 0.0, v["cx"] - 0.5], [0.0, v["f"], v["cy"] - 0.5], [0.0, 0.0, 1.0]])
 
 

@@ -3,7 +3,7 @@
 
 Usage:
   python3 opencv_sift.py quality --budget N --out DIR IMAGE:MASK ...
-      Writes DIR/<image stem>.txt in timesift's feature text format (DESIGN.md): first line
+      Writes DIR/<image stem>.txt in timesift's feature text format (docs/design.md): first line
       "N 128", then "x y scale orientation d1..d128" with x, y in timesift's pixel convention
       (OpenCV's pixel centres are integers, timesift's are at +0.5), scale = OpenCV size / 2,
       orientation in radians. Masks are grey images, non-zero = keypoints allowed.

@@ -1,7 +1,7 @@
 //! `cargo xtask bench align`: images to oriented block on the 29 `lund` photos, timesift against
 //! COLMAP's CPU pipeline (`feature_extractor`, `exhaustive_matcher`, `mapper`), both with 2
 //! threads, in one run: images oriented, RMS reprojection error (computed the same way for both:
-//! every observation of every 3-D point reprojected through the model's camera, DESIGN.md pixel
+//! every observation of every 3-D point reprojected through the model's camera, docs/design.md pixel
 //! convention, which COLMAP shares), points, wall time and the time ratio.
 //!
 //! timesift runs as a user would: a project whose one epoch is the `lund` folder (linked, not

@@ -16,27 +16,18 @@ use std::time::Instant;
 use anyhow::Context;
 use timesift::Project;
 use timesift::commands::compare::DemReport;
-use timesift::config::{AlignMethod, DenseConfig};
+use timesift::config::DenseConfig;
 use timesift::report::read_json;
 use timesift::stages::{Stage, run, run_stage};
 use timesift::truth::{
     EpochAccuracy, epoch_accuracy, ground_sampling_distance, region_volumes, triple,
 };
-
-/// The strategies, in the papers' order.
-const METHODS: [(&str, AlignMethod); 6] = [
-    ("timesift", AlignMethod::Timesift),
-    ("independent", AlignMethod::Independent),
-    ("chunk", AlignMethod::Chunk),
-    ("stp", AlignMethod::Stp),
-    ("msfm", AlignMethod::Msfm),
-    ("manual", AlignMethod::Manual),
-];
+use timesift_align::Method;
 
 /// What to run.
 pub struct MethodsBench {
     pub scenes: Vec<String>,
-    pub methods: Vec<String>,
+    pub methods: Vec<Method>,
     pub scale: String,
     /// Seeds of the scenes: each scene is rendered and run once per seed (rows named
     /// `scene#seed` when there are several), and the reference-epoch table pools them.
@@ -184,23 +175,18 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
         );
         let gsd = ground_sampling_distance(&project)?;
         println!("{scene}: ground sampling distance at the check points {gsd:.4} m");
-        let variants = bench.methods.iter().flat_map(|m| {
+        let variants = bench.methods.iter().flat_map(|&m| {
             bench.ties.iter().enumerate().map(move |(k, t)| {
                 let label = if k == 0 {
-                    m.clone()
+                    m.to_string()
                 } else {
                     format!("{m}+{t}")
                 };
-                (m.clone(), t.clone(), label)
+                (m, t.clone(), label)
             })
         });
-        for (method_name, ties, name) in variants {
+        for (method, ties, name) in variants {
             let name = &name;
-            let method = METHODS
-                .iter()
-                .find(|(n, _)| *n == method_name)
-                .map(|m| m.1)
-                .with_context(|| format!("unknown method {method_name}"))?;
             let mut project = Project::load(&dir)?;
             project.config.align.method = method;
             if !bench.full_dense {

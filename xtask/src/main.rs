@@ -11,6 +11,9 @@
 //!   reprojection error).
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
 //!
+//! - `fn-lengths [--max-lines N] [--check COUNT]`: the functions over N lines in the shipped
+//!   code, and whether each says why it stays long.
+//!
 //! - `api [--bless]`: the public API of every library crate against its snapshot in `api/`.
 //!
 //! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
@@ -34,6 +37,7 @@ mod bench_geometry;
 mod bench_matching;
 mod bench_methods;
 mod bench_raster;
+mod fn_lengths;
 
 use std::path::PathBuf;
 
@@ -77,7 +81,7 @@ enum Task {
         /// Scenes, comma-separated (default: all seven).
         #[arg(long, value_delimiter = ',')]
         scenes: Option<Vec<String>>,
-        /// Strategies, comma-separated (default: all six).
+        /// Strategies, comma-separated (default: all six, in the papers' order).
         #[arg(long, value_delimiter = ',')]
         methods: Option<Vec<String>>,
         /// small or full.
@@ -106,6 +110,16 @@ enum Task {
         /// scatter-all (every flight's GNSS priors weighed by their scatter).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
+    },
+    /// Functions longer than a bound in the shipped code (not tests, examples or xtask), with
+    /// the reason each one written above it gives for staying long.
+    FnLengths {
+        /// The bound, lines from `fn` to the closing brace.
+        #[arg(long, default_value_t = 100)]
+        max_lines: usize,
+        /// Fail when more functions than this are over the bound, or any has no reason.
+        #[arg(long)]
+        check: Option<usize>,
     },
     /// The public API of every library crate against its snapshot under `api/`.
     Api {
@@ -325,6 +339,12 @@ fn write_results(
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().task {
+        Task::FnLengths { max_lines, check } => fn_lengths::run(
+            &api::workspace_root(),
+            max_lines,
+            check.unwrap_or(usize::MAX),
+            check.is_some(),
+        )?,
         Task::Api { bless } => {
             let differences = api::check(&api::workspace_root(), bless)?;
             if !differences.is_empty() {
@@ -465,12 +485,10 @@ fn main() -> anyhow::Result<()> {
                     .map(|s| s.to_string())
                     .collect()
             }),
-            methods: methods.unwrap_or_else(|| {
-                ["timesift", "independent", "chunk", "stp", "msfm", "manual"]
-                    .iter()
-                    .map(|s| s.to_string())
-                    .collect()
-            }),
+            methods: match methods {
+                Some(names) => names.iter().map(|n| n.parse()).collect::<Result<_, _>>()?,
+                None => timesift_align::Method::ALL.to_vec(),
+            },
             scale,
             seeds: seed,
             out,

@@ -23,7 +23,7 @@ use crate::state::{State, track_table};
 pub struct Marker {
     /// Image index.
     pub image: usize,
-    /// Pixel (DESIGN.md convention).
+    /// Pixel (docs/design.md convention).
     pub pixel: Vector2<f64>,
 }
 
@@ -145,10 +145,6 @@ pub struct Georeferenced {
     pub reconstruction: Reconstruction,
     /// What fixed the datum.
     pub datum: Datum,
-    /// Components left out because nothing placed them relative to the others.
-    pub dropped_components: usize,
-    /// Camera-centre priors rejected as outliers by the similarity RANSAC.
-    pub rejected_priors: usize,
     /// Control and check points.
     pub residuals: Vec<PointResidual>,
     /// Final RMS reprojection error of the tie points, pixels.
@@ -156,6 +152,29 @@ pub struct Georeferenced {
     /// Per camera group: whether its focal length was held at its known value because the
     /// block did not determine it (relative standard deviation above 5 %).
     pub focal_held: Vec<bool>,
+    /// Largest reprojection error of a kept observation in the final adjustment, pixels: 4 σ of
+    /// the block's own noise, at most the options' threshold; the largest over the parts of a
+    /// strategy that georeferences epochs apart. `None` when nothing was georeferenced.
+    pub observation_bound_px: Option<f64>,
+    /// Per camera group: its own outlier bound, pixels (empty without a datum).
+    pub group_bound_px: Vec<f64>,
+    /// Per camera group: σ of its own reprojection errors (robust, from their median), pixels.
+    pub group_sigma_px: Vec<Option<f64>>,
+    /// The GNSS offsets, index for index with [`GeoreferenceInput::prior_offsets`] (empty when
+    /// none was asked for or nothing was georeferenced).
+    pub gnss_offsets: Vec<EstimatedOffset>,
+    /// What was left out, rejected, split or joined on the way.
+    pub diagnostics: Diagnostics,
+}
+
+/// What a georeferencing and the strategy around it left out, rejected, split or joined: for
+/// reports, never for the result's use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Diagnostics {
+    /// Components left out because nothing placed them relative to the others.
+    pub dropped_components: usize,
+    /// Camera-centre priors rejected as outliers by the similarity RANSAC.
+    pub rejected_priors: usize,
     /// Inter-epoch tie points split by epoch because a surface moved between the epochs
     /// (strategies that orient epochs together; 0 otherwise).
     pub moved_ties_split: usize,
@@ -168,17 +187,29 @@ pub struct Georeferenced {
     /// Regions of the block found changed from its own inter-epoch ties
     /// ([`crate::ChangeDetection::Regional`]), over every round; 0 without the detection.
     pub changed_regions: usize,
-    /// Largest reprojection error of a kept observation in the final adjustment, pixels: 4 σ of
-    /// the block's own noise, at most the options' threshold; the largest over the parts of a
-    /// strategy that georeferences epochs apart. `None` when nothing was georeferenced.
-    pub observation_bound_px: Option<f64>,
-    /// Per camera group: its own outlier bound, pixels (empty without a datum).
-    pub group_bound_px: Vec<f64>,
-    /// Per camera group: σ of its own reprojection errors (robust, from their median), pixels.
-    pub group_sigma_px: Vec<Option<f64>>,
-    /// The GNSS offsets, index for index with [`GeoreferenceInput::prior_offsets`] (empty when
-    /// none was asked for or nothing was georeferenced).
-    pub gnss_offsets: Vec<EstimatedOffset>,
+}
+
+impl Georeferenced {
+    /// A reconstruction as it is, in the frame `datum` says, with nothing adjusted: no
+    /// residuals, bounds or offsets.
+    pub(crate) fn unadjusted(
+        input: &SfmInput,
+        reconstruction: Reconstruction,
+        datum: Datum,
+    ) -> Georeferenced {
+        Georeferenced {
+            rms_px: reconstruction.rms_px(input),
+            reconstruction,
+            datum,
+            residuals: Vec::new(),
+            focal_held: input.focal_held_during_sfm(),
+            observation_bound_px: None,
+            group_bound_px: Vec::new(),
+            group_sigma_px: Vec::new(),
+            gnss_offsets: Vec::new(),
+            diagnostics: Diagnostics::default(),
+        }
+    }
 }
 
 /// Pairs (block position, world position, threshold) of one component.
@@ -311,6 +342,70 @@ pub fn georeference(
             expected: "a positive standard deviation in pixels",
         });
     }
+    let placement = place_components(input, components, geo, options.seed)?;
+    let diagnostics = Diagnostics {
+        dropped_components: placement.dropped_components,
+        rejected_priors: placement.rejected_priors,
+        ..Diagnostics::default()
+    };
+    if placement.datum == Datum::Local {
+        let mut local = Georeferenced::unadjusted(input, placement.merged, Datum::Local);
+        local.diagnostics = diagnostics;
+        return Ok(local);
+    }
+    let datum = placement.datum;
+    let priors = placement
+        .accepted_priors
+        .iter()
+        .map(|&k| geo.centre_priors[k])
+        .collect();
+    let track_of = track_table(input);
+    let mut state = State::with_reconstruction(input, options, &track_of, placement.merged);
+    let mut rounds = PriorAdjustment::new(input, geo, options, priors);
+    rounds.settle_focal_lengths(&mut state)?;
+    rounds.measure_noise(&mut state)?;
+    let gnss_offsets = rounds.final_adjustment(&mut state)?;
+    let group_sigma_px = state
+        .group_noise()
+        .into_iter()
+        .map(|n| n.map(|(median, _)| median / RAYLEIGH_MEDIAN))
+        .collect();
+    let (bound, group_bound_px) = (state.max_error_px, state.group_bound_px.clone());
+    let merged = state.rec;
+    let residuals = ground_point_residuals(input, &merged, geo, &|_| true);
+    let rms_px = merged.rms_px(input);
+    Ok(Georeferenced {
+        reconstruction: merged,
+        datum,
+        residuals,
+        rms_px,
+        focal_held: rounds.focal_fixed,
+        observation_bound_px: Some(bound),
+        group_bound_px,
+        group_sigma_px,
+        gnss_offsets,
+        diagnostics,
+    })
+}
+
+/// The components placed in the world frame, merged.
+struct Placement {
+    merged: Reconstruction,
+    datum: Datum,
+    /// Indices into the input's centre priors of those the placements accepted.
+    accepted_priors: Vec<usize>,
+    rejected_priors: usize,
+    dropped_components: usize,
+}
+
+/// Places every component ([`place`]) and merges those placed; with none placed, the largest
+/// in its own frame.
+fn place_components(
+    input: &SfmInput,
+    components: Vec<Reconstruction>,
+    geo: &GeoreferenceInput,
+    seed: u64,
+) -> Result<Placement, AlignError> {
     let total = components.len();
     let mut placed: Vec<Reconstruction> = Vec::new();
     let mut accepted_priors: Vec<usize> = Vec::new();
@@ -318,7 +413,7 @@ pub fn georeference(
     let mut rejected_priors = 0;
     let mut largest_unplaced = None;
     for (k, mut rec) in components.into_iter().enumerate() {
-        match place(input, &mut rec, geo, options.seed ^ k as u64) {
+        match place(input, &mut rec, geo, seed ^ k as u64) {
             Some((accepted, control, rejected)) => {
                 accepted_priors.extend(accepted);
                 used_control |= control;
@@ -329,158 +424,189 @@ pub fn georeference(
             None => {}
         }
     }
-    let kept = placed.len().max(1);
-    let (mut merged, datum) = if placed.is_empty() {
-        let rec = largest_unplaced
+    let dropped_components = total - placed.len().max(1);
+    let mut iter = placed.into_iter();
+    let Some(mut merged) = iter.next() else {
+        let merged = largest_unplaced
             .ok_or_else(|| AlignError::Georeferencing("no component could be kept".into()))?;
-        (rec, Datum::Local)
-    } else {
-        let mut iter = placed.into_iter();
-        let mut merged = iter
-            .next()
-            .ok_or_else(|| AlignError::Georeferencing("no component could be kept".into()))?;
-        for other in iter {
-            for (i, pose) in other.poses.into_iter().enumerate() {
-                if pose.is_some() {
-                    merged.poses[i] = pose;
+        return Ok(Placement {
+            merged,
+            datum: Datum::Local,
+            accepted_priors,
+            rejected_priors,
+            dropped_components,
+        });
+    };
+    for other in iter {
+        for (i, pose) in other.poses.into_iter().enumerate() {
+            if pose.is_some() {
+                merged.poses[i] = pose;
+            }
+        }
+        merged.points.extend(other.points);
+    }
+    let datum = match (accepted_priors.is_empty(), used_control) {
+        (false, true) => Datum::GnssAndControlPoints,
+        (true, true) => Datum::ControlPoints,
+        _ => Datum::Gnss,
+    };
+    Ok(Placement {
+        merged,
+        datum,
+        accepted_priors,
+        rejected_priors,
+        dropped_components,
+    })
+}
+
+/// The adjustment of a placed block with its priors and control, in three rounds: the first
+/// settles the focal lengths, the second (a consistent block again) measures the block's noise
+/// and drops the outliers beyond it, the last adjusts without them.
+struct PriorAdjustment<'a> {
+    input: &'a SfmInput,
+    geo: &'a GeoreferenceInput,
+    options: &'a SfmOptions,
+    /// The accepted priors, reweighed by their flight's scatter after the second round.
+    priors: Vec<CentrePrior>,
+    /// Per camera group: its focal length held.
+    focal_fixed: Vec<bool>,
+    /// Per flight, the noise of its positions about its offset (after the second round).
+    within_flight: Vec<Option<[f64; 2]>>,
+    /// Per flight, the scatter that weighs its priors (`None`: they keep the stated σ).
+    weighing: Vec<Option<[f64; 2]>>,
+}
+
+impl<'a> PriorAdjustment<'a> {
+    fn new(
+        input: &'a SfmInput,
+        geo: &'a GeoreferenceInput,
+        options: &'a SfmOptions,
+        priors: Vec<CentrePrior>,
+    ) -> Self {
+        // Every focal length but the calibrated ones free.
+        let focal_fixed = (0..input.cameras.len())
+            .map(|g| input.focal_source(g) == FocalSource::Calibrated)
+            .collect();
+        PriorAdjustment {
+            input,
+            geo,
+            options,
+            priors,
+            focal_fixed,
+            within_flight: vec![None; geo.prior_offsets.len()],
+            weighing: vec![None; geo.prior_offsets.len()],
+        }
+    }
+
+    /// One adjustment of every oriented image and live point, then the points filtered, the
+    /// tracks completed and the state compacted.
+    fn round(
+        &self,
+        state: &mut State<'_>,
+        precision: bool,
+        between: impl FnOnce(&mut State<'_>, &crate::adjust::Adjusted),
+    ) -> Result<crate::adjust::Adjusted, AlignError> {
+        let marked = marked_points(self.input, &state.rec, self.geo);
+        let points = state.live_points();
+        let adjusted = state.adjust(&Adjustment {
+            free_images: state.oriented(),
+            points: points.clone(),
+            intrinsics: Intrinsics::Final,
+            priors: &self.priors,
+            offsets: &self.geo.prior_offsets,
+            marked: &marked,
+            loss: Loss::Trivial,
+            iterations: self.options.global_iterations,
+            focal_fixed: &self.focal_fixed,
+            precision,
+        })?;
+        tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
+        between(state, &adjusted);
+        state.filter_points(&points);
+        state.complete_all_tracks();
+        state.compact();
+        Ok(adjusted)
+    }
+
+    /// Round 1, with the precision of every free intrinsic: a nominal focal length that the
+    /// block does not determine well goes back to its nominal value and stays.
+    fn settle_focal_lengths(&mut self, state: &mut State<'_>) -> Result<(), AlignError> {
+        let before = state.rec.cameras.clone();
+        let input = self.input;
+        let mut held = Vec::new();
+        self.round(state, true, |state, adjusted| {
+            for g in
+                (0..input.cameras.len()).filter(|&g| input.focal_source(g) == FocalSource::Nominal)
+            {
+                let relative = focal_relative_std(
+                    &state.rec.cameras[g],
+                    adjusted.intrinsic_std.as_ref().and_then(|s| s.get(g)),
+                );
+                tracing::info!(group = g, relative_std = ?relative, "focal length precision");
+                // Without a precision (the covariance failed), the data decide as usual.
+                if relative.is_some_and(|r| r > FOCAL_DETERMINED) {
+                    held.push(g);
+                    restore_focal(&mut state.rec.cameras[g], &before[g]);
                 }
             }
-            merged.points.extend(other.points);
+        })?;
+        for g in held {
+            self.focal_fixed[g] = true;
         }
-        let datum = match (accepted_priors.is_empty(), used_control) {
-            (false, true) => Datum::GnssAndControlPoints,
-            (true, true) => Datum::ControlPoints,
-            _ => Datum::Gnss,
-        };
-        (merged, datum)
-    };
-    let dropped_components = total - kept;
-    let track_of = track_table(input);
-    let mut priors: Vec<CentrePrior> = accepted_priors
-        .iter()
-        .map(|&k| geo.centre_priors[k])
-        .collect();
-    let groups = input.cameras.len();
-    let calibrated = |g: usize| input.focal_source(g) == FocalSource::Calibrated;
-    let nominal = |g: usize| input.focal_source(g) == FocalSource::Nominal;
-    let mut focal_fixed: Vec<bool> = input.focal_held_during_sfm();
-    let mut bound = None;
-    let mut group_bound_px = Vec::new();
-    let mut group_sigma_px = Vec::new();
-    let mut gnss_offsets = Vec::new();
-    let mut within_flight = vec![None; geo.prior_offsets.len()];
-    // Per flight, the scatter that weighs its priors (`None`: they keep the stated σ).
-    let mut weighing = vec![None; geo.prior_offsets.len()];
-    let scatter_weighed = scatter_weighed_flights(geo, options.scatter_weighing);
-    if datum != Datum::Local {
-        let mut state = State::with_reconstruction(input, options, &track_of, merged);
-        // First adjustment: every focal length but the calibrated ones free, with its
-        // precision; a nominal focal length that the block does not determine well goes back to
-        // its nominal value and stays.
-        for (g, fixed) in focal_fixed.iter_mut().enumerate() {
-            *fixed = calibrated(g);
-        }
-        let before = state.rec.cameras.clone();
-        // Round 0 settles the focal lengths, round 1 (a consistent block again) measures its
-        // noise and drops the outliers beyond it, round 2 adjusts without them.
-        let last = 2;
-        for round in 0..=last {
-            let marked = marked_points(input, &state.rec, geo);
-            let points = state.live_points();
-            let adjusted = state.adjust(&Adjustment {
-                free_images: state.oriented(),
-                points: points.clone(),
-                intrinsics: Intrinsics::Final,
-                priors: &priors,
-                offsets: &geo.prior_offsets,
-                marked: &marked,
-                loss: Loss::Trivial,
-                iterations: options.global_iterations,
-                focal_fixed: &focal_fixed,
-                precision: round == 0 || (round == last && !geo.prior_offsets.is_empty()),
-            })?;
-            if round == last {
-                gnss_offsets = estimated_offsets(
-                    geo,
-                    &priors,
+        Ok(())
+    }
+
+    /// Round 2: the outlier bound from the block's noise, the noise of each flight's positions,
+    /// and the priors of the flights [`scatter_weighed_flights`] names weighed by it.
+    fn measure_noise(&mut self, state: &mut State<'_>) -> Result<(), AlignError> {
+        let mut within_flight = Vec::new();
+        let priors = &self.priors;
+        self.round(state, false, |state, _| {
+            let bound = state.tighten_to_noise();
+            tracing::info!(
+                bound_px = bound,
+                "observation outlier bound from the block's noise"
+            );
+            within_flight = within_flight_noise(priors, &state.rec, &state.offsets);
+        })?;
+        let scatter_weighed = scatter_weighed_flights(self.geo, self.options.scatter_weighing);
+        self.weighing = within_flight
+            .iter()
+            .zip(&scatter_weighed)
+            .map(|(noise, &weighs)| noise.filter(|_| weighs))
+            .collect();
+        reweigh_priors(&mut self.priors, &self.weighing);
+        tracing::info!(
+            ?within_flight,
+            ?scatter_weighed,
+            "GNSS noise within each flight, and the flights it weighs"
+        );
+        self.within_flight = within_flight;
+        Ok(())
+    }
+
+    /// Round 3: the final adjustment, with the offsets' precision when there are offsets; the
+    /// offsets as estimated.
+    fn final_adjustment(&self, state: &mut State<'_>) -> Result<Vec<EstimatedOffset>, AlignError> {
+        let mut offsets = Vec::new();
+        self.round(
+            state,
+            !self.geo.prior_offsets.is_empty(),
+            |state, adjusted| {
+                offsets = estimated_offsets(
+                    self.geo,
+                    &self.priors,
                     &state.offsets,
-                    &adjusted,
+                    adjusted,
                     FlightNoise {
-                        sigma: &within_flight,
-                        weighing: &weighing,
+                        sigma: &self.within_flight,
+                        weighing: &self.weighing,
                     },
                 );
-            }
-            tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
-            if round == 1 {
-                let bound = state.tighten_to_noise();
-                tracing::info!(
-                    bound_px = bound,
-                    "observation outlier bound from the block's noise"
-                );
-                within_flight = within_flight_noise(&priors, &state.rec, &state.offsets);
-                weighing = within_flight
-                    .iter()
-                    .zip(&scatter_weighed)
-                    .map(|(noise, &weighs)| noise.filter(|_| weighs))
-                    .collect();
-                reweigh_priors(&mut priors, &weighing);
-                tracing::info!(
-                    ?within_flight,
-                    ?scatter_weighed,
-                    "GNSS noise within each flight, and the flights it weighs"
-                );
-            }
-            if round == 0 {
-                for g in (0..groups).filter(|&g| nominal(g)) {
-                    let relative = focal_relative_std(
-                        &state.rec.cameras[g],
-                        adjusted.intrinsic_std.as_ref().and_then(|s| s.get(g)),
-                    );
-                    tracing::info!(group = g, relative_std = ?relative, "focal length precision");
-                    // Without a precision (the covariance failed), the data decide as usual.
-                    if relative.is_some_and(|r| r > FOCAL_DETERMINED) {
-                        focal_fixed[g] = true;
-                        restore_focal(&mut state.rec.cameras[g], &before[g]);
-                    }
-                }
-            }
-            state.filter_points(&points);
-            state.complete_all_tracks();
-            state.compact();
-        }
-        bound = Some(state.max_error_px);
-        group_bound_px = state.group_bound_px.clone();
-        group_sigma_px = state
-            .group_noise()
-            .into_iter()
-            .map(|n| n.map(|(median, _)| median / RAYLEIGH_MEDIAN))
-            .collect();
-        merged = state.rec;
+            },
+        )?;
+        Ok(offsets)
     }
-    let residuals = if datum == Datum::Local {
-        Vec::new()
-    } else {
-        ground_point_residuals(input, &merged, geo, &|_| true)
-    };
-    let rms_px = merged.rms_px(input);
-    Ok(Georeferenced {
-        reconstruction: merged,
-        datum,
-        dropped_components,
-        rejected_priors,
-        residuals,
-        rms_px,
-        focal_held: focal_fixed,
-        moved_ties_split: 0,
-        joined_ties: 0,
-        unstable_ties_split: 0,
-        changed_regions: 0,
-        observation_bound_px: bound,
-        group_bound_px,
-        group_sigma_px,
-        gnss_offsets,
-    })
 }
 
 /// Per flight, its scatter about its offset, and the scatter that weighed its priors (the same

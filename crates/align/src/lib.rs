@@ -1,6 +1,6 @@
 //! Orientation of the multi-epoch block: incremental structure from motion over verified tracks,
-//! georeferencing, and the co-registration strategies of DESIGN.md behind one trait (`timesift`,
-//! `independent`, `chunk`, `msfm`, `stp`).
+//! georeferencing, and the co-registration strategies of docs/design.md behind one trait
+//! (`timesift`, `independent`, `chunk`, `msfm`, `stp`, `manual`: [`Method`]).
 //!
 //! Inside: `model` (input: camera groups, keypoint positions per image, tracks; output:
 //! [`Reconstruction`]), `options`, `state` (one reconstruction in progress: track → point table,
@@ -8,13 +8,13 @@
 //! (initial pair), `register` (next image and absolute pose), `adjust` (bundle adjustment through
 //! `timesift-bundle`), `incremental` (the loop and components), `georef` (similarity to GNSS
 //! priors and control points per component, merge, adjustment with the priors, control and
-//! check point residuals), `strategy` (the strategies over a multi-epoch `Block`), `moved`
-//! (inter-epoch tie points on surfaces that moved or off the stable ground, split by epoch),
-//! `stable_ground` (the caller's stable areas as a grid), `changed` (without them, the regions
-//! whose inter-epoch ties differ between epochs on average), `stable` (the `stp`
-//! strategy over a caller-given descriptor matcher), `joined` (`timesift` with an optional
-//! second look: two epochs' own tie points that the first block puts together and the matcher
-//! pairs become inter-epoch ties).
+//! check point residuals), `strategy/` (the strategies over a multi-epoch `Block`, one file
+//! each, named by [`Method`]; `stp` over a caller-given descriptor matcher, `joined` the
+//! optional second look of `timesift`: two epochs' own tie points that the first block puts
+//! together and the matcher pairs become inter-epoch ties), `moved` (inter-epoch tie points on
+//! surfaces that moved or off the stable ground, split by epoch), `stable_ground` (the
+//! caller's stable areas as a grid), `changed` (without them, the regions whose inter-epoch
+//! ties differ between epochs on average).
 //!
 //! Invariants: meets the other stages only through `timesift-core` types (tracks, cameras, poses);
 //! reads no file and knows nothing of descriptors (`stp` and `timesift`'s second look ask a [`StableMatcher`]); an epoch is a partition of the images and a
@@ -80,7 +80,7 @@
 //!     natural_points: Vec::new(),
 //! };
 //!
-//! let oriented = SingleBlock.orient(&block, &SfmOptions::default())?;
+//! let oriented = SingleBlock::default().orient(&block, &SfmOptions::default())?;
 //! assert_eq!(oriented.reconstruction.num_oriented(), poses.len());
 //! let ours: Vec<Vector3<f64>> =
 //!     oriented.reconstruction.poses.iter().flatten().map(|p| p.center()).collect();
@@ -101,14 +101,11 @@ mod error;
 mod georef;
 mod incremental;
 mod init;
-mod joined;
-mod manual;
 mod model;
 mod moved;
 mod options;
 mod register;
 mod robust;
-mod stable;
 mod stable_ground;
 mod state;
 mod strategy;
@@ -117,17 +114,15 @@ pub use adjust::{CentrePrior, OffsetPrior};
 pub use datum_tilt::{DatumTilt, HeightObservation, datum_tilt};
 pub use error::AlignError;
 pub use georef::{
-    Datum, EstimatedOffset, GeoreferenceInput, Georeferenced, GroundPoint, Marker, PointResidual,
-    georeference, ground_point_residuals,
+    Datum, Diagnostics, EstimatedOffset, GeoreferenceInput, Georeferenced, GroundPoint, Marker,
+    PointResidual, georeference, ground_point_residuals,
 };
 pub use incremental::reconstruct;
-pub use joined::JoinedSingleBlock;
-pub use manual::{MIN_REFERENCE_IMAGES, ManualStablePoints, NaturalPoint};
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{ChangeDetection, OutlierBound, ScatterWeighing, SelfCalibration, SfmOptions};
-pub use stable::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};
 pub use stable_ground::StableGround;
 pub use strategy::{
-    AVAILABLE, Block, ChunkAlignment, Independent, ProgressiveMerge, SingleBlock, Strategy,
-    strategy,
+    Block, ChunkAlignment, DatumControl, Independent, MIN_REFERENCE_IMAGES, ManualStablePoints,
+    Method, NaturalPoint, OfferedTiePoint, ProgressiveMerge, SingleBlock, StableMatch,
+    StableMatcher, StableSearch, StableTiePoints, Strategy, strategy,
 };

@@ -8,7 +8,7 @@ use timesift_geometry::similarity::Similarity;
 use crate::AlignError;
 
 /// One image to orient: its camera group and the pixel position of each of its keypoints
-/// (DESIGN.md pixel convention), indexed by `FeatureIndex`.
+/// (docs/design.md pixel convention), indexed by `FeatureIndex`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SfmImage {
     /// Index into [`SfmInput::cameras`].

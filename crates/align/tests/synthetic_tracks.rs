@@ -7,10 +7,10 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    GroundPoint, Independent, JoinedSingleBlock, ManualStablePoints, Marker, NaturalPoint,
-    OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing, SfmImage,
-    SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
-    Strategy, georeference, ground_point_residuals, reconstruct,
+    GroundPoint, Independent, ManualStablePoints, Marker, NaturalPoint, OfferedTiePoint,
+    OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing, SfmImage, SfmInput, SfmOptions,
+    SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy, georeference,
+    ground_point_residuals, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -231,7 +231,7 @@ fn gnss_priors_place_the_block_in_the_world() {
     };
     let placed = georeference(&s.input, components, &geo, &SfmOptions::default()).unwrap();
     assert_eq!(placed.datum, Datum::Gnss);
-    assert_eq!(placed.rejected_priors, 1);
+    assert_eq!(placed.diagnostics.rejected_priors, 1);
     let errors: Vec<f64> = (0..s.poses.len())
         .map(|i| (placed.reconstruction.poses[i].unwrap().center() - s.poses[i].center()).norm())
         .collect();
@@ -459,7 +459,7 @@ fn strategies_differ_as_the_papers_say_on_biased_gnss() {
     assert!(off.norm() < 0.1 && misfit < 0.1, "{off:?} {misfit}");
     // One block: the epochs share one geometry whatever the priors say; the datum is a
     // compromise between the two epochs' priors.
-    let single = SingleBlock.orient(&block, &options).unwrap();
+    let single = SingleBlock::default().orient(&block, &options).unwrap();
     let misfit = rigid_misfit(&single, &s);
     let (a, b) = (
         mean_offset(&single, &s, &block, 0),
@@ -489,14 +489,17 @@ fn strategies_differ_as_the_papers_say_on_biased_gnss() {
     let misfit = rigid_misfit(&stp, &s);
     println!("stp: second epoch off by {off:?}, rigid misfit {misfit:.4} m");
     assert!(off.norm() < 0.1 && misfit < 0.1, "{off:?} {misfit}");
-    // Strategy names and lookup.
-    for name in timesift_align::AVAILABLE {
-        assert_eq!(
-            timesift_align::strategy(name, &matcher).unwrap().name(),
-            name
-        );
+    // Strategy names and lookup: each name parses to its method, whose strategy is that one.
+    for method in timesift_align::Method::ALL {
+        let parsed: timesift_align::Method = method.name().parse().unwrap();
+        assert_eq!(parsed, method);
+        assert_eq!(timesift_align::strategy(method, &matcher).method(), method);
     }
-    assert!(timesift_align::strategy("magic", &matcher).is_none());
+    let unknown = "magic".parse::<timesift_align::Method>().unwrap_err();
+    assert!(
+        unknown.to_string().contains("`magic`") && unknown.to_string().contains("timesift"),
+        "{unknown}"
+    );
 }
 
 /// `count` of the scene's points spread over the block (the farthest-point order from its
@@ -632,7 +635,9 @@ fn a_gnss_offset_per_epoch_takes_the_bias_in_one_block() {
             (p.sigma_xy, p.sigma_z) = (0.05, 0.05);
         }
     }
-    let single = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    let single = SingleBlock::default()
+        .orient(&block, &SfmOptions::default())
+        .unwrap();
     assert_eq!(single.reconstruction.num_oriented(), 20);
     let offset = &single.gnss_offsets[0];
     let std = offset.std.expect("offset precision");
@@ -713,7 +718,7 @@ fn only_the_controlled_flight_is_weighed_by_its_scatter() {
             scatter_weighing: weighing,
             ..SfmOptions::default()
         };
-        let g = SingleBlock.orient(&block, &options).unwrap();
+        let g = SingleBlock::default().orient(&block, &options).unwrap();
         assert_eq!(g.gnss_offsets.len(), 2);
         g.gnss_offsets
             .iter()
@@ -822,9 +827,11 @@ fn tie_points_on_a_moved_surface_stop_tying_the_epochs() {
         moved_point_factor: f64::INFINITY,
         ..SfmOptions::default()
     };
-    let strained = SingleBlock.orient(&block, &kept).unwrap();
+    let strained = SingleBlock::default().orient(&block, &kept).unwrap();
     let (on_before, off_before) = ties(&strained);
-    let relaxed = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    let relaxed = SingleBlock::default()
+        .orient(&block, &SfmOptions::default())
+        .unwrap();
     let (on, off) = ties(&relaxed);
     println!(
         "kept: RMS {:.3} px, ties on the slide {on_before}, off {off_before}; \
@@ -837,11 +844,11 @@ fn tie_points_on_a_moved_surface_stop_tying_the_epochs() {
         "the moved surface must tie the epochs at first"
     );
     assert!(on * 20 <= on_before, "{on} of {on_before} moved ties left");
-    assert_eq!(strained.moved_ties_split, 0);
+    assert_eq!(strained.diagnostics.moved_ties_split, 0);
     assert!(
-        relaxed.moved_ties_split >= on_before,
+        relaxed.diagnostics.moved_ties_split >= on_before,
         "{}",
-        relaxed.moved_ties_split
+        relaxed.diagnostics.moved_ties_split
     );
     assert!(
         off * 10 >= off_before * 9,
@@ -903,23 +910,25 @@ fn only_ties_on_stable_ground_join_the_epochs_when_it_is_given() {
         (on, off, second.len(), mean)
     };
     let options = SfmOptions::default();
-    let before = SingleBlock.orient(&all, &options).unwrap();
-    let after = SingleBlock.orient(&stable_only, &options).unwrap();
+    let before = SingleBlock::default().orient(&all, &options).unwrap();
+    let after = SingleBlock::default()
+        .orient(&stable_only, &options)
+        .unwrap();
     let (on_before, off_before, _, _) = summary(&before);
     let (on, off, own, lowered) = summary(&after);
     println!(
         "all ties: {on_before} on the disc, {off_before} off, {} split as moved; stable only: \
          {on} on, {off} off, {} split off stable ground, {own} second-epoch points on the disc \
          lowered by {lowered:?} m",
-        before.moved_ties_split, after.unstable_ties_split
+        before.diagnostics.moved_ties_split, after.diagnostics.unstable_ties_split
     );
-    assert_eq!(before.unstable_ties_split, 0);
+    assert_eq!(before.diagnostics.unstable_ties_split, 0);
     assert!(
         on_before > 50,
         "the lowered disc must tie the epochs at first: {on_before}"
     );
     assert_eq!(on, 0, "inter-epoch ties left on the disc");
-    assert!(after.unstable_ties_split >= on_before);
+    assert!(after.diagnostics.unstable_ties_split >= on_before);
     assert!(
         off * 10 >= off_before * 9,
         "{off} of {off_before} stable ties left"
@@ -963,7 +972,9 @@ fn a_noisy_camera_group_keeps_the_observations_its_own_noise_allows() {
             *k += Vector2::new(rng.normal(), rng.normal()) * extra;
         }
     }
-    let g = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    let g = SingleBlock::default()
+        .orient(&block, &SfmOptions::default())
+        .unwrap();
     assert_eq!(g.reconstruction.num_oriented(), 20);
     // Observations of the noisy images kept against those the tracks offer on oriented points.
     let (mut kept, mut offered) = (0usize, 0usize);
@@ -1079,26 +1090,28 @@ fn regional_change_detection_finds_a_lowered_disc_without_stable_areas() {
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         (on, off, mean(&error[1]) - mean(&error[0]))
     };
-    let plain = SingleBlock.orient(&block, &SfmOptions::default()).unwrap();
+    let plain = SingleBlock::default()
+        .orient(&block, &SfmOptions::default())
+        .unwrap();
     let options = SfmOptions {
         change_detection: timesift_align::ChangeDetection::Regional,
         ..SfmOptions::default()
     };
-    let detected = SingleBlock.orient(&block, &options).unwrap();
+    let detected = SingleBlock::default().orient(&block, &options).unwrap();
     let (on_plain, off_plain, flattened) = summary(&plain);
     let (on, off, lowered) = summary(&detected);
     println!(
         "plain block: {on_plain} ties on the disc, {off_plain} off, disc lowered by \
          {flattened:.4} m between the epochs; regional detection: {} regions changed, {} ties split, {on} on the \
          disc, {off} off, disc lowered by {lowered:.4} m (truly {LOWERING} m)",
-        detected.changed_regions, detected.unstable_ties_split
+        detected.diagnostics.changed_regions, detected.diagnostics.unstable_ties_split
     );
-    assert!(on_plain > 50 && plain.changed_regions == 0);
+    assert!(on_plain > 50 && plain.diagnostics.changed_regions == 0);
     assert!(
         flattened.abs() < 0.8 * LOWERING,
         "the plain block was expected to flatten the change: {flattened}"
     );
-    assert!(detected.changed_regions > 0);
+    assert!(detected.diagnostics.changed_regions > 0);
     assert!(
         on * 5 <= on_plain,
         "{on} of {on_plain} ties left on the disc"
@@ -1123,13 +1136,13 @@ fn regional_change_detection_finds_nothing_where_nothing_changed() {
         change_detection: timesift_align::ChangeDetection::Regional,
         ..SfmOptions::default()
     };
-    let detected = SingleBlock.orient(&block, &options).unwrap();
+    let detected = SingleBlock::default().orient(&block, &options).unwrap();
     println!(
         "{} regions changed, {} ties split",
-        detected.changed_regions, detected.unstable_ties_split
+        detected.diagnostics.changed_regions, detected.diagnostics.unstable_ties_split
     );
-    assert_eq!(detected.changed_regions, 0);
-    assert_eq!(detected.unstable_ties_split, 0);
+    assert_eq!(detected.diagnostics.changed_regions, 0);
+    assert_eq!(detected.diagnostics.unstable_ties_split, 0);
 }
 
 /// Two epochs whose feature matching joined only one scene point in twenty across them (the
@@ -1186,45 +1199,49 @@ fn a_second_look_joins_the_epochs_tie_points_of_one_stable_ground_point() {
         (stable, slide)
     };
     let options = SfmOptions::default();
-    let few = SingleBlock.orient(&block, &options).unwrap();
-    let off = JoinedSingleBlock { matcher: &matcher }
-        .orient(
-            &block,
-            &SfmOptions {
-                join_epoch_ties: false,
-                ..options.clone()
-            },
-        )
-        .unwrap();
-    let joined = JoinedSingleBlock { matcher: &matcher }
-        .orient(
-            &block,
-            &SfmOptions {
-                join_epoch_ties: true,
-                ..options.clone()
-            },
-        )
-        .unwrap();
+    let few = SingleBlock::default().orient(&block, &options).unwrap();
+    let off = SingleBlock {
+        matcher: Some(&matcher),
+    }
+    .orient(
+        &block,
+        &SfmOptions {
+            join_epoch_ties: false,
+            ..options.clone()
+        },
+    )
+    .unwrap();
+    let joined = SingleBlock {
+        matcher: Some(&matcher),
+    }
+    .orient(
+        &block,
+        &SfmOptions {
+            join_epoch_ties: true,
+            ..options.clone()
+        },
+    )
+    .unwrap();
     let (few_stable, few_slide) = ties(&few);
     let (stable, slide) = ties(&joined);
     println!(
         "matching alone: {few_stable} ties ({few_slide} on the slide), misfit {:.4} m; \
          second look: {} joined, {stable} ties ({slide} on the slide), misfit {:.4} m",
         rigid_misfit(&few, &s),
-        joined.joined_ties,
+        joined.diagnostics.joined_ties,
         rigid_misfit(&joined, &s)
     );
     assert_eq!(
         off, few,
         "join_epoch_ties = false is the plain single block"
     );
-    assert_eq!(off.joined_ties, 0);
+    assert_eq!(off.diagnostics.joined_ties, 0);
     assert_eq!(few_slide, 0);
     // About 19 in 20 of the stable points seen in both epochs were left apart.
     assert!(
-        joined.joined_ties >= 10 * few_stable,
+        joined.diagnostics.joined_ties >= 10 * few_stable,
         "{} joined",
-        joined.joined_ties
+        joined.diagnostics.joined_ties
     );
     assert!(
         stable >= 10 * few_stable,

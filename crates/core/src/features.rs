@@ -1,6 +1,6 @@
 //! Keypoints and descriptors: what the features stage produces and the matching stage consumes.
 
-/// A detected keypoint in pixel coordinates (DESIGN.md convention: centre of the top-left pixel at
+/// A detected keypoint in pixel coordinates (docs/design.md convention: centre of the top-left pixel at
 /// (0.5, 0.5)).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Keypoint {

@@ -5,7 +5,7 @@
 //! stage can be swapped or benchmarked alone.
 //!
 //! Invariants:
-//! - Conventions of `../shared/DESIGN.md` hold everywhere: f64 geometry in metres and radians, pixel
+//! - Conventions of `docs/design.md` hold everywhere: f64 geometry in metres and radians, pixel
 //!   centres at `i + 0.5`, camera frame x right / y down / z forward, poses are `cam_from_world`.
 //! - This crate does no I/O and knows nothing of files, projects or epochs' meaning; it has no
 //!   dependency beyond `nalgebra` and `thiserror`.

@@ -297,7 +297,7 @@ fn invalid_parameters_are_rejected_by_name() {
 
 #[test]
 fn brown_formula_matches_design_by_hand() {
-    // One point worked through the DESIGN.md formulas with every term non-zero.
+    // One point worked through the docs/design.md formulas with every term non-zero.
     let cam = BrownCamera {
         width: 4000,
         height: 3000,

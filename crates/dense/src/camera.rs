@@ -13,7 +13,7 @@ pub struct WorkingCamera {
     pub height: usize,
     /// Focal length, pixels.
     pub f: f64,
-    /// Principal point, absolute pixel coordinates (DESIGN.md convention).
+    /// Principal point, absolute pixel coordinates (docs/design.md convention).
     pub cx: f64,
     /// Principal point, absolute pixel coordinates.
     pub cy: f64,

@@ -1,7 +1,7 @@
 //! Image planes at the working resolution: grey intensities for matching, colours for the fused
 //! points, and the mask of usable pixels.
 //!
-//! Pixel convention of DESIGN.md: pixel (i, j) covers [i, i+1) × [j, j+1), its value sits at its
+//! Pixel convention of docs/design.md: pixel (i, j) covers [i, i+1) × [j, j+1), its value sits at its
 //! centre (i + 0.5, j + 0.5).
 
 /// A borrowed image with interleaved channels (1 grey or 3 RGB), values in [0, 1]: what the

@@ -92,7 +92,7 @@ impl<'a> Mask<'a> {
         })
     }
 
-    /// Whether a keypoint at pixel coordinates (x, y) (DESIGN.md convention) is allowed.
+    /// Whether a keypoint at pixel coordinates (x, y) (docs/design.md convention) is allowed.
     pub fn allows(&self, x: f64, y: f64) -> bool {
         if !(x >= 0.0 && y >= 0.0) {
             return false;

@@ -7,12 +7,12 @@
 //!
 //! Map: [`options`] (detector options) → `pyramid` (octaves in bands of rows, memory-bounded) →
 //! `detect` (DoG extrema, refinement) → `orientation` → [`limit`] (budget spread over the image) →
-//! [`sift`] / [`ldb`] descriptors; [`text`] is the inspection format of DESIGN.md and [`files`]
+//! [`sift`] / [`ldb`] descriptors; [`text`] is the inspection format of docs/design.md and [`files`]
 //! runs many images in parallel.
 //!
 //! Invariants: depends only on `timesift-core` (keypoint and descriptor types) and `timesift-io`
 //! (image decoding); knows nothing of epochs, matching or geometry. Pixel coordinates follow
-//! DESIGN.md (the centre of the top-left pixel is (0.5, 0.5)); `Keypoint::scale` is the σ of the
+//! docs/design.md (the centre of the top-left pixel is (0.5, 0.5)); `Keypoint::scale` is the σ of the
 //! blob the keypoint stands for, in full-resolution pixels; orientations are radians in the image
 //! frame (x right, y down). Results do not depend on the number of threads or the memory budget.
 //!

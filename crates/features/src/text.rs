@@ -1,7 +1,7 @@
-//! The feature text format of DESIGN.md, for inspecting and comparing features outside timesift:
+//! The feature text format of docs/design.md, for inspecting and comparing features outside timesift:
 //! a first line `N D` (count; descriptor length: values for float, bytes for binary), then one line
 //! per keypoint, `x y scale orientation` followed by the D descriptor values (floats, or bytes
-//! 0–255). Pixel convention of DESIGN.md; scale is σ in pixels, orientation in radians.
+//! 0–255). Pixel convention of docs/design.md; scale is σ in pixels, orientation in radians.
 //!
 //! The format does not say whether descriptors are binary, so the reader is told what to expect.
 //! Keypoint response and octave are not stored: they read back as 0.

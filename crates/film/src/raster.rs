@@ -6,7 +6,7 @@
 use crate::FilmError;
 
 /// A borrowed image: `width × height` pixels of `channels` interleaved f32 values, row-major,
-/// pixel centres at (i + ½, j + ½) (DESIGN.md).
+/// pixel centres at (i + ½, j + ½) (docs/design.md).
 #[derive(Debug, Clone, Copy)]
 pub struct ImageView<'a> {
     width: usize,

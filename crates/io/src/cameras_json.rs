@@ -1,5 +1,5 @@
 //! `cameras.json`: the orientation result (and the ground truth written by `synth`), schema of
-//! DESIGN.md. Images that could not be oriented carry `"R": null`.
+//! docs/design.md. Images that could not be oriented carry `"R": null`.
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -1,7 +1,7 @@
 //! The COLMAP text model (`cameras.txt`, `images.txt`, `points3D.txt`), export and import, and the
 //! conversion of camera models between COLMAP and timesift.
 //!
-//! Conversions (DESIGN.md `brown` ↔ COLMAP): COLMAP stores the principal point in absolute pixels
+//! Conversions (docs/design.md `brown` ↔ COLMAP): COLMAP stores the principal point in absolute pixels
 //! (same pixel convention as ours), we store it as an offset from the image centre; the x focal
 //! length `fx` is our `f + b1`; OpenCV's tangential `p1` is our `p2` and vice versa. `brown` cameras
 //! with skew (`b2`) or an r⁸ term (`k4`) have no COLMAP equivalent and are refused rather than

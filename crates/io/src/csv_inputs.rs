@@ -1,5 +1,5 @@
-//! The CSV inputs of a project (DESIGN.md): `gcps.csv`, `checkpoints.csv`, `markers.csv`,
-//! `gnss.csv`, `stable.csv`, `stable_points.csv`, and `scalebars.csv` (an addition to DESIGN.md's list: scale bars
+//! The CSV inputs of a project (docs/design.md): `gcps.csv`, `checkpoints.csv`, `markers.csv`,
+//! `gnss.csv`, `stable.csv`, `stable_points.csv`, `fiducials.csv` and `scalebars.csv` (scale bars
 //! between named targets, as close-range projects like `soil-pit` need).
 //!
 //! Rules common to all: comma-separated, `#` starts a comment line, blank lines are skipped, and an
@@ -45,7 +45,7 @@ pub struct Marker {
     pub image: String,
     /// Point name (in gcps.csv or checkpoints.csv).
     pub name: String,
-    /// Pixel position (DESIGN.md convention).
+    /// Pixel position (docs/design.md convention).
     pub pixel: Vector2<f64>,
     /// Line in the file.
     pub line: usize,
@@ -337,7 +337,7 @@ pub struct FiducialMeasurement {
     pub image: String,
     /// Mark name (as in the camera's `[camera.fiducials]`).
     pub mark: String,
-    /// Pixel position in the scan (DESIGN.md convention).
+    /// Pixel position in the scan (docs/design.md convention).
     pub pixel: Vector2<f64>,
     /// Line in the file.
     pub line: usize,

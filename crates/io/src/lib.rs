@@ -3,7 +3,7 @@
 //!
 //! Invariants:
 //! - Every error names the file, and the line or key where there is one ([`IoError`]).
-//! - Conventions of DESIGN.md are enforced at this boundary: whatever a foreign format stores
+//! - Conventions of docs/design.md are enforced at this boundary: whatever a foreign format stores
 //!   (COLMAP's OpenCV distortion with swapped p1/p2, absolute principal points, GeoTIFF tie points),
 //!   values leave this crate in timesift's conventions.
 //! - Writers are atomic: they write a temporary file beside the target and rename it, so a failure

@@ -1,7 +1,7 @@
 //! Agisoft Metashape's camera XML (File → Import → Import Cameras): sensors with their
 //! frame-model calibration, cameras with their transforms, one camera group per epoch.
 //!
-//! DESIGN.md's `brown` model *is* Metashape's frame model (f, cx, cy as offsets from the image
+//! docs/design.md's `brown` model *is* Metashape's frame model (f, cx, cy as offsets from the image
 //! centre, b1, b2, k1–k4, p1, p2 in Metashape's order), so calibrations are written as they are.
 //! A camera's `<transform>` is its `world_from_cam` 4 × 4 matrix (row-major; camera axes x right,
 //! y down, z forward, as Metashape's) in the chunk's internal frame, which is the topocentric frame

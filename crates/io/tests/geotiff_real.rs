@@ -52,7 +52,7 @@ fn sandpyper_dsm_with_nodata_round_trips() {
     let dir = tempfile::tempdir().unwrap();
     let src = shared_data().join("sandpyper-mar/dsm/mar_20180601_dsm_resampled_1m.tif");
     let mut dem = read_f32(&src).unwrap();
-    // The source marks holes with -10000 but declares no nodata: declare the DESIGN.md value.
+    // The source marks holes with -10000 but declares no nodata: declare the docs/design.md value.
     for v in dem.data.iter_mut().filter(|v| **v == -10000.0) {
         *v = -32767.0;
     }

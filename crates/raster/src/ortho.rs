@@ -605,7 +605,7 @@ impl Context<'_> {
     }
 }
 
-/// Bilinear RGB at a pixel position (DESIGN.md pixel convention); `None` where a black pixel
+/// Bilinear RGB at a pixel position (docs/design.md pixel convention); `None` where a black pixel
 /// marks no-data.
 fn sample(image: &RgbImage, px: &Vector2<f64>, black_is_nodata: bool) -> Option<[f32; 3]> {
     if image.width == 0 || image.height == 0 || image.data.len() < 3 * image.width * image.height {

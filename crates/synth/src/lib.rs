@@ -8,7 +8,7 @@
 //!   epochs, cameras placed as surveys are flown).
 //! - `scenes`: the seven study cases at `small` and `full` scale; `writer`: the project + truth.
 //!
-//! Invariants: only ever writes the project format of DESIGN.md (plus `scalebars.csv`), so that
+//! Invariants: only ever writes the project format of docs/design.md (plus `scalebars.csv`), so that
 //! what it makes is consumed exactly like user data; every random choice comes from a seed; the
 //! truth describes exactly what was rendered.
 

@@ -723,7 +723,7 @@ impl RayTable {
 }
 
 /// Renders `scene` from `pose` (`cam_from_world`) with the rays of a [`RayTable`]. Pixel (i, j)
-/// covers [i, i+1) × [j, j+1) (DESIGN.md); its samples sit at the centres of an n × n grid inside
+/// covers [i, i+1) × [j, j+1) (docs/design.md); its samples sit at the centres of an n × n grid inside
 /// it and are averaged (box filter).
 pub fn render_rays(scene: &Scene, rays: &RayTable, pose: &Pose, shadows: bool) -> RgbImage {
     let (width, n2) = (rays.width, rays.samples * rays.samples);

@@ -1,4 +1,4 @@
-//! Writes a [`SceneSpec`] as a project directory of DESIGN.md plus `truth/`:
+//! Writes a [`SceneSpec`] as a project directory of docs/design.md plus `truth/`:
 //!
 //! ```text
 //! project.toml, images/<epoch>/IMG_nnnn.*, gcps.csv, checkpoints.csv, markers.csv, stable_points.csv,

@@ -1,4 +1,4 @@
-//! The `brown` frame-camera model of DESIGN.md (Agisoft Metashape's):
+//! The `brown` frame-camera model of docs/design.md (Agisoft Metashape's):
 //!
 //! ```text
 //! x = Xc/Zc, y = Yc/Zc, r2 = x² + y²

@@ -1,7 +1,7 @@
 //! Camera models behind one trait, and projection of world points through a pose.
 //!
 //! A model maps a point in the camera frame (x right, y down, z forward) to a pixel with the
-//! DESIGN.md convention (centre of the top-left pixel at (0.5, 0.5)). Intrinsic parameters are a flat
+//! docs/design.md convention (centre of the top-left pixel at (0.5, 0.5)). Intrinsic parameters are a flat
 //! list whose order is fixed per model ([`CameraModel::param_names`]), so solvers can hold them in one
 //! vector per camera group and mask any subset as fixed.
 
@@ -54,7 +54,7 @@ pub trait CameraModel {
 /// A camera of any supported model; what camera groups store.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Camera {
-    /// The Metashape frame-camera model of DESIGN.md.
+    /// The Metashape frame-camera model of docs/design.md.
     Brown(BrownCamera),
     /// Distortion-free pinhole.
     Pinhole(PinholeCamera),

@@ -28,7 +28,7 @@ pub fn lund_photo() -> Grey {
 }
 
 /// A similarity of the image plane: p_b = centre_b + scale · R(angle) · (p_a − centre_a), in
-/// DESIGN.md pixel coordinates.
+/// docs/design.md pixel coordinates.
 #[derive(Debug, Clone, Copy)]
 pub struct Similarity {
     pub angle: f64,

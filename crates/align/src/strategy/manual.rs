@@ -16,26 +16,12 @@ use timesift_geometry::triangulation::{PixelObservation, intersect_weighted};
 
 use crate::AlignError;
 use crate::georef::{GeoreferenceInput, Georeferenced, GroundPoint, Marker, georeference};
+use crate::incremental::reconstruct;
 use crate::model::{Reconstruction, SfmInput};
 use crate::options::SfmOptions;
-use crate::reconstruct;
-use crate::strategy::{
-    Block, Strategy, in_epoch, merge, orient_reference, restrict, restrict_ground,
-};
 
-/// A natural point on stable ground, measured by hand in images of several epochs; no surveyed
-/// coordinates (`stable_points.csv` and `markers.csv` of DESIGN.md).
-#[derive(Debug, Clone, PartialEq)]
-pub struct NaturalPoint {
-    /// Name, as in the CSV files.
-    pub name: String,
-    /// How far the point may have moved between epochs, horizontal and vertical standard
-    /// deviations in metres, when the user states it (`sxy`, `sz`); added to the precision of
-    /// its intersection in the reference epoch.
-    pub stability: Option<(f64, f64)>,
-    /// Its markers, in images of any epoch.
-    pub markers: Vec<Marker>,
-}
+use super::block::{Block, NaturalPoint};
+use super::method::{DatumControl, Method, Strategy};
 
 /// The `manual` strategy.
 pub struct ManualStablePoints;
@@ -59,8 +45,12 @@ struct Intersected<'a> {
 }
 
 impl Strategy for ManualStablePoints {
-    fn name(&self) -> &'static str {
-        "manual"
+    fn method(&self) -> Method {
+        Method::Manual
+    }
+
+    fn datum_control(&self) -> DatumControl {
+        DatumControl::ThroughReference
     }
 
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
@@ -72,7 +62,7 @@ impl Strategy for ManualStablePoints {
             ));
         }
         let r = block.reference;
-        let reference = orient_reference(block, options)?;
+        let reference = block.orient_epoch(r, options)?;
         let sigma_px = block.ground.marker_sigma_px;
         let intersected = intersect_in_reference(
             &block.sfm,
@@ -81,8 +71,7 @@ impl Strategy for ManualStablePoints {
             sigma_px,
         );
         if intersected.len() < MIN_CONTROL_POINTS {
-            return Err(in_epoch(
-                block,
+            return Err(block.in_epoch(
                 r,
                 AlignError::Georeferencing(format!(
                     "{} of {} natural stable points are measured in {MIN_REFERENCE_IMAGES} or \
@@ -99,14 +88,14 @@ impl Strategy for ManualStablePoints {
         );
         let mut parts = vec![reference];
         for e in (0..block.epoch_names.len()).filter(|&e| e != r) {
-            let keep = |i: usize| block.epoch_of[i] == e;
-            let sub = restrict(&block.sfm, &keep);
-            let ground = restrict_ground(&block.ground, &keep);
+            let sub = block.epoch_input(e);
+            let ground = block.epoch_ground(e);
+            let keep = block.in_epoch_images(e);
             let placed = control_epoch(&sub, &ground, &intersected, &keep, options)
-                .map_err(|source| in_epoch(block, e, source))?;
+                .map_err(|source| block.in_epoch(e, source))?;
             parts.push(placed);
         }
-        Ok(merge(&block.sfm, parts))
+        Ok(block.merge(parts))
     }
 }
 

@@ -14,13 +14,13 @@ use timesift_core::TrackElement;
 
 use crate::AlignError;
 use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker, georeference};
+use crate::incremental::reconstruct;
 use crate::model::{Reconstruction, SfmInput};
 use crate::options::SfmOptions;
-use crate::reconstruct;
-use crate::strategy::{
-    Block, Strategy, fit_similarity, in_epoch, median_ground_pixel, merge, orient_reference,
-    point_index, restrict, restrict_ground, shared_points,
-};
+
+use super::block::Block;
+use super::method::{DatumControl, Method, Strategy};
+use super::similarity::{fit_similarity, median_ground_pixel, point_index, shared_points};
 
 /// A tie point offered for matching: its position (the reference epoch's world frame, or the
 /// other epoch's rough placement in it) and its observations.
@@ -77,20 +77,23 @@ const MIN_STABLE_PAIRS: usize = 6;
 const RADIUS_WITHOUT_PRIORS_PX: f64 = 20.0;
 
 impl Strategy for StableTiePoints<'_> {
-    fn name(&self) -> &'static str {
-        "stp"
+    fn method(&self) -> Method {
+        Method::Stp
+    }
+
+    fn datum_control(&self) -> DatumControl {
+        DatumControl::ThroughReference
     }
 
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
         let r = block.reference;
-        let reference = orient_reference(block, options)?;
+        let reference = block.orient_epoch(r, options)?;
         let ground_px = median_ground_pixel(&reference.reconstruction);
         let offered_reference = offer(&reference.reconstruction);
         let mut parts = vec![reference.clone()];
         for e in (0..block.epoch_names.len()).filter(|&e| e != r) {
-            let keep = |i: usize| block.epoch_of[i] == e;
-            let sub = restrict(&block.sfm, &keep);
-            let ground = restrict_ground(&block.ground, &keep);
+            let sub = block.epoch_input(e);
+            let ground = block.epoch_ground(e);
             let placed = self
                 .control_epoch(
                     block,
@@ -101,10 +104,10 @@ impl Strategy for StableTiePoints<'_> {
                     ground_px,
                     options,
                 )
-                .map_err(|source| in_epoch(block, e, source))?;
+                .map_err(|source| block.in_epoch(e, source))?;
             parts.push(placed);
         }
-        Ok(merge(&block.sfm, parts))
+        Ok(block.merge(parts))
     }
 }
 
@@ -138,7 +141,7 @@ impl StableTiePoints<'_> {
         };
         let dropped;
         let (rough, radius) = if let Some(placed) = by_priors {
-            dropped = placed.dropped_components;
+            dropped = placed.diagnostics.dropped_components;
             // Priors claim their accuracy; the placement of a whole block is off by about
             // their common bias, which the stated σ covers.
             let sigma = ground
@@ -236,7 +239,7 @@ impl StableTiePoints<'_> {
         let user: std::collections::HashSet<&str> =
             ground.points.iter().map(|p| p.name.as_str()).collect();
         placed.residuals.retain(|p| user.contains(p.name.as_str()));
-        placed.dropped_components += dropped;
+        placed.diagnostics.dropped_components += dropped;
         Ok(placed)
     }
 }

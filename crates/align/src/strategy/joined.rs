@@ -1,4 +1,4 @@
-//! `timesift` with a second look for inter-epoch ties: the feature matching pairs images, and
+//! `timesift`'s second look for inter-epoch ties: the feature matching pairs images, and
 //! across epochs (decades of film, a season of vegetation) most image pairs fall short of
 //! verification, so few tie points join the epochs although much of the ground looks the same.
 //! Once the first block is oriented, a stable ground point seen in two epochs is there twice,
@@ -29,9 +29,13 @@ use timesift_core::{Track, TrackElement};
 
 use crate::AlignError;
 use crate::georef::{Datum, Georeferenced};
+use crate::incremental::reconstruct;
 use crate::options::SfmOptions;
-use crate::stable::{OfferedTiePoint, StableMatcher, StableSearch};
-use crate::strategy::{Block, SingleBlock, Strategy, median_ground_pixel};
+
+use super::block::Block;
+use super::one_block::adjust_as_one_block;
+use super::similarity::median_ground_pixel;
+use super::stp::{OfferedTiePoint, StableMatcher, StableSearch};
 
 /// Horizontal search radius, ground pixels: how far apart one block puts a ground point's two
 /// epochs' tie points (each triangulated from its own epoch's images).
@@ -42,46 +46,39 @@ const JOIN_TOLERANCE_PX: f64 = 1.0;
 /// Fewest tie points of its own an epoch offers before a pair of epochs is searched.
 const MIN_OFFERED: usize = 20;
 
-/// `timesift`: one block, then a second look for inter-epoch ties by descriptor
-/// ([`crate::SfmOptions::join_epoch_ties`]).
+/// The block oriented again with the inter-epoch ties that `matcher` finds between the epochs'
+/// own tie points of the `first` block; `first` itself when none is joined or the second
+/// block does not orient.
 ///
 /// After a join, a point names the lowest-indexed of the caller's tracks it joined, and its
 /// observations may include keypoints of the others: unlike the other strategies', they are
 /// not all in `block.sfm.tracks[point.track]`.
-pub struct JoinedSingleBlock<'m> {
-    /// Descriptor matching of tie points.
-    pub matcher: &'m dyn StableMatcher,
-}
-
-impl Strategy for JoinedSingleBlock<'_> {
-    fn name(&self) -> &'static str {
-        "timesift"
+pub(crate) fn second_look(
+    block: &Block,
+    first: Georeferenced,
+    matcher: &dyn StableMatcher,
+    options: &SfmOptions,
+) -> Result<Georeferenced, AlignError> {
+    let joined = join_ties(block, &first, matcher);
+    if joined.joined == 0 {
+        return Ok(first);
     }
-
-    fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
-        let first = SingleBlock.orient(block, options)?;
-        if !options.join_epoch_ties || block.epoch_names.len() < 2 {
-            return Ok(first);
+    let mut second_block = block.clone();
+    second_block.sfm.tracks = joined.tracks;
+    let second = reconstruct(&second_block.sfm, options)
+        .and_then(|components| adjust_as_one_block(&second_block, components, options));
+    match second {
+        Ok(mut second) => {
+            second.diagnostics.joined_ties = joined.joined;
+            Ok(second)
         }
-        let joined = join_ties(block, &first, self.matcher);
-        if joined.joined == 0 {
-            return Ok(first);
-        }
-        let mut second_block = block.clone();
-        second_block.sfm.tracks = joined.tracks;
-        match SingleBlock.orient(&second_block, options) {
-            Ok(mut second) => {
-                second.joined_ties = joined.joined;
-                Ok(second)
-            }
-            Err(e) => {
-                tracing::warn!(
-                    "the block with {} joined inter-epoch ties did not orient ({e}); keeping the \
-                     first block",
-                    joined.joined
-                );
-                Ok(first)
-            }
+        Err(e) => {
+            tracing::warn!(
+                "the block with {} joined inter-epoch ties did not orient ({e}); keeping the \
+                 first block",
+                joined.joined
+            );
+            Ok(first)
         }
     }
 }
