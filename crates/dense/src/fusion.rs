@@ -13,9 +13,10 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 use crate::DenseError;
+use crate::camera::WorkingCamera;
 use crate::depth_map::DepthMap;
 use crate::filter::{Neighbour, Tolerances, camera_of_map, neighbours};
 use crate::plan::EpochPlan;
@@ -141,10 +142,10 @@ pub fn fuse<E: From<DenseError>>(
         capacity: 2 * (max_neighbours + 1),
         entries: VecDeque::new(),
     };
-    // Used pixels per view, as bits.
-    let mut used: Vec<Vec<u64>> = vec![Vec::new(); plan.views.len()];
-    // Per view, the 2 × 2 blocks of upsampled pixels that a point already stands for, as bits.
-    let mut blocks: Vec<Vec<u64>> = vec![Vec::new(); plan.views.len()];
+    let mut claims = Claims {
+        used: vec![Vec::new(); plan.views.len()],
+        blocks: vec![Vec::new(); plan.views.len()],
+    };
     let mut cloud = FusedCloud::default();
     let tolerances = Tolerances {
         max_px: options.max_reprojection_px,
@@ -162,140 +163,272 @@ pub fn fuse<E: From<DenseError>>(
         for s in std::iter::once(view).chain(vp.neighbours.iter().copied()) {
             cache.get(s, load)?;
         }
-        let reference = cache.find(view).expect("just loaded");
-        let map = &reference.map;
-        if !map.is_consistent() || reference.rgb.len() != map.width * map.height {
-            return Err(DenseError::InvalidInput(format!(
-                "view {view}: depth map and colours differ in size"
-            ))
-            .into());
+        let reference = reference_view(plan, view, &cache)?;
+        for (v, o) in reference.other_view.iter().zip(&reference.others) {
+            allocate_bits(&mut claims.used[*v], &mut claims.blocks[*v], o.map);
         }
-        let camera = camera_of_map(&vp.camera, map.width, map.height).ok_or_else(|| {
-            DenseError::InvalidInput(format!(
-                "view {view}: a depth map of {} × {} fits no scale of the view",
-                map.width, map.height
-            ))
-        })?;
-        let source_views: Vec<&FusionView> = vp
-            .neighbours
-            .iter()
-            .map(|&s| cache.find(s).expect("just loaded"))
-            .collect();
-        let maps: Vec<Option<&DepthMap>> = source_views.iter().map(|f| Some(&f.map)).collect();
-        let others: Vec<Neighbour<'_>> = neighbours(plan, view, &maps);
-        // View of each neighbour (neighbours skip maps of no scale of their view).
-        let other_view: Vec<usize> = vp
-            .neighbours
-            .iter()
-            .zip(&source_views)
-            .filter(|(s, f)| {
-                camera_of_map(&plan.views[**s].camera, f.map.width, f.map.height).is_some()
-            })
-            .map(|(s, _)| *s)
-            .collect();
-        let other_rgb: Vec<&[[f32; 3]]> = other_view
-            .iter()
-            .map(|&v| cache.find(v).expect("just loaded").rgb.as_slice())
-            .collect();
-        for (v, o) in other_view.iter().zip(&others) {
-            allocate_bits(&mut used[*v], &mut blocks[*v], o.map);
-        }
-        allocate_bits(&mut used[view], &mut blocks[view], map);
-        let world_from_ref = vp.cam_from_local.inverse();
-        let rotation = world_from_ref.rotation_matrix();
-        let mut members: Vec<(usize, usize)> = Vec::with_capacity(others.len());
-        for j in 0..map.height {
-            for i in 0..map.width {
-                let k = j * map.width + i;
-                let d = map.depth[k];
-                if !(d > 0.0) || is_used(&used[view], k) {
-                    continue;
-                }
-                // A plane upsampled from the coarser scale stands for its 2 × 2 block: a block
-                // that a point already stands for (one of its pixels started or joined one)
-                // starts no other; its pixels may still join points.
-                let block = map.upsampled[k].then(|| block_of(map, k));
-                if block.is_some_and(|b| is_used(&blocks[view], b)) {
-                    continue;
-                }
-                set_used(&mut used[view], k);
-                let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
-                let x = camera.ray(u, v) * d as f64;
-                let nn = map.normal[k];
-                let n = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
-                members.clear();
-                let mut sum_x = x;
-                let mut sum_n = n;
-                let mut sum_c = reference.rgb[k].map(f64::from);
-                for (o, other) in others.iter().enumerate() {
-                    let bits = &used[other_view[o]];
-                    // A pixel of a view that sees the surface much coarser spans several of the
-                    // reference's: it may join each of their points (lifted where each projects),
-                    // or fusion would leave one point per coarse pixel.
-                    let Some(a) = other
-                        .agrees(&camera, (u, v), &x, &n, &tolerances, &|k| is_used(bits, k))
-                        .or_else(|| {
-                            other
-                                .agrees(&camera, (u, v), &x, &n, &tolerances, &|_| false)
-                                .filter(|a| a.coarser >= SHARED_COARSER)
-                        })
-                    else {
-                        continue;
-                    };
-                    members.push((o, a.pixel));
-                    sum_x += a.point;
-                    sum_n += a.normal;
-                    let c = other_rgb[o][a.pixel];
-                    for ch in 0..3 {
-                        sum_c[ch] += c[ch] as f64;
-                    }
-                }
-                let count = members.len() + 1;
-                if count < options.min_images {
-                    continue;
-                }
-                if let Some(b) = block {
-                    set_used(&mut blocks[view], b);
-                }
-                for &(o, pixel) in &members {
-                    set_used(&mut used[other_view[o]], pixel);
-                    let map = others[o].map;
-                    if map.upsampled[pixel] {
-                        set_used(&mut blocks[other_view[o]], block_of(map, pixel));
-                    }
-                }
-                let inv = 1.0 / count as f64;
-                let mean_ref = sum_x * inv;
-                let mut worst = camera.project(&mean_ref).map_or(f64::INFINITY, |p| {
-                    ((p.x - u).powi(2) + (p.y - v).powi(2)).sqrt()
-                });
-                for &(o, pixel) in &members {
-                    let other = &others[o];
-                    let (w, _) = (other.map.width, other.map.height);
-                    let (pu, pv) = ((pixel % w) as f64 + 0.5, (pixel / w) as f64 + 0.5);
-                    let e = other
-                        .camera
-                        .project(&(other.r * mean_ref + other.t))
-                        .map_or(f64::INFINITY, |p| {
-                            ((p.x - pu).powi(2) + (p.y - pv).powi(2)).sqrt()
-                        });
-                    worst = worst.max(e);
-                }
-                let mean_local = rotation * mean_ref + world_from_ref.translation;
-                let normal = (rotation * sum_n)
-                    .try_normalize(1e-12)
-                    .unwrap_or(rotation * n);
-                cloud.positions.push(plan.world_from_local(&mean_local));
-                cloud.colors.push(sum_c.map(|c| (c * inv) as f32));
-                cloud
-                    .normals
-                    .push([normal.x as f32, normal.y as f32, normal.z as f32]);
-                cloud.images.push(count.min(u16::MAX as usize) as u16);
-                cloud.reprojection_px.push(worst as f32);
+        allocate_bits(
+            &mut claims.used[view],
+            &mut claims.blocks[view],
+            reference.map,
+        );
+        let fusion = ViewFusion {
+            plan,
+            reference: &reference,
+            tolerances: &tolerances,
+            min_images: options.min_images,
+        };
+        let mut members = Vec::with_capacity(reference.others.len());
+        for k in 0..reference.map.width * reference.map.height {
+            if let Some(point) = fusion.point_at(k, &mut claims, &mut members) {
+                point.push_to(&mut cloud);
             }
         }
     }
     Ok(cloud)
+}
+
+/// Which pixels of each view stand in a point already, and which 2 × 2 blocks of upsampled
+/// pixels a point stands for, as bits (allocated the first time fusion meets a view).
+struct Claims {
+    used: Vec<Vec<u64>>,
+    blocks: Vec<Vec<u64>>,
+}
+
+/// A reference view as fusion sees it: its map and colours, the camera of its map, and its
+/// neighbours that have a map of a scale of their view, with their views and colours.
+struct ReferenceView<'a> {
+    view: usize,
+    map: &'a DepthMap,
+    rgb: &'a [[f32; 3]],
+    camera: WorkingCamera,
+    others: Vec<Neighbour<'a>>,
+    /// View of each neighbour (neighbours skip maps of no scale of their view).
+    other_view: Vec<usize>,
+    other_rgb: Vec<&'a [[f32; 3]]>,
+    /// The rotation and translation from the view's camera frame to the local frame.
+    local_from_ref: (Matrix3<f64>, Vector3<f64>),
+}
+
+/// View `view` and its neighbours, all in `cache`; an error when its map and colours differ in
+/// size or its map fits no scale of the view.
+fn reference_view<'a>(
+    plan: &EpochPlan,
+    view: usize,
+    cache: &'a Cache,
+) -> Result<ReferenceView<'a>, DenseError> {
+    let vp = &plan.views[view];
+    let loaded = |v: usize| cache.find(v).expect("just loaded");
+    let reference = loaded(view);
+    let map = &reference.map;
+    if !map.is_consistent() || reference.rgb.len() != map.width * map.height {
+        return Err(DenseError::InvalidInput(format!(
+            "view {view}: depth map and colours differ in size"
+        )));
+    }
+    let camera = camera_of_map(&vp.camera, map.width, map.height).ok_or_else(|| {
+        DenseError::InvalidInput(format!(
+            "view {view}: a depth map of {} × {} fits no scale of the view",
+            map.width, map.height
+        ))
+    })?;
+    let source_views: Vec<&FusionView> = vp.neighbours.iter().map(|&s| loaded(s)).collect();
+    let maps: Vec<Option<&DepthMap>> = source_views.iter().map(|f| Some(&f.map)).collect();
+    let others: Vec<Neighbour<'_>> = neighbours(plan, view, &maps);
+    let other_view: Vec<usize> = vp
+        .neighbours
+        .iter()
+        .zip(&source_views)
+        .filter(|(s, f)| {
+            camera_of_map(&plan.views[**s].camera, f.map.width, f.map.height).is_some()
+        })
+        .map(|(s, _)| *s)
+        .collect();
+    let other_rgb = other_view
+        .iter()
+        .map(|&v| loaded(v).rgb.as_slice())
+        .collect();
+    let world_from_ref = vp.cam_from_local.inverse();
+    Ok(ReferenceView {
+        local_from_ref: (world_from_ref.rotation_matrix(), world_from_ref.translation),
+        view,
+        map,
+        rgb: &reference.rgb,
+        camera,
+        others,
+        other_view,
+        other_rgb,
+    })
+}
+
+/// One reference view's fusion: a point per pixel not yet claimed that enough neighbours
+/// agree with.
+struct ViewFusion<'a> {
+    plan: &'a EpochPlan,
+    reference: &'a ReferenceView<'a>,
+    tolerances: &'a Tolerances,
+    min_images: usize,
+}
+
+/// A fused point, world frame.
+struct FusedPoint {
+    position: Vector3<f64>,
+    color: [f32; 3],
+    normal: [f32; 3],
+    images: u16,
+    reprojection_px: f32,
+}
+
+impl FusedPoint {
+    fn push_to(self, cloud: &mut FusedCloud) {
+        cloud.positions.push(self.position);
+        cloud.colors.push(self.color);
+        cloud.normals.push(self.normal);
+        cloud.images.push(self.images);
+        cloud.reprojection_px.push(self.reprojection_px);
+    }
+}
+
+impl ViewFusion<'_> {
+    /// The point that pixel `k` of the reference starts, claiming its members' pixels; `None`
+    /// where it has no depth, is claimed, or too few views agree. `members` is scratch.
+    fn point_at(
+        &self,
+        k: usize,
+        claims: &mut Claims,
+        members: &mut Vec<(usize, usize)>,
+    ) -> Option<FusedPoint> {
+        let r = self.reference;
+        let (map, view) = (r.map, r.view);
+        let d = map.depth[k];
+        if !(d > 0.0) || is_used(&claims.used[view], k) {
+            return None;
+        }
+        // A plane upsampled from the coarser scale stands for its 2 × 2 block: a block that a
+        // point already stands for (one of its pixels started or joined one) starts no other;
+        // its pixels may still join points.
+        let block = map.upsampled[k].then(|| block_of(map, k));
+        if block.is_some_and(|b| is_used(&claims.blocks[view], b)) {
+            return None;
+        }
+        set_used(&mut claims.used[view], k);
+        let (i, j) = (k % map.width, k / map.width);
+        let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
+        let x = r.camera.ray(u, v) * d as f64;
+        let nn = map.normal[k];
+        let n = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
+        let mut sums = Sums {
+            x,
+            n,
+            c: r.rgb[k].map(f64::from),
+        };
+        self.members(claims, (u, v), &x, &n, &mut sums, members);
+        let count = members.len() + 1;
+        if count < self.min_images {
+            return None;
+        }
+        if let Some(b) = block {
+            set_used(&mut claims.blocks[view], b);
+        }
+        for &(o, pixel) in members.iter() {
+            set_used(&mut claims.used[r.other_view[o]], pixel);
+            let map = r.others[o].map;
+            if map.upsampled[pixel] {
+                set_used(&mut claims.blocks[r.other_view[o]], block_of(map, pixel));
+            }
+        }
+        Some(self.mean_point(members, (u, v), &n, &sums))
+    }
+
+    /// The neighbours' pixels that agree with the reference's point `x` (normal `n`) seen at
+    /// (u, v), into `members` as (neighbour, pixel), their points, normals and colours added
+    /// to `sums`.
+    fn members(
+        &self,
+        claims: &Claims,
+        (u, v): (f64, f64),
+        x: &Vector3<f64>,
+        n: &Vector3<f64>,
+        sums: &mut Sums,
+        members: &mut Vec<(usize, usize)>,
+    ) {
+        let r = self.reference;
+        members.clear();
+        for (o, other) in r.others.iter().enumerate() {
+            let bits = &claims.used[r.other_view[o]];
+            // A pixel of a view that sees the surface much coarser spans several of the
+            // reference's: it may join each of their points (lifted where each projects), or
+            // fusion would leave one point per coarse pixel.
+            let Some(a) = other
+                .agrees(&r.camera, (u, v), x, n, self.tolerances, &|k| {
+                    is_used(bits, k)
+                })
+                .or_else(|| {
+                    other
+                        .agrees(&r.camera, (u, v), x, n, self.tolerances, &|_| false)
+                        .filter(|a| a.coarser >= SHARED_COARSER)
+                })
+            else {
+                continue;
+            };
+            members.push((o, a.pixel));
+            sums.x += a.point;
+            sums.n += a.normal;
+            let c = r.other_rgb[o][a.pixel];
+            for ch in 0..3 {
+                sums.c[ch] += c[ch] as f64;
+            }
+        }
+    }
+
+    /// The mean of the reference's point and its members', in the world frame, with the
+    /// largest distance of its projection from a member pixel's centre.
+    fn mean_point(
+        &self,
+        members: &[(usize, usize)],
+        (u, v): (f64, f64),
+        n: &Vector3<f64>,
+        sums: &Sums,
+    ) -> FusedPoint {
+        let r = self.reference;
+        let count = members.len() + 1;
+        let inv = 1.0 / count as f64;
+        let mean_ref = sums.x * inv;
+        let mut worst = r.camera.project(&mean_ref).map_or(f64::INFINITY, |p| {
+            ((p.x - u).powi(2) + (p.y - v).powi(2)).sqrt()
+        });
+        for &(o, pixel) in members {
+            let other = &r.others[o];
+            let w = other.map.width;
+            let (pu, pv) = ((pixel % w) as f64 + 0.5, (pixel / w) as f64 + 0.5);
+            let e = other
+                .camera
+                .project(&(other.r * mean_ref + other.t))
+                .map_or(f64::INFINITY, |p| {
+                    ((p.x - pu).powi(2) + (p.y - pv).powi(2)).sqrt()
+                });
+            worst = worst.max(e);
+        }
+        let (rotation, translation) = r.local_from_ref;
+        let mean_local = rotation * mean_ref + translation;
+        let normal = (rotation * sums.n)
+            .try_normalize(1e-12)
+            .unwrap_or(rotation * n);
+        FusedPoint {
+            position: self.plan.world_from_local(&mean_local),
+            color: sums.c.map(|c| (c * inv) as f32),
+            normal: [normal.x as f32, normal.y as f32, normal.z as f32],
+            images: count.min(u16::MAX as usize) as u16,
+            reprojection_px: worst as f32,
+        }
+    }
+}
+
+/// Running sums of a point's members: positions and normals (reference frame), colours.
+struct Sums {
+    x: Vector3<f64>,
+    n: Vector3<f64>,
+    c: [f64; 3],
 }
 
 #[inline]

@@ -190,25 +190,8 @@ fn scale_weight(ratio: f64) -> f64 {
 
 /// The plan of one epoch.
 pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan, DenseError> {
+    check_epoch_input(input, options)?;
     let n = input.views.len();
-    if n < 2 {
-        return Err(DenseError::TooFewViews {
-            found: n,
-            needed: 2,
-        });
-    }
-    if options.max_sources == 0 {
-        return Err(DenseError::InvalidOption(
-            "max_sources = 0: expected at least 1".into(),
-        ));
-    }
-    for p in &input.points {
-        if let Some(&v) = p.views.iter().find(|&&v| v >= n) {
-            return Err(DenseError::InvalidInput(format!(
-                "a sparse point names view {v} of an epoch of {n} views"
-            )));
-        }
-    }
     let origin = input
         .views
         .iter()
@@ -278,7 +261,44 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
         })
         .collect::<Result<Vec<_>, DenseError>>()?;
     let mut views = views;
-    let mut reverse: Vec<Vec<usize>> = vec![Vec::new(); n];
+    link_both_ways(&mut views);
+    Ok(EpochPlan {
+        origin,
+        views,
+        level,
+        refined_scales,
+    })
+}
+
+/// At least two views, at least one source per view, and sparse points that name views of the
+/// epoch.
+fn check_epoch_input(input: &EpochInput, options: &PlanOptions) -> Result<(), DenseError> {
+    let n = input.views.len();
+    if n < 2 {
+        return Err(DenseError::TooFewViews {
+            found: n,
+            needed: 2,
+        });
+    }
+    if options.max_sources == 0 {
+        return Err(DenseError::InvalidOption(
+            "max_sources = 0: expected at least 1".into(),
+        ));
+    }
+    for p in &input.points {
+        if let Some(&v) = p.views.iter().find(|&&v| v >= n) {
+            return Err(DenseError::InvalidInput(format!(
+                "a sparse point names view {v} of an epoch of {n} views"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Adds to each view's neighbours the views that name it as theirs (after its own, in view
+/// order), so that fusion checks every pair from both sides.
+fn link_both_ways(views: &mut [ViewPlan]) {
+    let mut reverse: Vec<Vec<usize>> = vec![Vec::new(); views.len()];
     for (a, v) in views.iter().enumerate() {
         for &b in &v.neighbours {
             reverse[b].push(a);
@@ -291,12 +311,6 @@ pub fn plan_epoch(input: &EpochInput, options: &PlanOptions) -> Result<EpochPlan
             }
         }
     }
-    Ok(EpochPlan {
-        origin,
-        views,
-        level,
-        refined_scales,
-    })
 }
 
 /// The sparse points in view `a`'s field: its own, and those of the views that share a point
@@ -448,6 +462,22 @@ fn select_sources(
             }
         }
     }
+    let mut ranked = ranked_sources(candidates);
+    let best = ranked.first().map_or(0.0, |s| s.0.score);
+    let floor = MIN_RELATIVE_SCORE * best;
+    let sources = choose_covering(&ranked, options.max_sources, floor);
+    ranked.retain(|s| s.0.score >= floor);
+    let overlapping = ranked
+        .iter()
+        .map(|(s, _)| s.view)
+        .filter(|v| !sources.iter().any(|s| s.view == *v))
+        .collect();
+    (sources, overlapping)
+}
+
+/// The candidates that qualify as sources (enough shared points, a wide enough angle), each
+/// with its coverage cells, best score first (then by view).
+fn ranked_sources(candidates: Vec<Option<Candidate>>) -> Vec<(Source, Vec<bool>)> {
     let mut ranked: Vec<(Source, Vec<bool>)> = candidates
         .into_iter()
         .enumerate()
@@ -476,16 +506,7 @@ fn select_sources(
             .total_cmp(&x.0.score)
             .then(x.0.view.cmp(&y.0.view))
     });
-    let best = ranked.first().map_or(0.0, |s| s.0.score);
-    let floor = MIN_RELATIVE_SCORE * best;
-    let sources = choose_covering(&ranked, options.max_sources, floor);
-    ranked.retain(|s| s.0.score >= floor);
-    let overlapping = ranked
-        .iter()
-        .map(|(s, _)| s.view)
-        .filter(|v| !sources.iter().any(|s| s.view == *v))
-        .collect();
-    (sources, overlapping)
+    ranked
 }
 
 /// Sources that see a part of the reference's field, wanted for every part that enough

@@ -150,16 +150,8 @@ impl UndistortMap {
         }
     }
 
-    /// Resamples `image` (the original pixels of a view of this camera). A working pixel is
-    /// unusable when any of its sub-samples leaves the original image, touches a pixel that
-    /// `mask` marks unusable, or touches a no-data pixel (exactly black in every channel) when
-    /// `black_is_nodata`.
-    pub fn apply(
-        &self,
-        image: &ImageView<'_>,
-        mask: Option<&Mask>,
-        black_is_nodata: bool,
-    ) -> Result<WorkingImage, DenseError> {
+    /// An image (and mask) of the original size, with one or three channels.
+    fn check_input(&self, image: &ImageView<'_>, mask: Option<&Mask>) -> Result<(), DenseError> {
         let (ow, oh) = self.original;
         if image.width != ow || image.height != oh {
             return Err(DenseError::ImageSize {
@@ -182,6 +174,21 @@ impl UndistortMap {
                 found: (m.width, m.height),
             });
         }
+        Ok(())
+    }
+
+    /// Resamples `image` (the original pixels of a view of this camera). A working pixel is
+    /// unusable when any of its sub-samples leaves the original image, touches a pixel that
+    /// `mask` marks unusable, or touches a no-data pixel (exactly black in every channel) when
+    /// `black_is_nodata`.
+    pub fn apply(
+        &self,
+        image: &ImageView<'_>,
+        mask: Option<&Mask>,
+        black_is_nodata: bool,
+    ) -> Result<WorkingImage, DenseError> {
+        self.check_input(image, mask)?;
+        let (ow, oh) = self.original;
         let cam = self.camera;
         let n2 = self.level * self.level;
         let c = image.channels;

@@ -32,6 +32,30 @@ impl PixelState {
     };
 }
 
+/// A colour of the checkerboard: pixel (x, y) is red where `x + y` is even, black where odd. A
+/// half-pass updates one colour reading only the other.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Colour {
+    /// `x + y` even.
+    Red,
+    /// `x + y` odd.
+    Black,
+}
+
+impl Colour {
+    /// Both, in the order a pass visits them.
+    pub const BOTH: [Colour; 2] = [Colour::Red, Colour::Black];
+
+    /// The index of its half in [`Board::cells`].
+    #[inline]
+    pub fn index(self) -> usize {
+        match self {
+            Colour::Red => 0,
+            Colour::Black => 1,
+        }
+    }
+}
+
 /// Pixel states in checkerboard halves: colour `(x + y) % 2`, index `y * half_width + x / 2`.
 pub struct Board {
     /// Columns.
@@ -75,8 +99,25 @@ impl Board {
     /// The column of the `k`-th cell of row `y` in colour `colour` (may equal `width` for the
     /// last cell of a row of odd width: no pixel).
     #[inline]
-    pub fn column(colour: usize, y: usize, k: usize) -> usize {
-        2 * k + ((colour ^ y) & 1)
+    pub fn column(colour: Colour, y: usize, k: usize) -> usize {
+        2 * k + ((colour.index() ^ y) & 1)
+    }
+
+    /// The cells of `colour`, to write, and the other colour's, to read.
+    pub fn split(&mut self, colour: Colour) -> (&mut [PixelState], OtherHalf<'_>) {
+        let (width, height, half_width) = (self.width, self.height, self.half_width);
+        let [red, black] = &mut self.cells;
+        let (mine, theirs) = match colour {
+            Colour::Red => (red, &*black),
+            Colour::Black => (black, &*red),
+        };
+        let other = OtherHalf {
+            width,
+            height,
+            half_width,
+            cells: theirs,
+        };
+        (mine, other)
     }
 }
 
@@ -118,7 +159,7 @@ mod tests {
                     assert!(!seen[c][k]);
                     seen[c][k] = true;
                     let kk = k - y * b.half_width;
-                    assert_eq!(Board::column(c, y, kk), x);
+                    assert_eq!(Board::column(Colour::BOTH[c], y, kk), x);
                 }
             }
         }

@@ -325,6 +325,8 @@ fn window_moments<const CAP: usize>(
 /// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
+// Long function: the SIMD twin of `window_moments_portable`, step for step so that the bit-for-bit
+// test can hold; its eight-lane accumulators live in registers across the whole window.
 unsafe fn window_moments_avx2<const CAP: usize>(
     shape: &WindowShape,
     window: &RefWindow,

@@ -35,8 +35,8 @@ use crate::camera::WorkingCamera;
 use crate::depth_map::DepthMap;
 use crate::filter::camera_of_map;
 use crate::image::{Mask, Plane, WorkingImage};
-use crate::plan::EpochPlan;
-use board::{Board, OtherHalf, PixelState};
+use crate::plan::{EpochPlan, ViewPlan};
+use board::{Board, Colour, PixelState};
 use cost::{RefCamera, SourceView, WindowShape};
 use refine::{RefineOptions, refine_selection};
 use update::{MAX_SOURCES, PassContext, Scratch, random_normal};
@@ -258,6 +258,60 @@ pub fn run_pass(
     if vp.sources.is_empty() {
         return Ok(DepthMap::empty(camera.width, camera.height));
     }
+    check_pass_input(plan, view, pass, input)?;
+    let geometric = pass.kind == PassKind::Geometric;
+    let (grey, mask) = image_at_scale(input.reference, pass.scale);
+    let source_images: Vec<(Plane, Mask)> = input
+        .sources
+        .iter()
+        .map(|image| image_at_scale(image, pass.scale))
+        .collect();
+    let shape = window_shape(options)?;
+    let ctx = PassContext {
+        shape: &shape,
+        grey: &grey,
+        mask: &mask,
+        k_ref: RefCamera::of(&camera),
+        sources: source_views(plan, view, pass, input, &source_images),
+        depth_range: (vp.depth_range.0 as f32, vp.depth_range.1 as f32),
+        geometric_weight: if geometric {
+            options.geometric_weight
+        } else {
+            0.0
+        },
+        geometric_max_px: options.geometric_max_px,
+        hierarchy: matches!(pass.kind, PassKind::Hierarchy | PassKind::Refine),
+        depth_perturbation: options.depth_perturbation,
+        normal_perturbation: options.normal_perturbation,
+        seed: pixel_pass_seed(options.seed, view, pass_index),
+    };
+    let start = starting_planes(&ctx, vp, pass, input, &camera)?;
+    let mut board = Board::new(camera.width, camera.height);
+    initialise(&ctx, &mut board, &start);
+    let selected = pixels_to_match(&ctx, vp, pass, input, &start, options);
+    for iteration in 0..pass.iterations {
+        for colour in Colour::BOTH {
+            half_pass(&ctx, &mut board, colour, iteration, selected.as_deref());
+        }
+    }
+    let mut map = median_filtered(&board, selected.as_deref());
+    if let Some(selected) = &selected {
+        for ((up, &chosen), &d) in map.upsampled.iter_mut().zip(selected).zip(&map.depth) {
+            *up = !chosen && d > 0.0;
+        }
+    }
+    Ok(map)
+}
+
+/// Checks that a pass of `view` (which has sources) is given one image per source, each of its
+/// view's working size, and for a geometric pass one depth map per source.
+fn check_pass_input(
+    plan: &EpochPlan,
+    view: usize,
+    pass: &Pass,
+    input: &PassInput<'_>,
+) -> Result<(), DenseError> {
+    let vp = &plan.views[view];
     if vp.sources.len() > MAX_SOURCES {
         return Err(DenseError::InvalidOption(format!(
             "{} sources: at most {MAX_SOURCES}",
@@ -282,28 +336,32 @@ pub fn run_pass(
         }
     };
     check_size(input.reference, &vp.camera)?;
-    let (grey, mask) = image_at_scale(input.reference, pass.scale);
-    let source_images: Vec<(Plane, Mask)> = vp
-        .sources
-        .iter()
-        .zip(input.sources)
-        .map(|(s, image)| {
-            check_size(image, &plan.views[s.view].camera)?;
-            Ok(image_at_scale(image, pass.scale))
-        })
-        .collect::<Result<_, DenseError>>()?;
-    let geometric = pass.kind == PassKind::Geometric;
-    if geometric && input.source_maps.len() != vp.sources.len() {
+    for (s, image) in vp.sources.iter().zip(input.sources) {
+        check_size(image, &plan.views[s.view].camera)?;
+    }
+    if pass.kind == PassKind::Geometric && input.source_maps.len() != vp.sources.len() {
         return Err(DenseError::InvalidInput(format!(
             "view {view}: {} source depth maps given for {} sources",
             input.source_maps.len(),
             vp.sources.len()
         )));
     }
-    let ref_from_local = vp.cam_from_local;
-    let local_from_ref = ref_from_local.inverse();
-    let sources: Vec<SourceView<'_>> = vp
-        .sources
+    Ok(())
+}
+
+/// The source views of `view` at the pass's scale: images, cameras, the reference-to-source
+/// transform, and in a geometric pass the source's own depth map.
+fn source_views<'a>(
+    plan: &'a EpochPlan,
+    view: usize,
+    pass: &Pass,
+    input: &PassInput<'a>,
+    images: &'a [(Plane, Mask)],
+) -> Vec<SourceView<'a>> {
+    let vp = &plan.views[view];
+    let geometric = pass.kind == PassKind::Geometric;
+    let local_from_ref = vp.cam_from_local.inverse();
+    vp.sources
         .iter()
         .enumerate()
         .map(|(k, s)| {
@@ -317,16 +375,20 @@ pub fn run_pass(
                 None
             };
             SourceView {
-                grey: &source_images[k].0,
-                mask: &source_images[k].1,
+                grey: &images[k].0,
+                mask: &images[k].1,
                 camera: sp.camera.at_scale(pass.scale),
                 r,
                 t,
                 depth,
             }
         })
-        .collect();
-    let shape = WindowShape::new(
+        .collect()
+}
+
+/// The NCC window of the options.
+fn window_shape(options: &PatchMatchOptions) -> Result<WindowShape, DenseError> {
+    WindowShape::new(
         options.window_radius,
         options.window_step,
         options.window_radius as f32,
@@ -339,32 +401,22 @@ pub fn run_pass(
             options.window_step,
             cost::MAX_WINDOW
         ))
-    })?;
-    let ctx = PassContext {
-        shape: &shape,
-        grey: &grey,
-        mask: &mask,
-        k_ref: RefCamera::of(&camera),
-        sources,
-        depth_range: (vp.depth_range.0 as f32, vp.depth_range.1 as f32),
-        geometric_weight: if geometric {
-            options.geometric_weight
-        } else {
-            0.0
-        },
-        geometric_max_px: options.geometric_max_px,
-        hierarchy: matches!(pass.kind, PassKind::Hierarchy | PassKind::Refine),
-        depth_perturbation: options.depth_perturbation,
-        normal_perturbation: options.normal_perturbation,
-        seed: pixel_pass_seed(options.seed, view, pass_index),
-    };
-    // Starting planes.
-    let start = starting_planes(&ctx, vp, pass, input, &camera)?;
-    let mut board = Board::new(camera.width, camera.height);
-    initialise(&ctx, &mut board, &start);
-    // Pixels matched at this scale: every one, or those a refinement picks (and those whose
-    // upsampled plane is unusable: they start from a random plane, which must be matched).
-    let selected = match (pass.kind, input.previous) {
+    })
+}
+
+/// Pixels matched at this scale (`None`: every one): in a refinement those it picks, and those
+/// whose upsampled plane is unusable (they start from a random plane, which must be matched);
+/// in the geometric pass after a refinement, the pixels the refinement matched.
+fn pixels_to_match(
+    ctx: &PassContext<'_>,
+    vp: &ViewPlan,
+    pass: &Pass,
+    input: &PassInput<'_>,
+    start: &(Vec<f32>, Vec<[f32; 3]>),
+    options: &PatchMatchOptions,
+) -> Option<Vec<bool>> {
+    let camera = vp.camera.at_scale(pass.scale);
+    match (pass.kind, input.previous) {
         (PassKind::Refine, Some(coarse)) => {
             let mut picked = refine_selection(
                 coarse,
@@ -374,28 +426,15 @@ pub fn run_pass(
                 &options.refine,
             );
             for (k, p) in picked.iter_mut().enumerate() {
-                *p = *p || !usable_start(&ctx, &start, k % camera.width, k / camera.width);
+                *p = *p || !usable_start(ctx, start, k % camera.width, k / camera.width);
             }
             Some(picked)
         }
-        // After a refinement: the pixels it matched (the others keep their upsampled plane).
         (PassKind::Geometric, Some(previous)) if previous.upsampled.iter().any(|&u| u) => {
             Some(previous.upsampled.iter().map(|&u| !u).collect())
         }
         _ => None,
-    };
-    for iteration in 0..pass.iterations {
-        for colour in [0, 1] {
-            half_pass(&ctx, &mut board, colour, iteration, selected.as_deref());
-        }
     }
-    let mut map = median_filtered(&board, selected.as_deref());
-    if let Some(selected) = &selected {
-        for ((up, &chosen), &d) in map.upsampled.iter_mut().zip(selected).zip(&map.depth) {
-            *up = !chosen && d > 0.0;
-        }
-    }
-    Ok(map)
 }
 
 fn pixel_pass_seed(seed: u64, view: usize, pass_index: usize) -> u64 {
@@ -406,7 +445,7 @@ fn pixel_pass_seed(seed: u64, view: usize, pass_index: usize) -> u64 {
 /// random plane.
 fn starting_planes(
     ctx: &PassContext<'_>,
-    vp: &crate::plan::ViewPlan,
+    vp: &ViewPlan,
     pass: &Pass,
     input: &PassInput<'_>,
     camera: &WorkingCamera,
@@ -478,8 +517,8 @@ fn usable_start(
 fn initialise(ctx: &PassContext<'_>, board: &mut Board, start: &(Vec<f32>, Vec<[f32; 3]>)) {
     let (width, half_width) = (board.width, board.half_width);
     let (depth, normal) = start;
-    for colour in [0, 1] {
-        board.cells[colour]
+    for colour in Colour::BOTH {
+        board.cells[colour.index()]
             .par_chunks_mut(half_width)
             .enumerate()
             .for_each_init(
@@ -514,23 +553,12 @@ fn initialise(ctx: &PassContext<'_>, board: &mut Board, start: &(Vec<f32>, Vec<[
 fn half_pass(
     ctx: &PassContext<'_>,
     board: &mut Board,
-    colour: usize,
+    colour: Colour,
     iteration: usize,
     selected: Option<&[bool]>,
 ) {
-    let (width, height, half_width) = (board.width, board.height, board.half_width);
-    let (first, second) = board.cells.split_at_mut(1);
-    let (mine, theirs) = if colour == 0 {
-        (&mut first[0], &second[0])
-    } else {
-        (&mut second[0], &first[0])
-    };
-    let other = OtherHalf {
-        width,
-        height,
-        half_width,
-        cells: theirs,
-    };
+    let (width, half_width) = (board.width, board.half_width);
+    let (mine, other) = board.split(colour);
     mine.par_chunks_mut(half_width).enumerate().for_each_init(
         || Scratch::new(ctx.shape),
         |scratch, (y, row)| {

@@ -1,13 +1,30 @@
-//! One pixel's update in a checkerboard half-pass (ACMH, Xu & Tao 2019): adaptive checkerboard
-//! sampling of eight candidate planes from the other colour, multi-hypothesis joint view
-//! selection, adoption of the best candidate, then random refinement.
+//! One pixel's update in a checkerboard half-pass of ACMH (Xu & Tao, "Multi-Scale Geometric
+//! Consistency Guided Multi-View Stereo", CVPR 2019, and its ACMH baseline), the PatchMatch
+//! scheme of Galliani et al. ("Massively Parallel Multiview Stereopsis by Surface Normal
+//! Diffusion", ICCV 2015) with Schönberger et al.'s probabilistic view selection (COLMAP, ECCV
+//! 2016) made per pixel. A hypothesis is a plane `n·X + w = 0` in the reference camera's frame;
+//! its cost against a source view is 1 − NCC of a window warped by the plane's homography.
 //!
-//! Departures from the published code, each deliberate (see the notes of the research in
-//! ARCHITECTURE.md): the near "V" regions use only pixels of the other colour (as OpenMVS does),
-//! so a half-pass reads nothing it writes; every region picks its lowest-cost sample (the
-//! reference code picks the highest in one strip); absent regions are skipped rather than
-//! scored 0; a pixel whose views all look bad falls back to equal weights instead of NaN; every
-//! random draw comes from a generator seeded by the pixel, so results do not depend on threads.
+//! [`PassContext::update`] does, in order, each step a function of its own:
+//! 1. `sample_candidates`: adaptive checkerboard sampling, the lowest-cost hypothesis of each
+//!    of eight regions of the other colour (four near "V"s, four far strips);
+//! 2. `score_candidates`: each candidate's cost against every source view;
+//! 3. `select_views`: multi-hypothesis joint view selection, each view's likelihood from the
+//!    candidates' costs (good below τ(t), bad above τ₂) times the prior of the neighbours'
+//!    selections, sampled into per-view weights;
+//! 4. `adopt_best_candidate`: the candidate of least weighted cost, adopted when it beats the
+//!    current hypothesis under the same weights;
+//! 5. `refine_randomly`: random and perturbed depths and normals tried greedily.
+//!
+//! Then `keep` writes the result (a hierarchy pass keeps the upsampled plane unless beaten by a
+//! margin).
+//!
+//! Departures from the published code, each deliberate: the near "V" regions use only pixels
+//! of the other colour (as OpenMVS does), so a half-pass reads nothing it writes; every region
+//! picks its lowest-cost sample (the reference code picks the highest in one strip); absent
+//! regions are skipped rather than scored 0; a pixel whose views all look bad falls back to
+//! equal weights instead of NaN; every random draw comes from a generator seeded by the pixel,
+//! so results do not depend on threads.
 
 use timesift_core::SeededRng;
 
@@ -21,8 +38,11 @@ use crate::image::{Mask, Plane};
 /// Most source views per reference (one bit each in [`PixelState::views`]).
 pub const MAX_SOURCES: usize = 32;
 
-/// Candidate regions: four near "V"s, then four far strips, as (dx, dy) offsets. Every offset
-/// has odd |dx| + |dy|: the other colour.
+/// Candidate regions: four near "V"s (regions `0..NEAR_REGIONS`), then four far strips, as
+/// (dx, dy) offsets. Every offset has odd |dx| + |dy|: the other colour.
+const REGIONS: usize = 8;
+/// The near "V" regions come first.
+const NEAR_REGIONS: usize = 4;
 const NEAR_UP: [(i64, i64); 7] = [
     (0, -1),
     (-1, -2),
@@ -36,7 +56,7 @@ const FAR_LEN: usize = 11;
 
 fn region_offset(region: usize, k: usize) -> Option<(i64, i64)> {
     match region {
-        0..=3 => {
+        0..NEAR_REGIONS => {
             let (dx, dy) = *NEAR_UP.get(k)?;
             Some(match region {
                 0 => (dx, dy),
@@ -45,7 +65,7 @@ fn region_offset(region: usize, k: usize) -> Option<(i64, i64)> {
                 _ => (-dy, dx),
             })
         }
-        4..=7 => {
+        NEAR_REGIONS..REGIONS => {
             if k >= FAR_LEN {
                 return None;
             }
@@ -63,7 +83,11 @@ fn region_offset(region: usize, k: usize) -> Option<(i64, i64)> {
 
 /// Samples per region.
 fn region_len(region: usize) -> usize {
-    if region < 4 { NEAR_UP.len() } else { FAR_LEN }
+    if region < NEAR_REGIONS {
+        NEAR_UP.len()
+    } else {
+        FAR_LEN
+    }
 }
 
 /// Everything a half-pass needs, shared by every pixel.
@@ -97,8 +121,8 @@ pub struct PassContext<'a> {
 /// Per-thread scratch memory.
 pub struct Scratch {
     window: RefWindow,
-    costs: [[f32; MAX_SOURCES]; 8],
-    geometric: [[f32; MAX_SOURCES]; 8],
+    costs: [[f32; MAX_SOURCES]; REGIONS],
+    geometric: [[f32; MAX_SOURCES]; REGIONS],
 }
 
 impl Scratch {
@@ -106,8 +130,8 @@ impl Scratch {
     pub fn new(shape: &WindowShape) -> Scratch {
         Scratch {
             window: RefWindow::new(shape),
-            costs: [[WORST; MAX_SOURCES]; 8],
-            geometric: [[0.0; MAX_SOURCES]; 8],
+            costs: [[WORST; MAX_SOURCES]; REGIONS],
+            geometric: [[0.0; MAX_SOURCES]; REGIONS],
         }
     }
 }
@@ -214,24 +238,16 @@ impl PassContext<'_> {
     }
 
     /// The weighted cost of a plane over the views with a weight.
-    fn weighted(
-        &self,
-        window: &RefWindow,
-        weights: &[f32; MAX_SOURCES],
-        total: f32,
-        p: &Plane3,
-        u: f32,
-        v: f32,
-    ) -> f32 {
+    fn weighted(&self, window: &RefWindow, views: &ViewWeights, p: &Plane3, u: f32, v: f32) -> f32 {
         let mut sum = 0.0;
-        for (j, &w) in weights.iter().enumerate().take(self.sources.len()) {
+        for (j, &w) in views.weights.iter().enumerate().take(self.sources.len()) {
             if w > 0.0 {
                 let c = self.photometric(window, j, p, u, v)
                     + self.geometric_weight * self.geometric(j, p, u, v);
                 sum += w * c;
             }
         }
-        sum / total
+        sum / views.total
     }
 
     /// The state of a fresh hypothesis (random, upsampled or carried over): its cost is the
@@ -289,7 +305,7 @@ impl PassContext<'_> {
         state
     }
 
-    /// Updates pixel (x, y) of the colour being processed.
+    /// Updates pixel (x, y) of the colour being processed: ACMH's four steps, each below.
     pub fn update(
         &self,
         other: &OtherHalf<'_>,
@@ -302,108 +318,93 @@ impl PassContext<'_> {
         if !self.mask.at(x, y) || !scratch.window.fill(self.shape, self.grey, x, y) {
             return;
         }
-        let before = *state;
-        let ns = self.sources.len();
         let (u, v) = (x as f32 + 0.5, y as f32 + 0.5);
-        let ray = self.k_ref.ray(u, v);
+        let at = PixelAt {
+            x,
+            y,
+            u,
+            v,
+            ray: self.k_ref.ray(u, v),
+        };
         let mut rng = SeededRng::new(pixel_seed(self.seed, iteration, x, y));
-        // 1. Adaptive checkerboard sampling: the lowest-cost sample of each region.
-        let mut candidates: [Option<Plane3>; 8] = [None; 8];
+        let candidates = self.sample_candidates(other, &at);
+        self.score_candidates(scratch, &candidates, &at);
+        let views = self.select_views(other, scratch, &candidates, &at, iteration, &mut rng);
+        let before = *state;
+        let mut best = self.adopt_best_candidate(scratch, &candidates, &views, state, &at);
+        self.refine_randomly(scratch, &views, &at, &mut rng, &mut best);
+        self.keep(state, before, best);
+    }
+
+    /// Step 1, adaptive checkerboard sampling: the lowest-cost sample of each region of the
+    /// other colour, as a plane at this pixel (none where the region has no hypothesis, or its
+    /// plane faces away or leaves the depth range here).
+    #[inline]
+    fn sample_candidates(&self, other: &OtherHalf<'_>, at: &PixelAt) -> Candidates {
+        let ray = &at.ray;
+        let mut candidates: Candidates = [None; REGIONS];
         for (region, slot) in candidates.iter_mut().enumerate() {
-            let mut best: Option<&PixelState> = None;
-            for k in 0..region_len(region) {
-                let Some((dx, dy)) = region_offset(region, k) else {
-                    break;
-                };
-                let Some(s) = other.get(x as i64 + dx, y as i64 + dy) else {
-                    // Strips stop at the border; V samples beyond it are skipped.
-                    if region >= 4 {
-                        break;
-                    }
-                    continue;
-                };
-                if s.depth > 0.0 && best.is_none_or(|b| s.cost < b.cost) {
-                    best = Some(s);
-                }
-            }
-            if let Some(s) = best {
-                let depth = plane_depth(&s.n, s.w, &ray);
-                let facing = s.n[0] * ray[0] + s.n[1] * ray[1] + s.n[2] * ray[2] < 0.0;
-                if facing && self.in_range(depth) {
-                    *slot = Some(Plane3 {
-                        n: s.n,
-                        w: s.w,
-                        depth,
-                    });
-                }
+            let Some(s) = lowest_cost_sample(other, region, at.x, at.y) else {
+                continue;
+            };
+            let depth = plane_depth(&s.n, s.w, ray);
+            let facing = s.n[0] * ray[0] + s.n[1] * ray[1] + s.n[2] * ray[2] < 0.0;
+            if facing && self.in_range(depth) {
+                *slot = Some(Plane3 {
+                    n: s.n,
+                    w: s.w,
+                    depth,
+                });
             }
         }
-        // 2. Cost of every candidate against every source.
+        candidates
+    }
+
+    /// Step 2: the photometric and geometric cost of every candidate against every source,
+    /// into the scratch tables.
+    #[inline]
+    fn score_candidates(&self, scratch: &mut Scratch, candidates: &Candidates, at: &PixelAt) {
         for (r, cand) in candidates.iter().enumerate() {
             let Some(p) = cand else { continue };
-            for j in 0..ns {
-                scratch.costs[r][j] = self.photometric(&scratch.window, j, p, u, v);
-                scratch.geometric[r][j] = self.geometric(j, p, u, v);
+            for j in 0..self.sources.len() {
+                scratch.costs[r][j] = self.photometric(&scratch.window, j, p, at.u, at.v);
+                scratch.geometric[r][j] = self.geometric(j, p, at.u, at.v);
             }
         }
-        // 3. Joint view selection: each view's likelihood from the candidates' costs, times the
-        // prior of the neighbours' selections, sampled into weights.
+    }
+
+    /// Step 3, joint view selection: each view's likelihood from the candidates' costs, times
+    /// the prior of the neighbours' selections, sampled into weights (equal weights when no
+    /// view is likely).
+    #[inline]
+    fn select_views(
+        &self,
+        other: &OtherHalf<'_>,
+        scratch: &Scratch,
+        candidates: &Candidates,
+        at: &PixelAt,
+        iteration: usize,
+        rng: &mut SeededRng,
+    ) -> ViewWeights {
+        let ns = self.sources.len();
         let tau = good_threshold(iteration);
+        let (x, y) = (at.x as i64, at.y as i64);
         let neighbours: [Option<&PixelState>; 4] = [
-            other.get(x as i64, y as i64 - 1),
-            other.get(x as i64, y as i64 + 1),
-            other.get(x as i64 - 1, y as i64),
-            other.get(x as i64 + 1, y as i64),
+            other.get(x, y - 1),
+            other.get(x, y + 1),
+            other.get(x - 1, y),
+            other.get(x + 1, y),
         ];
         let mut probability = [0.0f32; MAX_SOURCES];
         let mut total_probability = 0.0;
         for (j, prob) in probability.iter_mut().enumerate().take(ns) {
-            let (mut good, mut good_sum, mut bad) = (0, 0.0f32, 0);
-            for (r, cand) in candidates.iter().enumerate() {
-                if cand.is_none() {
-                    continue;
-                }
-                let c = scratch.costs[r][j];
-                if c < tau {
-                    good += 1;
-                    good_sum += (-c * c / TWO_BETA2).exp();
-                } else if c > BAD_COST {
-                    bad += 1;
-                }
-            }
-            let likelihood = if good > 2 && bad < 3 {
-                good_sum / good as f32
-            } else if bad < 3 {
-                (-tau * tau / 0.32).exp()
-            } else {
-                0.0
-            };
-            let prior: f32 = neighbours
-                .iter()
-                .flatten()
-                .map(|s| {
-                    if s.views & (1 << j) != 0 {
-                        PRIOR_SELECTED
-                    } else {
-                        PRIOR_UNSELECTED
-                    }
-                })
-                .sum();
-            *prob = likelihood * prior;
+            *prob = view_likelihood(scratch, candidates, j, tau) * neighbour_prior(&neighbours, j);
             total_probability += *prob;
         }
         let mut weights = [0.0f32; MAX_SOURCES];
         if total_probability > 0.0 {
             for _ in 0..VIEW_DRAWS {
-                let mut target = rng.uniform() as f32 * total_probability;
-                let mut pick = ns - 1;
-                for (j, &p) in probability.iter().enumerate().take(ns) {
-                    if p > 0.0 && target < p {
-                        pick = j;
-                        break;
-                    }
-                    target -= p;
-                }
+                let pick = draw_view(&probability[..ns], total_probability, rng);
                 // Rounding can leave the last view picked with zero probability: skip it.
                 if probability[pick] > 0.0 {
                     weights[pick] += 1.0;
@@ -420,86 +421,233 @@ impl PassContext<'_> {
                 selected |= 1 << j;
             }
         }
-        // 4. The best candidate under these weights, against the current hypothesis.
-        let mut current = Plane3 {
-            n: state.n,
-            w: state.w,
-            depth: state.depth,
+        ViewWeights {
+            weights,
+            total,
+            selected,
+        }
+    }
+
+    /// Step 4: the best candidate under the view weights, adopted (with its selected views)
+    /// when it beats the current hypothesis scored under the same weights.
+    #[inline]
+    fn adopt_best_candidate(
+        &self,
+        scratch: &Scratch,
+        candidates: &Candidates,
+        views: &ViewWeights,
+        state: &mut PixelState,
+        at: &PixelAt,
+    ) -> Scored {
+        let mut current = Scored {
+            plane: Plane3 {
+                n: state.n,
+                w: state.w,
+                depth: state.depth,
+            },
+            cost: f32::INFINITY,
         };
-        let mut current_cost = if state.depth > 0.0 {
-            self.weighted(&scratch.window, &weights, total, &current, u, v)
-        } else {
-            f32::INFINITY
-        };
+        if state.depth > 0.0 {
+            current.cost = self.weighted(&scratch.window, views, &current.plane, at.u, at.v);
+        }
         let mut best: Option<(usize, f32)> = None;
         for (r, cand) in candidates.iter().enumerate() {
             if cand.is_none() {
                 continue;
             }
             let mut sum = 0.0;
-            for (j, &w) in weights.iter().enumerate().take(ns) {
+            for (j, &w) in views.weights.iter().enumerate().take(self.sources.len()) {
                 if w > 0.0 {
                     sum +=
                         w * (scratch.costs[r][j] + self.geometric_weight * scratch.geometric[r][j]);
                 }
             }
-            let f = sum / total;
+            let f = sum / views.total;
             if best.is_none_or(|(_, b)| f < b) {
                 best = Some((r, f));
             }
         }
         if let Some((r, f)) = best
-            && f < current_cost
+            && f < current.cost
             && let Some(p) = candidates[r]
         {
-            current = p;
-            current_cost = f;
-            state.views = selected;
+            current = Scored { plane: p, cost: f };
+            state.views = views.selected;
         }
-        // 5. Refinement: random and perturbed depths and normals, greedily.
-        if current.depth > 0.0 {
-            let (lo, hi) = self.depth_range;
-            let d_rand = rng.uniform_range(lo as f64, hi as f64) as f32;
-            let n_rand = random_normal(&mut rng, &ray);
-            let rho = self.depth_perturbation;
-            let d_pert = current.depth * (1.0 + rng.uniform_range(-1.0, 1.0) as f32 * rho);
-            let n_pert = perturb_normal(&mut rng, &current.n, &ray, self.normal_perturbation);
-            let base = current;
-            let trials = [
-                (d_rand, base.n),
-                (base.depth, n_rand),
-                (d_rand, n_rand),
-                (base.depth, n_pert),
-                (d_pert, base.n),
-            ];
-            for (depth, n) in trials {
-                if !self.in_range(depth) {
-                    continue;
-                }
-                let p = Plane3 {
-                    n,
-                    w: plane_offset(&n, depth, &ray),
-                    depth,
-                };
-                let f = self.weighted(&scratch.window, &weights, total, &p, u, v);
-                if f < current_cost {
-                    current = p;
-                    current_cost = f;
-                }
-            }
-        }
-        if !current_cost.is_finite() {
+        current
+    }
+
+    /// Step 5, refinement: random and perturbed depths and normals tried greedily against the
+    /// hypothesis kept so far.
+    #[inline]
+    fn refine_randomly(
+        &self,
+        scratch: &Scratch,
+        views: &ViewWeights,
+        at: &PixelAt,
+        rng: &mut SeededRng,
+        current: &mut Scored,
+    ) {
+        if !(current.plane.depth > 0.0) {
             return;
         }
-        if self.hierarchy && !(current_cost < before.start_cost - RESTORER_MARGIN) {
+        let ray = &at.ray;
+        let (lo, hi) = self.depth_range;
+        let d_rand = rng.uniform_range(lo as f64, hi as f64) as f32;
+        let n_rand = random_normal(rng, ray);
+        let rho = self.depth_perturbation;
+        let base = current.plane;
+        let d_pert = base.depth * (1.0 + rng.uniform_range(-1.0, 1.0) as f32 * rho);
+        let n_pert = perturb_normal(rng, &base.n, ray, self.normal_perturbation);
+        let trials = [
+            (d_rand, base.n),
+            (base.depth, n_rand),
+            (d_rand, n_rand),
+            (base.depth, n_pert),
+            (d_pert, base.n),
+        ];
+        for (depth, n) in trials {
+            if !self.in_range(depth) {
+                continue;
+            }
+            let p = Plane3 {
+                n,
+                w: plane_offset(&n, depth, ray),
+                depth,
+            };
+            let f = self.weighted(&scratch.window, views, &p, at.u, at.v);
+            if f < current.cost {
+                *current = Scored { plane: p, cost: f };
+            }
+        }
+    }
+
+    /// Writes the hypothesis kept into the pixel's state; a hierarchy pass (the detail
+    /// restorer) keeps the upsampled one unless the new one is better by a margin.
+    #[inline]
+    fn keep(&self, state: &mut PixelState, before: PixelState, kept: Scored) {
+        if !kept.cost.is_finite() {
+            return;
+        }
+        if self.hierarchy && !(kept.cost < before.start_cost - RESTORER_MARGIN) {
             *state = before;
             return;
         }
-        state.n = current.n;
-        state.w = current.w;
-        state.depth = current.depth;
-        state.cost = current_cost;
+        state.n = kept.plane.n;
+        state.w = kept.plane.w;
+        state.depth = kept.plane.depth;
+        state.cost = kept.cost;
     }
+}
+
+/// The pixel being updated: its indices, its centre and the viewing ray through it.
+struct PixelAt {
+    x: usize,
+    y: usize,
+    u: f32,
+    v: f32,
+    ray: [f32; 3],
+}
+
+/// One candidate plane per region (none where the region offers no usable one).
+type Candidates = [Option<Plane3>; REGIONS];
+
+/// A hypothesis with its weighted cost.
+#[derive(Clone, Copy)]
+struct Scored {
+    plane: Plane3,
+    cost: f32,
+}
+
+/// The views a pixel's candidates are scored against: a weight per source (how often the
+/// sampling drew it), their sum, and the drawn views as bits.
+struct ViewWeights {
+    weights: [f32; MAX_SOURCES],
+    total: f32,
+    selected: u32,
+}
+
+/// The other colour's sample of `region` around (x, y) with the lowest cost and a hypothesis.
+#[inline]
+fn lowest_cost_sample<'o>(
+    other: &'o OtherHalf<'_>,
+    region: usize,
+    x: usize,
+    y: usize,
+) -> Option<&'o PixelState> {
+    let mut best: Option<&PixelState> = None;
+    for k in 0..region_len(region) {
+        let Some((dx, dy)) = region_offset(region, k) else {
+            break;
+        };
+        let Some(s) = other.get(x as i64 + dx, y as i64 + dy) else {
+            // Strips stop at the border; V samples beyond it are skipped.
+            if region >= NEAR_REGIONS {
+                break;
+            }
+            continue;
+        };
+        if s.depth > 0.0 && best.is_none_or(|b| s.cost < b.cost) {
+            best = Some(s);
+        }
+    }
+    best
+}
+
+/// ACMH's likelihood of view `j`: the mean confidence of its good costs among the candidates
+/// when more than two are good and fewer than three bad, a floor when few are bad, else 0.
+#[inline]
+fn view_likelihood(scratch: &Scratch, candidates: &Candidates, j: usize, tau: f32) -> f32 {
+    let (mut good, mut good_sum, mut bad) = (0, 0.0f32, 0);
+    for (r, cand) in candidates.iter().enumerate() {
+        if cand.is_none() {
+            continue;
+        }
+        let c = scratch.costs[r][j];
+        if c < tau {
+            good += 1;
+            good_sum += (-c * c / TWO_BETA2).exp();
+        } else if c > BAD_COST {
+            bad += 1;
+        }
+    }
+    if good > 2 && bad < 3 {
+        good_sum / good as f32
+    } else if bad < 3 {
+        (-tau * tau / 0.32).exp()
+    } else {
+        0.0
+    }
+}
+
+/// The prior of view `j` from the four neighbours' selections.
+#[inline]
+fn neighbour_prior(neighbours: &[Option<&PixelState>; 4], j: usize) -> f32 {
+    neighbours
+        .iter()
+        .flatten()
+        .map(|s| {
+            if s.views & (1 << j) != 0 {
+                PRIOR_SELECTED
+            } else {
+                PRIOR_UNSELECTED
+            }
+        })
+        .sum()
+}
+
+/// One Monte-Carlo draw of a view in proportion to `probability` (summing to `total`); the
+/// last view when rounding leaves the draw past the end.
+#[inline]
+fn draw_view(probability: &[f32], total: f32, rng: &mut SeededRng) -> usize {
+    let mut target = rng.uniform() as f32 * total;
+    for (j, &p) in probability.iter().enumerate() {
+        if p > 0.0 && target < p {
+            return j;
+        }
+        target -= p;
+    }
+    probability.len() - 1
 }
 
 #[cfg(test)]
@@ -508,7 +656,7 @@ mod tests {
 
     #[test]
     fn regions_sample_only_the_other_colour() {
-        for region in 0..8 {
+        for region in 0..REGIONS {
             for k in 0..region_len(region) {
                 let (dx, dy) = region_offset(region, k).unwrap();
                 assert_eq!((dx + dy).rem_euclid(2), 1, "region {region} sample {k}");
