@@ -226,31 +226,7 @@ fn run(command: Command) -> anyhow::Result<()> {
             from,
             to,
             quiet,
-        } => {
-            let project = Project::load(&dir)?;
-            stages::set_quiet(quiet);
-            let start = std::time::Instant::now();
-            let outcomes = stages::run_with(&project, from, to, &mut |o| {
-                if !quiet {
-                    eprintln!("{:<9} {:>7.1} s  {}", o.stage.name(), o.seconds, o.summary);
-                }
-            })?;
-            if !quiet {
-                say!(
-                    "{} stages in {:.1} s; products:",
-                    outcomes.len(),
-                    start.elapsed().as_secs_f64()
-                );
-                let out_dir = project.layout().out_dir();
-                for o in &outcomes {
-                    for path in o.stage.implementation().outputs(&project) {
-                        if path.starts_with(&out_dir) && path.exists() {
-                            say!("  {:<9} {}", o.stage.name(), path.display());
-                        }
-                    }
-                }
-            }
-        }
+        } => run_pipeline(&dir, from, to, quiet)?,
         Command::Features(request) => {
             let start = std::time::Instant::now();
             let result = features::features(&request)?;
@@ -261,24 +237,7 @@ fn run(command: Command) -> anyhow::Result<()> {
                 start.elapsed().as_secs_f64()
             );
         }
-        Command::Dem(request) => {
-            let r = dem::dem(&request)?;
-            say!(
-                "{} points -> {} × {} cells, {} with a height ({} filled), gridded in {:.3} s \
-                 (read in {:.3} s, written in {:.3} s)",
-                r.points,
-                r.size.0,
-                r.size.1,
-                r.cells_with_height,
-                r.cells_filled,
-                r.gridding_seconds,
-                r.reading_seconds,
-                r.writing_seconds
-            );
-            for f in &r.outputs {
-                say!("wrote {}", f.display());
-            }
-        }
+        Command::Dem(request) => grid_cloud(&request)?,
         Command::Compare(args) => compare(*args)?,
         Command::Export { dir, format, out } => {
             let project = Project::load(&dir)?;
@@ -307,6 +266,60 @@ fn run(command: Command) -> anyhow::Result<()> {
             let dir = dir.unwrap_or_else(|| PathBuf::from("timesift-demo"));
             say!("{}", timesift::commands::demo::demo(&dir)?.trim_end());
         }
+    }
+    Ok(())
+}
+
+/// `timesift run`: the stages from `from` to `to`, a line per stage, then the products.
+fn run_pipeline(
+    dir: &std::path::Path,
+    from: Option<stages::Stage>,
+    to: Option<stages::Stage>,
+    quiet: bool,
+) -> anyhow::Result<()> {
+    let project = Project::load(dir)?;
+    stages::set_quiet(quiet);
+    let start = std::time::Instant::now();
+    let outcomes = stages::run_with(&project, from, to, &mut |o| {
+        if !quiet {
+            eprintln!("{:<9} {:>7.1} s  {}", o.stage.name(), o.seconds, o.summary);
+        }
+    })?;
+    if !quiet {
+        say!(
+            "{} stages in {:.1} s; products:",
+            outcomes.len(),
+            start.elapsed().as_secs_f64()
+        );
+        let out_dir = project.layout().out_dir();
+        for o in &outcomes {
+            for path in o.stage.implementation().outputs(&project) {
+                if path.starts_with(&out_dir) && path.exists() {
+                    say!("  {:<9} {}", o.stage.name(), path.display());
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `timesift dem`: one cloud gridded, with the time of each step.
+fn grid_cloud(request: &dem::DemRequest) -> anyhow::Result<()> {
+    let r = dem::dem(request)?;
+    say!(
+        "{} points -> {} × {} cells, {} with a height ({} filled), gridded in {:.3} s \
+         (read in {:.3} s, written in {:.3} s)",
+        r.points,
+        r.size.0,
+        r.size.1,
+        r.cells_with_height,
+        r.cells_filled,
+        r.gridding_seconds,
+        r.reading_seconds,
+        r.writing_seconds
+    );
+    for f in &r.outputs {
+        say!("wrote {}", f.display());
     }
     Ok(())
 }
@@ -359,34 +372,8 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
             registration_error: args.registration_error,
             core_spacing: args.core_spacing,
         };
-        let r = compare::compare_clouds(&args.a, &args.b, &args.out, &options)?;
-        if let Some(icp) = &r.icp {
-            say!(
-                "ICP: rotation {:.4}°, translation {:.3?} m, scale {:.6}, RMS {:.4} m over {} pairs",
-                icp.rotation_deg,
-                icp.translation,
-                icp.scale,
-                icp.rms,
-                icp.pairs
-            );
-        }
-        say!(
-            "M3C2: {} core points, {} with a distance, {} significant",
-            r.core_points,
-            r.defined,
-            r.significant
-        );
-        if let Some(d) = &r.distance {
-            say!(
-                "distance: median {:.4} m, mean {:.4} m, NMAD {:.4} m",
-                d.median,
-                d.mean,
-                d.nmad
-            );
-        }
-        for f in &r.outputs {
-            say!("wrote {f}");
-        }
+        let report = compare::compare_clouds(&args.a, &args.b, &args.out, &options)?;
+        say!("{}", report.to_string().trim_end());
     } else {
         let options = compare::DemCompareOptions {
             extra_nodata: args.nodata,
@@ -403,93 +390,11 @@ fn compare(args: CompareArgs) -> anyhow::Result<()> {
                 None => Vec::new(),
             },
         };
-        let r = compare::compare_dems(&args.a, &args.b, &args.out, &options)?;
-        for w in &r.warnings {
+        let report = compare::compare_dems(&args.a, &args.b, &args.out, &options)?;
+        for w in &report.warnings {
             eprintln!("warning: {w}");
         }
-        if let Some(c) = &r.coregistration {
-            say!(
-                "co-registration: shift east {:.3} m, north {:.3} m ({:.3}, {:.3} px), vertical {:.3} m; stable NMAD {:.4} → {:.4} m",
-                c.shift_east_m,
-                c.shift_north_m,
-                c.shift_px[0],
-                c.shift_px[1],
-                c.shift_z,
-                c.nmad_before,
-                c.nmad_after
-            );
-        }
-        let s = &r.all;
-        say!(
-            "DoD (b − a): {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, NMAD {:.4} m",
-            s.count,
-            s.mean,
-            s.median,
-            s.std,
-            s.nmad
-        );
-        if let Some(s) = &r.stable {
-            say!(
-                "stable: {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
-                s.count,
-                s.mean,
-                s.median,
-                s.std,
-                s.rmse,
-                s.nmad
-            );
-        }
-        if let Some(t) = &r.stable_trend {
-            say!(
-                "stable plane: {:.2} mm/m towards {:.0}°, {:.4} m across {:.0} m",
-                t.slope * 1000.0,
-                t.azimuth_deg,
-                t.gain_m,
-                t.extent_m
-            );
-        }
-        if let Some(l) = r.lod95 {
-            say!("LoD95 {l:.4} m ({})", r.lod_source);
-        }
-        if let Some(reports) = &r.checkpoints {
-            for (label, c) in ["a", "b"].iter().zip(reports) {
-                if let Some(h) = &c.height {
-                    say!(
-                        "check points on {label}: {} (missing {}), dH mean {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
-                        h.count,
-                        c.missing.len(),
-                        h.mean,
-                        h.rmse,
-                        h.nmad
-                    );
-                }
-            }
-        }
-        let v = &r.volumes;
-        let uncertainty = if r.lod95.is_some() {
-            format!(" ± {:.2}", v.sigma_net)
-        } else {
-            " (uncertainty unknown: give --stable or --sigma)".to_string()
-        };
-        say!(
-            "volumes: cut {:.2} m³, fill {:.2} m³, net {:.2}{uncertainty} m³ over {:.1} m²",
-            v.cut,
-            v.fill,
-            v.net,
-            v.area
-        );
-        if let Some(v) = &r.volumes_beyond_lod {
-            say!(
-                "beyond LoD: cut {:.2} m³, fill {:.2} m³, net {:.2} ± {:.2} m³",
-                v.cut,
-                v.fill,
-                v.net,
-                v.sigma_net
-            );
-        }
-        for f in &r.outputs {
-            say!("wrote {f}");
-        }
+        say!("{}", report.to_string().trim_end());
     }
     Ok(())
 }

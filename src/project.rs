@@ -11,7 +11,7 @@ use timesift_io::csv_inputs::{self, ControlPoint, GnssPrior, Marker, ScaleBarInp
 use timesift_io::exif;
 
 use crate::ProjectError;
-use crate::config::ProjectConfig;
+use crate::config::{EpochConfig, InputsConfig, ProjectConfig};
 
 /// File name of the configuration inside a project directory.
 pub const PROJECT_FILE: &str = "project.toml";
@@ -230,112 +230,8 @@ impl Project {
     /// Validates a configuration against the files of `dir`.
     pub fn from_config(dir: &Path, config: ProjectConfig) -> Result<Self, ProjectError> {
         let cfg_path = dir.join(PROJECT_FILE);
-        let crs: Crs = config
-            .crs
-            .parse()
-            .map_err(|m: String| ProjectError::config(&cfg_path, "crs", m))?;
-        if crs.is_geographic() {
-            return Err(ProjectError::config(
-                &cfg_path,
-                "crs",
-                format!(
-                    "{crs} is geographic; the world frame must be projected (metres), e.g. a UTM zone"
-                ),
-            ));
-        }
-        if let Crs::Epsg(_) = crs {
-            Projector::new(crs)
-                .map_err(|e| ProjectError::config(&cfg_path, "crs", e.to_string()))?;
-        }
-        if config.epochs.is_empty() {
-            return Err(ProjectError::config(
-                &cfg_path,
-                "epoch",
-                "no [[epoch]] is defined",
-            ));
-        }
-
-        let mut epochs = Vec::new();
-        let mut images: Vec<ProjectImage> = Vec::new();
-        let mut owner: HashMap<String, usize> = HashMap::new();
-        for (e, ec) in config.epochs.iter().enumerate() {
-            let key = format!("epoch[{e}]");
-            if ec.name.trim().is_empty()
-                || ec.name.contains(['/', '\\'])
-                || ec.name == "."
-                || ec.name == ".."
-                || ec.name.chars().any(char::is_control)
-            {
-                return Err(ProjectError::config(
-                    &cfg_path,
-                    format!("{key}.name"),
-                    format!(
-                        "\"{}\" is not a valid epoch name (non-empty, no slashes)",
-                        ec.name
-                    ),
-                ));
-            }
-            if let Some(first) = config.epochs[..e].iter().position(|o| o.name == ec.name) {
-                return Err(ProjectError::config(
-                    &cfg_path,
-                    format!("{key}.name"),
-                    format!("epoch \"{}\" is already defined as epoch[{first}]", ec.name),
-                ));
-            }
-            let default_pattern = format!("images/{}/*", ec.name);
-            let patterns = ec
-                .images
-                .as_ref()
-                .map(|s| s.patterns().into_iter().map(str::to_string).collect())
-                .unwrap_or_else(|| vec![default_pattern]);
-            let mut names = Vec::new();
-            for pattern in &patterns {
-                names.extend(expand_images(
-                    dir,
-                    &cfg_path,
-                    &format!("{key}.images"),
-                    pattern,
-                )?);
-            }
-            names.sort();
-            names.dedup();
-            if names.len() < 2 {
-                return Err(ProjectError::config(
-                    &cfg_path,
-                    format!("{key}.images"),
-                    format!(
-                        "epoch \"{}\" has {} image(s); at least 2 are needed",
-                        ec.name,
-                        names.len()
-                    ),
-                ));
-            }
-            let mut ids = Vec::with_capacity(names.len());
-            for name in names {
-                if let Some(&other) = owner.get(&name) {
-                    return Err(ProjectError::config(
-                        &cfg_path,
-                        format!("{key}.images"),
-                        format!(
-                            "image \"{name}\" is listed in epoch \"{}\" and in epoch \"{}\"",
-                            config.epochs[other].name, ec.name
-                        ),
-                    ));
-                }
-                owner.insert(name.clone(), e);
-                ids.push(ImageId::from(images.len()));
-                images.push(ProjectImage {
-                    name,
-                    epoch: EpochId::from(e),
-                });
-            }
-            epochs.push(Epoch {
-                name: ec.name.clone(),
-                camera_group: ec.camera.clone().unwrap_or_else(|| ec.name.clone()),
-                images: ids,
-            });
-        }
-
+        let crs = projected_crs(&cfg_path, &config)?;
+        let (epochs, images) = epochs_and_images(dir, &cfg_path, &config)?;
         let reference_epoch = match &config.align.reference_epoch {
             None => EpochId(0),
             Some(name) => epochs
@@ -350,167 +246,35 @@ impl Project {
                     )
                 })?,
         };
-
-        let calibrations = camera_calibrations(&cfg_path, &config, &epochs)?;
+        let mut calibrations = camera_calibrations(&cfg_path, &config, &epochs)?;
         let film = crate::film::film_cameras(dir, &cfg_path, &config)?;
         let camera_masks = crate::film::camera_masks(dir, &cfg_path, &config)?;
-        let mut calibrations = calibrations;
         for (group, f) in &film {
             if let (Some(g), Some(pp)) = (calibrations.get_mut(group), f.principal_point) {
                 g.principal_point = Some((pp.x, pp.y));
             }
         }
-
-        let input = |key: &str,
-                     explicit: &Option<String>,
-                     default: &str|
-         -> Result<Option<PathBuf>, ProjectError> {
-            match explicit {
-                Some(name) => {
-                    let p = dir.join(name);
-                    if p.is_file() {
-                        Ok(Some(p))
-                    } else {
-                        Err(ProjectError::config(
-                            &cfg_path,
-                            format!("inputs.{key}"),
-                            format!("file \"{name}\" does not exist"),
-                        ))
-                    }
-                }
-                None => {
-                    let p = dir.join(default);
-                    Ok(p.is_file().then_some(p))
-                }
-            }
-        };
-        let inputs = &config.inputs;
-        let gcps = match input("gcps", &inputs.gcps, "gcps.csv")? {
-            Some(p) => csv_inputs::read_gcps(&p)?,
-            None => Vec::new(),
-        };
-        let checkpoints = match input("checkpoints", &inputs.checkpoints, "checkpoints.csv")? {
-            Some(p) => csv_inputs::read_checkpoints(&p)?,
-            None => Vec::new(),
+        let files = InputFiles {
+            dir,
+            cfg_path: &cfg_path,
+            inputs: &config.inputs,
         };
         let image_index: HashMap<&str, usize> = images
             .iter()
             .enumerate()
             .map(|(i, im)| (im.name.as_str(), i))
             .collect();
-        let mut markers = Vec::new();
-        let scale_bars = match input("scalebars", &inputs.scalebars, "scalebars.csv")? {
-            Some(p) => csv_inputs::read_scale_bars(&p)?,
-            None => Vec::new(),
-        };
-        let stable_points =
-            match input("stable_points", &inputs.stable_points, "stable_points.csv")? {
-                Some(p) => csv_inputs::read_stable_points(&p)?,
-                None => Vec::new(),
-            };
-        if let Some(s) = stable_points
-            .iter()
-            .find(|s| gcps.iter().chain(&checkpoints).any(|g| g.name == s.name))
-        {
-            return Err(ProjectError::Reference {
-                path: input("stable_points", &inputs.stable_points, "stable_points.csv")?
-                    .unwrap_or_default(),
-                line: s.line,
-                message: format!(
-                    "point \"{}\" is also a GCP or check point; a natural stable point has no \
-                     surveyed coordinates",
-                    s.name
-                ),
-            });
-        }
-        if let Some(p) = input("markers", &inputs.markers, "markers.csv")? {
-            markers = csv_inputs::read_markers(&p)?;
-            for m in &mut markers {
-                m.image = normalise_name(&m.image);
-                if !image_index.contains_key(m.image.as_str()) {
-                    return Err(ProjectError::Reference {
-                        path: p.clone(),
-                        line: m.line,
-                        message: format!("unknown image \"{}\" (not in any epoch)", m.image),
-                    });
-                }
-                let known = gcps.iter().chain(&checkpoints).any(|g| g.name == m.name)
-                    || scale_bars.iter().any(|b| b.a == m.name || b.b == m.name)
-                    || stable_points.iter().any(|s| s.name == m.name);
-                if !known {
-                    return Err(ProjectError::Reference {
-                        path: p.clone(),
-                        line: m.line,
-                        message: format!(
-                            "unknown point \"{}\" (not in the GCP, check-point, scale-bar or \
-                             stable-point file)",
-                            m.name
-                        ),
-                    });
-                }
-            }
-        }
-        if let Some(c) = checkpoints
-            .iter()
-            .find(|c| gcps.iter().any(|g| g.name == c.name))
-        {
-            return Err(ProjectError::Reference {
-                path: input("checkpoints", &inputs.checkpoints, "checkpoints.csv")?
-                    .unwrap_or_default(),
-                line: c.line,
-                message: format!(
-                    "point \"{}\" is also a GCP; a check point must be independent",
-                    c.name
-                ),
-            });
-        }
-        let mut gnss = Vec::new();
-        if let Some(p) = input("gnss", &inputs.gnss, "gnss.csv")? {
-            gnss = csv_inputs::read_gnss(&p)?;
-            for g in &mut gnss {
-                g.image = normalise_name(&g.image);
-                if !image_index.contains_key(g.image.as_str()) {
-                    return Err(ProjectError::Reference {
-                        path: p.clone(),
-                        line: g.line,
-                        message: format!("unknown image \"{}\" (not in any epoch)", g.image),
-                    });
-                }
-            }
-        }
-        let mut fiducial_marks = Vec::new();
-        if let Some(p) = input("fiducials", &inputs.fiducials, "fiducials.csv")? {
-            fiducial_marks = csv_inputs::read_fiducials(&p)?;
-            for m in &mut fiducial_marks {
-                m.image = normalise_name(&m.image);
-                let Some(&i) = image_index.get(m.image.as_str()) else {
-                    return Err(ProjectError::Reference {
-                        path: p.clone(),
-                        line: m.line,
-                        message: format!("unknown image \"{}\" (not in any epoch)", m.image),
-                    });
-                };
-                let group = &epochs[images[i].epoch.index()].camera_group;
-                let known = film
-                    .get(group)
-                    .is_some_and(|f| f.frame.marks().iter().any(|k| k.name == m.mark));
-                if !known {
-                    return Err(ProjectError::Reference {
-                        path: p.clone(),
-                        line: m.line,
-                        message: format!(
-                            "mark \"{}\" is not a fiducial of camera \"{group}\" ([camera.fiducials])",
-                            m.mark
-                        ),
-                    });
-                }
-            }
-        }
-        let stable_areas = match input("stable", &inputs.stable, "stable.csv")? {
+        let points = files.points(&image_index)?;
+        let gnss = files.gnss(&image_index)?;
+        let fiducial_marks = files.fiducial_marks(
+            &image_index,
+            &|i| &epochs[images[i].epoch.index()].camera_group,
+            &film,
+        )?;
+        let stable_areas = match files.path("stable", &config.inputs.stable, "stable.csv")? {
             Some(p) => csv_inputs::read_stable_areas(&p)?,
             None => Vec::new(),
         };
-
         Ok(Project {
             dir: dir.to_path_buf(),
             config,
@@ -518,13 +282,13 @@ impl Project {
             epochs,
             images,
             reference_epoch,
-            gcps,
-            checkpoints,
-            markers,
+            gcps: points.gcps,
+            checkpoints: points.checkpoints,
+            markers: points.markers,
             gnss,
             stable_areas,
-            scale_bars,
-            stable_points,
+            scale_bars: points.scale_bars,
+            stable_points: points.stable_points,
             calibrations,
             film,
             fiducial_marks,
@@ -670,4 +434,358 @@ fn expand_images(
     }
     names.sort();
     Ok(names)
+}
+/// The world frame of `config`: a projected CRS (metres) that proj4rs can transform, or local.
+fn projected_crs(cfg_path: &Path, config: &ProjectConfig) -> Result<Crs, ProjectError> {
+    let crs: Crs = config
+        .crs
+        .parse()
+        .map_err(|m: String| ProjectError::config(cfg_path, "crs", m))?;
+    if crs.is_geographic() {
+        return Err(ProjectError::config(
+            cfg_path,
+            "crs",
+            format!(
+                "{crs} is geographic; the world frame must be projected (metres), e.g. a UTM zone"
+            ),
+        ));
+    }
+    if let Crs::Epsg(_) = crs {
+        Projector::new(crs).map_err(|e| ProjectError::config(cfg_path, "crs", e.to_string()))?;
+    }
+    if config.epochs.is_empty() {
+        return Err(ProjectError::config(
+            cfg_path,
+            "epoch",
+            "no [[epoch]] is defined",
+        ));
+    }
+    Ok(crs)
+}
+
+/// The epochs of `config` and their images (each in one epoch only, two or more per epoch),
+/// image ids in epoch order.
+fn epochs_and_images(
+    dir: &Path,
+    cfg_path: &Path,
+    config: &ProjectConfig,
+) -> Result<(Vec<Epoch>, Vec<ProjectImage>), ProjectError> {
+    let mut epochs = Vec::new();
+    let mut images: Vec<ProjectImage> = Vec::new();
+    let mut owner: HashMap<String, usize> = HashMap::new();
+    for (e, ec) in config.epochs.iter().enumerate() {
+        let key = format!("epoch[{e}]");
+        check_epoch_name(cfg_path, config, e)?;
+        let names = epoch_image_names(dir, cfg_path, &key, ec)?;
+        let mut ids = Vec::with_capacity(names.len());
+        for name in names {
+            if let Some(&other) = owner.get(&name) {
+                return Err(ProjectError::config(
+                    cfg_path,
+                    format!("{key}.images"),
+                    format!(
+                        "image \"{name}\" is listed in epoch \"{}\" and in epoch \"{}\"",
+                        config.epochs[other].name, ec.name
+                    ),
+                ));
+            }
+            owner.insert(name.clone(), e);
+            ids.push(ImageId::from(images.len()));
+            images.push(ProjectImage {
+                name,
+                epoch: EpochId::from(e),
+            });
+        }
+        epochs.push(Epoch {
+            name: ec.name.clone(),
+            camera_group: ec.camera.clone().unwrap_or_else(|| ec.name.clone()),
+            images: ids,
+        });
+    }
+    Ok((epochs, images))
+}
+
+/// Epoch `e`'s name: non-empty, no slashes or control characters, not `.` or `..`, unique.
+fn check_epoch_name(cfg_path: &Path, config: &ProjectConfig, e: usize) -> Result<(), ProjectError> {
+    let ec = &config.epochs[e];
+    let key = format!("epoch[{e}].name");
+    if ec.name.trim().is_empty()
+        || ec.name.contains(['/', '\\'])
+        || ec.name == "."
+        || ec.name == ".."
+        || ec.name.chars().any(char::is_control)
+    {
+        return Err(ProjectError::config(
+            cfg_path,
+            key,
+            format!(
+                "\"{}\" is not a valid epoch name (non-empty, no slashes)",
+                ec.name
+            ),
+        ));
+    }
+    if let Some(first) = config.epochs[..e].iter().position(|o| o.name == ec.name) {
+        return Err(ProjectError::config(
+            cfg_path,
+            key,
+            format!("epoch \"{}\" is already defined as epoch[{first}]", ec.name),
+        ));
+    }
+    Ok(())
+}
+
+/// The images an epoch's patterns name (default `images/<epoch>/*`), sorted, at least two.
+fn epoch_image_names(
+    dir: &Path,
+    cfg_path: &Path,
+    key: &str,
+    ec: &EpochConfig,
+) -> Result<Vec<String>, ProjectError> {
+    let default_pattern = format!("images/{}/*", ec.name);
+    let patterns = ec
+        .images
+        .as_ref()
+        .map(|s| s.patterns().into_iter().map(str::to_string).collect())
+        .unwrap_or_else(|| vec![default_pattern]);
+    let mut names = Vec::new();
+    for pattern in &patterns {
+        names.extend(expand_images(
+            dir,
+            cfg_path,
+            &format!("{key}.images"),
+            pattern,
+        )?);
+    }
+    names.sort();
+    names.dedup();
+    if names.len() < 2 {
+        return Err(ProjectError::config(
+            cfg_path,
+            format!("{key}.images"),
+            format!(
+                "epoch \"{}\" has {} image(s); at least 2 are needed",
+                ec.name,
+                names.len()
+            ),
+        ));
+    }
+    Ok(names)
+}
+
+/// The CSV inputs of a project: `[inputs]` names them, or they sit at their default names.
+struct InputFiles<'a> {
+    dir: &'a Path,
+    cfg_path: &'a Path,
+    inputs: &'a InputsConfig,
+}
+
+/// Surveyed and measured points: control, check, scale-bar ends, natural stable points, and
+/// the markers that measure them.
+struct PointInputs {
+    gcps: Vec<ControlPoint>,
+    checkpoints: Vec<ControlPoint>,
+    scale_bars: Vec<ScaleBarInput>,
+    stable_points: Vec<csv_inputs::StablePointInput>,
+    markers: Vec<Marker>,
+}
+
+impl InputFiles<'_> {
+    /// The file of input `key`: the one `[inputs]` names (an error when missing), or the
+    /// default when it exists, or none.
+    fn path(
+        &self,
+        key: &str,
+        explicit: &Option<String>,
+        default: &str,
+    ) -> Result<Option<PathBuf>, ProjectError> {
+        match explicit {
+            Some(name) => {
+                let p = self.dir.join(name);
+                if p.is_file() {
+                    Ok(Some(p))
+                } else {
+                    Err(ProjectError::config(
+                        self.cfg_path,
+                        format!("inputs.{key}"),
+                        format!("file \"{name}\" does not exist"),
+                    ))
+                }
+            }
+            None => {
+                let p = self.dir.join(default);
+                Ok(p.is_file().then_some(p))
+            }
+        }
+    }
+
+    /// The point files and markers, each name known where it is used: markers name images of
+    /// an epoch and points of a file, a stable point is no GCP or check point, and a check
+    /// point no GCP.
+    fn points(&self, image_index: &HashMap<&str, usize>) -> Result<PointInputs, ProjectError> {
+        let inputs = self.inputs;
+        let gcps = match self.path("gcps", &inputs.gcps, "gcps.csv")? {
+            Some(p) => csv_inputs::read_gcps(&p)?,
+            None => Vec::new(),
+        };
+        let checkpoints = match self.path("checkpoints", &inputs.checkpoints, "checkpoints.csv")? {
+            Some(p) => csv_inputs::read_checkpoints(&p)?,
+            None => Vec::new(),
+        };
+        let scale_bars = match self.path("scalebars", &inputs.scalebars, "scalebars.csv")? {
+            Some(p) => csv_inputs::read_scale_bars(&p)?,
+            None => Vec::new(),
+        };
+        let stable_points =
+            match self.path("stable_points", &inputs.stable_points, "stable_points.csv")? {
+                Some(p) => csv_inputs::read_stable_points(&p)?,
+                None => Vec::new(),
+            };
+        if let Some(s) = stable_points
+            .iter()
+            .find(|s| gcps.iter().chain(&checkpoints).any(|g| g.name == s.name))
+        {
+            return Err(ProjectError::Reference {
+                path: self
+                    .path("stable_points", &inputs.stable_points, "stable_points.csv")?
+                    .unwrap_or_default(),
+                line: s.line,
+                message: format!(
+                    "point \"{}\" is also a GCP or check point; a natural stable point has no \
+                     surveyed coordinates",
+                    s.name
+                ),
+            });
+        }
+        let mut points = PointInputs {
+            gcps,
+            checkpoints,
+            scale_bars,
+            stable_points,
+            markers: Vec::new(),
+        };
+        if let Some(p) = self.path("markers", &inputs.markers, "markers.csv")? {
+            points.markers = csv_inputs::read_markers(&p)?;
+            check_markers(&p, &mut points, image_index)?;
+        }
+        if let Some(c) = points
+            .checkpoints
+            .iter()
+            .find(|c| points.gcps.iter().any(|g| g.name == c.name))
+        {
+            return Err(ProjectError::Reference {
+                path: self
+                    .path("checkpoints", &inputs.checkpoints, "checkpoints.csv")?
+                    .unwrap_or_default(),
+                line: c.line,
+                message: format!(
+                    "point \"{}\" is also a GCP; a check point must be independent",
+                    c.name
+                ),
+            });
+        }
+        Ok(points)
+    }
+
+    /// The camera-centre priors, each naming an image of an epoch.
+    fn gnss(&self, image_index: &HashMap<&str, usize>) -> Result<Vec<GnssPrior>, ProjectError> {
+        let mut gnss = Vec::new();
+        if let Some(p) = self.path("gnss", &self.inputs.gnss, "gnss.csv")? {
+            gnss = csv_inputs::read_gnss(&p)?;
+            for g in &mut gnss {
+                g.image = normalise_name(&g.image);
+                if !image_index.contains_key(g.image.as_str()) {
+                    return Err(ProjectError::Reference {
+                        path: p.clone(),
+                        line: g.line,
+                        message: format!("unknown image \"{}\" (not in any epoch)", g.image),
+                    });
+                }
+            }
+        }
+        Ok(gnss)
+    }
+
+    /// The measured fiducial marks, each naming an image of an epoch and a mark of its film
+    /// camera (`group_of` an image's camera group).
+    fn fiducial_marks<'g>(
+        &self,
+        image_index: &HashMap<&str, usize>,
+        group_of: &dyn Fn(usize) -> &'g String,
+        film: &BTreeMap<String, crate::film::FilmCamera>,
+    ) -> Result<Vec<csv_inputs::FiducialMeasurement>, ProjectError> {
+        let mut fiducial_marks = Vec::new();
+        let Some(p) = self.path("fiducials", &self.inputs.fiducials, "fiducials.csv")? else {
+            return Ok(fiducial_marks);
+        };
+        fiducial_marks = csv_inputs::read_fiducials(&p)?;
+        for m in &mut fiducial_marks {
+            m.image = normalise_name(&m.image);
+            let Some(&i) = image_index.get(m.image.as_str()) else {
+                return Err(ProjectError::Reference {
+                    path: p.clone(),
+                    line: m.line,
+                    message: format!("unknown image \"{}\" (not in any epoch)", m.image),
+                });
+            };
+            let group = group_of(i);
+            let known = film
+                .get(group)
+                .is_some_and(|f| f.frame.marks().iter().any(|k| k.name == m.mark));
+            if !known {
+                return Err(ProjectError::Reference {
+                    path: p.clone(),
+                    line: m.line,
+                    message: format!(
+                        "mark \"{}\" is not a fiducial of camera \"{group}\" ([camera.fiducials])",
+                        m.mark
+                    ),
+                });
+            }
+        }
+        Ok(fiducial_marks)
+    }
+}
+
+/// Every marker of `path` names an image of an epoch (its name normalised) and a point of the
+/// GCP, check-point, scale-bar or stable-point file.
+fn check_markers(
+    path: &Path,
+    points: &mut PointInputs,
+    image_index: &HashMap<&str, usize>,
+) -> Result<(), ProjectError> {
+    let PointInputs {
+        gcps,
+        checkpoints,
+        scale_bars,
+        stable_points,
+        markers,
+    } = points;
+    for m in markers.iter_mut() {
+        m.image = normalise_name(&m.image);
+        if !image_index.contains_key(m.image.as_str()) {
+            return Err(ProjectError::Reference {
+                path: path.to_path_buf(),
+                line: m.line,
+                message: format!("unknown image \"{}\" (not in any epoch)", m.image),
+            });
+        }
+        let known = gcps
+            .iter()
+            .chain(checkpoints.iter())
+            .any(|g| g.name == m.name)
+            || scale_bars.iter().any(|b| b.a == m.name || b.b == m.name)
+            || stable_points.iter().any(|s| s.name == m.name);
+        if !known {
+            return Err(ProjectError::Reference {
+                path: path.to_path_buf(),
+                line: m.line,
+                message: format!(
+                    "unknown point \"{}\" (not in the GCP, check-point, scale-bar or \
+                     stable-point file)",
+                    m.name
+                ),
+            });
+        }
+    }
+    Ok(())
 }

@@ -139,6 +139,133 @@ fn load_dem(path: &Path, extra_nodata: Option<f64>) -> Result<Dem, ProjectError>
     Dem::from_raster(raster, extra_nodata).map_err(change_err(path.display().to_string()))
 }
 
+/// What `timesift compare` prints for two clouds, a line per result, then the files written.
+impl std::fmt::Display for CloudReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(icp) = &self.icp {
+            writeln!(
+                f,
+                "ICP: rotation {:.4}°, translation {:.3?} m, scale {:.6}, RMS {:.4} m over {} pairs",
+                icp.rotation_deg, icp.translation, icp.scale, icp.rms, icp.pairs
+            )?;
+        }
+        writeln!(
+            f,
+            "M3C2: {} core points, {} with a distance, {} significant",
+            self.core_points, self.defined, self.significant
+        )?;
+        if let Some(d) = &self.distance {
+            writeln!(
+                f,
+                "distance: median {:.4} m, mean {:.4} m, NMAD {:.4} m",
+                d.median, d.mean, d.nmad
+            )?;
+        }
+        for file in &self.outputs {
+            writeln!(f, "wrote {file}")?;
+        }
+        Ok(())
+    }
+}
+
+/// What `timesift compare` prints for two DEMs (warnings apart: they go to standard error), a
+/// line per result, then the files written.
+impl std::fmt::Display for DemReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(c) = &self.coregistration {
+            writeln!(
+                f,
+                "co-registration: shift east {:.3} m, north {:.3} m ({:.3}, {:.3} px), vertical {:.3} m; stable NMAD {:.4} → {:.4} m",
+                c.shift_east_m,
+                c.shift_north_m,
+                c.shift_px[0],
+                c.shift_px[1],
+                c.shift_z,
+                c.nmad_before,
+                c.nmad_after
+            )?;
+        }
+        let s = &self.all;
+        writeln!(
+            f,
+            "DoD (b − a): {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, NMAD {:.4} m",
+            s.count, s.mean, s.median, s.std, s.nmad
+        )?;
+        if let Some(s) = &self.stable {
+            writeln!(
+                f,
+                "stable: {} cells, mean {:.4} m, median {:.4} m, std {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
+                s.count, s.mean, s.median, s.std, s.rmse, s.nmad
+            )?;
+        }
+        if let Some(t) = &self.stable_trend {
+            writeln!(
+                f,
+                "stable plane: {:.2} mm/m towards {:.0}°, {:.4} m across {:.0} m",
+                t.slope * 1000.0,
+                t.azimuth_deg,
+                t.gain_m,
+                t.extent_m
+            )?;
+        }
+        if let Some(l) = self.lod95 {
+            writeln!(f, "LoD95 {l:.4} m ({})", self.lod_source)?;
+        }
+        self.fmt_checkpoints(f)?;
+        self.fmt_volumes(f)?;
+        for file in &self.outputs {
+            writeln!(f, "wrote {file}")?;
+        }
+        Ok(())
+    }
+}
+
+impl DemReport {
+    /// The check points' height errors on each DEM.
+    fn fmt_checkpoints(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let Some(reports) = &self.checkpoints else {
+            return Ok(());
+        };
+        for (label, c) in ["a", "b"].iter().zip(reports) {
+            if let Some(h) = &c.height {
+                writeln!(
+                    f,
+                    "check points on {label}: {} (missing {}), dH mean {:.4} m, RMSE {:.4} m, NMAD {:.4} m",
+                    h.count,
+                    c.missing.len(),
+                    h.mean,
+                    h.rmse,
+                    h.nmad
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The volumes, with their uncertainty when the LoD is known, and beyond the LoD.
+    fn fmt_volumes(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = &self.volumes;
+        let uncertainty = if self.lod95.is_some() {
+            format!(" ± {:.2}", v.sigma_net)
+        } else {
+            " (uncertainty unknown: give --stable or --sigma)".to_string()
+        };
+        writeln!(
+            f,
+            "volumes: cut {:.2} m³, fill {:.2} m³, net {:.2}{uncertainty} m³ over {:.1} m²",
+            v.cut, v.fill, v.net, v.area
+        )?;
+        if let Some(v) = &self.volumes_beyond_lod {
+            writeln!(
+                f,
+                "beyond LoD: cut {:.2} m³, fill {:.2} m³, net {:.2} ± {:.2} m³",
+                v.cut, v.fill, v.net, v.sigma_net
+            )?;
+        }
+        Ok(())
+    }
+}
+
 /// Polygons of a stable-area or region file: `stable.csv` lines (`[name,]WKT`) or bare WKT.
 pub fn read_polygons(path: &Path) -> Result<Vec<Polygon>, ProjectError> {
     let areas = timesift_io::csv_inputs::read_stable_areas(path)?;
