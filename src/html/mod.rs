@@ -27,8 +27,8 @@ use timesift_io::ply::{TiePoint, read_tiepoints};
 use crate::commands::compare::{CloudReport, DemReport};
 use crate::layout::Layout;
 use crate::report::{
-    AlignReport, DenseReport, FOCAL_CORRELATION_WARNING, GridFile, PointResiduals, RasterReport,
-    RunLog, read_json,
+    AlignReport, DenseReport, EpochOrientation, FOCAL_CORRELATION_WARNING, GridFile,
+    PointResiduals, RasterReport, RunLog, read_json,
 };
 use crate::stages::{Stage, epoch_pairs};
 use crate::{Project, ProjectError};
@@ -488,89 +488,8 @@ fn orientation_section(
         let Some(r) = a.epochs.get(&e.name) else {
             continue;
         };
-        let rmse = |p: &PointResiduals| {
-            p.rmse.map_or("–".into(), |r| {
-                format!(
-                    "{} / {} / {}",
-                    mm(Some(r.de), 1),
-                    mm(Some(r.dn), 1),
-                    mm(Some(r.dh), 1)
-                )
-            })
-        };
-        rows.push(vec![
-            esc(&e.name),
-            r.images_given.to_string(),
-            r.images_oriented.to_string(),
-            num(r.rms_reprojection_px, 3),
-            r.tie_points.to_string(),
-            r.inter_epoch_tie_points.to_string(),
-            rmse(&r.control_points),
-            rmse(&r.check_points),
-            r.gnss_offset.map_or("–".into(), |o| {
-                let std = o.std.map_or(String::new(), |s| {
-                    format!(" ± {:.2} / {:.2} / {:.2}", s[0], s[1], s[2])
-                });
-                let within = o.within_flight_sigma_m.map_or(String::new(), |s| {
-                    let weighs = if o.scatter_weighs_priors {
-                        ", weighing its priors"
-                    } else {
-                        ""
-                    };
-                    format!(
-                        " (scatter within the flight {:.2} / {:.2}{weighs})",
-                        s[0], s[1]
-                    )
-                });
-                format!(
-                    "{:.2} / {:.2} / {:.2}{std}{within}",
-                    o.offset[0], o.offset[1], o.offset[2]
-                )
-            }),
-            r.datum_tilt.map_or("–".into(), |t| {
-                format!(
-                    "{:.2} (gradient at {:.0}°) / {:.2}",
-                    t.sigma_max_mm_per_m, t.loose_azimuth_deg, t.sigma_min_mm_per_m
-                )
-            }),
-        ]);
-        if let Some(t) = r
-            .datum_tilt
-            .filter(|t| t.sigma_max_mm_per_m >= DATUM_TILT_WARNING_MM_PER_M)
-        {
-            warnings.push(format!(
-                "epoch {}: its control fixes the datum's tilt only to ± {:.1} mm/m (σ, gradient \
-                 at {:.0}° from east): ± {:.2} m of false change per 100 m across that direction \
-                 in a DoD, which check points along the other direction cannot show; control \
-                 points spread across the site (or more accurate GNSS) fix it",
-                e.name,
-                t.sigma_max_mm_per_m,
-                t.loose_azimuth_deg,
-                t.sigma_max_mm_per_m / 10.0
-            ));
-        }
-        if let Some(rho) = r
-            .gnss_offset
-            .and_then(|o| o.focal_correlation)
-            .filter(|rho| *rho > FOCAL_CORRELATION_WARNING)
-        {
-            warnings.push(format!(
-                "epoch {}: the vertical GNSS offset correlates with the focal length (|ρ| = \
-                 {rho:.2}): nadir images over flat ground cannot tell a flying-height bias from a \
-                 focal length, so the offset's prior (the stated GNSS accuracy) decides it; \
-                 control points with height spread, oblique images or a calibrated camera \
-                 separate them",
-                e.name
-            ));
-        }
-        if r.images_oriented < r.images_given {
-            warnings.push(format!(
-                "epoch {}: {} of {} images could not be oriented",
-                e.name,
-                r.images_given - r.images_oriented,
-                r.images_given
-            ));
-        }
+        rows.push(orientation_row(&e.name, r));
+        orientation_warnings(&e.name, r, warnings);
     }
     let mut s = table(
         &[
@@ -591,85 +510,193 @@ fn orientation_section(
         (Some(model), Some(recon)) => figures::reprojection_errors(model, recon),
         _ => BTreeMap::new(),
     };
-    for (k, e) in project.epochs.iter().enumerate() {
-        let _ = write!(s, "<h3>Epoch {}</h3><div class=\"row\">", esc(&e.name));
-        let background = inputs.hillshade(&e.name);
-        if let (Some(frame), Some(recon)) = (frame, &inputs.recon) {
-            let prints = figures::footprints(recon, &e.name, ground_height(inputs, k));
+    for k in 0..project.epochs.len() {
+        s.push_str(&epoch_orientation(project, inputs, frame, &errors, k));
+    }
+    s
+}
+
+/// One epoch's row of the orientation table.
+fn orientation_row(name: &str, r: &EpochOrientation) -> Vec<String> {
+    let rmse = |p: &PointResiduals| {
+        p.rmse.map_or("–".into(), |r| {
+            format!(
+                "{} / {} / {}",
+                mm(Some(r.de), 1),
+                mm(Some(r.dn), 1),
+                mm(Some(r.dh), 1)
+            )
+        })
+    };
+    vec![
+        esc(name),
+        r.images_given.to_string(),
+        r.images_oriented.to_string(),
+        num(r.rms_reprojection_px, 3),
+        r.tie_points.to_string(),
+        r.inter_epoch_tie_points.to_string(),
+        rmse(&r.control_points),
+        rmse(&r.check_points),
+        r.gnss_offset.map_or("–".into(), |o| {
+            let std = o.std.map_or(String::new(), |s| {
+                format!(" ± {:.2} / {:.2} / {:.2}", s[0], s[1], s[2])
+            });
+            let within = o.within_flight_sigma_m.map_or(String::new(), |s| {
+                let weighs = if o.scatter_weighs_priors {
+                    ", weighing its priors"
+                } else {
+                    ""
+                };
+                format!(
+                    " (scatter within the flight {:.2} / {:.2}{weighs})",
+                    s[0], s[1]
+                )
+            });
+            format!(
+                "{:.2} / {:.2} / {:.2}{std}{within}",
+                o.offset[0], o.offset[1], o.offset[2]
+            )
+        }),
+        r.datum_tilt.map_or("–".into(), |t| {
+            format!(
+                "{:.2} (gradient at {:.0}°) / {:.2}",
+                t.sigma_max_mm_per_m, t.loose_azimuth_deg, t.sigma_min_mm_per_m
+            )
+        }),
+    ]
+}
+
+/// The warnings one epoch's orientation calls for: a loose datum tilt, a GNSS offset the focal
+/// length cannot be told from, images not oriented.
+fn orientation_warnings(name: &str, r: &EpochOrientation, warnings: &mut Vec<String>) {
+    if let Some(t) = r
+        .datum_tilt
+        .filter(|t| t.sigma_max_mm_per_m >= DATUM_TILT_WARNING_MM_PER_M)
+    {
+        warnings.push(format!(
+            "epoch {}: its control fixes the datum's tilt only to ± {:.1} mm/m (σ, gradient \
+             at {:.0}° from east): ± {:.2} m of false change per 100 m across that direction \
+             in a DoD, which check points along the other direction cannot show; control \
+             points spread across the site (or more accurate GNSS) fix it",
+            name,
+            t.sigma_max_mm_per_m,
+            t.loose_azimuth_deg,
+            t.sigma_max_mm_per_m / 10.0
+        ));
+    }
+    if let Some(rho) = r
+        .gnss_offset
+        .and_then(|o| o.focal_correlation)
+        .filter(|rho| *rho > FOCAL_CORRELATION_WARNING)
+    {
+        warnings.push(format!(
+            "epoch {}: the vertical GNSS offset correlates with the focal length (|ρ| = \
+             {rho:.2}): nadir images over flat ground cannot tell a flying-height bias from a \
+             focal length, so the offset's prior (the stated GNSS accuracy) decides it; \
+             control points with height spread, oblique images or a calibrated camera \
+             separate them",
+            name
+        ));
+    }
+    if r.images_oriented < r.images_given {
+        warnings.push(format!(
+            "epoch {}: {} of {} images could not be oriented",
+            name,
+            r.images_given - r.images_oriented,
+            r.images_given
+        ));
+    }
+}
+
+/// One epoch's figures (footprints, overlap, reprojection errors, residual map) and its table
+/// of control and check points.
+fn epoch_orientation(
+    project: &Project,
+    inputs: &Inputs,
+    frame: Option<MapFrame>,
+    errors: &BTreeMap<String, Vec<f64>>,
+    k: usize,
+) -> String {
+    let a = &inputs.align;
+    let e = &project.epochs[k];
+    let mut s = String::new();
+    let _ = write!(s, "<h3>Epoch {}</h3><div class=\"row\">", esc(&e.name));
+    let background = inputs.hillshade(&e.name);
+    if let (Some(frame), Some(recon)) = (frame, &inputs.recon) {
+        let prints = figures::footprints(recon, &e.name, ground_height(inputs, k));
+        let _ = write!(
+            s,
+            "<figure>{}<figcaption>{} camera positions (orange) and image footprints on the \
+             plane of the median tie-point height, over the DEM hillshade.</figcaption>\
+             </figure>",
+            frame.svg(background, &footprint_overlay(&frame, &prints)),
+            prints.len()
+        );
+    }
+    s.push_str(&overlap_figure(project, inputs, &e.name));
+    s.push_str("</div><div class=\"row\">");
+    match errors.get(&e.name).filter(|v| !v.is_empty()) {
+        Some(v) => {
+            let mut sorted = v.clone();
+            sorted.sort_by(f64::total_cmp);
+            let q = |f: f64| sorted[((sorted.len() - 1) as f64 * f).round() as usize];
+            let rms = (sorted.iter().map(|x| x * x).sum::<f64>() / sorted.len() as f64).sqrt();
+            let hi = (q(0.99) * 1.1).max(1e-3);
             let _ = write!(
                 s,
-                "<figure>{}<figcaption>{} camera positions (orange) and image footprints on the \
-                 plane of the median tie-point height, over the DEM hillshade.</figcaption>\
-                 </figure>",
-                frame.svg(background, &footprint_overlay(&frame, &prints)),
-                prints.len()
+                "<figure>{}<figcaption>Reprojection error of the epoch's {} observations: \
+                 median {} px, RMS {} px, 95th percentile {} px.</figcaption></figure>",
+                svg::histogram(
+                    &sorted,
+                    0.0,
+                    hi,
+                    "reprojection error (px)",
+                    &[(q(0.5), "median"), (q(0.95), "95 %")]
+                ),
+                sorted.len(),
+                num(Some(q(0.5)), 3),
+                num(Some(rms), 3),
+                num(Some(q(0.95)), 3)
             );
         }
-        s.push_str(&overlap_figure(project, inputs, &e.name));
-        s.push_str("</div><div class=\"row\">");
-        match errors.get(&e.name).filter(|v| !v.is_empty()) {
-            Some(v) => {
-                let mut sorted = v.clone();
-                sorted.sort_by(f64::total_cmp);
-                let q = |f: f64| sorted[((sorted.len() - 1) as f64 * f).round() as usize];
-                let rms = (sorted.iter().map(|x| x * x).sum::<f64>() / sorted.len() as f64).sqrt();
-                let hi = (q(0.99) * 1.1).max(1e-3);
-                let _ = write!(
-                    s,
-                    "<figure>{}<figcaption>Reprojection error of the epoch's {} observations: \
-                     median {} px, RMS {} px, 95th percentile {} px.</figcaption></figure>",
-                    svg::histogram(
-                        &sorted,
-                        0.0,
-                        hi,
-                        "reprojection error (px)",
-                        &[(q(0.5), "median"), (q(0.95), "95 %")]
-                    ),
-                    sorted.len(),
-                    num(Some(q(0.5)), 3),
-                    num(Some(rms), 3),
-                    num(Some(q(0.95)), 3)
-                );
-            }
-            None => s.push_str("<p class=\"missing\">No observations in out/colmap/.</p>"),
-        }
-        if let (Some(frame), Some(r)) = (frame, a.epochs.get(&e.name))
-            && let Some(fig) = residual_map(
-                project,
-                &frame,
-                background,
-                &r.control_points,
-                &r.check_points,
-            )
-        {
-            s.push_str(&fig);
-        }
-        s.push_str("</div>");
-        if let Some(r) = a.epochs.get(&e.name) {
-            let mut rows = Vec::new();
-            residual_rows("control", &r.control_points, &mut rows);
-            residual_rows("check", &r.check_points, &mut rows);
-            rows.extend(markers_rmse_row(&r.check_points));
-            if !rows.is_empty() {
-                s.push_str(&table(
-                    &[
-                        "point",
-                        "images",
-                        "dE mm",
-                        "dN mm",
-                        "dH mm",
-                        "σH of its markers mm",
-                    ],
-                    &rows,
-                ));
-                s.push_str(
-                    "<p>σH of its markers: the standard deviation of the point's intersected height \
-                     that its markers' stated accuracy alone gives through these cameras. The \
-                     check RMSE from the markers alone is what the check points would show, in \
-                     expectation, with a perfect orientation: a check RMSE near it cannot tell \
-                     this orientation from a better one.</p>",
-                );
-            }
+        None => s.push_str("<p class=\"missing\">No observations in out/colmap/.</p>"),
+    }
+    if let (Some(frame), Some(r)) = (frame, a.epochs.get(&e.name))
+        && let Some(fig) = residual_map(
+            project,
+            &frame,
+            background,
+            &r.control_points,
+            &r.check_points,
+        )
+    {
+        s.push_str(&fig);
+    }
+    s.push_str("</div>");
+    if let Some(r) = a.epochs.get(&e.name) {
+        let mut rows = Vec::new();
+        residual_rows("control", &r.control_points, &mut rows);
+        residual_rows("check", &r.check_points, &mut rows);
+        rows.extend(markers_rmse_row(&r.check_points));
+        if !rows.is_empty() {
+            s.push_str(&table(
+                &[
+                    "point",
+                    "images",
+                    "dE mm",
+                    "dN mm",
+                    "dH mm",
+                    "σH of its markers mm",
+                ],
+                &rows,
+            ));
+            s.push_str(
+                "<p>σH of its markers: the standard deviation of the point's intersected height \
+                 that its markers' stated accuracy alone gives through these cameras. The \
+                 check RMSE from the markers alone is what the check points would show, in \
+                 expectation, with a perfect orientation: a check RMSE near it cannot tell \
+                 this orientation from a better one.</p>",
+            );
         }
     }
     s
@@ -692,34 +719,7 @@ fn connectivity_section(
          them, or by points on a small part of the ground, can drift or tilt against the others.\
          </p>",
     );
-    let max_off = (0..n)
-        .flat_map(|a| (0..n).filter(move |&b| b != a).map(move |b| (a, b)))
-        .map(|(a, b)| m[a][b])
-        .max()
-        .unwrap_or(0)
-        .max(1);
-    let mut rows = Vec::new();
-    for a in 0..n {
-        let mut row = vec![esc(&names[a])];
-        for b in 0..n {
-            let v = m[a][b];
-            let shade = if a == b {
-                "#f0f0f0".to_string()
-            } else {
-                let t = v as f64 / max_off as f64;
-                format!(
-                    "rgb({},{},{})",
-                    (255.0 - 120.0 * t) as u8,
-                    (255.0 - 60.0 * t) as u8,
-                    255
-                )
-            };
-            row.push(format!(
-                "<span style=\"background:{shade};padding:0 6px\">{v}</span>"
-            ));
-        }
-        rows.push(row);
-    }
+    let rows = tie_matrix_rows(names, &m);
     let headers: Vec<&str> = std::iter::once("epoch")
         .chain(names.iter().map(String::as_str))
         .collect();
@@ -750,43 +750,84 @@ fn connectivity_section(
         }
     }
     if let Some(frame) = frame {
-        let u = frame.unit();
-        let inter: Vec<&TiePoint> = points
-            .iter()
-            .filter(|p| p.epochs.count_ones() > 1)
-            .collect();
-        // At most 20 000 dots, every k-th point.
-        let stride = inter.len().div_ceil(20_000).max(1);
-        let mut overlay = String::new();
-        for p in inter.iter().step_by(stride) {
-            let (x, y) = frame.at(p.position.x, p.position.y);
-            let colour = match p.epochs.count_ones() {
-                2 => "#f1c40f",
-                3 => "#e67e22",
-                _ => "#c0392b",
+        s.push_str(&tie_map(project, inputs, frame, points));
+    }
+    s
+}
+
+/// The rows of the inter-epoch tie matrix, each count shaded by its share of the largest.
+fn tie_matrix_rows(names: &[String], m: &[Vec<usize>]) -> Vec<Vec<String>> {
+    let n = names.len();
+    let max_off = (0..n)
+        .flat_map(|a| (0..n).filter(move |&b| b != a).map(move |b| (a, b)))
+        .map(|(a, b)| m[a][b])
+        .max()
+        .unwrap_or(0)
+        .max(1);
+    let mut rows = Vec::new();
+    for a in 0..n {
+        let mut row = vec![esc(&names[a])];
+        for b in 0..n {
+            let v = m[a][b];
+            let shade = if a == b {
+                "#f0f0f0".to_string()
+            } else {
+                let t = v as f64 / max_off as f64;
+                format!(
+                    "rgb({},{},{})",
+                    (255.0 - 120.0 * t) as u8,
+                    (255.0 - 60.0 * t) as u8,
+                    255
+                )
             };
-            let _ = write!(
-                overlay,
-                "<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"{:.2}\" fill=\"{colour}\"/>",
-                1.4 * u
-            );
+            row.push(format!(
+                "<span style=\"background:{shade};padding:0 6px\">{v}</span>"
+            ));
         }
-        let reference = project
-            .epochs
-            .get(project.reference_epoch.0 as usize)
-            .map(|e| e.name.clone())
-            .unwrap_or_default();
-        let background = inputs.hillshade(&reference);
+        rows.push(row);
+    }
+    rows
+}
+
+/// The map of where the epochs are tied, over the reference epoch's hillshade.
+fn tie_map(project: &Project, inputs: &Inputs, frame: MapFrame, points: &[TiePoint]) -> String {
+    let mut s = String::new();
+    let u = frame.unit();
+    let inter: Vec<&TiePoint> = points
+        .iter()
+        .filter(|p| p.epochs.count_ones() > 1)
+        .collect();
+    // At most 20 000 dots, every k-th point.
+    let stride = inter.len().div_ceil(20_000).max(1);
+    let mut overlay = String::new();
+    for p in inter.iter().step_by(stride) {
+        let (x, y) = frame.at(p.position.x, p.position.y);
+        let colour = match p.epochs.count_ones() {
+            2 => "#f1c40f",
+            3 => "#e67e22",
+            _ => "#c0392b",
+        };
         let _ = write!(
-            s,
-            "<div class=\"row\"><figure>{}<figcaption>Where the epochs are tied: the {} tie points \
-             seen in two (yellow), three (orange) or more (red) epochs, over the hillshade of the \
-             reference epoch {}.</figcaption></figure></div>",
-            frame.svg(background, &overlay),
-            inter.len(),
-            esc(&reference)
+            overlay,
+            "<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"{:.2}\" fill=\"{colour}\"/>",
+            1.4 * u
         );
     }
+    let reference = project
+        .epochs
+        .get(project.reference_epoch.0 as usize)
+        .map(|e| e.name.clone())
+        .unwrap_or_default();
+    let background = inputs.hillshade(&reference);
+    let _ = write!(
+        s,
+        "<div class=\"row\"><figure>{}<figcaption>Where the epochs are tied: the {} tie points \
+         seen in two (yellow), three (orange) or more (red) epochs, over the hillshade of the \
+         reference epoch {}.</figcaption></figure></div>",
+        frame.svg(background, &overlay),
+        inter.len(),
+        esc(&reference)
+    );
     s
 }
 
@@ -888,128 +929,150 @@ fn change_section(project: &Project, warnings: &mut Vec<String>) -> String {
                 continue;
             }
         };
-        let mut rows = vec![stat_row("all cells", &dem.all)];
-        if let Some(st) = &dem.stable {
-            rows.push(stat_row("stable areas", st));
-        }
-        s.push_str(&table(
-            &[
-                "cells", "count", "mean m", "median m", "NMAD m", "std m", "RMSE m",
-            ],
-            &rows,
-        ));
-        match &dem.stable_trend {
-            Some(t) => {
-                let _ = write!(
-                    s,
-                    "<p>Plane through the stable areas: {} mm/m towards {}°, a gain of {} m \
-                     across their {} m extent.</p>",
-                    num(Some(t.slope * 1000.0), 2),
-                    num(Some(t.azimuth_deg), 0),
-                    num(Some(t.gain_m), 3),
-                    num(Some(t.extent_m), 0)
-                );
-                if let Some(lod) = dem.lod95
-                    && t.gain_m > lod
-                {
-                    warnings.push(format!(
-                        "{a} → {b}: the stable areas tilt by {:.3} m across {:.0} m, more than \
-                         the LoD95 of {:.3} m: the epochs are not co-registered to the level of \
-                         detection there",
-                        t.gain_m, t.extent_m, lod
-                    ));
-                }
-            }
-            None => s.push_str(
-                "<p class=\"missing\">No stable areas given: co-registration cannot be judged.</p>",
-            ),
-        }
-        let _ = write!(
-            s,
-            "<p>LoD95 {} m ({}); {} cells beyond it.</p>",
-            num(dem.lod95, 3),
-            esc(&dem.lod_source),
-            dem.significant_cells.map_or("–".into(), |c| c.to_string())
-        );
-        match &dem.stable_variogram {
-            Some(v) => {
-                let c = v.correlation();
-                let _ = write!(
-                    s,
-                    "<p>Errors over the stable areas correlate up to {} m ({} % of their \
-                     variance; spherical variogram over {} lags): the volumes' σ follows.</p>",
-                    num(Some(c.range_m), 1),
-                    num(Some(100.0 * c.correlated_fraction), 0),
-                    v.lags.len()
-                );
-            }
-            None if dem.stable.is_some() => s.push_str(
-                "<p class=\"missing\">No variogram of the stable areas: the volumes' σ assumes \
-                 independent cells and is too small.</p>",
-            ),
-            None => {}
-        }
-        let mut vrows = vec![volume_row("every cell", &dem.volumes)];
-        if let Some(v) = &dem.volumes_beyond_lod {
-            vrows.push(volume_row("beyond LoD95", v));
-        }
-        s.push_str(&table(
-            &[
-                "volumes",
-                "cut m³",
-                "fill m³",
-                "net m³ ± σ",
-                "area m²",
-                "cells",
-            ],
-            &vrows,
-        ));
-        let (map, hist) = (
-            page::png_file_uri(&dir.join("dod.png")),
-            page::png_file_uri(&dir.join("histogram.png")),
-        );
-        s.push_str(&figure_row(&[
-            (
-                map.as_deref(),
-                "DoD map",
-                "map",
-                "DEM of difference, LoD95 mask in grey",
-            ),
-            (
-                hist.as_deref(),
-                "DoD histogram",
-                "plot",
-                "Histogram of the difference",
-            ),
-        ]));
+        s.push_str(&dod_statistics(&a, &b, &dem, warnings));
+        s.push_str(&dod_volumes_and_maps(&dir, &dem));
         for w in &dem.warnings {
             warnings.push(format!("{a} → {b}: {w}"));
         }
-        match read_json::<CloudReport>(&layout.m3c2_stats(&a, &b)) {
-            Ok(c) => {
-                let _ = write!(
-                    s,
-                    "<p>M3C2 between the dense clouds: {} core points, {} with a distance, {} with \
-                     significant change; distance median {} m, NMAD {} m; median LoD95 {} m.</p>",
-                    c.core_points,
-                    c.defined,
-                    c.significant,
-                    num(c.distance.map(|d| d.median), 3),
-                    num(c.distance.map(|d| d.nmad), 3),
-                    num(c.lod95.map(|d| d.median), 3),
-                );
-                let (map, hist) = (
-                    page::png_file_uri(&dir.join("m3c2.png")),
-                    page::png_file_uri(&dir.join("m3c2_histogram.png")),
-                );
-                s.push_str(&figure_row(&[
-                    (map.as_deref(), "M3C2 map", "map", "M3C2 distances"),
-                    (hist.as_deref(), "M3C2 histogram", "plot", "M3C2 histogram"),
-                ]));
+        s.push_str(&m3c2_summary(&dir, &layout.m3c2_stats(&a, &b)));
+    }
+    s
+}
+
+/// A DoD's statistics (every cell, the stable areas), the stable areas' plane (a warning where
+/// it tilts by more than the LoD95), the LoD95 and the correlation of the stable errors.
+fn dod_statistics(a: &str, b: &str, dem: &DemReport, warnings: &mut Vec<String>) -> String {
+    let mut s = String::new();
+    let mut rows = vec![stat_row("all cells", &dem.all)];
+    if let Some(st) = &dem.stable {
+        rows.push(stat_row("stable areas", st));
+    }
+    s.push_str(&table(
+        &[
+            "cells", "count", "mean m", "median m", "NMAD m", "std m", "RMSE m",
+        ],
+        &rows,
+    ));
+    match &dem.stable_trend {
+        Some(t) => {
+            let _ = write!(
+                s,
+                "<p>Plane through the stable areas: {} mm/m towards {}°, a gain of {} m \
+                 across their {} m extent.</p>",
+                num(Some(t.slope * 1000.0), 2),
+                num(Some(t.azimuth_deg), 0),
+                num(Some(t.gain_m), 3),
+                num(Some(t.extent_m), 0)
+            );
+            if let Some(lod) = dem.lod95
+                && t.gain_m > lod
+            {
+                warnings.push(format!(
+                    "{a} → {b}: the stable areas tilt by {:.3} m across {:.0} m, more than \
+                     the LoD95 of {:.3} m: the epochs are not co-registered to the level of \
+                     detection there",
+                    t.gain_m, t.extent_m, lod
+                ));
             }
-            Err(_) => {
-                s.push_str("<p class=\"missing\">M3C2: not computed (needs both dense clouds).</p>")
-            }
+        }
+        None => s.push_str(
+            "<p class=\"missing\">No stable areas given: co-registration cannot be judged.</p>",
+        ),
+    }
+    let _ = write!(
+        s,
+        "<p>LoD95 {} m ({}); {} cells beyond it.</p>",
+        num(dem.lod95, 3),
+        esc(&dem.lod_source),
+        dem.significant_cells.map_or("–".into(), |c| c.to_string())
+    );
+    match &dem.stable_variogram {
+        Some(v) => {
+            let c = v.correlation();
+            let _ = write!(
+                s,
+                "<p>Errors over the stable areas correlate up to {} m ({} % of their \
+                 variance; spherical variogram over {} lags): the volumes' σ follows.</p>",
+                num(Some(c.range_m), 1),
+                num(Some(100.0 * c.correlated_fraction), 0),
+                v.lags.len()
+            );
+        }
+        None if dem.stable.is_some() => s.push_str(
+            "<p class=\"missing\">No variogram of the stable areas: the volumes' σ assumes \
+             independent cells and is too small.</p>",
+        ),
+        None => {}
+    }
+    s
+}
+
+/// A DoD's volumes, its map and its histogram.
+fn dod_volumes_and_maps(dir: &std::path::Path, dem: &DemReport) -> String {
+    let mut s = String::new();
+    let mut vrows = vec![volume_row("every cell", &dem.volumes)];
+    if let Some(v) = &dem.volumes_beyond_lod {
+        vrows.push(volume_row("beyond LoD95", v));
+    }
+    s.push_str(&table(
+        &[
+            "volumes",
+            "cut m³",
+            "fill m³",
+            "net m³ ± σ",
+            "area m²",
+            "cells",
+        ],
+        &vrows,
+    ));
+    let (map, hist) = (
+        page::png_file_uri(&dir.join("dod.png")),
+        page::png_file_uri(&dir.join("histogram.png")),
+    );
+    s.push_str(&figure_row(&[
+        (
+            map.as_deref(),
+            "DoD map",
+            "map",
+            "DEM of difference, LoD95 mask in grey",
+        ),
+        (
+            hist.as_deref(),
+            "DoD histogram",
+            "plot",
+            "Histogram of the difference",
+        ),
+    ]));
+    s
+}
+
+/// The M3C2 comparison of the dense clouds, from its statistics file.
+fn m3c2_summary(dir: &std::path::Path, stats: &std::path::Path) -> String {
+    let mut s = String::new();
+    match read_json::<CloudReport>(stats) {
+        Ok(c) => {
+            let _ = write!(
+                s,
+                "<p>M3C2 between the dense clouds: {} core points, {} with a distance, {} with \
+                 significant change; distance median {} m, NMAD {} m; median LoD95 {} m.</p>",
+                c.core_points,
+                c.defined,
+                c.significant,
+                num(c.distance.map(|d| d.median), 3),
+                num(c.distance.map(|d| d.nmad), 3),
+                num(c.lod95.map(|d| d.median), 3),
+            );
+            let (map, hist) = (
+                page::png_file_uri(&dir.join("m3c2.png")),
+                page::png_file_uri(&dir.join("m3c2_histogram.png")),
+            );
+            s.push_str(&figure_row(&[
+                (map.as_deref(), "M3C2 map", "map", "M3C2 distances"),
+                (hist.as_deref(), "M3C2 histogram", "plot", "M3C2 histogram"),
+            ]));
+        }
+        Err(_) => {
+            s.push_str("<p class=\"missing\">M3C2: not computed (needs both dense clouds).</p>")
         }
     }
     s
