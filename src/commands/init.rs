@@ -43,6 +43,30 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
             message: "already exists (use --force to overwrite)".to_string(),
         });
     }
+    let found = epoch_folders(dir)?;
+    let text = project_toml(&found);
+    let config = ProjectConfig::parse(&config_path, &text)?;
+    Project::from_config(dir, config)?;
+    fsutil::write_bytes_atomically(&config_path, text.as_bytes())?;
+    Ok(InitSummary {
+        epochs: found.epochs,
+        crs: found.crs,
+        images_with_gps: found.with_gps,
+    })
+}
+
+/// The epochs `images/` holds (a folder with images each, sorted) and the frame their EXIF GPS
+/// suggests.
+struct EpochFolders {
+    /// Name and image count of each epoch.
+    epochs: Vec<(String, usize)>,
+    crs: Crs,
+    with_gps: usize,
+}
+
+/// The epoch folders of `dir/images`, with the UTM zone of the images' mean EXIF GPS position
+/// (a local frame without GPS).
+fn epoch_folders(dir: &Path) -> Result<EpochFolders, ProjectError> {
     let images_dir = dir.join("images");
     let entries = std::fs::read_dir(&images_dir).map_err(|e| ProjectError::Path {
         path: images_dir.clone(),
@@ -54,7 +78,6 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         .filter(|p| p.is_dir())
         .collect();
     epoch_dirs.sort();
-
     let mut epochs = Vec::new();
     // Longitudes are averaged on the circle, so blocks across ±180° get the right zone.
     let (mut lat_sum, mut lon_sin, mut lon_cos, mut with_gps) = (0.0, 0.0, 0.0, 0usize);
@@ -107,6 +130,18 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         Crs::Local
     };
 
+    Ok(EpochFolders {
+        epochs,
+        crs,
+        with_gps,
+    })
+}
+
+/// `project.toml` for the epochs found: every epoch, and every section's keys commented with
+/// their defaults.
+fn project_toml(found: &EpochFolders) -> String {
+    let (crs, with_gps, epochs) = (&found.crs, found.with_gps, &found.epochs);
+    let reference = &epochs[0].0;
     let mut text = String::new();
     let _ = writeln!(
         text,
@@ -122,7 +157,7 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
             "no EXIF GPS found: a local frame"
         }
     );
-    for (name, _) in &epochs {
+    for (name, _) in epochs {
         let _ = writeln!(text, "[[epoch]]\nname = {}", toml_string(name));
         let _ = writeln!(
             text,
@@ -135,12 +170,24 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
             toml_string(name)
         );
     }
+    align_section(&mut text, reference);
+    dense_section(&mut text);
+    raster_section(&mut text);
+    gnss_section(&mut text);
+    camera_example(&mut text, reference);
+    text
+}
+
+/// The `[align]` section, with `reference` as the reference epoch.
+fn align_section(text: &mut String, reference: &str) {
     let _ = writeln!(text, "[align]");
     let _ = writeln!(
         text,
-        "method = \"timesift\"  # timesift | msfm | chunk | stp | manual | independent"
+        "method = \"{}\"  # {}",
+        timesift_align::Method::default(),
+        timesift_align::Method::ALL.map(|m| m.name()).join(" | ")
     );
-    let _ = writeln!(text, "reference_epoch = {}", toml_string(&epochs[0].0));
+    let _ = writeln!(text, "reference_epoch = {}", toml_string(reference));
     let _ = writeln!(text, "features = \"sift\"  # sift | ldb");
     let _ = writeln!(
         text,
@@ -158,6 +205,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         text,
         "# join_epoch_ties = false  # true: after the first block, join two epochs' tie points that it puts together and whose descriptors match; orient again (twice the time)\n"
     );
+}
+
+/// The `[dense]` section, its keys at their defaults.
+fn dense_section(text: &mut String) {
     let _ = writeln!(text, "[dense]");
     let _ = writeln!(
         text,
@@ -198,6 +249,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         text,
         "# black_is_nodata = true  # pure black pixels (scan borders) give no depth\n"
     );
+}
+
+/// The `[raster]` section, its keys at their defaults.
+fn raster_section(text: &mut String) {
     let _ = writeln!(text, "[raster]");
     let _ = writeln!(
         text,
@@ -236,6 +291,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         text,
         "# gain_compensation = true  # per-image gains from the overlaps\n"
     );
+}
+
+/// The `[gnss]` section, its keys at their defaults.
+fn gnss_section(text: &mut String) {
     let _ = writeln!(text, "[gnss]");
     let _ = writeln!(
         text,
@@ -257,6 +316,10 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
         text,
         "# weigh_by_scatter = \"controlled\"  # flights weighed by their scatter: \"controlled\" (those with control points), \"all\" or \"none\""
     );
+}
+
+/// A commented `[[camera]]` example naming `reference`.
+fn camera_example(text: &mut String, reference: &str) {
     let _ = writeln!(
         text,
         "\n# A known calibration (e.g. a film camera's certificate and the scan resolution):\n\
@@ -272,15 +335,6 @@ pub fn init(dir: &Path, options: InitOptions) -> Result<InitSummary, ProjectErro
          # mask = \"calibration/mask.png\"  # zero where no keypoint or depth may come from\n\
          # [camera.fiducials]  # mm, x right, y up\n\
          # TL = [-106.004, 105.996]",
-        toml_string(&epochs[0].0)
+        toml_string(reference)
     );
-
-    let config = ProjectConfig::parse(&config_path, &text)?;
-    Project::from_config(dir, config)?;
-    fsutil::write_bytes_atomically(&config_path, text.as_bytes())?;
-    Ok(InitSummary {
-        epochs,
-        crs,
-        images_with_gps: with_gps,
-    })
 }
