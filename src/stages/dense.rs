@@ -466,15 +466,7 @@ fn dense_epoch(
     let layout: Layout = project.layout();
     let name = project.epochs[epoch].name.as_str();
     let (images, input) = epoch_input(project, epoch, cameras, model, oriented)?;
-    for &i in &images {
-        let path = project.dir.join(&project.images[i].name);
-        if !path.is_file() {
-            return Err(ProjectError::Path {
-                path,
-                message: format!("image of epoch \"{name}\" is missing"),
-            });
-        }
-    }
+    check_images_exist(project, name, &images)?;
     let plan = plan_epoch(&input, &options.plan).map_err(|e| dense_error(name, e))?;
     let passes = plan_schedule(&plan, &options.patchmatch);
     let work = layout.dense_work_dir(name);
@@ -482,17 +474,7 @@ fn dense_epoch(
     // Scans in their frames and camera masks are part of what the maps are made from.
     let fingerprint = orientation_fingerprint(&input) + &source.fingerprint(project);
     let maps = map_settings(options, &fingerprint, &images);
-    let settings_path = Layout::settings_file(&work);
-    if read_settings(&settings_path).as_ref() != Some(&maps) {
-        if work.exists() {
-            std::fs::remove_dir_all(&work).map_err(|e| timesift_io::IoError::io(&work, e))?;
-            tracing::info!(
-                epoch = name,
-                "dense settings or orientation changed: maps redone"
-            );
-        }
-        write_settings(&settings_path, &maps)?;
-    }
+    start_over_if_changed(&work, &maps, name)?;
     let cloud_path = layout.dense_cloud(name);
     let cloud_record = work.join("cloud.json");
     let last = passes.len() - 1;
@@ -532,51 +514,16 @@ fn dense_epoch(
         entries: VecDeque::new(),
     };
     let map_file = |pass: usize, view: usize| layout.depth_map_file(name, pass, images[view]);
-    let bar = super::progress_bar(
-        "dense",
-        name,
-        (passes.len() * images.len()) as u64,
-        "depth maps",
-    );
-    let mut computed = 0;
-    for (k, pass) in passes.iter().enumerate() {
-        for view in 0..images.len() {
-            if read_map(&map_file(k, view)).is_some() {
-                bar.inc(1);
-                continue;
-            }
-            let map = compute_map(&plan, &mut cache, &map_file, view, k, pass, options)?;
-            write_map(&map_file(k, view), &map)?;
-            computed += 1;
-            bar.inc(1);
-        }
-    }
-    bar.finish_and_clear();
+    let computed = compute_maps(&plan, &passes, &mut cache, &map_file, name, options)?;
     // Filtering, then fusion.
-    let final_map = |view: usize| {
-        read_map(&map_file(last, view)).ok_or_else(|| {
-            stage_error(
-                "dense",
-                format!("{}: unreadable depth map", map_file(last, view).display()),
-            )
-        })
-    };
     let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
-    let (mut with_depth, mut upsampled) = (0usize, 0usize);
-    for (view, vp) in plan.views.iter().enumerate() {
-        let own = final_map(view)?;
-        with_depth += own.valid_count();
-        upsampled += own.upsampled.iter().filter(|&&u| u).count();
-        let neighbours = vp
-            .neighbours
-            .iter()
-            .map(|&s| final_map(s))
-            .collect::<Result<Vec<_>, _>>()?;
-        let refs: Vec<Option<&DepthMap>> = neighbours.iter().map(Some).collect();
-        let filtered = filter_depth_map(&plan, view, &own, &refs, &options.filter)
-            .map_err(|e| dense_error(name, e))?;
-        write_map(&filtered_file(view), &filtered)?;
-    }
+    let (with_depth, upsampled) = filter_maps(
+        &plan,
+        &|view| map_file(last, view),
+        &filtered_file,
+        name,
+        options,
+    )?;
     let cloud = fuse(&plan, &options.fusion, &mut |view: usize| {
         let map = read_map(&filtered_file(view)).ok_or_else(|| {
             stage_error(
@@ -629,6 +576,105 @@ impl From<ProjectError> for FusionError {
     fn from(e: ProjectError) -> Self {
         FusionError::Project(e)
     }
+}
+
+/// Every image of the epoch is where the project says.
+fn check_images_exist(project: &Project, name: &str, images: &[usize]) -> Result<(), ProjectError> {
+    for &i in images {
+        let path = project.dir.join(&project.images[i].name);
+        if !path.is_file() {
+            return Err(ProjectError::Path {
+                path,
+                message: format!("image of epoch \"{name}\" is missing"),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Empties the epoch's work folder when the maps' settings (or the orientation) recorded there
+/// are not `maps`, and records `maps`.
+fn start_over_if_changed(
+    work: &Path,
+    maps: &serde_json::Value,
+    name: &str,
+) -> Result<(), ProjectError> {
+    let settings_path = Layout::settings_file(work);
+    if read_settings(&settings_path).as_ref() != Some(maps) {
+        if work.exists() {
+            std::fs::remove_dir_all(work).map_err(|e| timesift_io::IoError::io(work, e))?;
+            tracing::info!(
+                epoch = name,
+                "dense settings or orientation changed: maps redone"
+            );
+        }
+        write_settings(&settings_path, maps)?;
+    }
+    Ok(())
+}
+
+/// Every pass's depth map of every view that is not on disk yet, pass after pass; how many
+/// were computed.
+fn compute_maps(
+    plan: &EpochPlan,
+    passes: &[Pass],
+    cache: &mut ImageCache<'_>,
+    map_file: &dyn Fn(usize, usize) -> PathBuf,
+    name: &str,
+    options: &DenseOptions,
+) -> Result<usize, ProjectError> {
+    let views = plan.views.len();
+    let bar = super::progress_bar("dense", name, (passes.len() * views) as u64, "depth maps");
+    let mut computed = 0;
+    for (k, pass) in passes.iter().enumerate() {
+        for view in 0..views {
+            if read_map(&map_file(k, view)).is_some() {
+                bar.inc(1);
+                continue;
+            }
+            let map = compute_map(plan, cache, map_file, view, k, pass, options)?;
+            write_map(&map_file(k, view), &map)?;
+            computed += 1;
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    Ok(computed)
+}
+
+/// Each view's final map filtered against its neighbours' and written; the pixels with a
+/// depth and those of them still on an upsampled plane, over the epoch.
+fn filter_maps(
+    plan: &EpochPlan,
+    final_file: &dyn Fn(usize) -> PathBuf,
+    filtered_file: &dyn Fn(usize) -> PathBuf,
+    name: &str,
+    options: &DenseOptions,
+) -> Result<(usize, usize), ProjectError> {
+    let final_map = |view: usize| {
+        read_map(&final_file(view)).ok_or_else(|| {
+            stage_error(
+                "dense",
+                format!("{}: unreadable depth map", final_file(view).display()),
+            )
+        })
+    };
+    let (mut with_depth, mut upsampled) = (0usize, 0usize);
+    for (view, vp) in plan.views.iter().enumerate() {
+        let own = final_map(view)?;
+        with_depth += own.valid_count();
+        upsampled += own.upsampled.iter().filter(|&&u| u).count();
+        let neighbours = vp
+            .neighbours
+            .iter()
+            .map(|&s| final_map(s))
+            .collect::<Result<Vec<_>, _>>()?;
+        let refs: Vec<Option<&DepthMap>> = neighbours.iter().map(Some).collect();
+        let filtered = filter_depth_map(plan, view, &own, &refs, &options.filter)
+            .map_err(|e| dense_error(name, e))?;
+        write_map(&filtered_file(view), &filtered)?;
+    }
+    Ok((with_depth, upsampled))
 }
 
 /// One view's map of pass `k`, reading the maps of pass `k − 1` it needs.
