@@ -10,14 +10,17 @@
 //! (`work/raster/<epoch>.ortho.json`).
 
 use std::collections::VecDeque;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use timesift_core::CameraModel;
+use timesift_dense::EpochInput;
 use timesift_io::geotiff::{GeoTiffWriter, read_f32};
 use timesift_io::tiled_tiff::{Pixels, SampleFormat};
-use timesift_raster::{Downscaler, OrthoView, RgbImage, ViewImages, orthomosaic_by_rows};
+use timesift_raster::{
+    Downscaler, Lattice, OrthoOptions, OrthoView, RgbImage, ViewImages, orthomosaic_by_rows,
+};
 
 use super::cache::file_stamp;
 use super::cache::stage_error;
@@ -81,6 +84,31 @@ struct ImageCache<'a> {
     /// Width and height of each view's camera, which its image must have.
     sizes: Vec<(u32, u32)>,
     entries: Mutex<VecDeque<(usize, Arc<RgbImage>)>>,
+}
+
+impl<'a> ImageCache<'a> {
+    /// An empty cache of the images of `views` (project indices `images`).
+    fn new(
+        project: &'a Project,
+        source: &'a ImageSource,
+        images: Vec<usize>,
+        views: &[OrthoView],
+    ) -> ImageCache<'a> {
+        ImageCache {
+            project,
+            source,
+            paths: images
+                .iter()
+                .map(|&i| project.dir.join(&project.images[i].name))
+                .collect(),
+            images,
+            sizes: views
+                .iter()
+                .map(|v| (v.camera.width(), v.camera.height()))
+                .collect(),
+            entries: Mutex::new(VecDeque::new()),
+        }
+    }
 }
 
 impl ViewImages for ImageCache<'_> {
@@ -175,18 +203,7 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             .config
             .raster
             .ortho_options(grid.ortho_factor, project.config.dense.black_is_nodata);
-        let poses: Vec<String> = input
-            .views
-            .iter()
-            .map(|v| format!("{:?}{:?}", v.camera, v.cam_from_world))
-            .collect();
-        let settings = serde_json::json!({
-            "algorithm": ORTHO_ALGORITHM,
-            "dem": file_stamp(&dem_path),
-            "options": format!("{options:?}"),
-            "views": poses,
-            "images": source.fingerprint(project),
-        });
+        let settings = ortho_settings(&dem_path, &options, &input, source.fingerprint(project));
         let settings_path = layout.raster_settings(name, "ortho");
         let recorded: Option<serde_json::Value> = read_json(&settings_path).ok();
         if recorded.as_ref() == Some(&settings)
@@ -199,25 +216,7 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             tracing::info!(epoch = %name, "ortho up to date");
             continue;
         }
-        let dem = read_f32(&dem_path)?;
-        if !on_lattice(&dem.georef, dem.width, dem.height, &grid.dem) {
-            return Err(ProjectError::Path {
-                path: dem_path,
-                message: "not on the lattice of out/grid.json (run the dem stage)".into(),
-            });
-        }
-        let nodata = dem.georef.nodata.map(|v| v as f32);
-        let heights: Vec<f32> = dem
-            .data
-            .iter()
-            .map(|h| {
-                if Some(*h) == nodata || !h.is_finite() {
-                    f32::NAN
-                } else {
-                    *h
-                }
-            })
-            .collect();
+        let heights = dem_heights(&dem_path, &grid.dem)?;
         let views: Vec<OrthoView> = input
             .views
             .iter()
@@ -226,20 +225,7 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
                 cam_from_world: v.cam_from_world,
             })
             .collect();
-        let cache = ImageCache {
-            project,
-            source: &source,
-            images: images.clone(),
-            paths: images
-                .iter()
-                .map(|&i| project.dir.join(&project.images[i].name))
-                .collect(),
-            sizes: views
-                .iter()
-                .map(|v| (v.camera.width(), v.camera.height()))
-                .collect(),
-            entries: Mutex::new(VecDeque::new()),
-        };
+        let cache = ImageCache::new(project, &source, images, &views);
         let start = Instant::now();
         let bar = super::progress_bar("ortho", name, 0, "tiles");
         let progress = |done: usize, total: usize| {
@@ -301,4 +287,50 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
         write_json(&layout.raster_report(), &report)?;
     }
     Ok(report)
+}
+
+/// What an epoch's ortho is made from: the DEM file, the options, every view's camera and pose,
+/// the images.
+fn ortho_settings(
+    dem_path: &Path,
+    options: &OrthoOptions,
+    input: &EpochInput,
+    images: String,
+) -> serde_json::Value {
+    let poses: Vec<String> = input
+        .views
+        .iter()
+        .map(|v| format!("{:?}{:?}", v.camera, v.cam_from_world))
+        .collect();
+    serde_json::json!({
+        "algorithm": ORTHO_ALGORITHM,
+        "dem": file_stamp(dem_path),
+        "options": format!("{options:?}"),
+        "views": poses,
+        "images": images,
+    })
+}
+
+/// The heights of an epoch's DEM (NaN where it has none), which must lie on the project's DEM
+/// lattice.
+fn dem_heights(dem_path: &Path, lattice: &Lattice) -> Result<Vec<f32>, ProjectError> {
+    let dem = read_f32(dem_path)?;
+    if !on_lattice(&dem.georef, dem.width, dem.height, lattice) {
+        return Err(ProjectError::Path {
+            path: dem_path.to_path_buf(),
+            message: "not on the lattice of out/grid.json (run the dem stage)".into(),
+        });
+    }
+    let nodata = dem.georef.nodata.map(|v| v as f32);
+    Ok(dem
+        .data
+        .iter()
+        .map(|h| {
+            if Some(*h) == nodata || !h.is_finite() {
+                f32::NAN
+            } else {
+                *h
+            }
+        })
+        .collect())
 }
