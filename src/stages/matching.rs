@@ -79,30 +79,9 @@ pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
         .map(|i| read_features(&layout.feature_file(i)))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))?;
-    let priors = project.camera_priors()?;
-    let positions: Vec<Option<[f64; 3]>> = priors
-        .iter()
-        .map(|p| {
-            p.as_ref()
-                .map(|p| [p.position.x, p.position.y, p.position.z])
-        })
-        .collect();
     let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
     let selection = project.config.align.pair_selection;
-    let positions = if selection == PairSelection::Exhaustive {
-        vec![None; n]
-    } else {
-        positions
-    };
-    let within = if positions.iter().all(Option::is_some) {
-        PairPolicy::Spatial {
-            neighbours: WITHIN_EPOCH_NEIGHBOURS,
-            max_distance: None,
-        }
-    } else {
-        PairPolicy::Exhaustive
-    };
-    let candidates = epoch_aware(&epoch_of, &positions, within, ACROSS_EPOCH_NEIGHBOURS);
+    let candidates = candidate_pairs(project, &epoch_of)?;
     // A pair's matches do not depend on which other pairs are selected: only the algorithm.
     let settings = serde_json::json!({ "algorithm": MATCH_ALGORITHM });
     start_with_settings("match", &layout.matches_dir(), "match", &settings, &[])?;
@@ -130,15 +109,8 @@ pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
             if let Ok(done) = read_matches(&path) {
                 return Ok(done);
             }
-            let (ka, da) = &features[a];
-            let (kb, db) = &features[b];
-            let putative = match_descriptors(da, db, &options).map_err(|e| e.to_string())?;
-            let inliers =
-                match verify_pair(ka, kb, &putative, None, &verify).map_err(|e| e.to_string())? {
-                    Some(verified) => grow_verified(ka, da, kb, db, &verified, &guided)
-                        .map_err(|e| e.to_string())?,
-                    None => Vec::new(),
-                };
+            let inliers = verified_matches(&features[a], &features[b], &options, &verify, &guided)
+                .map_err(|e| e.to_string())?;
             write_matches(&path, &inliers).map_err(|e| e.to_string())?;
             Ok(inliers)
         })
@@ -157,17 +129,7 @@ pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
     let counts: Vec<usize> = features.iter().map(|f| f.0.len()).collect();
     let tracks =
         build_tracks(&counts, &verified).map_err(|e| stage_error("match", e.to_string()))?;
-    let mut per_epoch_pair: BTreeMap<String, usize> = BTreeMap::new();
-    for p in &verified {
-        let (ea, eb) = (epoch_of[p.a.index()], epoch_of[p.b.index()]);
-        let (ea, eb) = (ea.min(eb), ea.max(eb));
-        let key = format!(
-            "{}__{}",
-            project.epochs[ea.index()].name,
-            project.epochs[eb.index()].name
-        );
-        *per_epoch_pair.entry(key).or_insert(0) += 1;
-    }
+    let per_epoch_pair = verified_per_epoch_pair(project, &epoch_of, &verified);
     let summary = MatchSummary {
         candidate_pairs: candidate_count,
         pairs: pairs.len(),
@@ -179,4 +141,75 @@ pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
     };
     write_json(&layout.match_summary(), &summary)?;
     Ok(summary)
+}
+
+/// The pairs to match: within an epoch the spatial neighbours (every pair where an image has no
+/// position prior, or with `pair_selection = "exhaustive"`), across epochs the nearest.
+fn candidate_pairs(
+    project: &Project,
+    epoch_of: &[EpochId],
+) -> Result<Vec<(usize, usize)>, ProjectError> {
+    let priors = project.camera_priors()?;
+    let positions: Vec<Option<[f64; 3]>> =
+        if project.config.align.pair_selection == PairSelection::Exhaustive {
+            vec![None; project.images.len()]
+        } else {
+            priors
+                .iter()
+                .map(|p| {
+                    p.as_ref()
+                        .map(|p| [p.position.x, p.position.y, p.position.z])
+                })
+                .collect()
+        };
+    let within = if positions.iter().all(Option::is_some) {
+        PairPolicy::Spatial {
+            neighbours: WITHIN_EPOCH_NEIGHBOURS,
+            max_distance: None,
+        }
+    } else {
+        PairPolicy::Exhaustive
+    };
+    Ok(epoch_aware(
+        epoch_of,
+        &positions,
+        within,
+        ACROSS_EPOCH_NEIGHBOURS,
+    ))
+}
+
+/// One pair's matches: putative by descriptor, verified geometrically, grown by guided
+/// matching (none where verification fails).
+fn verified_matches(
+    (ka, da): &(Vec<timesift_core::Keypoint>, timesift_core::Descriptors),
+    (kb, db): &(Vec<timesift_core::Keypoint>, timesift_core::Descriptors),
+    options: &MatchOptions,
+    verify: &VerifyOptions,
+    guided: &GuidedOptions,
+) -> Result<Vec<timesift_matching::Match>, timesift_matching::MatchingError> {
+    let putative = match_descriptors(da, db, options)?;
+    Ok(match verify_pair(ka, kb, &putative, None, verify)? {
+        Some(verified) => grow_verified(ka, da, kb, db, &verified, guided)?,
+        None => Vec::new(),
+    })
+}
+
+/// Verified pairs per pair of epochs (`<a>__<b>`, earlier first).
+fn verified_per_epoch_pair(
+    project: &Project,
+    epoch_of: &[EpochId],
+    verified: &[PairMatches],
+) -> BTreeMap<String, usize> {
+    let mut per_epoch_pair: BTreeMap<String, usize> = BTreeMap::new();
+    for p in verified {
+        let (ea, eb) = (epoch_of[p.a.index()], epoch_of[p.b.index()]);
+        let (ea, eb) = (ea.min(eb), ea.max(eb));
+        let key = format!(
+            "{}__{}",
+            project.epochs[ea.index()].name,
+            project.epochs[eb.index()].name
+        );
+        *per_epoch_pair.entry(key).or_insert(0) += 1;
+    }
+    per_epoch_pair
 }
