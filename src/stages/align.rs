@@ -513,15 +513,48 @@ fn write_outputs(
         origin,
         priors: Vec::new(),
     };
-    // cameras.json
+    let file = cameras_file(project, input, rec, crs, &shifted);
+    timesift_io::cameras_json::write_cameras_json(&layout.cameras_json(), &file)?;
+    let model = colmap_model(&file, input, rec, origin)?;
+    timesift_io::colmap::write_colmap_text(&layout.colmap_dir(), &model)?;
+    // Tie points with their epochs.
+    let epoch_of: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
+    let tiepoints: Vec<timesift_io::ply::TiePoint> = rec
+        .points
+        .iter()
+        .map(|p| timesift_io::ply::TiePoint {
+            position: p.position + origin,
+            observations: p.observations.len().min(u16::MAX as usize) as u16,
+            epochs: p
+                .observations
+                .iter()
+                .fold(0u32, |m, e| m | 1u32 << (epoch_of[e.image.index()] % 32)),
+        })
+        .collect();
+    let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
+    timesift_io::ply::write_tiepoints(&layout.tiepoints_ply(), &epoch_names, &tiepoints)?;
+    let report = report(project, input, geo, block, strategy, &tiepoints, seconds);
+    write_json(&layout.report_json(), &report)?;
+    Ok(report)
+}
+
+/// `cameras.json`: every camera group (named by its first epoch's group) and every image's pose
+/// in the world frame (`shifted` from the block's local frame).
+fn cameras_file(
+    project: &Project,
+    input: &SfmInput,
+    rec: &timesift_align::Reconstruction,
+    crs: String,
+    shifted: &LocalFrame,
+) -> CamerasFile {
     let mut group_names: Vec<String> = vec![String::new(); input.cameras.len()];
     for epoch in &project.epochs {
         if let Some(&first) = epoch.images.first() {
             group_names[input.images[first.index()].group] = epoch.camera_group.clone();
         }
     }
-    let file = CamerasFile {
-        crs: crs.clone(),
+    CamerasFile {
+        crs,
         cameras: group_names
             .iter()
             .cloned()
@@ -538,10 +571,18 @@ fn write_outputs(
                 pose: rec.poses[i].map(|p| shifted.world_pose(&p)),
             })
             .collect(),
-    };
-    timesift_io::cameras_json::write_cameras_json(&layout.cameras_json(), &file)?;
-    // COLMAP text model with the tie points.
-    let mut model = timesift_io::colmap::from_reconstruction(&file)
+    }
+}
+
+/// The COLMAP text model of `file` with the block's tie points (shifted by `origin` into the
+/// world frame), each with its mean reprojection error.
+fn colmap_model(
+    file: &CamerasFile,
+    input: &SfmInput,
+    rec: &timesift_align::Reconstruction,
+    origin: Vector3<f64>,
+) -> Result<timesift_io::colmap::ColmapModel, ProjectError> {
+    let mut model = timesift_io::colmap::from_reconstruction(file)
         .map_err(|e| stage_error(format!("COLMAP export: {e}")))?;
     for (k, point) in rec.points.iter().enumerate() {
         let id = k as u64 + 1;
@@ -571,26 +612,7 @@ fn write_outputs(
             },
         );
     }
-    timesift_io::colmap::write_colmap_text(&layout.colmap_dir(), &model)?;
-    // Tie points with their epochs.
-    let epoch_of: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
-    let tiepoints: Vec<timesift_io::ply::TiePoint> = rec
-        .points
-        .iter()
-        .map(|p| timesift_io::ply::TiePoint {
-            position: p.position + origin,
-            observations: p.observations.len().min(u16::MAX as usize) as u16,
-            epochs: p
-                .observations
-                .iter()
-                .fold(0u32, |m, e| m | 1u32 << (epoch_of[e.image.index()] % 32)),
-        })
-        .collect();
-    let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
-    timesift_io::ply::write_tiepoints(&layout.tiepoints_ply(), &epoch_names, &tiepoints)?;
-    let report = report(project, input, geo, block, strategy, &tiepoints, seconds);
-    write_json(&layout.report_json(), &report)?;
-    Ok(report)
+    Ok(model)
 }
 
 fn residuals_of(residuals: &[PointResidual], check: bool) -> PointResiduals {
@@ -759,57 +781,17 @@ fn report(
     let rec = &block.reconstruction;
     let mut epochs = BTreeMap::new();
     let residuals: Vec<(timesift_core::TrackElement, f64)> = rec.residuals(input).collect();
+    let of_block = OrientedBlock {
+        project,
+        input,
+        geo,
+        block,
+        control: strategy.datum_control(),
+        residuals: &residuals,
+        tiepoints,
+    };
     for (e, epoch) in project.epochs.iter().enumerate() {
-        let in_epoch = |i: usize| project.images[i].epoch.index() == e;
-        let given = epoch.images.len();
-        let oriented = epoch
-            .images
-            .iter()
-            .filter(|i| rec.poses[i.index()].is_some())
-            .count();
-        let errors: Vec<f64> = residuals
-            .iter()
-            .filter(|(el, _)| in_epoch(el.image.index()))
-            .map(|(_, r)| *r)
-            .collect();
-        let rms = (errors.iter().map(|r| r * r).sum::<f64>() / errors.len() as f64).sqrt();
-        let bit = 1u32 << (e % 32);
-        let tie = tiepoints.iter().filter(|p| p.epochs & bit != 0).count();
-        let inter = tiepoints
-            .iter()
-            .filter(|p| p.epochs & bit != 0 && p.epochs & !bit != 0)
-            .count();
-        let per_epoch = if block.datum == Datum::Local {
-            Vec::new()
-        } else {
-            ground_point_residuals(input, rec, geo, &in_epoch)
-        };
-        epochs.insert(
-            epoch.name.clone(),
-            EpochOrientation {
-                images_given: given,
-                images_oriented: oriented,
-                rms_reprojection_px: (!errors.is_empty()).then_some(rms),
-                observations: errors.len(),
-                tie_points: tie,
-                inter_epoch_tie_points: inter,
-                control_points: residuals_of(&per_epoch, false),
-                check_points: residuals_of(&per_epoch, true),
-                datum_tilt: datum_tilt_of_epoch(project, geo, block, strategy.datum_control(), e),
-                gnss_offset: block
-                    .gnss_offsets
-                    .iter()
-                    .find(|o| o.name == epoch.name && o.priors > 0)
-                    .map(|o| GnssOffset {
-                        offset: [o.value.x, o.value.y, o.value.z],
-                        std: o.std,
-                        priors: o.priors,
-                        focal_correlation: o.focal_correlation,
-                        within_flight_sigma_m: o.within_flight_sigma,
-                        scatter_weighs_priors: o.scatter_weighs_priors,
-                    }),
-            },
-        );
+        epochs.insert(epoch.name.clone(), epoch_orientation(&of_block, e));
     }
     AlignReport {
         epoch_pairs: epoch_pair_ties(project, tiepoints),
@@ -848,5 +830,80 @@ fn report(
             .collect(),
         seconds,
         epochs,
+    }
+}
+
+/// The oriented block and what the report reads of it.
+struct OrientedBlock<'a> {
+    project: &'a Project,
+    input: &'a SfmInput,
+    geo: &'a GeoreferenceInput,
+    block: &'a Georeferenced,
+    control: DatumControl,
+    /// Every observation's reprojection error.
+    residuals: &'a [(timesift_core::TrackElement, f64)],
+    tiepoints: &'a [timesift_io::ply::TiePoint],
+}
+
+/// Epoch `e`'s orientation: its images, reprojection errors, tie points, control and check
+/// points, datum tilt and GNSS offset.
+fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
+    let OrientedBlock {
+        project,
+        input,
+        geo,
+        block,
+        control,
+        residuals,
+        tiepoints,
+    } = *of;
+    let rec = &block.reconstruction;
+    let epoch = &project.epochs[e];
+    let in_epoch = |i: usize| project.images[i].epoch.index() == e;
+    let given = epoch.images.len();
+    let oriented = epoch
+        .images
+        .iter()
+        .filter(|i| rec.poses[i.index()].is_some())
+        .count();
+    let errors: Vec<f64> = residuals
+        .iter()
+        .filter(|(el, _)| in_epoch(el.image.index()))
+        .map(|(_, r)| *r)
+        .collect();
+    let rms = (errors.iter().map(|r| r * r).sum::<f64>() / errors.len() as f64).sqrt();
+    let bit = 1u32 << (e % 32);
+    let tie = tiepoints.iter().filter(|p| p.epochs & bit != 0).count();
+    let inter = tiepoints
+        .iter()
+        .filter(|p| p.epochs & bit != 0 && p.epochs & !bit != 0)
+        .count();
+    let per_epoch = if block.datum == Datum::Local {
+        Vec::new()
+    } else {
+        ground_point_residuals(input, rec, geo, &in_epoch)
+    };
+    EpochOrientation {
+        images_given: given,
+        images_oriented: oriented,
+        rms_reprojection_px: (!errors.is_empty()).then_some(rms),
+        observations: errors.len(),
+        tie_points: tie,
+        inter_epoch_tie_points: inter,
+        control_points: residuals_of(&per_epoch, false),
+        check_points: residuals_of(&per_epoch, true),
+        datum_tilt: datum_tilt_of_epoch(project, geo, block, control, e),
+        gnss_offset: block
+            .gnss_offsets
+            .iter()
+            .find(|o| o.name == epoch.name && o.priors > 0)
+            .map(|o| GnssOffset {
+                offset: [o.value.x, o.value.y, o.value.z],
+                std: o.std,
+                priors: o.priors,
+                focal_correlation: o.focal_correlation,
+                within_flight_sigma_m: o.within_flight_sigma,
+                scatter_weighs_priors: o.scatter_weighs_priors,
+            }),
     }
 }
