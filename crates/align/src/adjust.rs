@@ -108,7 +108,55 @@ pub(crate) const TIE_POINT_LOSS: Loss = Loss::SoftL1(2.0);
 impl State<'_> {
     /// Runs an adjustment and writes poses, points and intrinsics back.
     pub fn adjust(&mut self, a: &Adjustment<'_>) -> Result<Adjusted, AlignError> {
+        let mut problem = BundleProblem {
+            groups: self.camera_groups(a)?,
+            ..BundleProblem::default()
+        };
+        let slot = self.add_images_and_points(a, &mut problem);
+        add_marked_points(a.marked, &slot, &mut problem);
+        self.add_priors(a, &slot, &mut problem);
+        // Datum: without fixed images or priors, the gauge image holds it (scale stays free;
+        // the damped solver copes with that one-dimensional null space).
+        let datum = problem.center_priors.len() + problem.point_priors.len();
+        if datum < 3 && problem.images.iter().all(|im| !im.fixed) {
+            let gauge = slot.get(&self.gauge).copied().unwrap_or(0);
+            if let Some(im) = problem.images.get_mut(gauge) {
+                im.fixed = true;
+            }
+        }
+        let options = BundleOptions {
+            loss: a.loss,
+            max_iterations: a.iterations,
+            ..BundleOptions::default()
+        };
+        let report = timesift_bundle::solve(&mut problem, &options)?;
+        let (intrinsic_std, offset_std, offset_focal_correlation) =
+            adjusted_precision(&problem, a.precision);
+        for (value, offset) in self.offsets.iter_mut().zip(&problem.prior_offsets) {
+            *value = offset.value;
+        }
+        for (&i, &s) in &slot {
+            self.rec.poses[i] = Some(problem.images[s].pose);
+        }
+        for (k, &p) in a.points.iter().enumerate() {
+            self.rec.points[p].position = problem.points[k].position;
+        }
+        for (g, group) in problem.groups.into_iter().enumerate() {
+            self.rec.cameras[g] = group.camera;
+        }
+        Ok(Adjusted {
+            report,
+            intrinsic_std,
+            offset_std,
+            offset_focal_correlation,
+        })
+    }
+
+    /// One bundle group per camera group, with the intrinsics this adjustment frees: none when
+    /// fixed, or for a group without free images or with too few oriented ones.
+    fn camera_groups(&self, a: &Adjustment<'_>) -> Result<Vec<CameraGroup>, AlignError> {
         let input = self.input;
+        let mut groups = Vec::with_capacity(input.cameras.len());
         let oriented_per_group = {
             let mut n = vec![0usize; input.cameras.len()];
             for i in self.oriented() {
@@ -117,7 +165,6 @@ impl State<'_> {
             n
         };
         let calibration = &self.options.self_calibration;
-        let mut problem = BundleProblem::default();
         let mut free_group = vec![false; input.cameras.len()];
         for &i in &a.free_images {
             free_group[input.images[i].group] = true;
@@ -138,10 +185,19 @@ impl State<'_> {
                 .map(String::as_str)
                 .filter(|n| model_names.contains(n) && !(focal_fixed && *n == "f"))
                 .collect();
-            problem
-                .groups
-                .push(CameraGroup::with_free(camera.clone(), &names)?);
+            groups.push(CameraGroup::with_free(camera.clone(), &names)?);
         }
+        Ok(groups)
+    }
+
+    /// The free images, the points with their observations, and the fixed images that see
+    /// them, into `problem`; each image's slot in it.
+    fn add_images_and_points(
+        &self,
+        a: &Adjustment<'_>,
+        problem: &mut BundleProblem,
+    ) -> BTreeMap<usize, usize> {
+        let input = self.input;
         // Images: the free ones, then fixed ones seeing the points.
         let mut slot: BTreeMap<usize, usize> = BTreeMap::new();
         for &i in &a.free_images {
@@ -183,32 +239,17 @@ impl State<'_> {
                 });
             }
         }
-        for m in a.marked {
-            let k = problem.points.len();
-            problem.points.push(BundlePoint {
-                position: m.position,
-                fixed: false,
-            });
-            for &(i, pixel, sigma_px) in &m.markers {
-                let Some(&image) = slot.get(&i) else {
-                    continue;
-                };
-                problem.observations.push(Observation {
-                    image,
-                    point: k,
-                    pixel,
-                    sigma_px,
-                });
-            }
-            if let Some((position, sigma_xy, sigma_z)) = m.prior {
-                problem.point_priors.push(PointPrior {
-                    point: k,
-                    position,
-                    sigma_xy,
-                    sigma_z,
-                });
-            }
-        }
+        slot
+    }
+
+    /// The GNSS offsets (at their current values) and the centre priors of the images in the
+    /// problem.
+    fn add_priors(
+        &mut self,
+        a: &Adjustment<'_>,
+        slot: &BTreeMap<usize, usize>,
+        problem: &mut BundleProblem,
+    ) {
         if self.offsets.len() != a.offsets.len() {
             self.offsets = vec![Vector3::zeros(); a.offsets.len()];
         }
@@ -231,85 +272,101 @@ impl State<'_> {
                 });
             }
         }
-        // Datum: without fixed images or priors, the gauge image holds it (scale stays free;
-        // the damped solver copes with that one-dimensional null space).
-        let datum = problem.center_priors.len() + problem.point_priors.len();
-        if datum < 3 && problem.images.iter().all(|im| !im.fixed) {
-            let gauge = slot.get(&self.gauge).copied().unwrap_or(0);
-            if let Some(im) = problem.images.get_mut(gauge) {
-                im.fixed = true;
-            }
-        }
-        let options = BundleOptions {
-            loss: a.loss,
-            max_iterations: a.iterations,
-            ..BundleOptions::default()
-        };
-        let report = timesift_bundle::solve(&mut problem, &options)?;
-        let precision = if a.precision {
-            timesift_bundle::precision::precision(
-                &problem,
-                timesift_bundle::precision::CovarianceScale::Posterior,
-            )
-            .ok()
-        } else {
-            None
-        };
-        // An offset's σ is the larger of the a-priori and a-posteriori ones: priors that state
-        // the bias in their σ make the block's variance factor small, and the posterior σ alone
-        // would then claim the mean of the flight's noise is known better than it is.
-        let prior_precision = if a.precision && !problem.prior_offsets.is_empty() {
-            timesift_bundle::precision::precision(
-                &problem,
-                timesift_bundle::precision::CovarianceScale::Prior,
-            )
-            .ok()
-        } else {
-            None
-        };
-        let offset_std = precision.as_ref().map(|p| {
-            (0..problem.prior_offsets.len())
-                .map(|o| {
-                    let posterior = p.offset_std(o)?;
-                    let prior = prior_precision.as_ref().and_then(|q| q.offset_std(o));
-                    Some(match prior {
-                        Some(q) => [0, 1, 2].map(|k| posterior[k].max(q[k])),
-                        None => posterior,
-                    })
-                })
-                .collect()
-        });
-        let offset_focal_correlation = precision.as_ref().map(|p| {
-            p.offset_intrinsic_correlations
-                .iter()
-                .map(|list| {
-                    list.iter()
-                        .filter(|c| {
-                            problem.groups[c.group].camera.param_names().get(c.param) == Some(&"f")
-                        })
-                        .map(|c| c.rho[2].abs())
-                        .reduce(f64::max)
-                })
-                .collect()
-        });
-        let intrinsic_std = precision.map(|p| p.intrinsics);
-        for (value, offset) in self.offsets.iter_mut().zip(&problem.prior_offsets) {
-            *value = offset.value;
-        }
-        for (&i, &s) in &slot {
-            self.rec.poses[i] = Some(problem.images[s].pose);
-        }
-        for (k, &p) in a.points.iter().enumerate() {
-            self.rec.points[p].position = problem.points[k].position;
-        }
-        for (g, group) in problem.groups.into_iter().enumerate() {
-            self.rec.cameras[g] = group.camera;
-        }
-        Ok(Adjusted {
-            report,
-            intrinsic_std,
-            offset_std,
-            offset_focal_correlation,
-        })
     }
+}
+
+/// The marked points (control), their markers in the images of the problem and their surveyed
+/// positions as priors.
+fn add_marked_points(
+    marked: &[MarkedPoint],
+    slot: &BTreeMap<usize, usize>,
+    problem: &mut BundleProblem,
+) {
+    for m in marked {
+        let k = problem.points.len();
+        problem.points.push(BundlePoint {
+            position: m.position,
+            fixed: false,
+        });
+        for &(i, pixel, sigma_px) in &m.markers {
+            let Some(&image) = slot.get(&i) else {
+                continue;
+            };
+            problem.observations.push(Observation {
+                image,
+                point: k,
+                pixel,
+                sigma_px,
+            });
+        }
+        if let Some((position, sigma_xy, sigma_z)) = m.prior {
+            problem.point_priors.push(PointPrior {
+                point: k,
+                position,
+                sigma_xy,
+                sigma_z,
+            });
+        }
+    }
+}
+
+/// The intrinsics' standard deviations, the offsets' (the larger of the a-priori and the
+/// a-posteriori), and each offset's largest correlation with a focal length, when asked for.
+#[allow(clippy::type_complexity)]
+fn adjusted_precision(
+    problem: &BundleProblem,
+    asked: bool,
+) -> (
+    Option<Vec<Vec<(usize, f64)>>>,
+    Option<Vec<Option<[f64; 3]>>>,
+    Option<Vec<Option<f64>>>,
+) {
+    let precision = if asked {
+        timesift_bundle::precision::precision(
+            problem,
+            timesift_bundle::precision::CovarianceScale::Posterior,
+        )
+        .ok()
+    } else {
+        None
+    };
+    // An offset's σ is the larger of the a-priori and a-posteriori ones: priors that state
+    // the bias in their σ make the block's variance factor small, and the posterior σ alone
+    // would then claim the mean of the flight's noise is known better than it is.
+    let prior_precision = if asked && !problem.prior_offsets.is_empty() {
+        timesift_bundle::precision::precision(
+            problem,
+            timesift_bundle::precision::CovarianceScale::Prior,
+        )
+        .ok()
+    } else {
+        None
+    };
+    let offset_std = precision.as_ref().map(|p| {
+        (0..problem.prior_offsets.len())
+            .map(|o| {
+                let posterior = p.offset_std(o)?;
+                let prior = prior_precision.as_ref().and_then(|q| q.offset_std(o));
+                Some(match prior {
+                    Some(q) => [0, 1, 2].map(|k| posterior[k].max(q[k])),
+                    None => posterior,
+                })
+            })
+            .collect()
+    });
+    let offset_focal_correlation = precision.as_ref().map(|p| {
+        p.offset_intrinsic_correlations
+            .iter()
+            .map(|list| {
+                list.iter()
+                    .filter(|c| {
+                        problem.groups[c.group].camera.param_names().get(c.param) == Some(&"f")
+                    })
+                    .map(|c| c.rho[2].abs())
+                    .reduce(f64::max)
+            })
+            .collect()
+    });
+    let intrinsic_std = precision.map(|p| p.intrinsics);
+    (intrinsic_std, offset_std, offset_focal_correlation)
 }
