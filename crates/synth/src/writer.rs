@@ -29,7 +29,7 @@ use std::path::Path;
 
 use nalgebra::{Vector2, Vector3};
 use serde_json::json;
-use timesift_core::{Camera, CameraModel, Pose, SeededRng, project_world};
+use timesift_core::{BrownCamera, Camera, CameraModel, Pose, SeededRng, project_world};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction, write_cameras_json};
 use timesift_io::coords::Crs;
 use timesift_io::fsutil::write_bytes_atomically;
@@ -40,7 +40,7 @@ use crate::SynthError;
 use crate::effects::{self, Channels};
 use crate::film::{FilmSpec, FrameRays, ScanCamera, ScanGeometry};
 use crate::render::{RayTable, RgbImage, Scene, render_rays};
-use crate::scene::{EpochSpec, Frame, ImageFormat, SceneSpec};
+use crate::scene::{EpochSpec, Frame, ImageFormat, ImageSpec, NamedPoint, SceneSpec};
 use crate::terrain::Heightfield;
 use timesift_io::exif::{CameraTags, jpeg_with_camera_tags};
 
@@ -111,218 +111,391 @@ pub fn write_scene(
     validate(spec)?;
     std::fs::create_dir_all(dir.join("truth")).map_err(|e| io_err(dir, e))?;
     let mut rng = SeededRng::new(spec.seed ^ 0x5EED_0F7A_7750);
-    let origin = spec.origin;
     let crs: Crs = spec
         .crs
         .parse()
         .map_err(|e: String| SynthError::InvalidScene(e))?;
-    let mut markers = String::from("image,name,u,v\n");
-    let mut gnss = String::from("image,x,y,z,sxy,sz\n");
-    let mut gnss_bias = String::from("epoch,east,north,up\n");
-    let mut truth_marks = String::from("image,mark,u,v\n");
-    let mut truth_scans = String::from("image,a11,a12,a13,a21,a22,a23\n");
-    let mut truth_images = Vec::new();
-    let mut written = Written {
-        images: 0,
-        markers: 0,
-        megapixels: 0.0,
-    };
-    let mut points_local: Vec<(String, &'static str, Vector3<f64>)> = Vec::new();
     // Natural stable points: every candidate is observed as a target would be; those the
     // cameras see enough are kept after the last epoch.
     let candidates = spec.natural_candidates();
-    let mut candidate_local = Vec::new();
-    let mut candidate_seen: Vec<Vec<(String, usize, Vector2<f64>)>> =
-        vec![Vec::new(); candidates.len()];
+    let mut records = Records::new(candidates.len());
     for (e, epoch) in spec.epochs.iter().enumerate() {
         let field = spec.heightfield(e);
-        // Every named point with its position and surface normal, once per epoch.
-        let targets = spec
-            .named_points()
-            .map(|(kind, p)| {
-                let x = spec.point_local(&field, p)?;
-                Ok((kind, p, x, normal(spec, &field, p.at)))
-            })
-            .collect::<Result<Vec<_>, SynthError>>()?;
-        let naturals: Vec<(Vector3<f64>, Vector3<f64>)> = candidates
-            .iter()
-            .filter_map(|&(x, y)| {
-                let h = field.height_at(x, y)?;
-                Some((spec.frame.to_local(x, y, h), normal(spec, &field, (x, y))))
-            })
-            .collect();
-        if naturals.len() != candidates.len() {
-            return Err(SynthError::InvalidScene(
-                "a natural stable point candidate lies outside the grid".into(),
-            ));
-        }
+        let (targets, naturals) = epoch_points(spec, &field, &candidates)?;
         if e == 0 {
-            candidate_local = naturals.iter().map(|(x, _)| *x).collect();
-            points_local.extend(
+            records.candidate_local = naturals.iter().map(|(x, _)| *x).collect();
+            records.points_local.extend(
                 targets
                     .iter()
                     .map(|(kind, p, x, _)| (p.name.clone(), *kind, *x)),
             );
         }
         let scene = spec.scene(&field, e)?;
-        write_dem(
-            spec,
-            &field,
-            e,
-            crs,
-            &dir.join(format!("truth/dem_{}.tif", epoch.name)),
-        )?;
-        if spec.frame == Frame::Wall {
-            write_ply(
-                spec,
-                &field,
-                &dir.join(format!("truth/surface_{}.ply", epoch.name)),
-            )?;
-        }
+        write_true_surface(spec, &field, e, crs, dir)?;
         let bias = Vector3::new(rng.normal(), rng.normal(), rng.normal());
-        let frame_rays = match (&epoch.film, options.images) {
-            (Some(film), true) => {
-                write_template(dir, &epoch.name, film)?;
-                Some(FrameRays::new(&epoch.camera))
-            }
-            (Some(film), false) => {
-                write_template(dir, &epoch.name, film)?;
-                None
-            }
-            _ => None,
-        };
-        let rays = if options.images && epoch.film.is_none() {
-            RayTable::new(
-                &epoch.camera,
-                epoch.camera.width as usize,
-                epoch.camera.height as usize,
-                epoch.supersampling,
-            )
-        } else {
-            RayTable::new(&epoch.camera, 0, 0, 1)
+        let (frame_rays, rays) = epoch_rays(dir, epoch, options)?;
+        let view = EpochView {
+            spec,
+            dir,
+            options,
+            e,
+            epoch,
+            scene,
+            targets,
+            naturals,
+            bias,
+            frame_rays,
+            rays,
         };
         for (k, image) in epoch.images.iter().enumerate() {
-            let name = image_name(spec, e, k);
-            let scan = epoch.film.as_ref().map(|film| {
-                let mut rng = SeededRng::new(image.effects.seed ^ 0x5CA7_F11E);
-                film.draw_scan(&epoch.camera, &mut rng)
-            });
-            // Where a point is measured in this image: on film, on the scan, and only on the
-            // photograph.
-            let measured = |x: &Vector3<f64>, n: &Vector3<f64>| {
-                let seen = observe(&scene, &epoch.camera, &image.pose, x, n);
-                match (&epoch.film, &scan) {
-                    (Some(film), Some(scan)) => seen
-                        .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(4.0))))
-                        .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(-4.0))))
-                        .map(|px| scan.scan_px(&px)),
-                    _ => seen,
-                }
-            };
-            let mut mark = |point: &str, px: Vector2<f64>, noise: &mut SeededRng| {
-                let noisy = px
-                    + Vector2::new(truncated_normal(noise), truncated_normal(noise))
-                        * spec.marker_sigma;
-                written.markers += 1;
-                writeln!(markers, "{name},{point},{:.3},{:.3}", noisy.x, noisy.y)
-                    .map_err(|e| SynthError::Write(e.to_string()))
-            };
-            for (_, p, x, n) in &targets {
-                if let Some(px) = measured(x, n) {
-                    mark(&p.name, px, &mut rng)?;
-                }
-            }
-            for (k, (x, n)) in naturals.iter().enumerate() {
-                if let Some(px) = measured(x, n) {
-                    candidate_seen[k].push((name.clone(), e, px));
-                }
-            }
-            if let (Some(g), 0) = (&spec.gnss, k) {
-                let _ = writeln!(
-                    gnss_bias,
-                    "{},{:.6},{:.6},{:.6}",
-                    epoch.name,
-                    g.bias_h * bias.x,
-                    g.bias_h * bias.y,
-                    g.bias_v * bias.z
-                );
-            }
-            if let Some(g) = &spec.gnss {
-                let c = image.pose.center() + origin;
-                let x = c.x + g.bias_h * bias.x + g.noise_h * rng.normal();
-                let y = c.y + g.bias_h * bias.y + g.noise_h * rng.normal();
-                let z = c.z + g.bias_v * bias.z + g.noise_v * rng.normal();
-                let (sxy, sz) = (g.bias_h.hypot(g.noise_h), g.bias_v.hypot(g.noise_v));
-                writeln!(gnss, "{name},{x:.3},{y:.3},{z:.3},{sxy:.2},{sz:.2}")
-                    .map_err(|e| SynthError::Write(e.to_string()))?;
-            }
-            if let (Some(film), Some(scan)) = (&epoch.film, &scan) {
-                for (k, (mark, _)) in film.marks.iter().enumerate() {
-                    let px = scan.scan_px(&film.marks_px(&epoch.camera)[k]);
-                    let _ = writeln!(truth_marks, "{name},{mark},{:.4},{:.4}", px.x, px.y);
-                }
-                let m = scan.scan_from_frame;
-                let _ = writeln!(
-                    truth_scans,
-                    "{name},{:.9},{:.9},{:.6},{:.9},{:.9},{:.6}",
-                    m[(0, 0)],
-                    m[(0, 1)],
-                    m[(0, 2)],
-                    m[(1, 0)],
-                    m[(1, 1)],
-                    m[(1, 2)]
-                );
-            }
-            if options.images {
-                let path = dir.join(&name);
-                let (rendered, (width, height)) = match (&epoch.film, &scan, &frame_rays) {
-                    (Some(film), Some(scan), Some(frame_rays)) => {
-                        render_scan(&scene, epoch, film, scan, frame_rays, &image.pose)
-                    }
-                    _ => (
-                        render_rays(&scene, &rays, &image.pose, epoch.shadows),
-                        (epoch.camera.width, epoch.camera.height),
-                    ),
-                };
-                let pixels = effects::apply(&rendered, &image.effects);
-                let mut bytes =
-                    encode(&pixels, width, height, image.effects.channels, epoch.format)
-                        .map_err(|e| io_err(&path, e))?;
-                if let ImageFormat::Jpeg(_) = epoch.format {
-                    bytes = jpeg_with_camera_tags(&bytes, &camera_tags(&epoch.camera), &path)
-                        .map_err(|e| SynthError::Write(e.to_string()))?;
-                }
-                write_bytes_atomically(&path, &bytes)
-                    .map_err(|e| SynthError::Write(e.to_string()))?;
-                written.megapixels += (width * height) as f64 / 1e6;
-            }
-            truth_images.push(OrientedImage {
-                name,
-                epoch: epoch.name.clone(),
-                camera: epoch.name.clone(),
-                pose: Some(world_pose(&image.pose, &origin)),
-            });
-            written.images += 1;
+            write_image(&view, k, image, &mut records, &mut rng)?;
         }
     }
-    written.markers += write_natural_points(
+    write_records(spec, dir, crs, &candidates, records, &mut rng)
+}
+
+/// What the images of every epoch add up to, written once the last epoch is done: the CSV
+/// texts of the observations and of the truth, the true images, the counts, and the named and
+/// natural points' local positions (first epoch) with every natural candidate's measurements
+/// (image, epoch, pixel).
+struct Records {
+    markers: String,
+    gnss: String,
+    gnss_bias: String,
+    truth_marks: String,
+    truth_scans: String,
+    truth_images: Vec<OrientedImage>,
+    written: Written,
+    points_local: Vec<(String, &'static str, Vector3<f64>)>,
+    candidate_local: Vec<Vector3<f64>>,
+    candidate_seen: Vec<Vec<(String, usize, Vector2<f64>)>>,
+}
+
+impl Records {
+    /// Nothing recorded yet (the CSV headers only), for `candidates` natural candidates.
+    fn new(candidates: usize) -> Records {
+        Records {
+            markers: String::from("image,name,u,v\n"),
+            gnss: String::from("image,x,y,z,sxy,sz\n"),
+            gnss_bias: String::from("epoch,east,north,up\n"),
+            truth_marks: String::from("image,mark,u,v\n"),
+            truth_scans: String::from("image,a11,a12,a13,a21,a22,a23\n"),
+            truth_images: Vec::new(),
+            written: Written {
+                images: 0,
+                markers: 0,
+                megapixels: 0.0,
+            },
+            points_local: Vec::new(),
+            candidate_local: Vec::new(),
+            candidate_seen: vec![Vec::new(); candidates],
+        }
+    }
+}
+
+/// A named point in an epoch: its kind, the point, its local position and surface normal.
+type LocatedPoint<'a> = (&'static str, &'a NamedPoint, Vector3<f64>, Vector3<f64>);
+/// A local position on the surface and the surface normal there.
+type PositionNormal = (Vector3<f64>, Vector3<f64>);
+
+/// One epoch as its images are written: where and what to write, the epoch, its rendered
+/// scene, its named points and natural candidates (local position, normal), the GNSS bias drawn
+/// for it, and the rays of its camera (of the photograph, for film scans).
+struct EpochView<'a> {
+    spec: &'a SceneSpec,
+    dir: &'a Path,
+    options: &'a WriteOptions,
+    e: usize,
+    epoch: &'a EpochSpec,
+    scene: Scene,
+    targets: Vec<LocatedPoint<'a>>,
+    naturals: Vec<PositionNormal>,
+    bias: Vector3<f64>,
+    frame_rays: Option<FrameRays>,
+    rays: RayTable,
+}
+
+/// Every named point with its position and surface normal on the epoch's `field`, and the
+/// same of every natural candidate (which must all lie on the grid).
+fn epoch_points<'a>(
+    spec: &'a SceneSpec,
+    field: &Heightfield,
+    candidates: &[(f64, f64)],
+) -> Result<(Vec<LocatedPoint<'a>>, Vec<PositionNormal>), SynthError> {
+    let targets = spec
+        .named_points()
+        .map(|(kind, p)| {
+            let x = spec.point_local(field, p)?;
+            Ok((kind, p, x, normal(spec, field, p.at)))
+        })
+        .collect::<Result<Vec<_>, SynthError>>()?;
+    let naturals: Vec<PositionNormal> = candidates
+        .iter()
+        .filter_map(|&(x, y)| {
+            let h = field.height_at(x, y)?;
+            Some((spec.frame.to_local(x, y, h), normal(spec, field, (x, y))))
+        })
+        .collect();
+    if naturals.len() != candidates.len() {
+        return Err(SynthError::InvalidScene(
+            "a natural stable point candidate lies outside the grid".into(),
+        ));
+    }
+    Ok((targets, naturals))
+}
+
+/// Writes the true surface of epoch `e`: its DEM, and for wall scenes its mesh.
+fn write_true_surface(
+    spec: &SceneSpec,
+    field: &Heightfield,
+    e: usize,
+    crs: Crs,
+    dir: &Path,
+) -> Result<(), SynthError> {
+    let epoch = &spec.epochs[e];
+    write_dem(
         spec,
-        &candidates,
-        &candidate_local,
-        &candidate_seen,
-        &mut markers,
+        field,
+        e,
+        crs,
+        &dir.join(format!("truth/dem_{}.tif", epoch.name)),
+    )?;
+    if spec.frame == Frame::Wall {
+        write_ply(
+            spec,
+            field,
+            &dir.join(format!("truth/surface_{}.ply", epoch.name)),
+        )?;
+    }
+    Ok(())
+}
+
+/// The rays an epoch's images are rendered with: for film, the photograph's (the scans' own
+/// are made per scan), else the camera's at the epoch's supersampling; empty tables without
+/// images. Writes a film epoch's mark template.
+fn epoch_rays(
+    dir: &Path,
+    epoch: &EpochSpec,
+    options: &WriteOptions,
+) -> Result<(Option<FrameRays>, RayTable), SynthError> {
+    let frame_rays = match (&epoch.film, options.images) {
+        (Some(film), true) => {
+            write_template(dir, &epoch.name, film)?;
+            Some(FrameRays::new(&epoch.camera))
+        }
+        (Some(film), false) => {
+            write_template(dir, &epoch.name, film)?;
+            None
+        }
+        _ => None,
+    };
+    let rays = if options.images && epoch.film.is_none() {
+        RayTable::new(
+            &epoch.camera,
+            epoch.camera.width as usize,
+            epoch.camera.height as usize,
+            epoch.supersampling,
+        )
+    } else {
+        RayTable::new(&epoch.camera, 0, 0, 1)
+    };
+    Ok((frame_rays, rays))
+}
+
+/// Image `k` of the epoch: its markers, GNSS, film truth and (with `images`) the image file,
+/// recorded in `records`; `rng` gives the marker and GNSS noise.
+fn write_image(
+    view: &EpochView<'_>,
+    k: usize,
+    image: &ImageSpec,
+    records: &mut Records,
+    rng: &mut SeededRng,
+) -> Result<(), SynthError> {
+    let epoch = view.epoch;
+    let name = image_name(view.spec, view.e, k);
+    let scan = epoch.film.as_ref().map(|film| {
+        let mut rng = SeededRng::new(image.effects.seed ^ 0x5CA7_F11E);
+        film.draw_scan(&epoch.camera, &mut rng)
+    });
+    record_markers(view, &name, image, scan.as_ref(), records, rng)?;
+    record_gnss(view, k, &name, image, records, rng)?;
+    if let (Some(film), Some(scan)) = (&epoch.film, &scan) {
+        record_scan_truth(film, scan, &epoch.camera, &name, records);
+    }
+    if view.options.images {
+        records.written.megapixels += render_image(view, &name, image, scan.as_ref())?;
+    }
+    records.truth_images.push(OrientedImage {
+        name,
+        epoch: epoch.name.clone(),
+        camera: epoch.name.clone(),
+        pose: Some(world_pose(&image.pose, &view.spec.origin)),
+    });
+    records.written.images += 1;
+    Ok(())
+}
+
+/// Measures the epoch's points in image `name`: a marker with noise from `rng` for every named
+/// point seen, the pixel of every natural candidate seen kept for later. On film, points are
+/// measured on the scan, and only on the photograph.
+fn record_markers(
+    view: &EpochView<'_>,
+    name: &str,
+    image: &ImageSpec,
+    scan: Option<&ScanGeometry>,
+    records: &mut Records,
+    rng: &mut SeededRng,
+) -> Result<(), SynthError> {
+    let epoch = view.epoch;
+    let measured = |x: &Vector3<f64>, n: &Vector3<f64>| {
+        let seen = observe(&view.scene, &epoch.camera, &image.pose, x, n);
+        match (&epoch.film, scan) {
+            (Some(film), Some(scan)) => seen
+                .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(4.0))))
+                .filter(|px| film.on_photo(&epoch.camera, &(px.add_scalar(-4.0))))
+                .map(|px| scan.scan_px(&px)),
+            _ => seen,
+        }
+    };
+    for (_, p, x, n) in &view.targets {
+        if let Some(px) = measured(x, n) {
+            let noisy = px
+                + Vector2::new(truncated_normal(rng), truncated_normal(rng))
+                    * view.spec.marker_sigma;
+            records.written.markers += 1;
+            writeln!(
+                records.markers,
+                "{name},{},{:.3},{:.3}",
+                p.name, noisy.x, noisy.y
+            )
+            .map_err(|e| SynthError::Write(e.to_string()))?;
+        }
+    }
+    for (k, (x, n)) in view.naturals.iter().enumerate() {
+        if let Some(px) = measured(x, n) {
+            records.candidate_seen[k].push((name.to_string(), view.e, px));
+        }
+    }
+    Ok(())
+}
+
+/// The GNSS of image `k` (when the scene has GNSS): the epoch's bias with its first image, the
+/// camera centre with the bias and noise from `rng`.
+fn record_gnss(
+    view: &EpochView<'_>,
+    k: usize,
+    name: &str,
+    image: &ImageSpec,
+    records: &mut Records,
+    rng: &mut SeededRng,
+) -> Result<(), SynthError> {
+    let (spec, bias) = (view.spec, view.bias);
+    if let (Some(g), 0) = (&spec.gnss, k) {
+        let _ = writeln!(
+            records.gnss_bias,
+            "{},{:.6},{:.6},{:.6}",
+            view.epoch.name,
+            g.bias_h * bias.x,
+            g.bias_h * bias.y,
+            g.bias_v * bias.z
+        );
+    }
+    if let Some(g) = &spec.gnss {
+        let c = image.pose.center() + spec.origin;
+        let x = c.x + g.bias_h * bias.x + g.noise_h * rng.normal();
+        let y = c.y + g.bias_h * bias.y + g.noise_h * rng.normal();
+        let z = c.z + g.bias_v * bias.z + g.noise_v * rng.normal();
+        let (sxy, sz) = (g.bias_h.hypot(g.noise_h), g.bias_v.hypot(g.noise_v));
+        writeln!(records.gnss, "{name},{x:.3},{y:.3},{z:.3},{sxy:.2},{sz:.2}")
+            .map_err(|e| SynthError::Write(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// The truth of scan `name`: the scan pixel of every fiducial mark, the scan's transform.
+fn record_scan_truth(
+    film: &FilmSpec,
+    scan: &ScanGeometry,
+    camera: &BrownCamera,
+    name: &str,
+    records: &mut Records,
+) {
+    for (k, (mark, _)) in film.marks.iter().enumerate() {
+        let px = scan.scan_px(&film.marks_px(camera)[k]);
+        let _ = writeln!(records.truth_marks, "{name},{mark},{:.4},{:.4}", px.x, px.y);
+    }
+    let m = scan.scan_from_frame;
+    let _ = writeln!(
+        records.truth_scans,
+        "{name},{:.9},{:.9},{:.6},{:.9},{:.9},{:.6}",
+        m[(0, 0)],
+        m[(0, 1)],
+        m[(0, 2)],
+        m[(1, 0)],
+        m[(1, 1)],
+        m[(1, 2)]
+    );
+}
+
+/// Renders image `name` (a scan, on film) with its effects and writes it, JPEG with the
+/// camera's EXIF; returns the megapixels rendered.
+fn render_image(
+    view: &EpochView<'_>,
+    name: &str,
+    image: &ImageSpec,
+    scan: Option<&ScanGeometry>,
+) -> Result<f64, SynthError> {
+    let epoch = view.epoch;
+    let path = view.dir.join(name);
+    let (rendered, (width, height)) = match (&epoch.film, scan, &view.frame_rays) {
+        (Some(film), Some(scan), Some(frame_rays)) => {
+            render_scan(&view.scene, epoch, film, scan, frame_rays, &image.pose)
+        }
+        _ => (
+            render_rays(&view.scene, &view.rays, &image.pose, epoch.shadows),
+            (epoch.camera.width, epoch.camera.height),
+        ),
+    };
+    let pixels = effects::apply(&rendered, &image.effects);
+    let mut bytes = encode(&pixels, width, height, image.effects.channels, epoch.format)
+        .map_err(|e| io_err(&path, e))?;
+    if let ImageFormat::Jpeg(_) = epoch.format {
+        bytes = jpeg_with_camera_tags(&bytes, &camera_tags(&epoch.camera), &path)
+            .map_err(|e| SynthError::Write(e.to_string()))?;
+    }
+    write_bytes_atomically(&path, &bytes).map_err(|e| SynthError::Write(e.to_string()))?;
+    Ok((width * height) as f64 / 1e6)
+}
+
+/// Writes what the epochs recorded (markers with the natural points', GNSS, film truth, the
+/// surveyed points with survey noise from `rng`, the true cameras) and the files that depend
+/// on the scene alone; returns the counts.
+fn write_records(
+    spec: &SceneSpec,
+    dir: &Path,
+    crs: Crs,
+    candidates: &[(f64, f64)],
+    mut records: Records,
+    rng: &mut SeededRng,
+) -> Result<Written, SynthError> {
+    records.written.markers += write_natural_points(
+        spec,
+        candidates,
+        &records.candidate_local,
+        &records.candidate_seen,
+        &mut records.markers,
         dir,
     )?;
-    write_text(&dir.join("markers.csv"), &markers)?;
+    write_text(&dir.join("markers.csv"), &records.markers)?;
     if spec.epochs.iter().any(|e| e.film.is_some()) {
-        write_text(&dir.join("truth/fiducials.csv"), &truth_marks)?;
-        write_text(&dir.join("truth/scan_transforms.csv"), &truth_scans)?;
+        write_text(&dir.join("truth/fiducials.csv"), &records.truth_marks)?;
+        write_text(&dir.join("truth/scan_transforms.csv"), &records.truth_scans)?;
     }
     if spec.gnss.is_some() {
-        write_text(&dir.join("gnss.csv"), &gnss)?;
-        write_text(&dir.join("truth/gnss_bias.csv"), &gnss_bias)?;
+        write_text(&dir.join("gnss.csv"), &records.gnss)?;
+        write_text(&dir.join("truth/gnss_bias.csv"), &records.gnss_bias)?;
     }
-    write_points(spec, dir, &points_local, &mut rng)?;
+    write_points(spec, dir, &records.points_local, rng)?;
     write_cameras_json(
         &dir.join("truth/cameras.json"),
         &Reconstruction {
@@ -332,14 +505,14 @@ pub fn write_scene(
                 .iter()
                 .map(|e| (e.name.clone(), Camera::Brown(e.camera)))
                 .collect(),
-            images: truth_images,
+            images: records.truth_images,
         },
     )
     .map_err(|e| SynthError::Write(e.to_string()))?;
     write_stable(spec, dir, crs)?;
     write_change(spec, dir)?;
     write_project(spec, dir)?;
-    Ok(written)
+    Ok(records.written)
 }
 
 /// The scan of one photograph: the photograph rendered through the scan's transform, and the

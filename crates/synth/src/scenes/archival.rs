@@ -70,10 +70,61 @@ pub(super) enum LaterEpochs {
 
 pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<SceneSpec, SynthError> {
     let mut rng = SeededRng::new(seed);
+    let plots = building_plots(&mut rng);
+    let natural = natural_surface(seed);
+    let levels: Vec<f64> = plots
+        .iter()
+        .map(|(p, _, _)| natural(0.5 * (p.0.0 + p.1.0), 0.5 * (p.0.1 + p.1.1)))
+        .collect();
+    let base = base_with_levelled_plots(natural, &plots, levels.clone());
+    let blocks = buildings_on_plots(&plots, &levels);
+    let features = wood_and_embankment();
+    let regions = change_regions(blocks.len());
+    let (w, _) = image_size(scale, (512, 512), (3000, 3000));
+    let fin = 0.5 * 1000.0 / w as f64;
+    let materials = land_covers(seed, fin);
+    let cover_fn = cover_by_epoch(seed);
+    let epochs = survey_epochs(scale, w, later, &mut rng)?;
+    let mut spec = new_scene(
+        match later {
+            LaterEpochs::Film => "archival",
+            LaterEpochs::Digital => "archival-mixed",
+        },
+        "EPSG:2154",
+        Vector3::new(731_500.0, 6_271_200.0, 0.0),
+        Frame::Ground,
+        (0.0, 0.0, CELL, 1001, 701),
+        Arc::new(base),
+        materials,
+        Arc::new(cover_fn),
+        epochs,
+        seed,
+    );
+    spec.apron = 1200.0;
+    spec.features = features;
+    spec.blocks = blocks;
+    spec.target_radius = 3.0;
+    spec.regions = regions;
+    spec.unstable = unstable_areas();
+    spec.gnss = None;
+    spec.survey_sigma = (0.05, 0.08);
+    place_control(
+        &mut spec,
+        &mut rng,
+        (8, 5),
+        (250.0, 200.0),
+        (1750.0, 1200.0),
+        25.0,
+        250.0,
+        &[],
+    );
+    Ok(spec)
+}
+
+/// Building plots in the village, drawn apart from one another: (footprint, first epoch with
+/// the building, building height). Levelled in every epoch, built on from some epoch on.
+fn building_plots(rng: &mut SeededRng) -> Vec<(Footprint, usize, f64)> {
     let snap = |x: f64| snap_to_cell_boundary(x, CELL);
-    let noise = Noise::new(seed ^ 71);
-    // Building plots: levelled in every epoch, built on from some epoch on.
-    // (footprint, first epoch with the building, building height)
     let mut plots: Vec<(Footprint, usize, f64)> = Vec::new();
     for _ in 0..200 {
         if plots.len() == 10 {
@@ -93,26 +144,33 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
             plots.push((new, 1 + plots.len() % 3, rng.uniform_range(6.0, 12.0)));
         }
     }
-    let natural = {
-        let noise = noise.clone();
-        move |x: f64, y: f64| {
-            let valley = -14.0 * (-(distance_to_polyline(&RIVER, x, y) / 90.0).powi(2)).exp();
-            120.0
-                + 0.01 * y
-                + 35.0 * noise.fbm(x, y, 0.0, 900.0, 3, 0.5)
-                + 4.0 * noise.fbm(x, y, 3.0, 90.0, 3, 0.5)
-                + valley
-        }
-    };
-    let levels: Vec<f64> = plots
-        .iter()
-        .map(|(p, _, _)| natural(0.5 * (p.0.0 + p.1.0), 0.5 * (p.0.1 + p.1.1)))
-        .collect();
+    plots
+}
+
+/// The ground before any levelling: a gentle slope, hills and the river's valley.
+fn natural_surface(seed: u64) -> impl Fn(f64, f64) -> f64 + Send + Sync + 'static {
+    let noise = Noise::new(seed ^ 71);
+    move |x: f64, y: f64| {
+        let valley = -14.0 * (-(distance_to_polyline(&RIVER, x, y) / 90.0).powi(2)).exp();
+        120.0
+            + 0.01 * y
+            + 35.0 * noise.fbm(x, y, 0.0, 900.0, 3, 0.5)
+            + 4.0 * noise.fbm(x, y, 3.0, 90.0, 3, 0.5)
+            + valley
+    }
+}
+
+/// The stable surface: the natural ground with each plot (and 4 m around it) levelled at the
+/// height `levels` gives it, blended into the ground over 10 m.
+fn base_with_levelled_plots(
+    natural: impl Fn(f64, f64) -> f64 + Send + Sync + 'static,
+    plots: &[(Footprint, usize, f64)],
+    levels: Vec<f64>,
+) -> impl Fn(f64, f64) -> f64 + Send + Sync + 'static {
     let plot_rects: Vec<_> = plots.iter().map(|(p, _, _)| *p).collect();
-    let levels_for_base = levels.clone();
-    let base = move |x: f64, y: f64| {
+    move |x: f64, y: f64| {
         let mut z = natural(x, y);
-        for (p, level) in plot_rects.iter().zip(&levels_for_base) {
+        for (p, level) in plot_rects.iter().zip(&levels) {
             let w = pad_weight(
                 (p.0.0 - 4.0, p.0.1 - 4.0),
                 (p.1.0 + 4.0, p.1.1 + 4.0),
@@ -123,10 +181,14 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
             z += w * (level - z);
         }
         z
-    };
-    let blocks: Vec<PlacedBlock> = plots
+    }
+}
+
+/// The buildings: one on each plot at its level, present from the plot's first epoch on.
+fn buildings_on_plots(plots: &[(Footprint, usize, f64)], levels: &[f64]) -> Vec<PlacedBlock> {
+    plots
         .iter()
-        .zip(&levels)
+        .zip(levels)
         .map(|((p, first, height), level)| PlacedBlock {
             block: Block {
                 min: p.0,
@@ -137,7 +199,12 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
             epochs: (*first..4).collect(),
             material: 5,
         })
-        .collect();
+        .collect()
+}
+
+/// The height changes: the wood's canopy in each epoch (features 0–3), the embankment from the
+/// third epoch on (feature 4).
+fn wood_and_embankment() -> Vec<Feature> {
     let mut features = Vec::new();
     // The wood: canopy 6 m high in 1971, growing 4 m a decade.
     for e in 0..4 {
@@ -153,7 +220,12 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
         shape: Shape::Ridge(EMBANKMENT),
         epochs: vec![2, 3],
     });
-    let regions = vec![
+    features
+}
+
+/// The changed regions: the wood, the embankment and the village of `n_blocks` buildings.
+fn change_regions(n_blocks: usize) -> Vec<ChangeRegion> {
+    vec![
         ChangeRegion {
             name: "wood".into(),
             description: "woodland growing".into(),
@@ -173,12 +245,15 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
             description: "new buildings".into(),
             polygon: rect(VILLAGE.0, VILLAGE.1),
             features: vec![],
-            blocks: (0..blocks.len()).collect(),
+            blocks: (0..n_blocks).collect(),
         },
-    ];
-    let (w, _) = image_size(scale, (512, 512), (3000, 3000));
-    let fin = 0.5 * 1000.0 / w as f64;
-    let materials = vec![
+    ]
+}
+
+/// The materials, indexed as [`cover_by_epoch`] returns them: fields, wood, river, road,
+/// village and embankment, roofs, two more crops.
+fn land_covers(seed: u64, fin: f64) -> Vec<Material> {
+    vec![
         cover(seed ^ 1, [0.30, 0.30, 0.22], [0.55, 0.52, 0.40], 60.0, fin),
         cover(seed ^ 2, [0.05, 0.10, 0.04], [0.16, 0.24, 0.10], 20.0, fin),
         cover(seed ^ 3, [0.06, 0.08, 0.10], [0.12, 0.14, 0.16], 50.0, fin),
@@ -187,9 +262,14 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
         cover(seed ^ 6, [0.45, 0.30, 0.25], [0.70, 0.52, 0.45], 8.0, fin),
         cover(seed ^ 7, [0.55, 0.48, 0.30], [0.80, 0.74, 0.50], 40.0, fin),
         cover(seed ^ 8, [0.20, 0.28, 0.10], [0.40, 0.48, 0.22], 40.0, fin),
-    ];
+    ]
+}
+
+/// The land cover of an epoch at a grid position: river, road, embankment, wood, village, and
+/// elsewhere fields whose crops change from epoch to epoch.
+fn cover_by_epoch(seed: u64) -> impl Fn(usize, f64, f64) -> usize + Send + Sync + 'static {
     let (sin, cos) = 0.35f64.sin_cos();
-    let cover_fn = move |e: usize, x: f64, y: f64| -> usize {
+    move |e: usize, x: f64, y: f64| -> usize {
         if distance_to_polyline(&RIVER, x, y) < 9.0 {
             return 2;
         }
@@ -216,7 +296,17 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
         } else {
             7
         }
-    };
+    }
+}
+
+/// The four survey epochs of `w` × `w` pixel images: film scans, or for `later` digital frames
+/// after the first.
+fn survey_epochs(
+    scale: Scale,
+    w: u32,
+    later: LaterEpochs,
+    rng: &mut SeededRng,
+) -> Result<Vec<EpochSpec>, SynthError> {
     // Film cameras: (focal length mm, scale number, scan shrinks/affinity) per epoch.
     let cameras = [
         (152.0, 5500.0),
@@ -234,59 +324,15 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
     ];
     let mut epochs = Vec::new();
     for (e, (f_mm, scale_number)) in cameras.iter().enumerate() {
-        let f = w as f64 * f_mm / 230.0;
-        let mut camera =
-            BrownCamera::new(w, w, f).map_err(|err| SynthError::InvalidScene(err.to_string()))?;
-        camera.cx = 0.002 * w as f64 * rng.normal();
-        camera.cy = 0.002 * w as f64 * rng.normal();
-        camera.b1 = 0.0004 * f * rng.normal();
-        camera.b2 = 0.0004 * f * rng.normal();
-        camera.k1 = 0.004 * rng.normal();
-        // Drawn for every epoch, so that the film epochs of both variants are the same.
         let digital = e > 0 && later == LaterEpochs::Digital;
-        if digital {
-            // A digital frame camera: no film deformation for b1 and b2 to stand for.
-            (camera.b1, camera.b2) = (0.0, 0.0);
-        }
+        let camera = survey_camera(w, *f_mm, digital, rng)?;
         let altitude = 125.0 + f_mm / 1000.0 * scale_number;
-        // Film-era flights: more attitude and position scatter than a drone.
-        let (min, max, overlap) = match scale {
-            Scale::Small => ((500.0, 450.0), (1500.0, 950.0), (0.6, 0.3)),
-            Scale::Full => ((250.0, 250.0), (1750.0, 1150.0), (0.8, 0.6)),
-        };
-        let flight = NadirBlock {
-            tilt_sigma: 0.03,
-            ..nadir(min, max, altitude, 125.0, overlap, 10.0)
-        };
-        let images = flight
-            .poses(&camera, &mut rng)
+        let images = film_era_flight(scale, altitude)
+            .poses(&camera, rng)
             .into_iter()
-            .map(|pose| {
-                let film = Effects {
-                    exposure: 1.3 + 0.12 * rng.normal(),
-                    vignetting: 0.3,
-                    noise_sigma: 2.0,
-                    grain: 0.05 + 0.02 * (3 - e) as f64,
-                    dust_per_mp: 40.0,
-                    scratches: rng.below(3) as u32,
-                    seed: rng.next_u64(),
-                    channels: Channels::Grey,
-                };
-                let effects = if digital {
-                    Effects {
-                        exposure: 1.2,
-                        vignetting: 0.1,
-                        noise_sigma: 1.0,
-                        grain: 0.0,
-                        dust_per_mp: 0.0,
-                        scratches: 0,
-                        channels: Channels::Rgb,
-                        ..film
-                    }
-                } else {
-                    film
-                };
-                ImageSpec { pose, effects }
+            .map(|pose| ImageSpec {
+                pose,
+                effects: image_effects(e, digital, rng),
             })
             .collect();
         epochs.push(EpochSpec {
@@ -312,6 +358,76 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
             }),
         });
     }
+    Ok(epochs)
+}
+
+/// The camera of an epoch: a `f_mm` lens on a 230 mm frame imaged at `w` × `w` pixels, its
+/// principal point, film deformation (none for a `digital` camera) and distortion drawn.
+fn survey_camera(
+    w: u32,
+    f_mm: f64,
+    digital: bool,
+    rng: &mut SeededRng,
+) -> Result<BrownCamera, SynthError> {
+    let f = w as f64 * f_mm / 230.0;
+    let mut camera =
+        BrownCamera::new(w, w, f).map_err(|err| SynthError::InvalidScene(err.to_string()))?;
+    camera.cx = 0.002 * w as f64 * rng.normal();
+    camera.cy = 0.002 * w as f64 * rng.normal();
+    camera.b1 = 0.0004 * f * rng.normal();
+    camera.b2 = 0.0004 * f * rng.normal();
+    camera.k1 = 0.004 * rng.normal();
+    // Drawn for every epoch, so that the film epochs of both variants are the same.
+    if digital {
+        // A digital frame camera: no film deformation for b1 and b2 to stand for.
+        (camera.b1, camera.b2) = (0.0, 0.0);
+    }
+    Ok(camera)
+}
+
+/// A film-era flight at `altitude`: more attitude and position scatter than a drone.
+fn film_era_flight(scale: Scale, altitude: f64) -> NadirBlock {
+    let (min, max, overlap) = match scale {
+        Scale::Small => ((500.0, 450.0), (1500.0, 950.0), (0.6, 0.3)),
+        Scale::Full => ((250.0, 250.0), (1750.0, 1150.0), (0.8, 0.6)),
+    };
+    NadirBlock {
+        tilt_sigma: 0.03,
+        ..nadir(min, max, altitude, 125.0, overlap, 10.0)
+    }
+}
+
+/// The effects of one image of epoch `e`: a film scan's (grain, dust, scratches), or for a
+/// `digital` epoch a digital camera's, drawn the same way either way.
+fn image_effects(e: usize, digital: bool, rng: &mut SeededRng) -> Effects {
+    let film = Effects {
+        exposure: 1.3 + 0.12 * rng.normal(),
+        vignetting: 0.3,
+        noise_sigma: 2.0,
+        grain: 0.05 + 0.02 * (3 - e) as f64,
+        dust_per_mp: 40.0,
+        scratches: rng.below(3) as u32,
+        seed: rng.next_u64(),
+        channels: Channels::Grey,
+    };
+    if digital {
+        Effects {
+            exposure: 1.2,
+            vignetting: 0.1,
+            noise_sigma: 1.0,
+            grain: 0.0,
+            dust_per_mp: 0.0,
+            scratches: 0,
+            channels: Channels::Rgb,
+            ..film
+        }
+    } else {
+        film
+    }
+}
+
+/// Everything that is not stable: the wood, the embankment, the village, the river.
+fn unstable_areas() -> Vec<Vec<[f64; 2]>> {
     let mut unstable = vec![
         WOOD.footprint(20.0),
         EMBANKMENT.footprint(15.0),
@@ -321,40 +437,7 @@ pub(super) fn build(scale: Scale, seed: u64, later: LaterEpochs) -> Result<Scene
         ),
     ];
     unstable.push(buffer(&RIVER, 20.0));
-    let mut spec = new_scene(
-        match later {
-            LaterEpochs::Film => "archival",
-            LaterEpochs::Digital => "archival-mixed",
-        },
-        "EPSG:2154",
-        Vector3::new(731_500.0, 6_271_200.0, 0.0),
-        Frame::Ground,
-        (0.0, 0.0, CELL, 1001, 701),
-        Arc::new(base),
-        materials,
-        Arc::new(cover_fn),
-        epochs,
-        seed,
-    );
-    spec.apron = 1200.0;
-    spec.features = features;
-    spec.blocks = blocks;
-    spec.target_radius = 3.0;
-    spec.regions = regions;
-    spec.unstable = unstable;
-    spec.gnss = None;
-    spec.survey_sigma = (0.05, 0.08);
-    place_control(
-        &mut spec,
-        &mut rng,
-        (8, 5),
-        (250.0, 200.0),
-        (1750.0, 1200.0),
-        25.0,
-        250.0,
-        &[],
-    );
-    Ok(spec)
+    unstable
 }
 
 #[cfg(test)]

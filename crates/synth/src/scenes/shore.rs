@@ -18,17 +18,75 @@ const EPOCHS: usize = 4;
 
 pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
     let mut rng = SeededRng::new(seed);
-    let noise = Noise::new(seed ^ 51);
-    let rock = move |x: f64, y: f64| {
-        let ridges = noise.fbm(x, y, 0.0, 9.0, 4, 0.5);
-        0.9 * (ridges + 0.05).max(0.0) + 0.15 * noise.fbm(x, y, 5.0, 1.5, 3, 0.5)
-    };
+    let rock = rock_relief(seed);
     let rock_for_base = rock.clone();
     let base = move |x: f64, y: f64| 0.012 * x + rock_for_base(x, y);
     // Sand patches in the gullies, each thicker every month; pools placed apart from them.
+    let mut unstable = vec![rect((-1.0, -1.0), (16.0, 101.0))];
+    let SandPatches {
+        features,
+        regions,
+        placed,
+    } = sand_patches(&mut unstable, &mut rng);
+    let pools = pools(&placed, &mut unstable, &mut rng);
+    let (w, h) = image_size(scale, (512, 384), (3000, 2000));
+    let f = 0.72 * w as f64;
+    let fin = finest(f, 40.0);
+    let materials = land_covers(seed, fin);
+    let cover_fn = cover_by_epoch(pools, placed, &rock);
+    let epochs = monthly_epochs(scale, (w, h), &mut rng);
+    let mut spec = new_scene(
+        "shore",
+        "EPSG:32755",
+        Vector3::new(520_400.0, 5_251_800.0, 0.0),
+        Frame::Ground,
+        (0.0, 0.0, 0.15, 1001, 667),
+        Arc::new(base),
+        materials,
+        Arc::new(cover_fn),
+        epochs,
+        seed,
+    );
+    spec.apron = 60.0;
+    spec.features = features;
+    spec.target_radius = 0.25;
+    spec.regions = regions;
+    spec.unstable = unstable;
+    place_control(
+        &mut spec,
+        &mut rng,
+        (6, 4),
+        (20.0, 8.0),
+        (145.0, 92.0),
+        1.5,
+        25.0,
+        &[],
+    );
+    Ok(spec)
+}
+
+/// The rock platform's relief: ridges with gullies between them, and rough rock.
+fn rock_relief(seed: u64) -> impl Fn(f64, f64) -> f64 + Clone + Send + Sync + 'static {
+    let noise = Noise::new(seed ^ 51);
+    move |x: f64, y: f64| {
+        let ridges = noise.fbm(x, y, 0.0, 9.0, 4, 0.5);
+        0.9 * (ridges + 0.05).max(0.0) + 0.15 * noise.fbm(x, y, 5.0, 1.5, 3, 0.5)
+    }
+}
+
+/// The sand filling the gullies: its height changes, a changed region per patch, and the
+/// patches' footprints (at height 1).
+struct SandPatches {
+    features: Vec<Feature>,
+    regions: Vec<ChangeRegion>,
+    placed: Vec<Bump>,
+}
+
+/// Up to six sand patches drawn apart from one another, each thicker every month; their
+/// surroundings are added to `unstable`.
+fn sand_patches(unstable: &mut Vec<Vec<[f64; 2]>>, rng: &mut SeededRng) -> SandPatches {
     let mut features = Vec::new();
     let mut regions = Vec::new();
-    let mut unstable = vec![rect((-1.0, -1.0), (16.0, 101.0))];
     let mut placed: Vec<Bump> = Vec::new();
     for k in 0..6 {
         for _ in 0..200 {
@@ -71,6 +129,16 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             }
         }
     }
+    SandPatches {
+        features,
+        regions,
+        placed,
+    }
+}
+
+/// Up to four rock pools drawn apart from the sand patches and from one another; their
+/// surroundings are added to `unstable`.
+fn pools(placed: &[Bump], unstable: &mut Vec<Vec<[f64; 2]>>, rng: &mut SeededRng) -> Vec<Bump> {
     let mut pools: Vec<Bump> = Vec::new();
     for _ in 0..300 {
         if pools.len() == 4 {
@@ -92,10 +160,12 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             pools.push(b);
         }
     }
-    let (w, h) = image_size(scale, (512, 384), (3000, 2000));
-    let f = 0.72 * w as f64;
-    let fin = finest(f, 40.0);
-    let materials = vec![
+    pools
+}
+
+/// The materials: rock, sand, water, algae.
+fn land_covers(seed: u64, fin: f64) -> Vec<Material> {
+    vec![
         cover(seed ^ 1, [0.22, 0.20, 0.18], [0.48, 0.45, 0.40], 4.0, fin),
         cover(seed ^ 2, [0.72, 0.64, 0.48], [0.86, 0.79, 0.62], 3.0, fin),
         cover_with_contrast(
@@ -107,12 +177,21 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
             0.5,
         ),
         cover(seed ^ 4, [0.15, 0.22, 0.08], [0.30, 0.38, 0.14], 2.0, fin),
-    ];
-    let sand = placed.clone();
+    ]
+}
+
+/// The land cover of an epoch at a grid position: the sea up to its edge of the day, the pools
+/// with their water level, the sand after the first epoch, algae in the low gullies of `rock`,
+/// rock elsewhere.
+fn cover_by_epoch(
+    pools: Vec<Bump>,
+    sand: Vec<Bump>,
+    rock: impl Fn(f64, f64) -> f64,
+) -> impl Fn(usize, f64, f64) -> usize + Send + Sync + 'static {
     // The rock relief tabulated on a 0.25 m lattice (bilinear between nodes): the cover function
     // runs for every ray sample, the relief's seven noise octaves would dominate rendering.
-    let relief = Heightfield::from_fn((-70.0, -70.0), 0.25, 1161, 961, &rock);
-    let cover_fn = move |e: usize, x: f64, y: f64| -> usize {
+    let relief = Heightfield::from_fn((-70.0, -70.0), 0.25, 1161, 961, rock);
+    move |e: usize, x: f64, y: f64| -> usize {
         let sea_edge = 8.0 + 2.5 * ((e * 7) % 3) as f64;
         if x < sea_edge {
             return 2;
@@ -131,50 +210,26 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         } else {
             0
         } // algae in the low gullies
-    };
+    }
+}
+
+/// The epochs: the same drone camera (of `w` × `h` pixels) and block flown monthly at low tide.
+fn monthly_epochs(scale: Scale, (w, h): (u32, u32), rng: &mut SeededRng) -> Vec<EpochSpec> {
     let camera_seed = rng.next_u64();
     let flight = match scale {
         Scale::Small => nadir((30.0, 25.0), (120.0, 75.0), 50.0, 1.0, (0.5, 0.4), 0.5),
         Scale::Full => nadir((10.0, 10.0), (140.0, 90.0), 40.0, 1.0, (0.75, 0.65), 0.5),
     };
     let names = ["2023-01-18", "2023-02-16", "2023-03-17", "2023-04-15"];
-    let epochs = (0..EPOCHS)
+    (0..EPOCHS)
         .map(|e| {
             let camera = drone_camera(w, h, camera_seed);
-            let poses = flight.poses(&camera, &mut rng);
+            let poses = flight.poses(&camera, rng);
             let light = sun(
                 (20.0 + 15.0 * e as f64).to_radians(),
                 (55.0 - 6.0 * e as f64).to_radians(),
             );
-            drone_epoch(names[e], camera, poses, light, &mut rng)
+            drone_epoch(names[e], camera, poses, light, rng)
         })
-        .collect();
-    let mut spec = new_scene(
-        "shore",
-        "EPSG:32755",
-        Vector3::new(520_400.0, 5_251_800.0, 0.0),
-        Frame::Ground,
-        (0.0, 0.0, 0.15, 1001, 667),
-        Arc::new(base),
-        materials,
-        Arc::new(cover_fn),
-        epochs,
-        seed,
-    );
-    spec.apron = 60.0;
-    spec.features = features;
-    spec.target_radius = 0.25;
-    spec.regions = regions;
-    spec.unstable = unstable;
-    place_control(
-        &mut spec,
-        &mut rng,
-        (6, 4),
-        (20.0, 8.0),
-        (145.0, 92.0),
-        1.5,
-        25.0,
-        &[],
-    );
-    Ok(spec)
+        .collect()
 }
