@@ -411,34 +411,49 @@ fn parse<T: std::str::FromStr>(
 /// Reads a COLMAP text model from `dir`. `points3D.txt` may be absent.
 pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
     let mut model = ColmapModel::default();
+    read_cameras_txt(&dir.join("cameras.txt"), &mut model.cameras)?;
+    read_images_txt(&dir.join("images.txt"), &mut model.images)?;
+    let path = dir.join("points3D.txt");
+    if path.exists() {
+        read_points3d_txt(&path, &mut model.points)?;
+    }
+    Ok(model)
+}
 
-    let path = dir.join("cameras.txt");
-    let TextLines { data, comments } = lines_of(&path)?;
-    let camera_names: BTreeMap<u32, String> = comments
+/// The names timesift's comments `# <prefix><id> <name>` give to ids (camera names, image
+/// epochs); other comments are ignored.
+fn names_in_comments(comments: &[String], prefix: &str) -> BTreeMap<u32, String> {
+    comments
         .iter()
         .filter_map(|c| {
-            let rest = c.strip_prefix("timesift camera ")?;
+            let rest = c.strip_prefix(prefix)?;
             let (id, name) = rest.split_once(' ')?;
             Some((id.parse().ok()?, name.to_string()))
         })
-        .collect();
+        .collect()
+}
+
+/// Reads `cameras.txt` at `path` into `cameras`; an id defined twice is an error.
+fn read_cameras_txt(path: &Path, cameras: &mut BTreeMap<u32, ColmapCamera>) -> Result<(), IoError> {
+    let TextLines { data, comments } = lines_of(path)?;
+    let camera_names = names_in_comments(&comments, "timesift camera ");
     for (line, text) in data.iter().filter(|(_, t)| !t.trim().is_empty()) {
         let mut tok = text.split_whitespace();
-        let id: u32 = parse(&path, *line, tok.next(), "CAMERA_ID")?;
-        let model_name: String = parse(&path, *line, tok.next(), "MODEL")?;
-        let width = parse(&path, *line, tok.next(), "WIDTH")?;
-        let height = parse(&path, *line, tok.next(), "HEIGHT")?;
+        let id: u32 = parse(path, *line, tok.next(), "CAMERA_ID")?;
+        let model_name: String = parse(path, *line, tok.next(), "MODEL")?;
+        let width = parse(path, *line, tok.next(), "WIDTH")?;
+        let height = parse(path, *line, tok.next(), "HEIGHT")?;
         let params = tok
-            .map(|t| parse::<f64>(&path, *line, Some(t), "PARAMS"))
+            .map(|t| parse::<f64>(path, *line, Some(t), "PARAMS"))
             .collect::<Result<Vec<_>, _>>()?;
-        if model.cameras.contains_key(&id) {
+        if cameras.contains_key(&id) {
             return Err(IoError::line(
-                &path,
+                path,
                 *line,
                 format!("camera id {id} is defined twice"),
             ));
         }
-        model.cameras.insert(
+        cameras.insert(
             id,
             ColmapCamera {
                 model: model_name,
@@ -449,75 +464,32 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
             },
         );
     }
+    Ok(())
+}
 
-    let path = dir.join("images.txt");
-    let TextLines { data, comments } = lines_of(&path)?;
-    let epochs: BTreeMap<u32, String> = comments
-        .iter()
-        .filter_map(|c| {
-            let rest = c.strip_prefix("timesift image ")?;
-            let (id, epoch) = rest.split_once(' ')?;
-            Some((id.parse().ok()?, epoch.to_string()))
-        })
-        .collect();
+/// Reads `images.txt` at `path` into `images`: two lines an image, the second (its keypoints)
+/// possibly empty; an id defined twice is an error.
+fn read_images_txt(path: &Path, images: &mut BTreeMap<u32, ColmapImage>) -> Result<(), IoError> {
+    let TextLines { data, comments } = lines_of(path)?;
+    let epochs = names_in_comments(&comments, "timesift image ");
     let mut iter = data.iter();
     while let Some((line, text)) = iter.next() {
         if text.trim().is_empty() {
             continue;
         }
-        let mut tok = text.split_whitespace();
-        let id: u32 = parse(&path, *line, tok.next(), "IMAGE_ID")?;
-        let mut v = [0.0f64; 7];
-        for (k, name) in ["QW", "QX", "QY", "QZ", "TX", "TY", "TZ"]
-            .iter()
-            .enumerate()
-        {
-            v[k] = parse(&path, *line, tok.next(), name)?;
-        }
-        let camera_id = parse(&path, *line, tok.next(), "CAMERA_ID")?;
-        // Names may contain spaces: the rest of the line.
-        let name = tok.collect::<Vec<_>>().join(" ");
-        if name.is_empty() {
-            return Err(IoError::line(&path, *line, "missing NAME"));
-        }
-        let q = Quaternion::new(v[0], v[1], v[2], v[3]);
-        if !(q.norm() > 0.5 && q.norm() < 2.0) {
-            return Err(IoError::line(
-                &path,
-                *line,
-                "quaternion is not of unit norm",
-            ));
-        }
-        let pose = Pose::new(
-            UnitQuaternion::from_quaternion(q),
-            Vector3::new(v[4], v[5], v[6]),
-        );
+        let (id, camera_id, name, pose) = parse_image_line(path, *line, text)?;
         let mut points2d = Vec::new();
         if let Some((pline, ptext)) = iter.next() {
-            let toks: Vec<&str> = ptext.split_whitespace().collect();
-            if toks.len() % 3 != 0 {
-                return Err(IoError::line(
-                    &path,
-                    *pline,
-                    "POINTS2D must be triples (X, Y, POINT3D_ID)",
-                ));
-            }
-            for t in toks.chunks(3) {
-                points2d.push((
-                    parse(&path, *pline, Some(t[0]), "X")?,
-                    parse(&path, *pline, Some(t[1]), "Y")?,
-                    parse(&path, *pline, Some(t[2]), "POINT3D_ID")?,
-                ));
-            }
+            points2d = parse_points2d(path, *pline, ptext)?;
         }
-        if model.images.contains_key(&id) {
+        if images.contains_key(&id) {
             return Err(IoError::line(
-                &path,
+                path,
                 *line,
                 format!("image id {id} is defined twice"),
             ));
         }
-        model.images.insert(
+        images.insert(
             id,
             ColmapImage {
                 camera_id,
@@ -528,56 +500,110 @@ pub fn read_colmap_text(dir: &Path) -> Result<ColmapModel, IoError> {
             },
         );
     }
+    Ok(())
+}
 
-    let path = dir.join("points3D.txt");
-    if path.exists() {
-        let data = lines_of(&path)?.data;
-        for (line, text) in data.iter().filter(|(_, t)| !t.trim().is_empty()) {
-            let mut tok = text.split_whitespace();
-            let id: u64 = parse(&path, *line, tok.next(), "POINT3D_ID")?;
-            let x = parse(&path, *line, tok.next(), "X")?;
-            let y = parse(&path, *line, tok.next(), "Y")?;
-            let z = parse(&path, *line, tok.next(), "Z")?;
-            let rgb = [
-                parse(&path, *line, tok.next(), "R")?,
-                parse(&path, *line, tok.next(), "G")?,
-                parse(&path, *line, tok.next(), "B")?,
-            ];
-            let error = parse(&path, *line, tok.next(), "ERROR")?;
-            let rest: Vec<&str> = tok.collect();
-            if rest.len() % 2 != 0 {
-                return Err(IoError::line(
-                    &path,
-                    *line,
-                    "TRACK must be pairs (IMAGE_ID, POINT2D_IDX)",
-                ));
-            }
-            let track = rest
-                .chunks(2)
-                .map(|p| {
-                    Ok((
-                        parse(&path, *line, Some(p[0]), "IMAGE_ID")?,
-                        parse(&path, *line, Some(p[1]), "POINT2D_IDX")?,
-                    ))
-                })
-                .collect::<Result<Vec<_>, IoError>>()?;
-            if model.points.contains_key(&id) {
-                return Err(IoError::line(
-                    &path,
-                    *line,
-                    format!("point id {id} is defined twice"),
-                ));
-            }
-            model.points.insert(
-                id,
-                ColmapPoint {
-                    xyz: Vector3::new(x, y, z),
-                    rgb,
-                    error,
-                    track,
-                },
-            );
-        }
+/// An image's first line of `images.txt`: its id, camera id, name and `cam_from_world`.
+fn parse_image_line(
+    path: &Path,
+    line: usize,
+    text: &str,
+) -> Result<(u32, u32, String, Pose), IoError> {
+    let mut tok = text.split_whitespace();
+    let id: u32 = parse(path, line, tok.next(), "IMAGE_ID")?;
+    let mut v = [0.0f64; 7];
+    for (k, name) in ["QW", "QX", "QY", "QZ", "TX", "TY", "TZ"]
+        .iter()
+        .enumerate()
+    {
+        v[k] = parse(path, line, tok.next(), name)?;
     }
-    Ok(model)
+    let camera_id = parse(path, line, tok.next(), "CAMERA_ID")?;
+    // Names may contain spaces: the rest of the line.
+    let name = tok.collect::<Vec<_>>().join(" ");
+    if name.is_empty() {
+        return Err(IoError::line(path, line, "missing NAME"));
+    }
+    let q = Quaternion::new(v[0], v[1], v[2], v[3]);
+    if !(q.norm() > 0.5 && q.norm() < 2.0) {
+        return Err(IoError::line(path, line, "quaternion is not of unit norm"));
+    }
+    let pose = Pose::new(
+        UnitQuaternion::from_quaternion(q),
+        Vector3::new(v[4], v[5], v[6]),
+    );
+    Ok((id, camera_id, name, pose))
+}
+
+/// An image's second line of `images.txt`: its keypoints `(x, y, point3D_id)`.
+fn parse_points2d(path: &Path, pline: usize, ptext: &str) -> Result<Vec<(f64, f64, i64)>, IoError> {
+    let toks: Vec<&str> = ptext.split_whitespace().collect();
+    if toks.len() % 3 != 0 {
+        return Err(IoError::line(
+            path,
+            pline,
+            "POINTS2D must be triples (X, Y, POINT3D_ID)",
+        ));
+    }
+    let mut points2d = Vec::new();
+    for t in toks.chunks(3) {
+        points2d.push((
+            parse(path, pline, Some(t[0]), "X")?,
+            parse(path, pline, Some(t[1]), "Y")?,
+            parse(path, pline, Some(t[2]), "POINT3D_ID")?,
+        ));
+    }
+    Ok(points2d)
+}
+
+/// Reads `points3D.txt` at `path` into `points`; an id defined twice is an error.
+fn read_points3d_txt(path: &Path, points: &mut BTreeMap<u64, ColmapPoint>) -> Result<(), IoError> {
+    let data = lines_of(path)?.data;
+    for (line, text) in data.iter().filter(|(_, t)| !t.trim().is_empty()) {
+        let mut tok = text.split_whitespace();
+        let id: u64 = parse(path, *line, tok.next(), "POINT3D_ID")?;
+        let x = parse(path, *line, tok.next(), "X")?;
+        let y = parse(path, *line, tok.next(), "Y")?;
+        let z = parse(path, *line, tok.next(), "Z")?;
+        let rgb = [
+            parse(path, *line, tok.next(), "R")?,
+            parse(path, *line, tok.next(), "G")?,
+            parse(path, *line, tok.next(), "B")?,
+        ];
+        let error = parse(path, *line, tok.next(), "ERROR")?;
+        let rest: Vec<&str> = tok.collect();
+        if rest.len() % 2 != 0 {
+            return Err(IoError::line(
+                path,
+                *line,
+                "TRACK must be pairs (IMAGE_ID, POINT2D_IDX)",
+            ));
+        }
+        let track = rest
+            .chunks(2)
+            .map(|p| {
+                Ok((
+                    parse(path, *line, Some(p[0]), "IMAGE_ID")?,
+                    parse(path, *line, Some(p[1]), "POINT2D_IDX")?,
+                ))
+            })
+            .collect::<Result<Vec<_>, IoError>>()?;
+        if points.contains_key(&id) {
+            return Err(IoError::line(
+                path,
+                *line,
+                format!("point id {id} is defined twice"),
+            ));
+        }
+        points.insert(
+            id,
+            ColmapPoint {
+                xyz: Vector3::new(x, y, z),
+                rgb,
+                error,
+                track,
+            },
+        );
+    }
+    Ok(())
 }

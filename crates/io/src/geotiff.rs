@@ -403,7 +403,29 @@ fn open_georeferenced(
         .with_limits(decoding_limits());
     let (width, height) = decoder.dimensions().map_err(err)?;
     let colortype = decoder.colortype().map_err(err)?;
+    let (scale, tie) = pixel_scale_and_tiepoint(&mut decoder, path)?;
+    let (crs, pixel_is_point) = crs_and_raster_type(&mut decoder, path)?;
+    let nodata = gdal_nodata(&mut decoder, path)?;
+    let grid = RasterGrid {
+        width: width as usize,
+        height: height as usize,
+        georef: GeoReference {
+            transform: transform_of_tiepoint(&scale, &tie, pixel_is_point),
+            crs,
+            nodata,
+            pixel_is_point,
+        },
+    };
+    Ok((decoder, colortype, grid))
+}
 
+/// The ModelPixelScale and the one ModelTiepoint of a north-up grid; any other placement
+/// (a ModelTransformation, several tie points, a south-up or degenerate scale) is refused.
+fn pixel_scale_and_tiepoint(
+    decoder: &mut Decoder<BufReader<File>>,
+    path: &Path,
+) -> Result<(Vec<f64>, Vec<f64>), IoError> {
+    let err = |e| tiff_err(path, e);
     if decoder
         .find_tag(Tag::Unknown(MODEL_TRANSFORMATION_TAG))
         .map_err(err)?
@@ -463,7 +485,16 @@ fn open_georeferenced(
             "ModelTiepoint holds non-finite values",
         ));
     }
+    Ok((scale, tie))
+}
 
+/// The CRS the GeoKey directory names (EPSG codes only; none is a local CRS) and whether the
+/// raster is PixelIsPoint.
+fn crs_and_raster_type(
+    decoder: &mut Decoder<BufReader<File>>,
+    path: &Path,
+) -> Result<(Crs, bool), IoError> {
+    let err = |e| tiff_err(path, e);
     let keys = decoder
         .find_tag(Tag::GeoKeyDirectoryTag)
         .map_err(err)?
@@ -509,7 +540,16 @@ fn open_georeferenced(
         }
         None => Crs::Local,
     };
-    let nodata = decoder
+    Ok((crs, pixel_is_point))
+}
+
+/// The GDAL_NODATA value, when the file has one.
+fn gdal_nodata(
+    decoder: &mut Decoder<BufReader<File>>,
+    path: &Path,
+) -> Result<Option<f64>, IoError> {
+    let err = |e| tiff_err(path, e);
+    decoder
         .find_tag(Tag::GdalNodata)
         .map_err(err)?
         .map(|v| v.into_string())
@@ -520,27 +560,20 @@ fn open_georeferenced(
             s.parse::<f64>()
                 .map_err(|_| IoError::invalid(path, format!("GDAL_NODATA \"{s}\" is not a number")))
         })
-        .transpose()?;
+        .transpose()
+}
 
+/// The grid's placement from its pixel scale and tie point (shifted half a pixel for
+/// PixelIsPoint): pixel height negative, north up.
+fn transform_of_tiepoint(scale: &[f64], tie: &[f64], pixel_is_point: bool) -> GeoTransform {
     let (pw, ph) = (scale[0], -scale[1]);
     let shift = if pixel_is_point { 0.5 } else { 0.0 };
-    let transform = GeoTransform {
+    GeoTransform {
         origin_x: tie[3] - (tie[0] + shift) * pw,
         origin_y: tie[4] - (tie[1] + shift) * ph,
         pixel_width: pw,
         pixel_height: ph,
-    };
-    let grid = RasterGrid {
-        width: width as usize,
-        height: height as usize,
-        georef: GeoReference {
-            transform,
-            crs,
-            nodata,
-            pixel_is_point,
-        },
-    };
-    Ok((decoder, colortype, grid))
+    }
 }
 
 /// Reads a single-band GeoTIFF of any common numeric sample type as f32.

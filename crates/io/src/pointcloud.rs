@@ -123,6 +123,22 @@ pub fn write_las(
     cloud: &PointCloud,
     options: &LasWriteOptions,
 ) -> Result<(), IoError> {
+    check_writable(path, cloud, options)?;
+    let offset = centred_offset(path, cloud, options)?;
+    let extra: usize = cloud.attributes.iter().map(|a| a.values.size()).sum();
+    let header = las_header(path, cloud, options, offset, extra)?;
+    let tmp = fsutil::temporary_sibling(path);
+    let written = write_las_points(path, &tmp, header, cloud, extra);
+    fsutil::commit_temporary(&tmp, path, written)
+}
+
+/// Whether `cloud` can be written: one colour and attribute value per point, attribute names
+/// of 1 to 32 bytes, a positive scale.
+fn check_writable(
+    path: &Path,
+    cloud: &PointCloud,
+    options: &LasWriteOptions,
+) -> Result<(), IoError> {
     let n = cloud.positions.len();
     if cloud.colors.as_ref().is_some_and(|c| c.len() != n)
         || cloud.attributes.iter().any(|a| a.values.len() != n)
@@ -145,6 +161,16 @@ pub fn write_las(
     if options.scale.iter().any(|s| !(*s > 0.0)) {
         return Err(IoError::invalid(path, "LAS scale must be positive"));
     }
+    Ok(())
+}
+
+/// The LAS offset of each axis (0 for an empty cloud); an error for a non-finite coordinate or
+/// an extent too wide for the scale.
+fn centred_offset(
+    path: &Path,
+    cloud: &PointCloud,
+    options: &LasWriteOptions,
+) -> Result<[f64; 3], IoError> {
     let mut min = [f64::INFINITY; 3];
     let mut max = [f64::NEG_INFINITY; 3];
     for p in &cloud.positions {
@@ -175,12 +201,22 @@ pub fn write_las(
             }
         }
     }
+    Ok(offset)
+}
 
+/// The LAS 1.4 header of `cloud`: point format 6 (7 with colours) with `extra` bytes of
+/// attributes described in their record, the scale and `offset`, the CRS's WKT.
+fn las_header(
+    path: &Path,
+    cloud: &PointCloud,
+    options: &LasWriteOptions,
+    offset: [f64; 3],
+    extra: usize,
+) -> Result<las::Header, IoError> {
     let mut builder = Builder::from(Version::new(1, 4));
     builder.generating_software = format!("timesift {}", env!("CARGO_PKG_VERSION"));
     let mut format = Format::new(if cloud.colors.is_some() { 7 } else { 6 })
         .map_err(|e| IoError::invalid(path, e.to_string()))?;
-    let extra: usize = cloud.attributes.iter().map(|a| a.values.size()).sum();
     format.extra_bytes = extra as u16;
     builder.point_format = format;
     builder.transforms = Vector {
@@ -212,38 +248,45 @@ pub fn write_las(
             .set_wkt_crs(wkt.as_bytes().to_vec())
             .map_err(|e| IoError::invalid(path, format!("LAS CRS: {e}")))?;
     }
+    Ok(header)
+}
 
-    let tmp = fsutil::temporary_sibling(path);
-    let written = (|| {
-        let las_err = |e: las::Error| IoError::invalid(path, format!("cannot write LAS: {e}"));
-        let mut writer = Writer::from_path(&tmp, header).map_err(las_err)?;
-        let mut bytes = Vec::with_capacity(extra);
-        for i in 0..n {
-            bytes.clear();
-            for a in &cloud.attributes {
-                a.values.push_le(i, &mut bytes);
-            }
-            let [x, y, z] = cloud.positions[i];
-            let point = Point {
-                x,
-                y,
-                z,
-                return_number: 1,
-                number_of_returns: 1,
-                gps_time: Some(0.0),
-                color: cloud.colors.as_ref().map(|c| Color {
-                    red: c[i][0],
-                    green: c[i][1],
-                    blue: c[i][2],
-                }),
-                extra_bytes: bytes.clone(),
-                ..Default::default()
-            };
-            writer.write_point(point).map_err(las_err)?;
+/// Writes the points of `cloud` to `tmp` under `header` (errors name `path`, the file it
+/// becomes): single returns, GPS time 0, colours, the attributes' `extra` bytes.
+fn write_las_points(
+    path: &Path,
+    tmp: &Path,
+    header: las::Header,
+    cloud: &PointCloud,
+    extra: usize,
+) -> Result<(), IoError> {
+    let las_err = |e: las::Error| IoError::invalid(path, format!("cannot write LAS: {e}"));
+    let mut writer = Writer::from_path(tmp, header).map_err(las_err)?;
+    let mut bytes = Vec::with_capacity(extra);
+    for i in 0..cloud.positions.len() {
+        bytes.clear();
+        for a in &cloud.attributes {
+            a.values.push_le(i, &mut bytes);
         }
-        writer.close().map_err(las_err)
-    })();
-    fsutil::commit_temporary(&tmp, path, written)
+        let [x, y, z] = cloud.positions[i];
+        let point = Point {
+            x,
+            y,
+            z,
+            return_number: 1,
+            number_of_returns: 1,
+            gps_time: Some(0.0),
+            color: cloud.colors.as_ref().map(|c| Color {
+                red: c[i][0],
+                green: c[i][1],
+                blue: c[i][2],
+            }),
+            extra_bytes: bytes.clone(),
+            ..Default::default()
+        };
+        writer.write_point(point).map_err(las_err)?;
+    }
+    writer.close().map_err(las_err)
 }
 
 /// One attribute's layout read from the extra-bytes record.
@@ -404,9 +447,65 @@ fn layered_laz_positions(
     let file_len = file.metadata().map_err(io_err)?.len();
     let mut source = BufReader::new(file);
     let raw = las::raw::Header::read_from(&mut source).map_err(las_err)?;
-    // The decoder lays out each item at its own size, whatever the file states: items other
-    // than the point format's own would be misread. (las derived the format's extra bytes from
-    // the header's record length, so the expected items add up to it.)
+    let record_len = layered_record_len(path, header, &vlr)?;
+    source
+        .seek(SeekFrom::Start(u64::from(raw.offset_to_point_data)))
+        .map_err(io_err)?;
+    let mut chunks = laz::laszip::ChunkTable::read_from(&mut source, &vlr)
+        .map_err(laz_err)?
+        .as_ref()
+        .to_vec();
+    count_points_of_chunks(path, header.number_of_points(), &vlr, &mut chunks)?;
+    // The chunks follow one another from here; their bytes must lie in the file.
+    let data_start = source.stream_position().map_err(io_err)?;
+    let fits = chunks
+        .iter()
+        .try_fold(data_start, |end, chunk| end.checked_add(chunk.byte_count))
+        .is_some_and(|end| end <= file_len);
+    if !fits {
+        return Err(IoError::invalid(path, "truncated LAZ point data"));
+    }
+    let decoding = PositionDecoding {
+        vlr: &vlr,
+        selection: laz::DecompressionSelection::xy_returns_channel().decompress_z(),
+        record_len,
+        transforms: header.transforms(),
+    };
+    let mut positions: Vec<[f64; 3]> = Vec::new();
+    let mut compressed = Vec::new();
+    let mut rest = chunks.as_slice();
+    while !rest.is_empty() {
+        // A group of whole chunks of about BATCH points.
+        let mut n_chunks = 0;
+        let mut n_points = 0u64;
+        while n_chunks < rest.len() && (n_chunks == 0 || n_points < BATCH) {
+            n_points += rest[n_chunks].point_count;
+            n_chunks += 1;
+        }
+        let (group, later) = rest.split_at(n_chunks);
+        rest = later;
+        // The group's compressed bytes (checked above to lie in the file), cut per chunk.
+        let group_bytes: u64 = group.iter().map(|c| c.byte_count).sum();
+        compressed.resize(group_bytes as usize, 0);
+        source.read_exact(&mut compressed).map_err(io_err)?;
+        let start = positions.len();
+        positions.resize(start + n_points as usize, [0.0; 3]);
+        decoding
+            .decode_group(&compressed, group, &mut positions[start..])
+            .map_err(laz_err)?;
+    }
+    Ok(positions)
+}
+
+/// The length of the file's layered point records, after checking that its LAZ items are the
+/// point format's own. The decoder lays out each item at its own size, whatever the file
+/// states: items other than the point format's own would be misread. (las derived the format's
+/// extra bytes from the header's record length, so the expected items add up to it.)
+fn layered_record_len(
+    path: &Path,
+    header: &las::Header,
+    vlr: &laz::LazVlr,
+) -> Result<usize, IoError> {
     let format = header.point_format();
     let expected = format
         .to_u8()
@@ -425,14 +524,17 @@ fn layered_laz_positions(
             format!("its LAZ items do not make the header's {record_len}-byte layered records"),
         ));
     }
-    source
-        .seek(SeekFrom::Start(u64::from(raw.offset_to_point_data)))
-        .map_err(io_err)?;
-    let mut chunks = laz::laszip::ChunkTable::read_from(&mut source, &vlr)
-        .map_err(laz_err)?
-        .as_ref()
-        .to_vec();
-    let point_count = header.number_of_points();
+    Ok(record_len)
+}
+
+/// Gives fixed-size chunks their point counts (the table holds none; the last chunk holds what
+/// is left of the header's `point_count`), then checks that the chunks hold `point_count`.
+fn count_points_of_chunks(
+    path: &Path,
+    point_count: u64,
+    vlr: &laz::LazVlr,
+    chunks: &mut [laz::laszip::ChunkTableEntry],
+) -> Result<(), IoError> {
     if !vlr.uses_variable_size_chunks() {
         // Fixed-size chunks: the table holds no counts; the last chunk holds what is left.
         let n_chunks = chunks.len();
@@ -464,53 +566,46 @@ fn layered_laz_positions(
             format!("the header counts {point_count} points, the chunk table {listed}"),
         ));
     }
-    // The chunks follow one another from here; their bytes must lie in the file.
-    let data_start = source.stream_position().map_err(io_err)?;
-    let fits = chunks
-        .iter()
-        .try_fold(data_start, |end, chunk| end.checked_add(chunk.byte_count))
-        .is_some_and(|end| end <= file_len);
-    if !fits {
-        return Err(IoError::invalid(path, "truncated LAZ point data"));
-    }
-    let t = header.transforms();
-    let selection = laz::DecompressionSelection::xy_returns_channel().decompress_z();
-    let mut positions: Vec<[f64; 3]> = Vec::new();
-    let mut compressed = Vec::new();
-    let mut rest = chunks.as_slice();
-    while !rest.is_empty() {
-        // A group of whole chunks of about BATCH points.
-        let mut n_chunks = 0;
-        let mut n_points = 0u64;
-        while n_chunks < rest.len() && (n_chunks == 0 || n_points < BATCH) {
-            n_points += rest[n_chunks].point_count;
-            n_chunks += 1;
-        }
-        let (group, later) = rest.split_at(n_chunks);
-        rest = later;
-        // The group's compressed bytes (checked above to lie in the file), cut per chunk.
-        let group_bytes: u64 = group.iter().map(|c| c.byte_count).sum();
-        compressed.resize(group_bytes as usize, 0);
-        source.read_exact(&mut compressed).map_err(io_err)?;
-        let start = positions.len();
-        positions.resize(start + n_points as usize, [0.0; 3]);
+    Ok(())
+}
+
+/// How a layered LAZ file's records become positions: its items, the layers decompressed (x,
+/// y, z), the record length, the header's scales and offsets.
+struct PositionDecoding<'a> {
+    vlr: &'a laz::LazVlr,
+    selection: laz::DecompressionSelection,
+    record_len: usize,
+    transforms: &'a Vector<Transform>,
+}
+
+impl PositionDecoding<'_> {
+    /// Decompresses a group of whole chunks, whose bytes follow one another in `compressed`,
+    /// into `positions` (as many as the chunks hold), the chunks in parallel.
+    fn decode_group(
+        &self,
+        compressed: &[u8],
+        group: &[laz::laszip::ChunkTableEntry],
+        positions: &mut [[f64; 3]],
+    ) -> Result<(), laz::LasZipError> {
+        let (record_len, t) = (self.record_len, self.transforms);
         let mut jobs = Vec::with_capacity(group.len());
-        let (mut unread, mut free) = (compressed.as_slice(), &mut positions[start..]);
+        let (mut unread, mut free) = (compressed, positions);
         for chunk in group {
             let (piece, bytes_left) = unread.split_at(chunk.byte_count as usize);
             let (out, points_left) = free.split_at_mut(chunk.point_count as usize);
             jobs.push((piece, chunk, out));
             (unread, free) = (bytes_left, points_left);
         }
-        jobs.into_par_iter()
-            .try_for_each_init(Vec::new, |records: &mut Vec<u8>, (piece, chunk, out)| {
+        jobs.into_par_iter().try_for_each_init(
+            Vec::new,
+            |records: &mut Vec<u8>, (piece, chunk, out)| {
                 records.resize(out.len() * record_len, 0);
                 laz::par_decompress_selective(
                     piece,
                     records,
-                    &vlr,
+                    self.vlr,
                     std::slice::from_ref(chunk),
-                    selection,
+                    self.selection,
                 )?;
                 for (p, record) in out.iter_mut().zip(records.chunks_exact(record_len)) {
                     // Point formats 6 to 10 begin with x, y and z as little-endian i32.
@@ -525,10 +620,9 @@ fn layered_laz_positions(
                     *p = [t.x.direct(n(0)), t.y.direct(n(1)), t.z.direct(n(2))];
                 }
                 Ok::<(), laz::LasZipError>(())
-            })
-            .map_err(laz_err)?;
+            },
+        )
     }
-    Ok(positions)
 }
 
 /// The positions of decompressed records, from their x, y and z columns.

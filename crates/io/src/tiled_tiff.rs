@@ -390,111 +390,13 @@ impl<S: Read + Write + Seek> TiledWriter<S> {
                 full.received, full.height
             )));
         }
-        let (bands, float) = match self.format {
-            SampleFormat::F32 { .. } => (1, true),
-            SampleFormat::U8 { bands } => (bands, false),
-        };
-        // Each level's IFD. Its TileOffsets (324) holds one offset per tile: their count, not
-        // their values, decides the layout computed next, which then gives them their values.
-        let mut ifds: Vec<Vec<Entry>> = Vec::new();
-        for (k, level) in self.levels.iter().enumerate() {
-            let n_tiles = level.tiles.len();
-            let mut e = vec![
-                Entry::longs(254, &[if k == 0 { 0 } else { 1 }]),
-                Entry::longs(256, &[level.width as u32]),
-                Entry::longs(257, &[level.height as u32]),
-                Entry::shorts(258, &vec![if float { 32 } else { 8 }; bands]),
-                Entry::shorts(259, &[8]),
-                Entry::shorts(262, &[if bands >= 3 { 2 } else { 1 }]),
-                Entry::shorts(277, &[bands as u16]),
-                Entry::shorts(284, &[1]),
-                Entry::shorts(317, &[if float { 3 } else { 2 }]),
-                Entry::shorts(322, &[TILE as u16]),
-                Entry::shorts(323, &[TILE as u16]),
-                Entry::longs(324, &vec![0; n_tiles]),
-                Entry::longs(325, &level.tiles.iter().map(|t| t.1).collect::<Vec<_>>()),
-                Entry::shorts(339, &vec![if float { 3 } else { 1 }; bands]),
-            ];
-            if bands == 4 {
-                e.push(Entry::shorts(338, &[2]));
-            }
-            if k == 0 {
-                e.extend(georef.iter().cloned());
-            }
-            if let Some(nd) = nodata {
-                e.push(nd.clone());
-            }
-            e.sort_by_key(|e| e.tag);
-            ifds.push(e);
-        }
-        let classic = Layout::of(&ifds, &self.levels, false);
-        let big = flavour == Flavour::BigTiff || classic.end > u32::MAX as u64;
-        let layout = if big {
-            // The offsets become 64-bit values (the entry keeps its count).
-            for (k, e) in ifds.iter_mut().enumerate() {
-                if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
-                    *entry = Entry::long8s(324, &vec![0; self.levels[k].tiles.len()]);
-                }
-            }
-            Layout::of(&ifds, &self.levels, true)
-        } else {
-            classic
-        };
-        for (k, e) in ifds.iter_mut().enumerate() {
-            // The entry was made with one zero per tile; same size, now the positions.
-            if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
-                *entry = if big {
-                    Entry::long8s(324, &layout.tiles[k])
-                } else {
-                    let offsets: Vec<u32> = layout.tiles[k].iter().map(|&p| p as u32).collect();
-                    Entry::longs(324, &offsets)
-                };
-            }
-        }
+        let mut ifds = level_ifds(&self.levels, self.format, georef, nodata);
+        let (layout, big) = lay_out(&mut ifds, &self.levels, flavour);
 
         // Serialise, following the layout.
         let mut out = Positioned { out, at: 0 };
-        let offset = |out: &mut Positioned<'_, _>, value: u64| {
-            if big {
-                out.put(&value.to_le_bytes())
-            } else {
-                out.put(&(value as u32).to_le_bytes())
-            }
-        };
-        out.put(b"II")?;
-        if big {
-            out.put(&43u16.to_le_bytes())?;
-            out.put(&8u16.to_le_bytes())?;
-            out.put(&0u16.to_le_bytes())?;
-        } else {
-            out.put(&42u16.to_le_bytes())?;
-        }
-        offset(&mut out, layout.ifds[0])?;
+        write_header_and_ifds(&mut out, &ifds, &layout, big)?;
         let inline = if big { 8 } else { 4 };
-        for (k, e) in ifds.iter().enumerate() {
-            if big {
-                out.put(&(e.len() as u64).to_le_bytes())?;
-            } else {
-                out.put(&(e.len() as u16).to_le_bytes())?;
-            }
-            for (entry, &at) in e.iter().zip(&layout.values[k]) {
-                out.put(&entry.tag.to_le_bytes())?;
-                out.put(&entry.kind.to_le_bytes())?;
-                if big {
-                    out.put(&(entry.count as u64).to_le_bytes())?;
-                } else {
-                    out.put(&entry.count.to_le_bytes())?;
-                }
-                if entry.bytes.len() > inline {
-                    offset(&mut out, at)?;
-                } else {
-                    let mut value = [0u8; 8];
-                    value[..entry.bytes.len()].copy_from_slice(&entry.bytes);
-                    out.put(&value[..inline])?;
-                }
-            }
-            offset(&mut out, layout.ifds.get(k + 1).copied().unwrap_or(0))?;
-        }
         for (k, e) in ifds.iter().enumerate() {
             for (entry, &at) in e.iter().zip(&layout.values[k]) {
                 if entry.bytes.len() > inline {
@@ -517,6 +419,141 @@ impl<S: Read + Write + Seek> TiledWriter<S> {
         }
         Ok(())
     }
+}
+
+/// Each level's IFD, its entries sorted by tag (`georef` in the full-resolution one, `nodata`
+/// in all). Its TileOffsets (324) holds one zero per tile: their count, not their values,
+/// decides the layout, which then gives them their values.
+fn level_ifds(
+    levels: &[LevelState],
+    format: SampleFormat,
+    georef: &[Entry],
+    nodata: Option<&Entry>,
+) -> Vec<Vec<Entry>> {
+    let (bands, float) = match format {
+        SampleFormat::F32 { .. } => (1, true),
+        SampleFormat::U8 { bands } => (bands, false),
+    };
+    let mut ifds: Vec<Vec<Entry>> = Vec::new();
+    for (k, level) in levels.iter().enumerate() {
+        let n_tiles = level.tiles.len();
+        let mut e = vec![
+            Entry::longs(254, &[if k == 0 { 0 } else { 1 }]),
+            Entry::longs(256, &[level.width as u32]),
+            Entry::longs(257, &[level.height as u32]),
+            Entry::shorts(258, &vec![if float { 32 } else { 8 }; bands]),
+            Entry::shorts(259, &[8]),
+            Entry::shorts(262, &[if bands >= 3 { 2 } else { 1 }]),
+            Entry::shorts(277, &[bands as u16]),
+            Entry::shorts(284, &[1]),
+            Entry::shorts(317, &[if float { 3 } else { 2 }]),
+            Entry::shorts(322, &[TILE as u16]),
+            Entry::shorts(323, &[TILE as u16]),
+            Entry::longs(324, &vec![0; n_tiles]),
+            Entry::longs(325, &level.tiles.iter().map(|t| t.1).collect::<Vec<_>>()),
+            Entry::shorts(339, &vec![if float { 3 } else { 1 }; bands]),
+        ];
+        if bands == 4 {
+            e.push(Entry::shorts(338, &[2]));
+        }
+        if k == 0 {
+            e.extend(georef.iter().cloned());
+        }
+        if let Some(nd) = nodata {
+            e.push(nd.clone());
+        }
+        e.sort_by_key(|e| e.tag);
+        ifds.push(e);
+    }
+    ifds
+}
+
+/// The layout of the file, and whether it is a BigTIFF (asked for, or a classic TIFF would pass
+/// 4 GiB); the IFDs' TileOffsets are given their positions (64-bit in a BigTIFF).
+fn lay_out(ifds: &mut [Vec<Entry>], levels: &[LevelState], flavour: Flavour) -> (Layout, bool) {
+    let classic = Layout::of(ifds, levels, false);
+    let big = flavour == Flavour::BigTiff || classic.end > u32::MAX as u64;
+    let layout = if big {
+        // The offsets become 64-bit values (the entry keeps its count).
+        for (k, e) in ifds.iter_mut().enumerate() {
+            if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
+                *entry = Entry::long8s(324, &vec![0; levels[k].tiles.len()]);
+            }
+        }
+        Layout::of(ifds, levels, true)
+    } else {
+        classic
+    };
+    for (k, e) in ifds.iter_mut().enumerate() {
+        // The entry was made with one zero per tile; same size, now the positions.
+        if let Some(entry) = e.iter_mut().find(|e| e.tag == 324) {
+            *entry = if big {
+                Entry::long8s(324, &layout.tiles[k])
+            } else {
+                let offsets: Vec<u32> = layout.tiles[k].iter().map(|&p| p as u32).collect();
+                Entry::longs(324, &offsets)
+            };
+        }
+    }
+    (layout, big)
+}
+
+/// Writes an offset: 8 bytes in a BigTIFF, else 4.
+fn put_offset<W: Write>(
+    out: &mut Positioned<'_, W>,
+    value: u64,
+    big: bool,
+) -> Result<(), TiledError> {
+    if big {
+        out.put(&value.to_le_bytes())
+    } else {
+        out.put(&(value as u32).to_le_bytes())
+    }
+}
+
+/// Writes the header and every IFD (entries with inline values or the positions of their
+/// values, then the next IFD's position) as `layout` places them.
+fn write_header_and_ifds<W: Write>(
+    out: &mut Positioned<'_, W>,
+    ifds: &[Vec<Entry>],
+    layout: &Layout,
+    big: bool,
+) -> Result<(), TiledError> {
+    out.put(b"II")?;
+    if big {
+        out.put(&43u16.to_le_bytes())?;
+        out.put(&8u16.to_le_bytes())?;
+        out.put(&0u16.to_le_bytes())?;
+    } else {
+        out.put(&42u16.to_le_bytes())?;
+    }
+    put_offset(out, layout.ifds[0], big)?;
+    let inline = if big { 8 } else { 4 };
+    for (k, e) in ifds.iter().enumerate() {
+        if big {
+            out.put(&(e.len() as u64).to_le_bytes())?;
+        } else {
+            out.put(&(e.len() as u16).to_le_bytes())?;
+        }
+        for (entry, &at) in e.iter().zip(&layout.values[k]) {
+            out.put(&entry.tag.to_le_bytes())?;
+            out.put(&entry.kind.to_le_bytes())?;
+            if big {
+                out.put(&(entry.count as u64).to_le_bytes())?;
+            } else {
+                out.put(&entry.count.to_le_bytes())?;
+            }
+            if entry.bytes.len() > inline {
+                put_offset(out, at, big)?;
+            } else {
+                let mut value = [0u8; 8];
+                value[..entry.bytes.len()].copy_from_slice(&entry.bytes);
+                out.put(&value[..inline])?;
+            }
+        }
+        put_offset(out, layout.ifds.get(k + 1).copied().unwrap_or(0), big)?;
+    }
+    Ok(())
 }
 
 /// Where everything goes in the file.
