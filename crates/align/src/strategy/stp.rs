@@ -126,46 +126,9 @@ impl StableTiePoints<'_> {
         options: &SfmOptions,
     ) -> Result<Georeferenced, AlignError> {
         let components = reconstruct(sub, options)?;
-        let priors_only = GeoreferenceInput {
-            centre_priors: ground.centre_priors.clone(),
-            prior_offsets: ground.prior_offsets.clone(),
-            points: Vec::new(),
-            marker_sigma_px: ground.marker_sigma_px,
-        };
-        // Placed by the priors when they place it (three or more, not all rejected).
-        let by_priors = if ground.centre_priors.len() >= 3 {
-            let placed = georeference(sub, components.clone(), &priors_only, options)?;
-            (placed.datum != Datum::Local).then_some(placed)
-        } else {
-            None
-        };
-        let dropped;
-        let (rough, radius) = if let Some(placed) = by_priors {
-            dropped = placed.diagnostics.dropped_components;
-            // Priors claim their accuracy; the placement of a whole block is off by about
-            // their common bias, which the stated σ covers.
-            let sigma = ground
-                .centre_priors
-                .iter()
-                .map(|p| p.sigma_xy)
-                .fold(0.0, f64::max);
-            (placed.reconstruction, 3.0 * sigma + 5.0 * ground_px)
-        } else {
-            // Without placing priors only the largest component can be placed, by the tracks
-            // it shares with the reference epoch.
-            dropped = components.len().saturating_sub(1);
-            let mut rec = components
-                .into_iter()
-                .next()
-                .ok_or_else(|| AlignError::Georeferencing("nothing oriented".into()))?;
-            let index = point_index(&reference.reconstruction);
-            let (src, dst) =
-                shared_points(&block.sfm.tracks, &rec, &reference.reconstruction, &index);
-            let reference_from_epoch =
-                fit_similarity(&src, &dst, &reference.reconstruction, options.seed)?;
-            rec.transform(&reference_from_epoch);
-            (rec, RADIUS_WITHOUT_PRIORS_PX * ground_px)
-        };
+        let (rough, radius, dropped) = place_roughly(
+            block, sub, ground, reference, components, ground_px, options,
+        )?;
         let offered = offer(&rough);
         let search = StableSearch {
             radius,
@@ -207,33 +170,14 @@ impl StableTiePoints<'_> {
             tie_sigma_px,
             "stable tie points weighted by the epoch's noise"
         );
-        for (k, pair) in pairs.iter().enumerate() {
-            let Some(point) = offered.get(pair.other) else {
-                continue;
-            };
-            let Some(anchor) = offered_reference.get(pair.reference) else {
-                continue;
-            };
-            // A tie point is about a ground pixel precise across and two in height; a worse
-            // descriptor match weighs less.
-            let sigma = ground_px * (1.0 + 2.0 * pair.score);
-            controlled.points.push(GroundPoint {
-                name: format!("stable tie point {k}"),
-                position: anchor.position,
-                sigma_xy: sigma,
-                sigma_z: 2.0 * sigma,
-                check: false,
-                markers: point
-                    .observations
-                    .iter()
-                    .map(|e| Marker {
-                        image: e.image.index(),
-                        pixel: sub.pixel(e),
-                    })
-                    .collect(),
-                marker_sigma_px: Some(tie_sigma_px),
-            });
-        }
+        controlled.points.extend(stable_control(
+            &pairs,
+            offered_reference,
+            &offered,
+            sub,
+            ground_px,
+            tie_sigma_px,
+        ));
         let mut placed = georeference(sub, vec![rough], &controlled, options)?;
         // The report is about the user's control and check points.
         let user: std::collections::HashSet<&str> =
@@ -242,6 +186,102 @@ impl StableTiePoints<'_> {
         placed.diagnostics.dropped_components += dropped;
         Ok(placed)
     }
+}
+
+/// A later epoch placed roughly in the reference's frame: by its GNSS priors when they place
+/// it (three or more, not all rejected), else its largest component by the tracks it shares
+/// with the reference. With the search radius that placement allows, and the components it
+/// dropped.
+fn place_roughly(
+    block: &Block,
+    sub: &SfmInput,
+    ground: &GeoreferenceInput,
+    reference: &Georeferenced,
+    components: Vec<Reconstruction>,
+    ground_px: f64,
+    options: &SfmOptions,
+) -> Result<(Reconstruction, f64, usize), AlignError> {
+    let priors_only = GeoreferenceInput {
+        centre_priors: ground.centre_priors.clone(),
+        prior_offsets: ground.prior_offsets.clone(),
+        points: Vec::new(),
+        marker_sigma_px: ground.marker_sigma_px,
+    };
+    // Placed by the priors when they place it (three or more, not all rejected).
+    let by_priors = if ground.centre_priors.len() >= 3 {
+        let placed = georeference(sub, components.clone(), &priors_only, options)?;
+        (placed.datum != Datum::Local).then_some(placed)
+    } else {
+        None
+    };
+    let dropped;
+    let (rough, radius) = if let Some(placed) = by_priors {
+        dropped = placed.diagnostics.dropped_components;
+        // Priors claim their accuracy; the placement of a whole block is off by about
+        // their common bias, which the stated σ covers.
+        let sigma = ground
+            .centre_priors
+            .iter()
+            .map(|p| p.sigma_xy)
+            .fold(0.0, f64::max);
+        (placed.reconstruction, 3.0 * sigma + 5.0 * ground_px)
+    } else {
+        // Without placing priors only the largest component can be placed, by the tracks
+        // it shares with the reference epoch.
+        dropped = components.len().saturating_sub(1);
+        let mut rec = components
+            .into_iter()
+            .next()
+            .ok_or_else(|| AlignError::Georeferencing("nothing oriented".into()))?;
+        let index = point_index(&reference.reconstruction);
+        let (src, dst) = shared_points(&block.sfm.tracks, &rec, &reference.reconstruction, &index);
+        let reference_from_epoch =
+            fit_similarity(&src, &dst, &reference.reconstruction, options.seed)?;
+        rec.transform(&reference_from_epoch);
+        (rec, RADIUS_WITHOUT_PRIORS_PX * ground_px)
+    };
+    Ok((rough, radius, dropped))
+}
+
+/// The stable pairs as control points of the later epoch: at the reference's position, with
+/// the later epoch's observations as markers of the epoch's own noise.
+fn stable_control(
+    pairs: &[StableMatch],
+    offered_reference: &[OfferedTiePoint<'_>],
+    offered: &[OfferedTiePoint<'_>],
+    sub: &SfmInput,
+    ground_px: f64,
+    tie_sigma_px: f64,
+) -> Vec<GroundPoint> {
+    let mut points = Vec::new();
+    for (k, pair) in pairs.iter().enumerate() {
+        let Some(point) = offered.get(pair.other) else {
+            continue;
+        };
+        let Some(anchor) = offered_reference.get(pair.reference) else {
+            continue;
+        };
+        // A tie point is about a ground pixel precise across and two in height; a worse
+        // descriptor match weighs less.
+        let sigma = ground_px * (1.0 + 2.0 * pair.score);
+        points.push(GroundPoint {
+            name: format!("stable tie point {k}"),
+            position: anchor.position,
+            sigma_xy: sigma,
+            sigma_z: 2.0 * sigma,
+            check: false,
+            markers: point
+                .observations
+                .iter()
+                .map(|e| Marker {
+                    image: e.image.index(),
+                    pixel: sub.pixel(e),
+                })
+                .collect(),
+            marker_sigma_px: Some(tie_sigma_px),
+        });
+    }
+    points
 }
 
 /// Least σ of a stable tie point's observations, pixels: a noise-free synthetic epoch must not
