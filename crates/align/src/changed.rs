@@ -78,14 +78,7 @@ pub(crate) fn detect_changed_ground(
         );
         return None;
     }
-    // The spread of all normalised differences inflates the formal σ (never deflates it): a
-    // block's σ from the reprojection noise alone misses its systematic errors.
-    let mut normalised: Vec<f64> = ties
-        .iter()
-        .flat_map(|t| (0..3).map(move |k| t.difference[k] / t.variance[k].sqrt()))
-        .filter(|v| v.is_finite())
-        .collect();
-    let inflation = (1.4826 * median_abs_deviation(&mut normalised)).max(1.0);
+    let inflation = inflation_of(&ties);
     let (lo, hi) = ties.iter().fold(
         ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
         |(lo, hi), t| {
@@ -102,28 +95,7 @@ pub(crate) fn detect_changed_ground(
     }
     let width = ((hi[0] - lo[0]) / cell).floor() as usize + 1;
     let height = ((hi[1] - lo[1]) / cell).floor() as usize + 1;
-    let cell_of = |xy: [f64; 2]| {
-        let col = (((xy[0] - lo[0]) / cell).floor() as usize).min(width - 1);
-        let row = (((xy[1] - lo[1]) / cell).floor() as usize).min(height - 1);
-        (col, row)
-    };
-    // Per region and epoch pair: inverse-variance weighted mean of each component.
-    let mut sums: BTreeMap<(Cell, (usize, usize)), Region> = BTreeMap::new();
-    for t in &ties {
-        sums.entry((cell_of(t.xy), t.pair))
-            .or_default()
-            .add(&t.difference, &t.variance);
-    }
-    // Largest significance per region over its epoch pairs.
-    let mut significance: BTreeMap<(usize, usize), f64> = BTreeMap::new();
-    for ((region, _), sum) in &sums {
-        if sum.count < MIN_TIES_PER_REGION {
-            continue;
-        }
-        let z = sum.significance(inflation);
-        let entry = significance.entry(*region).or_insert(0.0);
-        *entry = entry.max(z);
-    }
+    let significance = region_significance(&ties, lo, cell, [width, height], inflation);
     // The most significant regions only: around a changed region the block is bent, and its
     // neighbours differ too until an adjustment without the changed region's ties relaxes them;
     // the next round then sees what is left.
@@ -153,8 +125,70 @@ pub(crate) fn detect_changed_ground(
         );
         return None;
     }
-    // The grid covers every point of the block (outside it nothing counts as stable), its cells
-    // aligned with the regions'.
+    let stable = stable_grid(rec, (lo, hi), cell, &changed)?;
+    if changed.is_empty() {
+        return None;
+    }
+    Some(Detection {
+        stable,
+        regions_changed: changed.len(),
+    })
+}
+
+/// How much the spread of all normalised differences inflates the formal σ (never deflates
+/// it): a block's σ from the reprojection noise alone misses its systematic errors.
+fn inflation_of(ties: &[TieDifference]) -> f64 {
+    let mut normalised: Vec<f64> = ties
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| t.difference[k] / t.variance[k].sqrt()))
+        .filter(|v| v.is_finite())
+        .collect();
+    (1.4826 * median_abs_deviation(&mut normalised)).max(1.0)
+}
+
+/// Per region (cells of `cell` metres from `lo`, `size` columns and rows), the largest
+/// significance of its ties' weighted mean difference over its epoch pairs.
+fn region_significance(
+    ties: &[TieDifference],
+    lo: [f64; 2],
+    cell: f64,
+    [width, height]: [usize; 2],
+    inflation: f64,
+) -> BTreeMap<Cell, f64> {
+    let cell_of = |xy: [f64; 2]| {
+        let col = (((xy[0] - lo[0]) / cell).floor() as usize).min(width - 1);
+        let row = (((xy[1] - lo[1]) / cell).floor() as usize).min(height - 1);
+        (col, row)
+    };
+    // Per region and epoch pair: inverse-variance weighted mean of each component.
+    let mut sums: BTreeMap<(Cell, (usize, usize)), Region> = BTreeMap::new();
+    for t in ties {
+        sums.entry((cell_of(t.xy), t.pair))
+            .or_default()
+            .add(&t.difference, &t.variance);
+    }
+    // Largest significance per region over its epoch pairs.
+    let mut significance: BTreeMap<(usize, usize), f64> = BTreeMap::new();
+    for ((region, _), sum) in &sums {
+        if sum.count < MIN_TIES_PER_REGION {
+            continue;
+        }
+        let z = sum.significance(inflation);
+        let entry = significance.entry(*region).or_insert(0.0);
+        *entry = entry.max(z);
+    }
+    significance
+}
+
+/// Stable ground on a grid covering every point of the block (outside it nothing counts as
+/// stable), its cells aligned with the regions' (`lo` the regions' origin, `hi` their far
+/// corner): everywhere but the `changed` regions.
+fn stable_grid(
+    rec: &Reconstruction,
+    (lo, hi): ([f64; 2], [f64; 2]),
+    cell: f64,
+    changed: &[Cell],
+) -> Option<StableGround> {
     let (all_lo, all_hi) = rec.points.iter().fold((lo, hi), |(lo, hi), p| {
         (
             [lo[0].min(p.position.x), lo[1].min(p.position.y)],
@@ -168,19 +202,12 @@ pub(crate) fn detect_changed_ground(
     let origin = [lo[0] - before[0] * cell, lo[1] - before[1] * cell];
     let columns = ((all_hi[0] - origin[0]) / cell).floor() as usize + 2;
     let rows = ((all_hi[1] - origin[1]) / cell).floor() as usize + 2;
-    let stable = StableGround::rasterise(origin, cell, columns, rows, |x, y| {
+    StableGround::rasterise(origin, cell, columns, rows, |x, y| {
         let col = ((x - lo[0]) / cell).floor();
         let row = ((y - lo[1]) / cell).floor();
         !(col >= 0.0 && row >= 0.0 && changed.contains(&(col as usize, row as usize)))
     })
-    .ok()?;
-    if changed.is_empty() {
-        return None;
-    }
-    Some(Detection {
-        stable,
-        regions_changed: changed.len(),
-    })
+    .ok()
 }
 
 /// Running sums of one region's weighted mean.
