@@ -244,13 +244,7 @@ fn split_pass(
             else {
                 continue;
             };
-            let anchor = (kept.len() >= 2)
-                .then(|| state.triangulate_elements(kept, &mut views))
-                .flatten()
-                .filter(|x| {
-                    state.max_angle_deg(x, kept) >= options.min_triangulation_angle_deg
-                        && kept.iter().all(|e| state.error(x, e) <= threshold)
-                })
+            let anchor = keeper_anchor(&state, kept, threshold, options, &mut views)
                 .unwrap_or(point.position);
             for (&epoch, observations) in groups.iter().filter(|(e, _)| **e != keeper) {
                 let missing = observations
@@ -277,13 +271,7 @@ fn split_pass(
                 let track = input.tracks.len() + new_tracks.len();
                 new_tracks.push(Track { elements });
                 new_origin.push(original(point.track));
-                let position = (observations.len() >= 2)
-                    .then(|| state.triangulate_elements(observations, &mut views))
-                    .flatten()
-                    .filter(|x| {
-                        state.max_angle_deg(x, observations) >= options.min_triangulation_angle_deg
-                    });
-                if let Some(position) = position {
+                if let Some(position) = epoch_point(&state, observations, options, &mut views) {
                     new_points.push(SparsePoint {
                         position,
                         track,
@@ -306,6 +294,38 @@ fn split_pass(
     input.tracks.extend(new_tracks);
     origin.extend(new_origin);
     split
+}
+
+/// Where the keeping epoch's own observations put a point: triangulated from two or more, at a
+/// wide enough angle, and seen by each within `threshold`; `None` otherwise.
+fn keeper_anchor(
+    state: &State<'_>,
+    kept: &[TrackElement],
+    threshold: f64,
+    options: &SfmOptions,
+    views: &mut Vec<(Pose, Vector3<f64>)>,
+) -> Option<Vector3<f64>> {
+    (kept.len() >= 2)
+        .then(|| state.triangulate_elements(kept, views))
+        .flatten()
+        .filter(|x| {
+            state.max_angle_deg(x, kept) >= options.min_triangulation_angle_deg
+                && kept.iter().all(|e| state.error(x, e) <= threshold)
+        })
+}
+
+/// The point an epoch split off a track triangulates from its own observations (two or more,
+/// at a wide enough angle).
+fn epoch_point(
+    state: &State<'_>,
+    observations: &[TrackElement],
+    options: &SfmOptions,
+    views: &mut Vec<(Pose, Vector3<f64>)>,
+) -> Option<Vector3<f64>> {
+    (observations.len() >= 2)
+        .then(|| state.triangulate_elements(observations, views))
+        .flatten()
+        .filter(|x| state.max_angle_deg(x, observations) >= options.min_triangulation_angle_deg)
 }
 
 /// Observations grouped by epoch.
