@@ -15,7 +15,7 @@ use timesift_change::m3c2::{M3c2Params, M3c2Point, m3c2, subsample_core_points};
 use timesift_change::maps::{MapOptions, difference_map, histogram};
 use timesift_change::mask::Mask;
 use timesift_change::nuth_kaab::{NuthKaabOptions, NuthKaabResult};
-use timesift_change::pair::{PairOptions, analyse_pair};
+use timesift_change::pair::{PairAnalysis, PairOptions, analyse_pair};
 use timesift_change::stats::{Statistics, statistics};
 use timesift_change::trend::PlaneTrend;
 use timesift_change::volume::Volumes;
@@ -375,52 +375,16 @@ pub fn compare_dems(
     )
     .map_err(change_err(pair.clone()))?;
     create_dir(out)?;
-    let mut outputs = Vec::new();
-    if analysis.coregistration.is_some() {
-        let path = out.join("coregistered.tif");
-        write_f32(&path, &analysis.later.to_raster())?;
-        outputs.push(path.display().to_string());
-    }
+    let mut outputs = write_dod_rasters(out, &analysis)?;
     let dod = &analysis.dod;
     let lod = analysis.lod95;
-    let dod_path = out.join("dod.tif");
-    write_f32(&dod_path, &dod.to_raster())?;
-    outputs.push(dod_path.display().to_string());
-    if let Some(flags) = analysis.significance() {
-        // 1 significant, 0 not, nodata where the DoD has none.
-        let mask = Dem {
-            grid: dod.grid,
-            values: flags
-                .iter()
-                .map(|&f| if f == 255 { f32::NAN } else { f as f32 })
-                .collect(),
-        };
-        let path = out.join("significant.tif");
-        write_f32(&path, &mask.to_raster())?;
-        outputs.push(path.display().to_string());
-    }
     let name = |p: &Path| {
         p.file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default()
     };
     let title = format!("{} - {}", name(b), name(a));
-    let map = difference_map(
-        dod,
-        &MapOptions {
-            title: title.clone(),
-            lod,
-            ..Default::default()
-        },
-    );
-    let map_path = out.join("dod.png");
-    write_png(&map_path, &map)?;
-    outputs.push(map_path.display().to_string());
-    let hist_values: Vec<f64> = dod.values.iter().map(|&v| v as f64).collect();
-    let hist = histogram(&hist_values, &title, "m", None, lod);
-    let hist_path = out.join("histogram.png");
-    write_png(&hist_path, &hist)?;
-    outputs.push(hist_path.display().to_string());
+    outputs.extend(write_dod_figures(out, dod, lod, title)?);
     let stats_path = out.join("stats.json");
     outputs.push(stats_path.display().to_string());
     let report = DemReport {
@@ -450,6 +414,61 @@ pub fn compare_dems(
     Ok(report)
 }
 
+/// The co-registered later DEM (when co-registered), the DoD, and where the DoD is beyond the
+/// LoD (1 significant, 0 not, nodata where the DoD has none); the paths written.
+fn write_dod_rasters(out: &Path, analysis: &PairAnalysis) -> Result<Vec<String>, ProjectError> {
+    let mut outputs = Vec::new();
+    if analysis.coregistration.is_some() {
+        let path = out.join("coregistered.tif");
+        write_f32(&path, &analysis.later.to_raster())?;
+        outputs.push(path.display().to_string());
+    }
+    let dod = &analysis.dod;
+    let dod_path = out.join("dod.tif");
+    write_f32(&dod_path, &dod.to_raster())?;
+    outputs.push(dod_path.display().to_string());
+    if let Some(flags) = analysis.significance() {
+        let mask = Dem {
+            grid: dod.grid,
+            values: flags
+                .iter()
+                .map(|&f| if f == 255 { f32::NAN } else { f as f32 })
+                .collect(),
+        };
+        let path = out.join("significant.tif");
+        write_f32(&path, &mask.to_raster())?;
+        outputs.push(path.display().to_string());
+    }
+    Ok(outputs)
+}
+
+/// The DoD's map (the LoD band grey) and histogram as PNG files; the paths written.
+fn write_dod_figures(
+    out: &Path,
+    dod: &Dem,
+    lod: Option<f64>,
+    title: String,
+) -> Result<Vec<String>, ProjectError> {
+    let map = difference_map(
+        dod,
+        &MapOptions {
+            title: title.clone(),
+            lod,
+            ..Default::default()
+        },
+    );
+    let map_path = out.join("dod.png");
+    write_png(&map_path, &map)?;
+    let hist_values: Vec<f64> = dod.values.iter().map(|&v| v as f64).collect();
+    let hist = histogram(&hist_values, &title, "m", None, lod);
+    let hist_path = out.join("histogram.png");
+    write_png(&hist_path, &hist)?;
+    Ok(vec![
+        map_path.display().to_string(),
+        hist_path.display().to_string(),
+    ])
+}
+
 /// Compares two point clouds (LAS/LAZ): optional ICP of `b` onto `a`, then M3C2 from `a` to `b`;
 /// writes `m3c2.laz` (core points with distance, lod95, significant, counts), `m3c2_stats.json`,
 /// `m3c2.png` (distances gridded at the core spacing) and `m3c2_histogram.png`.
@@ -467,35 +486,16 @@ pub fn compare_clouds(
         Some(path) => Some(read_polygons(path)?),
         None => None,
     };
-    let in_stable = |points: &[[f64; 3]]| -> Vec<bool> {
-        match &stable {
-            Some(polygons) => points
-                .iter()
-                .map(|p| polygons.iter().any(|poly| poly.contains(p[0], p[1])))
-                .collect(),
-            None => vec![true; points.len()],
-        }
-    };
     let mut positions_b = cloud_b.positions.clone();
     let icp_result = match options.icp {
         Some(model) => {
-            let keep_a = in_stable(&cloud_a.positions);
-            let keep_b = in_stable(&positions_b);
-            if !keep_a.iter().any(|&k| k) || !keep_b.iter().any(|&k| k) {
-                return Err(ProjectError::Change {
-                    context: pair,
-                    source: ChangeError::EmptyStable("no point lies in the stable areas".into()),
-                });
-            }
-            let r = icp(
-                &select(&positions_b, &keep_b),
-                &select(&cloud_a.positions, &keep_a),
-                &IcpOptions {
-                    model,
-                    ..Default::default()
-                },
-            )
-            .map_err(change_err(format!("ICP of {pair}")))?;
+            let r = icp_on_stable(
+                &cloud_a.positions,
+                &positions_b,
+                stable.as_deref(),
+                model,
+                &pair,
+            )?;
             for p in &mut positions_b {
                 *p = r.transform(p);
             }
@@ -565,6 +565,43 @@ pub fn compare_clouds(
     };
     write_json(&stats_path, &report)?;
     Ok(report)
+}
+
+/// ICP of cloud `b` onto cloud `a` over their points in the stable areas (every point without
+/// them).
+fn icp_on_stable(
+    a: &[[f64; 3]],
+    b: &[[f64; 3]],
+    stable: Option<&[Polygon]>,
+    model: IcpModel,
+    pair: &str,
+) -> Result<IcpResult, ProjectError> {
+    let in_stable = |points: &[[f64; 3]]| -> Vec<bool> {
+        match stable {
+            Some(polygons) => points
+                .iter()
+                .map(|p| polygons.iter().any(|poly| poly.contains(p[0], p[1])))
+                .collect(),
+            None => vec![true; points.len()],
+        }
+    };
+    let keep_a = in_stable(a);
+    let keep_b = in_stable(b);
+    if !keep_a.iter().any(|&k| k) || !keep_b.iter().any(|&k| k) {
+        return Err(ProjectError::Change {
+            context: pair.to_string(),
+            source: ChangeError::EmptyStable("no point lies in the stable areas".into()),
+        });
+    }
+    icp(
+        &select(b, &keep_b),
+        &select(a, &keep_a),
+        &IcpOptions {
+            model,
+            ..Default::default()
+        },
+    )
+    .map_err(change_err(format!("ICP of {pair}")))
 }
 
 /// The M3C2 result as a cloud: core points with distance, lod95, significant, count1, count2.
