@@ -922,6 +922,14 @@ impl ProjectConfig {
                 message,
             }
         })?;
+        config.check_numbers(path)?;
+        config.check_dense_and_raster(path)?;
+        Ok(config)
+    }
+
+    /// Accuracies, radii and the registration error are positive (or ≥ 0) and finite.
+    fn check_numbers(&self, path: &Path) -> Result<(), ProjectError> {
+        let config = self;
         let positive = [
             ("gnss.sxy", config.gnss.sxy),
             ("gnss.sz", config.gnss.sz),
@@ -953,6 +961,13 @@ impl ProjectConfig {
                 format!("expected a number ≥ 0, found {e}"),
             ));
         }
+        Ok(())
+    }
+
+    /// `[dense]` and `[raster]` counts within their ranges, the dense level a power of two up
+    /// to 8, the keypoint budget positive.
+    fn check_dense_and_raster(&self, path: &Path) -> Result<(), ProjectError> {
+        let config = self;
         let dense = &config.dense;
         if !matches!(dense.level, 1 | 2 | 4 | 8) {
             return Err(ProjectError::config(
@@ -1010,7 +1025,7 @@ impl ProjectConfig {
                 "expected a positive count",
             ));
         }
-        Ok(config)
+        Ok(())
     }
 
     /// Reads and parses `project.toml`.
