@@ -524,7 +524,33 @@ fn dense_epoch(
         name,
         options,
     )?;
-    let cloud = fuse(&plan, &options.fusion, &mut |view: usize| {
+    let cloud = fuse_filtered(&plan, &mut cache, &filtered_file, name, options)?;
+    write_cloud(&cloud_path, &cloud, crs)?;
+    write_settings(&cloud_record, &wanted)?;
+    let mean_images = mean_images_per_point(&cloud);
+    Ok(EpochDense {
+        images: images.len(),
+        images_with_sources: plan.views.iter().filter(|v| !v.sources.is_empty()).count(),
+        level: options.plan.level,
+        passes: passes.len(),
+        refined_share: (plan.refined_scales > 0 && with_depth > 0)
+            .then(|| (with_depth - upsampled) as f64 / with_depth as f64),
+        depth_maps_computed: computed,
+        points: cloud.len(),
+        mean_images_per_point: mean_images,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// The epoch's filtered maps fused into its cloud, each view's colours from its image.
+fn fuse_filtered(
+    plan: &EpochPlan,
+    cache: &mut ImageCache<'_>,
+    filtered_file: &dyn Fn(usize) -> PathBuf,
+    name: &str,
+    options: &DenseOptions,
+) -> Result<timesift_dense::FusedCloud, ProjectError> {
+    fuse(plan, &options.fusion, &mut |view: usize| {
         let map = read_map(&filtered_file(view)).ok_or_else(|| {
             stage_error(
                 "dense",
@@ -538,26 +564,16 @@ fn dense_epoch(
     .map_err(|e| match e {
         FusionError::Project(p) => p,
         FusionError::Dense(d) => dense_error(name, d),
-    })?;
-    write_cloud(&cloud_path, &cloud, crs)?;
-    write_settings(&cloud_record, &wanted)?;
-    let mean_images = if cloud.is_empty() {
+    })
+}
+
+/// The mean number of images a point of `cloud` was fused from (0 for an empty cloud).
+fn mean_images_per_point(cloud: &timesift_dense::FusedCloud) -> f64 {
+    if cloud.is_empty() {
         0.0
     } else {
         cloud.images.iter().map(|&n| n as f64).sum::<f64>() / cloud.len() as f64
-    };
-    Ok(EpochDense {
-        images: images.len(),
-        images_with_sources: plan.views.iter().filter(|v| !v.sources.is_empty()).count(),
-        level: options.plan.level,
-        passes: passes.len(),
-        refined_share: (plan.refined_scales > 0 && with_depth > 0)
-            .then(|| (with_depth - upsampled) as f64 / with_depth as f64),
-        depth_maps_computed: computed,
-        points: cloud.len(),
-        mean_images_per_point: mean_images,
-        seconds: start.elapsed().as_secs_f64(),
-    })
+    }
 }
 
 /// Errors inside fusion's loader.

@@ -19,7 +19,8 @@ use timesift_dense::EpochInput;
 use timesift_io::geotiff::{GeoTiffWriter, read_f32};
 use timesift_io::tiled_tiff::{Pixels, SampleFormat};
 use timesift_raster::{
-    Downscaler, Lattice, OrthoOptions, OrthoView, RgbImage, ViewImages, orthomosaic_by_rows,
+    Downscaler, Lattice, OrthoOptions, OrthoStats, OrthoView, RgbImage, ViewImages,
+    orthomosaic_by_rows,
 };
 
 use super::cache::file_stamp;
@@ -27,7 +28,7 @@ use super::cache::stage_error;
 use super::dem::{georeference, on_lattice, project_grid_of, read_report};
 use super::{PipelineStage, Stage, dense_inputs};
 use crate::film::ImageSource;
-use crate::report::{GridFile, RasterReport, read_json, write_json};
+use crate::report::{EpochRaster, GridFile, RasterReport, read_json, write_json};
 use crate::{Project, ProjectError};
 
 /// Version of the mosaicking, part of each ortho's settings.
@@ -271,11 +272,7 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
         let with_height = heights.iter().filter(|h| h.is_finite()).count();
         let factor2 = (grid.ortho_factor * grid.ortho_factor) as f64;
         let entry = report.epochs.entry(name.clone()).or_default();
-        entry.ortho_painted_fraction =
-            Some(ortho.stats.painted_cells as f64 / (with_height as f64 * factor2).max(1.0));
-        entry.seam_jump = Some(ortho.stats.seam_jump);
-        entry.interior_jump = Some(ortho.stats.interior_jump);
-        entry.ortho_seconds = Some(seconds);
+        record_ortho(entry, &ortho.stats, with_height as f64 * factor2, seconds);
         tracing::info!(
             epoch = %name,
             painted = entry.ortho_painted_fraction,
@@ -287,6 +284,15 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
         write_json(&layout.raster_report(), &report)?;
     }
     Ok(report)
+}
+
+/// An epoch's ortho figures in the raster report: the share of cells with a height that were
+/// painted (`cells` the ortho cells over DEM cells with a height), the seams' jumps, the time.
+fn record_ortho(entry: &mut EpochRaster, stats: &OrthoStats, cells: f64, seconds: f64) {
+    entry.ortho_painted_fraction = Some(stats.painted_cells as f64 / cells.max(1.0));
+    entry.seam_jump = Some(stats.seam_jump);
+    entry.interior_jump = Some(stats.interior_jump);
+    entry.ortho_seconds = Some(seconds);
 }
 
 /// What an epoch's ortho is made from: the DEM file, the options, every view's camera and pose,
