@@ -14,6 +14,38 @@ use crate::problem::{BundleImage, BundlePoint, BundleProblem, CameraGroup, Obser
 
 /// Converts a libmv problem. The file's f32 rotations are projected onto the nearest rotation.
 pub fn from_libmv(libmv: &LibmvProblem) -> Result<BundleProblem, BundleError> {
+    let mut problem = BundleProblem {
+        groups: vec![camera_group(libmv)?],
+        ..BundleProblem::default()
+    };
+    let image_index = add_cameras(&mut problem, libmv)?;
+    let point_index = add_points(&mut problem, libmv);
+    add_markers(&mut problem, libmv, &image_index, &point_index);
+    // Cameras and points no marker refers to are not part of the problem (Ceres never sees
+    // them); fixing them keeps them out of the normal equations.
+    let mut seen_image = vec![false; problem.images.len()];
+    let mut seen_point = vec![false; problem.points.len()];
+    for o in &problem.observations {
+        seen_image[o.image] = true;
+        seen_point[o.point] = true;
+    }
+    for (im, seen) in problem.images.iter_mut().zip(seen_image) {
+        im.fixed |= !seen;
+    }
+    for (pt, seen) in problem.points.iter_mut().zip(seen_point) {
+        pt.fixed |= !seen;
+    }
+    if problem.observations.is_empty() {
+        return Err(BundleError::InvalidProblem(
+            "no marker refers to an existing camera and point".into(),
+        ));
+    }
+    Ok(problem)
+}
+
+/// The problem's one camera group: the libmv intrinsics as a brown camera (p1 and p2 swapped),
+/// with f, k1 and k2 free for markers in pixels and everything fixed otherwise.
+fn camera_group(libmv: &LibmvProblem) -> Result<CameraGroup, BundleError> {
     let [f, cx, cy, k1, k2, k3, p1, p2] = libmv.intrinsics;
     // The brown model's principal point is an offset from the image centre: any width works as
     // long as the offset compensates; take the one that makes it nearly zero.
@@ -28,15 +60,19 @@ pub fn from_libmv(libmv: &LibmvProblem) -> Result<BundleProblem, BundleError> {
     camera.k3 = k3;
     camera.p1 = p2;
     camera.p2 = p1;
-    let group = if libmv.pixel_space {
-        CameraGroup::with_free(Camera::Brown(camera), &["f", "k1", "k2"])?
+    if libmv.pixel_space {
+        CameraGroup::with_free(Camera::Brown(camera), &["f", "k1", "k2"])
     } else {
-        CameraGroup::fixed(Camera::Brown(camera))
-    };
-    let mut problem = BundleProblem {
-        groups: vec![group],
-        ..BundleProblem::default()
-    };
+        Ok(CameraGroup::fixed(Camera::Brown(camera)))
+    }
+}
+
+/// Adds the libmv cameras as free images of group 0; returns the problem image of each libmv
+/// image number.
+fn add_cameras(
+    problem: &mut BundleProblem,
+    libmv: &LibmvProblem,
+) -> Result<BTreeMap<usize, usize>, BundleError> {
     let mut image_index = BTreeMap::new();
     for c in &libmv.cameras {
         let m = Matrix3::from_fn(|r, k| c.rotation[r][k]);
@@ -68,6 +104,12 @@ pub fn from_libmv(libmv: &LibmvProblem) -> Result<BundleProblem, BundleError> {
             }
         }
     }
+    Ok(image_index)
+}
+
+/// Adds the libmv points as free points; returns the problem point of each track. A later point
+/// of the same track replaces an earlier one.
+fn add_points(problem: &mut BundleProblem, libmv: &LibmvProblem) -> BTreeMap<usize, usize> {
     let mut point_index = BTreeMap::new();
     for p in &libmv.points {
         let point = BundlePoint {
@@ -82,6 +124,17 @@ pub fn from_libmv(libmv: &LibmvProblem) -> Result<BundleProblem, BundleError> {
             }
         }
     }
+    point_index
+}
+
+/// Adds the markers whose camera and point exist as observations (σ 1), and fixes the camera of
+/// the first of them (the gauge Ceres's libmv adjuster fixes).
+fn add_markers(
+    problem: &mut BundleProblem,
+    libmv: &LibmvProblem,
+    image_index: &BTreeMap<usize, usize>,
+    point_index: &BTreeMap<usize, usize>,
+) {
     let mut fixed_first = false;
     for m in &libmv.markers {
         let (Some(&image), Some(&point)) = (image_index.get(&m.image), point_index.get(&m.track))
@@ -99,26 +152,6 @@ pub fn from_libmv(libmv: &LibmvProblem) -> Result<BundleProblem, BundleError> {
             sigma_px: 1.0,
         });
     }
-    // Cameras and points no marker refers to are not part of the problem (Ceres never sees
-    // them); fixing them keeps them out of the normal equations.
-    let mut seen_image = vec![false; problem.images.len()];
-    let mut seen_point = vec![false; problem.points.len()];
-    for o in &problem.observations {
-        seen_image[o.image] = true;
-        seen_point[o.point] = true;
-    }
-    for (im, seen) in problem.images.iter_mut().zip(seen_image) {
-        im.fixed |= !seen;
-    }
-    for (pt, seen) in problem.points.iter_mut().zip(seen_point) {
-        pt.fixed |= !seen;
-    }
-    if problem.observations.is_empty() {
-        return Err(BundleError::InvalidProblem(
-            "no marker refers to an existing camera and point".into(),
-        ));
-    }
-    Ok(problem)
 }
 
 /// The rotation nearest to `m` (Frobenius norm): `U Vᵀ` of its SVD, with the sign fixed so that the

@@ -65,49 +65,12 @@ pub struct ResidualStatistics {
 /// Residual statistics; observations beyond `outlier_threshold · σ0` (normalised) are flagged.
 pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> ResidualStatistics {
     let layout = Layout::new(p);
-    let mut per_group = vec![(0.0, 0usize); p.groups.len()];
-    let mut per_image = vec![(0.0, 0usize); p.images.len()];
-    let (mut sum, mut count) = (0.0, 0usize);
-    let mut normalised_sq = 0.0;
-    let mut components = 0i64;
-    let mut normalised: Vec<(usize, f64)> = Vec::with_capacity(p.observations.len());
-    for (k, o) in p.observations.iter().enumerate() {
-        let im = &p.images[o.image];
-        let Ok(px) = project_world(
-            &p.groups[im.group].camera,
-            &im.pose,
-            &p.points[o.point].position,
-        ) else {
-            continue;
-        };
-        let e2 = (px - o.pixel).norm_squared();
-        sum += e2;
-        count += 1;
-        per_group[im.group].0 += e2;
-        per_group[im.group].1 += 1;
-        per_image[o.image].0 += e2;
-        per_image[o.image].1 += 1;
-        let n2 = e2 / (o.sigma_px * o.sigma_px);
-        normalised_sq += n2;
-        components += 2;
-        normalised.push((k, n2.sqrt()));
-    }
-    let mut prior_stats = |residuals: Vec<(SMatrix<f64, 3, 1>, SMatrix<f64, 3, 1>)>| {
-        if residuals.is_empty() {
-            return None;
-        }
-        let mut sq = [0.0; 3];
-        for (d, inv_sigma) in &residuals {
-            for c in 0..3 {
-                sq[c] += d[c] * d[c];
-                normalised_sq += (d[c] * inv_sigma[c]).powi(2);
-            }
-            components += 3;
-        }
-        let n = residuals.len() as f64;
-        Some((sq.map(|s| (s / n).sqrt()), residuals.len()))
+    let mut chi2 = Chi2 {
+        normalised_sq: 0.0,
+        components: 0,
     };
-    let center_priors = prior_stats(
+    let reprojection = ReprojectionSums::new(p, &mut chi2);
+    let center_priors = chi2.prior_stats(
         p.center_priors
             .iter()
             .map(|c| {
@@ -122,7 +85,7 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
             })
             .collect(),
     );
-    let point_priors = prior_stats(
+    let point_priors = chi2.prior_stats(
         p.point_priors
             .iter()
             .map(|c| {
@@ -137,39 +100,33 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
     // The free offsets' zero-mean priors are residuals too (not in `center_priors`' RMS).
     for o in p.prior_offsets.iter().filter(|o| !o.fixed) {
         let scale = crate::solver::offset_prior_scale(o);
-        normalised_sq += o.value.component_mul(&scale).norm_squared();
-        components += 3;
+        chi2.normalised_sq += o.value.component_mul(&scale).norm_squared();
+        chi2.components += 3;
     }
-    let scale_bars = (!p.scale_bars.is_empty()).then(|| {
-        let mut sq = 0.0;
-        for bar in &p.scale_bars {
-            let (r, _) = crate::solver::scale_bar_residual(p, bar);
-            normalised_sq += r * r;
-            components += 1;
-            sq += (r * bar.sigma).powi(2);
-        }
-        ((sq / p.scale_bars.len() as f64).sqrt(), p.scale_bars.len())
-    });
+    let scale_bars = chi2.scale_bar_stats(p);
     let unknowns = (layout.num_camera_params + 3 * layout.num_free_points) as i64;
-    let redundancy = components - unknowns;
+    let redundancy = chi2.components - unknowns;
     let variance_factor = if redundancy > 0 {
-        normalised_sq / redundancy as f64
+        chi2.normalised_sq / redundancy as f64
     } else {
         f64::NAN
     };
     let sigma0 = variance_factor.sqrt();
-    let outliers = normalised
+    let outliers = reprojection
+        .normalised
         .iter()
         .filter(|(_, r)| *r > outlier_threshold * sigma0)
         .map(|(k, _)| *k)
         .collect();
     ResidualStatistics {
-        reprojection: Rms::from_sum(sum, count),
-        per_group: per_group
+        reprojection: Rms::from_sum(reprojection.sum, reprojection.count),
+        per_group: reprojection
+            .per_group
             .into_iter()
             .map(|(s, n)| Rms::from_sum(s, n))
             .collect(),
-        per_image: per_image
+        per_image: reprojection
+            .per_image
             .into_iter()
             .map(|(s, n)| Rms::from_sum(s, n))
             .collect(),
@@ -179,6 +136,101 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
         redundancy,
         variance_factor,
         outliers,
+    }
+}
+
+/// The running sums of the posterior variance factor, every residual kind added in turn:
+/// `Σ ‖r/σ‖²` and the number of residual components.
+struct Chi2 {
+    normalised_sq: f64,
+    components: i64,
+}
+
+impl Chi2 {
+    /// RMS east, north, up and count of 3-D prior residuals `(d, 1/σ)`, `None` when there are
+    /// none; adds their normalised squares and components.
+    fn prior_stats(
+        &mut self,
+        residuals: Vec<(SMatrix<f64, 3, 1>, SMatrix<f64, 3, 1>)>,
+    ) -> Option<([f64; 3], usize)> {
+        if residuals.is_empty() {
+            return None;
+        }
+        let mut sq = [0.0; 3];
+        for (d, inv_sigma) in &residuals {
+            for c in 0..3 {
+                sq[c] += d[c] * d[c];
+                self.normalised_sq += (d[c] * inv_sigma[c]).powi(2);
+            }
+            self.components += 3;
+        }
+        let n = residuals.len() as f64;
+        Some((sq.map(|s| (s / n).sqrt()), residuals.len()))
+    }
+
+    /// RMS (m) and count of the scale bars' length residuals, `None` when there are none; adds
+    /// their normalised squares and components.
+    fn scale_bar_stats(&mut self, p: &BundleProblem) -> Option<(f64, usize)> {
+        (!p.scale_bars.is_empty()).then(|| {
+            let mut sq = 0.0;
+            for bar in &p.scale_bars {
+                let (r, _) = crate::solver::scale_bar_residual(p, bar);
+                self.normalised_sq += r * r;
+                self.components += 1;
+                sq += (r * bar.sigma).powi(2);
+            }
+            ((sq / p.scale_bars.len() as f64).sqrt(), p.scale_bars.len())
+        })
+    }
+}
+
+/// Sums of the squared reprojection errors (pixels) over every observation that projects, in
+/// all, per camera group and per image, with each observation's normalised error `‖r‖/σ`.
+struct ReprojectionSums {
+    sum: f64,
+    count: usize,
+    per_group: Vec<(f64, usize)>,
+    per_image: Vec<(f64, usize)>,
+    /// (observation, ‖r‖/σ).
+    normalised: Vec<(usize, f64)>,
+}
+
+impl ReprojectionSums {
+    /// Sums the reprojection errors of `p`, adding their normalised squares and components
+    /// (two per observation) to `chi2`.
+    fn new(p: &BundleProblem, chi2: &mut Chi2) -> Self {
+        let mut per_group = vec![(0.0, 0usize); p.groups.len()];
+        let mut per_image = vec![(0.0, 0usize); p.images.len()];
+        let (mut sum, mut count) = (0.0, 0usize);
+        let mut normalised: Vec<(usize, f64)> = Vec::with_capacity(p.observations.len());
+        for (k, o) in p.observations.iter().enumerate() {
+            let im = &p.images[o.image];
+            let Ok(px) = project_world(
+                &p.groups[im.group].camera,
+                &im.pose,
+                &p.points[o.point].position,
+            ) else {
+                continue;
+            };
+            let e2 = (px - o.pixel).norm_squared();
+            sum += e2;
+            count += 1;
+            per_group[im.group].0 += e2;
+            per_group[im.group].1 += 1;
+            per_image[o.image].0 += e2;
+            per_image[o.image].1 += 1;
+            let n2 = e2 / (o.sigma_px * o.sigma_px);
+            chi2.normalised_sq += n2;
+            chi2.components += 2;
+            normalised.push((k, n2.sqrt()));
+        }
+        ReprojectionSums {
+            sum,
+            count,
+            per_group,
+            per_image,
+            normalised,
+        }
     }
 }
 

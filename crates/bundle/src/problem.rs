@@ -165,6 +165,15 @@ pub struct BundleProblem {
 impl BundleProblem {
     /// Checks indices, masks, sigmas and finiteness.
     pub fn validate(&self) -> Result<(), BundleError> {
+        self.validate_groups_and_images()?;
+        self.validate_points_and_observations()?;
+        self.validate_center_priors()?;
+        self.validate_offsets_and_point_priors()?;
+        self.validate_scale_bars()
+    }
+
+    /// Checks the camera groups' masks, the images' group indices and that poses are finite.
+    fn validate_groups_and_images(&self) -> Result<(), BundleError> {
         for (i, g) in self.groups.iter().enumerate() {
             if g.free.len() != g.camera.num_params() {
                 return Err(BundleError::InvalidProblem(format!(
@@ -192,6 +201,11 @@ impl BundleProblem {
                 return Err(BundleError::NonFinite("pose"));
             }
         }
+        Ok(())
+    }
+
+    /// Checks that points are finite, and the observations' indices, sigmas and pixels.
+    fn validate_points_and_observations(&self) -> Result<(), BundleError> {
         if !self
             .points
             .iter()
@@ -212,6 +226,11 @@ impl BundleProblem {
                 )));
             }
         }
+        Ok(())
+    }
+
+    /// Checks the centre priors' images, sigmas, positions and offsets.
+    fn validate_center_priors(&self) -> Result<(), BundleError> {
         for (k, c) in self.center_priors.iter().enumerate() {
             if c.image >= self.images.len()
                 || !(c.sigma_xy > 0.0 && c.sigma_z > 0.0)
@@ -230,6 +249,12 @@ impl BundleProblem {
                 )));
             }
         }
+        Ok(())
+    }
+
+    /// Checks the prior offsets' sigmas and values, then the point priors' points, sigmas and
+    /// positions.
+    fn validate_offsets_and_point_priors(&self) -> Result<(), BundleError> {
         for (k, o) in self.prior_offsets.iter().enumerate() {
             let valid =
                 o.sigma_xy > 0.0 && o.sigma_z > 0.0 && o.value.iter().all(|v| v.is_finite());
@@ -250,6 +275,11 @@ impl BundleProblem {
                 )));
             }
         }
+        Ok(())
+    }
+
+    /// Checks that each scale bar joins two distinct points with a finite positive length and σ.
+    fn validate_scale_bars(&self) -> Result<(), BundleError> {
         for (k, bar) in self.scale_bars.iter().enumerate() {
             if bar.a >= self.points.len() || bar.b >= self.points.len() || bar.a == bar.b {
                 return Err(BundleError::InvalidProblem(format!(

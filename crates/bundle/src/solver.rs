@@ -8,11 +8,13 @@
 
 use std::sync::OnceLock;
 
-use nalgebra::{DVector, SMatrix, SVector, Vector3, Vector6};
+use nalgebra::{DVector, SMatrix, SVector, Vector2, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
-use timesift_core::{CameraModel, project_world, project_world_with_jacobians};
+use timesift_core::{
+    CameraModel, ProjectionJacobians, project_world, project_world_with_jacobians,
+};
 
-use crate::problem::{BundleProblem, CenterPrior, PointPrior, PriorOffset, ScaleBar};
+use crate::problem::{BundleProblem, CenterPrior, Observation, PointPrior, PriorOffset, ScaleBar};
 use crate::reduced::{Reduced, SparsePattern};
 use crate::schur::{self, BlockRows, Coupling, damped_inverses};
 use crate::{BundleError, Loss};
@@ -510,47 +512,125 @@ fn linearize<const D: usize>(
     loss: &Loss,
     storage: &Reduced,
 ) -> Normal<D> {
-    let n = layout.num_camera_params;
     let poses_eliminated = layout.eliminate == Eliminate::Poses;
     debug_assert_eq!(D, if poses_eliminated { 6 } else { 3 });
-    let mut nm = Normal::<D> {
-        u: storage.clone(),
-        g_c: DVector::zeros(n),
-        v: vec![SMatrix::zeros(); layout.num_free_points],
-        g_p: vec![SVector::zeros(); layout.num_free_points],
-        obs_cols: Vec::with_capacity(p.observations.len()),
-        cols: Vec::with_capacity(p.observations.len() * 9),
-        e: Vec::with_capacity(p.observations.len() * 3 * D),
-        point_obs: vec![Vec::new(); layout.num_free_points],
-        cost: 0.0,
-        rows: OnceLock::new(),
-    };
-    let mut d_int = [0.0; 2 * MAX_INTRINSICS];
-    let mut jc = [[0.0f64; MAX_COLS]; 2];
-    let mut je = [[0.0f64; D]; 2];
-    for (k, o) in p.observations.iter().enumerate() {
-        let im = &p.images[o.image];
-        let cam = &p.groups[im.group].camera;
-        let np = cam.num_params();
-        let x = &p.points[o.point].position;
-        let start = nm.cols.len();
-        let Ok(j) = project_world_with_jacobians(cam, &im.pose, x, Some(&mut d_int[..2 * np]))
-        else {
-            nm.cost += 0.5 * loss.evaluate(1e12).0;
-            nm.obs_cols.push((start, 0));
-            continue;
+    let mut nm = Normal::<D>::empty(p, layout, storage);
+    nm.add_observations(p, layout, loss);
+    nm.add_center_priors(p, layout);
+    nm.add_offset_priors(p, layout);
+    nm.add_point_priors(p, layout);
+    nm.add_scale_bars(p, layout);
+    nm
+}
+
+/// One projected observation's linearisation: its σ-normalised residual, loss weight, and the
+/// σ-scaled Jacobian rows on the reduced side (the first `count` columns of `jc`) and of its
+/// eliminated block (`je`). One is reused as scratch across all observations.
+struct ObservationRows<const D: usize> {
+    r: Vector2<f64>,
+    w: f64,
+    jc: [[f64; MAX_COLS]; 2],
+    count: usize,
+    je: [[f64; D]; 2],
+}
+
+impl<const D: usize> ObservationRows<D> {
+    /// Fills `je` with the σ-scaled Jacobian of the eliminated block: the pose's when poses are
+    /// eliminated, the point's otherwise.
+    fn set_eliminated(&mut self, j: &ProjectionJacobians, poses_eliminated: bool, inv_sigma: f64) {
+        for c in 0..D {
+            let (j0, j1) = if poses_eliminated {
+                (j.d_pose[(0, c)], j.d_pose[(1, c)])
+            } else {
+                (j.d_world_point[(0, c)], j.d_world_point[(1, c)])
+            };
+            self.je[0][c] = j0 * inv_sigma;
+            self.je[1][c] = j1 * inv_sigma;
+        }
+    }
+}
+
+impl<const D: usize> Normal<D> {
+    /// Zeroed normal equations of the layout's sizes, the reduced side in `storage`'s form.
+    fn empty(p: &BundleProblem, layout: &Layout, storage: &Reduced) -> Self {
+        let n = layout.num_camera_params;
+        Normal::<D> {
+            u: storage.clone(),
+            g_c: DVector::zeros(n),
+            v: vec![SMatrix::zeros(); layout.num_free_points],
+            g_p: vec![SVector::zeros(); layout.num_free_points],
+            obs_cols: Vec::with_capacity(p.observations.len()),
+            cols: Vec::with_capacity(p.observations.len() * 9),
+            e: Vec::with_capacity(p.observations.len() * 3 * D),
+            point_obs: vec![Vec::new(); layout.num_free_points],
+            cost: 0.0,
+            rows: OnceLock::new(),
+        }
+    }
+
+    /// Adds every reprojection residual, in observation order: its cost, its reduced-side and
+    /// eliminated blocks and their coupling `E` (zeros when nothing is eliminated, so that `e`
+    /// stays aligned with `cols`).
+    fn add_observations(&mut self, p: &BundleProblem, layout: &Layout, loss: &Loss) {
+        let poses_eliminated = layout.eliminate == Eliminate::Poses;
+        let mut d_int = [0.0; 2 * MAX_INTRINSICS];
+        let mut rows = ObservationRows::<D> {
+            r: Vector2::zeros(),
+            w: 0.0,
+            jc: [[0.0f64; MAX_COLS]; 2],
+            count: 0,
+            je: [[0.0f64; D]; 2],
         };
-        let r = (j.pixel - o.pixel) / o.sigma_px;
-        let (rho, w) = loss.evaluate(r.norm_squared());
-        nm.cost += 0.5 * rho;
+        for (k, o) in p.observations.iter().enumerate() {
+            let im = &p.images[o.image];
+            let cam = &p.groups[im.group].camera;
+            let np = cam.num_params();
+            let x = &p.points[o.point].position;
+            let start = self.cols.len();
+            let Ok(j) = project_world_with_jacobians(cam, &im.pose, x, Some(&mut d_int[..2 * np]))
+            else {
+                self.cost += 0.5 * loss.evaluate(1e12).0;
+                self.obs_cols.push((start, 0));
+                continue;
+            };
+            rows.r = (j.pixel - o.pixel) / o.sigma_px;
+            let (rho, w) = loss.evaluate(rows.r.norm_squared());
+            rows.w = w;
+            self.cost += 0.5 * rho;
+            let inv_sigma = 1.0 / o.sigma_px;
+            rows.count =
+                self.push_reduced_jacobian(layout, o, im.group, &j, &d_int[..2 * np], &mut rows.jc);
+            self.obs_cols.push((start, rows.count));
+            self.add_reduced_rows(start, &rows);
+            if let Some(bi) = layout.eliminated(o.image, o.point) {
+                rows.set_eliminated(&j, poses_eliminated, inv_sigma);
+                self.add_eliminated_rows(bi, k, &rows);
+            } else {
+                self.e.extend(std::iter::repeat_n(0.0, D * rows.count));
+            }
+        }
+    }
+
+    /// Fills `jc` with an observation's σ-scaled reduced-side Jacobian — its pose or point
+    /// columns, then its group's free intrinsics (`d_int`: both pixel rows' derivatives) — and
+    /// appends the columns' indices to `cols`; returns how many columns.
+    fn push_reduced_jacobian(
+        &mut self,
+        layout: &Layout,
+        o: &Observation,
+        group: usize,
+        j: &ProjectionJacobians,
+        d_int: &[f64],
+        jc: &mut [[f64; MAX_COLS]; 2],
+    ) -> usize {
+        let np = d_int.len() / 2;
         let inv_sigma = 1.0 / o.sigma_px;
-        // Reduced-side Jacobian columns: the pose or the point, then the intrinsics.
         let mut count = 0;
         if let Some(off) = layout.pose_offset[o.image] {
             for c in 0..6 {
                 jc[0][count] = j.d_pose[(0, c)] * inv_sigma;
                 jc[1][count] = j.d_pose[(1, c)] * inv_sigma;
-                nm.cols.push(off + c);
+                self.cols.push(off + c);
                 count += 1;
             }
         }
@@ -558,148 +638,162 @@ fn linearize<const D: usize>(
             for c in 0..3 {
                 jc[0][count] = j.d_world_point[(0, c)] * inv_sigma;
                 jc[1][count] = j.d_world_point[(1, c)] * inv_sigma;
-                nm.cols.push(off + c);
+                self.cols.push(off + c);
                 count += 1;
             }
         }
-        if let Some(off) = layout.group_offset[im.group] {
-            for (q, &param) in layout.group_free[im.group].iter().enumerate() {
+        if let Some(off) = layout.group_offset[group] {
+            for (q, &param) in layout.group_free[group].iter().enumerate() {
                 jc[0][count] = d_int[param] * inv_sigma;
                 jc[1][count] = d_int[np + param] * inv_sigma;
-                nm.cols.push(off + q);
+                self.cols.push(off + q);
                 count += 1;
             }
         }
-        nm.obs_cols.push((start, count));
-        let cols = &nm.cols[start..start + count];
+        count
+    }
+
+    /// Adds `w Jcᵀ r` and `w Jcᵀ Jc` of an observation whose columns start at `start` in `cols`.
+    fn add_reduced_rows(&mut self, start: usize, rows: &ObservationRows<D>) {
+        let (jc, r, w, count) = (&rows.jc, &rows.r, rows.w, rows.count);
+        let cols = &self.cols[start..start + count];
         for a in 0..count {
-            nm.g_c[cols[a]] += w * (jc[0][a] * r.x + jc[1][a] * r.y);
+            self.g_c[cols[a]] += w * (jc[0][a] * r.x + jc[1][a] * r.y);
             for b in 0..count {
-                nm.u.add(
+                self.u.add(
                     cols[a],
                     cols[b],
                     w * (jc[0][a] * jc[0][b] + jc[1][a] * jc[1][b]),
                 );
             }
         }
-        if let Some(bi) = layout.eliminated(o.image, o.point) {
+    }
+
+    /// Adds observation `k`'s `w Jeᵀ r` and `w Jeᵀ Je` to eliminated block `bi`, and appends its
+    /// coupling `E = w Jcᵀ Je` (row-major) and the observation to the block's list.
+    fn add_eliminated_rows(&mut self, bi: usize, k: usize, rows: &ObservationRows<D>) {
+        let (jc, je, r, w, count) = (&rows.jc, &rows.je, &rows.r, rows.w, rows.count);
+        let v = &mut self.v[bi];
+        let g = &mut self.g_p[bi];
+        for a in 0..D {
+            g[a] += w * (je[0][a] * r.x + je[1][a] * r.y);
+            for b in 0..D {
+                v[(a, b)] += w * (je[0][a] * je[0][b] + je[1][a] * je[1][b]);
+            }
+        }
+        for a in 0..count {
             for c in 0..D {
-                let (j0, j1) = if poses_eliminated {
-                    (j.d_pose[(0, c)], j.d_pose[(1, c)])
-                } else {
-                    (j.d_world_point[(0, c)], j.d_world_point[(1, c)])
-                };
-                je[0][c] = j0 * inv_sigma;
-                je[1][c] = j1 * inv_sigma;
+                self.e.push(w * (jc[0][a] * je[0][c] + jc[1][a] * je[1][c]));
             }
-            let v = &mut nm.v[bi];
-            let g = &mut nm.g_p[bi];
-            for a in 0..D {
-                g[a] += w * (je[0][a] * r.x + je[1][a] * r.y);
-                for b in 0..D {
-                    v[(a, b)] += w * (je[0][a] * je[0][b] + je[1][a] * je[1][b]);
-                }
-            }
-            for a in 0..count {
-                for c in 0..D {
-                    nm.e.push(w * (jc[0][a] * je[0][c] + jc[1][a] * je[1][c]));
-                }
-            }
-            nm.point_obs[bi].push(k);
-        } else {
-            nm.e.extend(std::iter::repeat_n(0.0, D * count));
         }
+        self.point_obs[bi].push(k);
     }
-    for c in &p.center_priors {
-        let (r, j) = center_prior_residual(p, c);
-        nm.cost += 0.5 * r.norm_squared();
-        let jtj = j.transpose() * j;
-        let jtr = j.transpose() * r;
-        let pose_off = layout.pose_offset[c.image];
-        if let Some(off) = pose_off {
-            for a in 0..6 {
-                nm.g_c[off + a] += jtr[a];
-                for b in 0..6 {
-                    nm.u.add(off + a, off + b, jtj[(a, b)]);
-                }
-            }
-        } else if let Some(bi) = layout.pose_index[c.image] {
-            for a in 0..6 {
-                nm.g_p[bi][a] += jtr[a];
-                for b in 0..6 {
-                    nm.v[bi][(a, b)] += jtj[(a, b)];
-                }
-            }
-        }
-        // The offset's Jacobian is diag(1/σ): its blocks with itself and with the pose.
-        if let Some(bo) = c.offset.and_then(|o| layout.bias_offset[o]) {
-            let scale = center_prior_scale(c);
-            for a in 0..3 {
-                nm.g_c[bo + a] += scale[a] * r[a];
-                nm.u.add(bo + a, bo + a, scale[a] * scale[a]);
-            }
+
+    /// Adds the camera-centre priors: on the reduced-side pose or on the eliminated pose block,
+    /// and the blocks of their offset (its Jacobian is `diag(1/σ)`) with itself and the pose.
+    fn add_center_priors(&mut self, p: &BundleProblem, layout: &Layout) {
+        for c in &p.center_priors {
+            let (r, j) = center_prior_residual(p, c);
+            self.cost += 0.5 * r.norm_squared();
+            let jtj = j.transpose() * j;
+            let jtr = j.transpose() * r;
+            let pose_off = layout.pose_offset[c.image];
             if let Some(off) = pose_off {
-                for a in 0..3 {
+                for a in 0..6 {
+                    self.g_c[off + a] += jtr[a];
                     for b in 0..6 {
-                        let v = scale[a] * j[(a, b)];
-                        nm.u.add(bo + a, off + b, v);
-                        nm.u.add(off + b, bo + a, v);
+                        self.u.add(off + a, off + b, jtj[(a, b)]);
+                    }
+                }
+            } else if let Some(bi) = layout.pose_index[c.image] {
+                for a in 0..6 {
+                    self.g_p[bi][a] += jtr[a];
+                    for b in 0..6 {
+                        self.v[bi][(a, b)] += jtj[(a, b)];
+                    }
+                }
+            }
+            // The offset's Jacobian is diag(1/σ): its blocks with itself and with the pose.
+            if let Some(bo) = c.offset.and_then(|o| layout.bias_offset[o]) {
+                let scale = center_prior_scale(c);
+                for a in 0..3 {
+                    self.g_c[bo + a] += scale[a] * r[a];
+                    self.u.add(bo + a, bo + a, scale[a] * scale[a]);
+                }
+                if let Some(off) = pose_off {
+                    for a in 0..3 {
+                        for b in 0..6 {
+                            let v = scale[a] * j[(a, b)];
+                            self.u.add(bo + a, off + b, v);
+                            self.u.add(off + b, bo + a, v);
+                        }
                     }
                 }
             }
         }
     }
-    for (o, offset) in p.prior_offsets.iter().enumerate() {
-        let Some(bo) = layout.bias_offset[o] else {
-            continue;
-        };
-        let scale = offset_prior_scale(offset);
-        let r = offset.value.component_mul(&scale);
-        nm.cost += 0.5 * r.norm_squared();
-        for a in 0..3 {
-            nm.g_c[bo + a] += scale[a] * r[a];
-            nm.u.add(bo + a, bo + a, scale[a] * scale[a]);
-        }
-    }
-    for c in &p.point_priors {
-        let scale = point_prior_scale(c);
-        let r = (p.points[c.point].position - c.position).component_mul(&scale);
-        nm.cost += 0.5 * r.norm_squared();
-        if let Some(pi) = layout.point_index[c.point] {
-            for k in 0..3 {
-                nm.v[pi][(k, k)] += scale[k] * scale[k];
-                nm.g_p[pi][k] += scale[k] * r[k];
-            }
-        } else if let Some(off) = layout.point_offset[c.point] {
-            for k in 0..3 {
-                nm.u.add(off + k, off + k, scale[k] * scale[k]);
-                nm.g_c[off + k] += scale[k] * r[k];
+
+    /// Adds the zero-mean priors of the free prior offsets.
+    fn add_offset_priors(&mut self, p: &BundleProblem, layout: &Layout) {
+        for (o, offset) in p.prior_offsets.iter().enumerate() {
+            let Some(bo) = layout.bias_offset[o] else {
+                continue;
+            };
+            let scale = offset_prior_scale(offset);
+            let r = offset.value.component_mul(&scale);
+            self.cost += 0.5 * r.norm_squared();
+            for a in 0..3 {
+                self.g_c[bo + a] += scale[a] * r[a];
+                self.u.add(bo + a, bo + a, scale[a] * scale[a]);
             }
         }
     }
-    for bar in &p.scale_bars {
-        let (r, ja) = scale_bar_residual(p, bar);
-        nm.cost += 0.5 * r * r;
-        let ends = [
-            (layout.point_offset[bar.a], ja),
-            (layout.point_offset[bar.b], -ja),
-        ];
-        for &(oa, ja) in &ends {
-            let Some(oa) = oa else { continue };
-            for k in 0..3 {
-                nm.g_c[oa + k] += ja[k] * r;
-            }
-            for &(ob, jb) in &ends {
-                let Some(ob) = ob else { continue };
+
+    /// Adds the control-point priors, on the eliminated point block or the reduced-side point.
+    fn add_point_priors(&mut self, p: &BundleProblem, layout: &Layout) {
+        for c in &p.point_priors {
+            let scale = point_prior_scale(c);
+            let r = (p.points[c.point].position - c.position).component_mul(&scale);
+            self.cost += 0.5 * r.norm_squared();
+            if let Some(pi) = layout.point_index[c.point] {
                 for k in 0..3 {
-                    for l in 0..3 {
-                        nm.u.add(oa + k, ob + l, ja[k] * jb[l]);
+                    self.v[pi][(k, k)] += scale[k] * scale[k];
+                    self.g_p[pi][k] += scale[k] * r[k];
+                }
+            } else if let Some(off) = layout.point_offset[c.point] {
+                for k in 0..3 {
+                    self.u.add(off + k, off + k, scale[k] * scale[k]);
+                    self.g_c[off + k] += scale[k] * r[k];
+                }
+            }
+        }
+    }
+
+    /// Adds the scale bars; their free ends are always on the reduced side.
+    fn add_scale_bars(&mut self, p: &BundleProblem, layout: &Layout) {
+        for bar in &p.scale_bars {
+            let (r, ja) = scale_bar_residual(p, bar);
+            self.cost += 0.5 * r * r;
+            let ends = [
+                (layout.point_offset[bar.a], ja),
+                (layout.point_offset[bar.b], -ja),
+            ];
+            for &(oa, ja) in &ends {
+                let Some(oa) = oa else { continue };
+                for k in 0..3 {
+                    self.g_c[oa + k] += ja[k] * r;
+                }
+                for &(ob, jb) in &ends {
+                    let Some(ob) = ob else { continue };
+                    for k in 0..3 {
+                        for l in 0..3 {
+                            self.u.add(oa + k, ob + l, ja[k] * jb[l]);
+                        }
                     }
                 }
             }
         }
     }
-    nm
 }
 
 /// Scale-bar residual `(‖X_a − X_b‖ − L) / σ` and its gradient with respect to `X_a` (that with
@@ -788,7 +882,55 @@ fn iterative_step<const D: usize>(
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
     let v_inv = damped_inverses(&nm.v, lambda)?;
     let damping = DVector::from_fn(n, |i, _| lambda * clamp(nm.u.diagonal(i)));
-    // Right-hand side: g_c − Σ E V⁻¹ g_p.
+    let rhs = reduced_rhs(nm, &v_inv);
+    let schur = ImplicitSchur {
+        nm,
+        v_inv: &v_inv,
+        damping: &damping,
+    };
+    let preconditioner = BlockJacobi::new(&schur, blocks);
+    // PCG on S x = −rhs.
+    let b = -rhs;
+    let b_norm = b.norm();
+    let mut x = DVector::zeros(n);
+    if b_norm == 0.0 {
+        return Some(Step {
+            points: back_substitute(nm, &x, &v_inv),
+            cameras: x,
+        });
+    }
+    let mut r = b.clone();
+    let mut z = preconditioner.apply(&r);
+    let mut p = z.clone();
+    let mut rz = r.dot(&z);
+    for _ in 0..PCG_MAX_ITERATIONS.min(10 * n + 10) {
+        let q = schur.apply(&p);
+        let pq = p.dot(&q);
+        if !(pq > 0.0) {
+            break;
+        }
+        let alpha = rz / pq;
+        x += alpha * &p;
+        r -= alpha * &q;
+        if r.norm() <= PCG_TOLERANCE * b_norm {
+            break;
+        }
+        z = preconditioner.apply(&r);
+        let rz_new = r.dot(&z);
+        p = &z + (rz_new / rz) * &p;
+        rz = rz_new;
+    }
+    if !x.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    Some(Step {
+        points: back_substitute(nm, &x, &v_inv),
+        cameras: x,
+    })
+}
+
+/// Right-hand side of the reduced system, `g_c − Σ E V⁻¹ g_p`, without forming `S`.
+fn reduced_rhs<const D: usize>(nm: &Normal<D>, v_inv: &[SMatrix<f64, D, D>]) -> DVector<f64> {
     let mut rhs = nm.g_c.clone();
     for (pi, obs) in nm.point_obs.iter().enumerate() {
         let vg = v_inv[pi] * nm.g_p[pi];
@@ -800,8 +942,23 @@ fn iterative_step<const D: usize>(
             }
         }
     }
-    let apply = |x: &DVector<f64>| -> DVector<f64> {
-        let mut y = nm.u.mul_vec(x) + damping.component_mul(x);
+    rhs
+}
+
+/// The damped reduced system `S = U + λD − E V⁻¹ Eᵀ` of the iterative path, applied through
+/// its factors instead of formed.
+struct ImplicitSchur<'a, const D: usize> {
+    nm: &'a Normal<D>,
+    v_inv: &'a [SMatrix<f64, D, D>],
+    /// `λ · clamp(diag U)`.
+    damping: &'a DVector<f64>,
+}
+
+impl<const D: usize> ImplicitSchur<'_, D> {
+    /// `S x`: `(U + λD) x`, less `E_b V_b⁻¹ E_bᵀ x` for each eliminated block `b`.
+    fn apply(&self, x: &DVector<f64>) -> DVector<f64> {
+        let nm = self.nm;
+        let mut y = nm.u.mul_vec(x) + self.damping.component_mul(x);
         for (pi, obs) in nm.point_obs.iter().enumerate() {
             let mut t = SVector::<f64, D>::zeros();
             for &a in obs {
@@ -814,7 +971,7 @@ fn iterative_step<const D: usize>(
                     }
                 }
             }
-            let w = v_inv[pi] * t;
+            let w = self.v_inv[pi] * t;
             for &a in obs {
                 let (sa, ca) = nm.obs_cols[a];
                 for ra in 0..ca {
@@ -824,10 +981,57 @@ fn iterative_step<const D: usize>(
             }
         }
         y
-    };
-    // Block-Jacobi preconditioner.
+    }
+}
+
+/// The block-Jacobi preconditioner of the iterative path: the inverse of each parameter block's
+/// diagonal block of `S` (from each observation's own contribution to it).
+struct BlockJacobi<'a> {
+    blocks: &'a [Vec<usize>],
+    inverses: Vec<nalgebra::DMatrix<f64>>,
+}
+
+impl<'a> BlockJacobi<'a> {
+    /// Forms and inverts the diagonal blocks of `schur` over `blocks` (column lists).
+    fn new<const D: usize>(schur: &ImplicitSchur<'_, D>, blocks: &'a [Vec<usize>]) -> Self {
+        let inverses = diagonal_blocks(schur, blocks)
+            .into_iter()
+            .map(|b| {
+                let d = b.diagonal();
+                match b.clone().cholesky() {
+                    Some(c) => c.inverse(),
+                    None => nalgebra::DMatrix::from_diagonal(
+                        &d.map(|v| if v > 0.0 { 1.0 / v } else { 1.0 }),
+                    ),
+                }
+            })
+            .collect();
+        BlockJacobi { blocks, inverses }
+    }
+
+    /// `M⁻¹ r`, block by block.
+    fn apply(&self, r: &DVector<f64>) -> DVector<f64> {
+        let mut z = DVector::zeros(r.len());
+        for (k, cols) in self.blocks.iter().enumerate() {
+            let rk = DVector::from_iterator(cols.len(), cols.iter().map(|&c| r[c]));
+            let zk = &self.inverses[k] * rk;
+            for (q, &c) in cols.iter().enumerate() {
+                z[c] = zk[q];
+            }
+        }
+        z
+    }
+}
+
+/// The diagonal blocks of `S` over `blocks`: those of `U + λD`, less each observation's
+/// `F_a E_aᵀ` (`F_a = E_a V⁻¹`) where both of its columns fall in the same block.
+fn diagonal_blocks<const D: usize>(
+    schur: &ImplicitSchur<'_, D>,
+    blocks: &[Vec<usize>],
+) -> Vec<nalgebra::DMatrix<f64>> {
+    let (nm, v_inv, damping) = (schur.nm, schur.v_inv, schur.damping);
     // Block and position within the block of every reduced-side column.
-    let mut block_of = vec![(0usize, 0usize); n];
+    let mut block_of = vec![(0usize, 0usize); nm.g_c.len()];
     for (k, cols) in blocks.iter().enumerate() {
         for (q, &c) in cols.iter().enumerate() {
             block_of[c] = (k, q);
@@ -863,67 +1067,7 @@ fn iterative_step<const D: usize>(
             }
         }
     }
-    let preconditioners: Vec<nalgebra::DMatrix<f64>> = m
-        .into_iter()
-        .map(|b| {
-            let d = b.diagonal();
-            match b.clone().cholesky() {
-                Some(c) => c.inverse(),
-                None => nalgebra::DMatrix::from_diagonal(
-                    &d.map(|v| if v > 0.0 { 1.0 / v } else { 1.0 }),
-                ),
-            }
-        })
-        .collect();
-    let precondition = |r: &DVector<f64>| -> DVector<f64> {
-        let mut z = DVector::zeros(n);
-        for (k, cols) in blocks.iter().enumerate() {
-            let rk = DVector::from_iterator(cols.len(), cols.iter().map(|&c| r[c]));
-            let zk = &preconditioners[k] * rk;
-            for (q, &c) in cols.iter().enumerate() {
-                z[c] = zk[q];
-            }
-        }
-        z
-    };
-    // PCG on S x = −rhs.
-    let b = -rhs;
-    let b_norm = b.norm();
-    let mut x = DVector::zeros(n);
-    if b_norm == 0.0 {
-        return Some(Step {
-            points: back_substitute(nm, &x, &v_inv),
-            cameras: x,
-        });
-    }
-    let mut r = b.clone();
-    let mut z = precondition(&r);
-    let mut p = z.clone();
-    let mut rz = r.dot(&z);
-    for _ in 0..PCG_MAX_ITERATIONS.min(10 * n + 10) {
-        let q = apply(&p);
-        let pq = p.dot(&q);
-        if !(pq > 0.0) {
-            break;
-        }
-        let alpha = rz / pq;
-        x += alpha * &p;
-        r -= alpha * &q;
-        if r.norm() <= PCG_TOLERANCE * b_norm {
-            break;
-        }
-        z = precondition(&r);
-        let rz_new = r.dot(&z);
-        p = &z + (rz_new / rz) * &p;
-        rz = rz_new;
-    }
-    if !x.iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    Some(Step {
-        points: back_substitute(nm, &x, &v_inv),
-        cameras: x,
-    })
+    m
 }
 
 /// Conjugate-gradient limits of the iterative path: relative residual and iteration cap.
@@ -1129,12 +1273,7 @@ fn run<const D: usize>(
     let mut nm = linearize::<D>(problem, layout, &options.loss, &storage);
     while iterations < options.max_iterations {
         iterations += 1;
-        let g_max = nm
-            .g_c
-            .iter()
-            .chain(nm.g_p.iter().flat_map(|g| g.iter()))
-            .fold(0.0f64, |m, v| m.max(v.abs()));
-        if g_max <= options.gradient_tolerance {
+        if max_gradient(&nm) <= options.gradient_tolerance {
             termination = Termination::GradientTolerance;
             break;
         }
@@ -1148,21 +1287,7 @@ fn run<const D: usize>(
             }
             continue;
         };
-        // Predicted decrease of the linear model: ½ (λ δᵀDδ − gᵀδ).
-        let clamp = |d: f64| d.clamp(1e-6, 1e32);
-        let mut model = 0.0;
-        for i in 0..step.cameras.len() {
-            let d = step.cameras[i];
-            model += lambda * clamp(nm.u.diagonal(i)) * d * d - nm.g_c[i] * d;
-        }
-        let mut step_sq = step.cameras.norm_squared();
-        for (pi, d) in step.points.iter().enumerate() {
-            for c in 0..D {
-                model += lambda * clamp(nm.v[pi][(c, c)]) * d[c] * d[c] - nm.g_p[pi][c] * d[c];
-            }
-            step_sq += d.norm_squared();
-        }
-        model *= 0.5;
+        let (model, step_sq) = predicted_decrease(&nm, &step, lambda);
         let x_norm = parameter_norm(problem);
         if step_sq.sqrt() <= options.parameter_tolerance * (x_norm + options.parameter_tolerance) {
             termination = Termination::ParameterTolerance;
@@ -1213,6 +1338,35 @@ fn run<const D: usize>(
         rms_px,
         unprojected,
     })
+}
+
+/// The largest absolute gradient component, reduced side and eliminated blocks alike (the
+/// gradient-tolerance test).
+fn max_gradient<const D: usize>(nm: &Normal<D>) -> f64 {
+    nm.g_c
+        .iter()
+        .chain(nm.g_p.iter().flat_map(|g| g.iter()))
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+}
+
+/// Predicted decrease of the linear model, `½ (λ δᵀDδ − gᵀδ)` (`D` the clamped diagonal), and
+/// the squared norm of the step `δ` (the parameter-tolerance test).
+fn predicted_decrease<const D: usize>(nm: &Normal<D>, step: &Step<D>, lambda: f64) -> (f64, f64) {
+    let clamp = |d: f64| d.clamp(1e-6, 1e32);
+    let mut model = 0.0;
+    for i in 0..step.cameras.len() {
+        let d = step.cameras[i];
+        model += lambda * clamp(nm.u.diagonal(i)) * d * d - nm.g_c[i] * d;
+    }
+    let mut step_sq = step.cameras.norm_squared();
+    for (pi, d) in step.points.iter().enumerate() {
+        for c in 0..D {
+            model += lambda * clamp(nm.v[pi][(c, c)]) * d[c] * d[c] - nm.g_p[pi][c] * d[c];
+        }
+        step_sq += d.norm_squared();
+    }
+    model *= 0.5;
+    (model, step_sq)
 }
 
 /// Number of adjusted parameters in the local (update) coordinates used by [`gradient`] and
