@@ -92,13 +92,52 @@ pub fn five_point(
 ) -> Result<Vec<Matrix3<f64>>, GeometryError> {
     check_pairs("five-point", x1.len(), x2.len(), 5)?;
     check_finite("five-point", x1.iter().chain(x2).flat_map(|v| v.iter()))?;
-    // Null space of the 5×9 epipolar constraint matrix, from the SVD of its zero-padded square.
     if x1[..5].iter().chain(&x2[..5]).any(|v| !(v.norm() > 0.0)) {
         return Err(GeometryError::Degenerate {
             solver: "five-point",
             reason: "a ray has zero length",
         });
     }
+    let Some(basis) = epipolar_null_space(x1, x2) else {
+        return Ok(Vec::new());
+    };
+    let table = index_table();
+    let constraints = essential_constraints(&basis, &table);
+    let Some(a) = eliminate_cubics(&constraints) else {
+        return Ok(Vec::new());
+    };
+    let action = action_matrix(&a, &table);
+    // `complex_eigenvalues()` iterates without bound and can hang on rare samples: cap the Schur
+    // iterations and treat non-convergence as a degenerate sample.
+    let Some(schur) = nalgebra::linalg::Schur::try_new(action, f64::EPSILON, 1000) else {
+        return Ok(Vec::new());
+    };
+    let mut solutions = Vec::new();
+    for lambda in schur.complex_eigenvalues().iter() {
+        if lambda.im.abs() > 1e-8 * (1.0 + lambda.re.abs()) {
+            continue;
+        }
+        let Some(m) = essential_of_eigenvalue(&action, lambda.re, &basis) else {
+            continue;
+        };
+        let norm = m.norm();
+        if norm > 0.0 && m.iter().all(|v| v.is_finite()) {
+            let m = m / norm;
+            if !solutions
+                .iter()
+                .any(|s: &Matrix3<f64>| (s - m).norm() < 1e-9 || (s + m).norm() < 1e-9)
+            {
+                solutions.push(m);
+            }
+        }
+    }
+    Ok(solutions)
+}
+
+/// Basis `X, Y, Z, W` (row-major 3 × 3 each) of the null space of the 5 × 9 epipolar constraint
+/// matrix, from the SVD of its zero-padded square; `None` when the SVD fails or the constraints
+/// are not of rank 5 (a degenerate sample).
+fn epipolar_null_space(x1: &[Vector3<f64>], x2: &[Vector3<f64>]) -> Option<Vec<[f64; 9]>> {
     let mut q = SMatrix::<f64, 9, 9>::zeros();
     for k in 0..5 {
         let (a, b) = (x1[k].normalize(), x2[k].normalize());
@@ -109,29 +148,32 @@ pub fn five_point(
         }
     }
     // Capped iterations: nalgebra's plain `svd()` iterates without bound.
-    let Some(svd) = q.try_svd(false, true, f64::EPSILON, 1000) else {
-        return Ok(Vec::new());
-    };
-    let Some(v_t) = svd.v_t else {
-        return Ok(Vec::new());
-    };
+    let svd = q.try_svd(false, true, f64::EPSILON, 1000)?;
+    let v_t = svd.v_t?;
     let mut order: Vec<usize> = (0..9).collect();
     order.sort_by(|&a, &b| svd.singular_values[a].total_cmp(&svd.singular_values[b]));
     // Rank 5 is required: the sixth smallest singular value must not vanish.
     let largest = svd.singular_values[order[8]];
     if !(svd.singular_values[order[4]] > 1e-12 * largest) {
-        return Ok(Vec::new());
+        return None;
     }
-    let basis: Vec<[f64; 9]> = order[..4]
-        .iter()
-        .map(|&r| {
-            let mut m = [0.0; 9];
-            for (c, v) in m.iter_mut().enumerate() {
-                *v = v_t[(r, c)];
-            }
-            m
-        })
-        .collect();
+    Some(
+        order[..4]
+            .iter()
+            .map(|&r| {
+                let mut m = [0.0; 9];
+                for (c, v) in m.iter_mut().enumerate() {
+                    *v = v_t[(r, c)];
+                }
+                m
+            })
+            .collect(),
+    )
+}
+
+/// The ten cubic constraints on `E = x X + y Y + z Z + W`: `det(E) = 0` and the nine entries of
+/// `2 E Eᵀ E − tr(E Eᵀ) E = 0`, in that order.
+fn essential_constraints(basis: &[[f64; 9]], table: &[[[usize; 4]; 4]; 4]) -> Vec<Poly> {
     // E = x X + y Y + z Z + W, each entry a linear polynomial.
     let (ix, iy, iz, i1) = (
         monomial_index((1, 0, 0)),
@@ -149,8 +191,7 @@ pub fn five_point(
             e[i][j][i1] = basis[3][k];
         }
     }
-    let table = index_table();
-    let mul = |p: &Poly, q: &Poly| poly_mul(p, q, &table);
+    let mul = |p: &Poly, q: &Poly| poly_mul(p, q, table);
 
     let mut constraints: Vec<Poly> = Vec::with_capacity(10);
     // det(E) = 0.
@@ -188,8 +229,12 @@ pub fn five_point(
             constraints.push(poly_add(&s, &mul(&trace, &e[i][j]), -1.0));
         }
     }
+    constraints
+}
 
-    // Gauss–Jordan elimination of the cubic monomials (first ten columns).
+/// Gauss–Jordan elimination of the cubic monomials (the first ten columns) from the constraints'
+/// coefficient rows; `None` when a pivot vanishes (a degenerate sample).
+fn eliminate_cubics(constraints: &[Poly]) -> Option<SMatrix<f64, 10, 20>> {
     let mut a = SMatrix::<f64, 10, 20>::zeros();
     for (r, c) in constraints.iter().enumerate() {
         for k in 0..20 {
@@ -202,7 +247,7 @@ pub fn five_point(
             .unwrap_or(col);
         let scale = a.row(pivot).amax();
         if !(a[(pivot, col)].abs() > 1e-12 * scale) {
-            return Ok(Vec::new());
+            return None;
         }
         a.swap_rows(col, pivot);
         let p = a[(col, col)];
@@ -220,7 +265,12 @@ pub fn five_point(
             }
         }
     }
-    // Action matrix of multiplication by x on the basis (x², xy, xz, y², yz, z², x, y, z, 1).
+    Some(a)
+}
+
+/// Action matrix of multiplication by x on the basis (x², xy, xz, y², yz, z², x, y, z, 1), from
+/// the eliminated constraints.
+fn action_matrix(a: &SMatrix<f64, 10, 20>, table: &[[[usize; 4]; 4]; 4]) -> SMatrix<f64, 10, 10> {
     let mut action = SMatrix::<f64, 10, 10>::zeros();
     for k in 0..10 {
         let (p, q, r) = MONOMIALS[10 + k];
@@ -233,52 +283,41 @@ pub fn five_point(
             action[(k, target - 10)] = 1.0;
         }
     }
-    // `complex_eigenvalues()` iterates without bound and can hang on rare samples: cap the Schur
-    // iterations and treat non-convergence as a degenerate sample.
-    let Some(schur) = nalgebra::linalg::Schur::try_new(action, f64::EPSILON, 1000) else {
-        return Ok(Vec::new());
-    };
-    let eigenvalues = schur.complex_eigenvalues();
-    let mut solutions = Vec::new();
-    for lambda in eigenvalues.iter() {
-        if lambda.im.abs() > 1e-8 * (1.0 + lambda.re.abs()) {
-            continue;
-        }
-        let shifted = action - SMatrix::<f64, 10, 10>::identity() * lambda.re;
-        let svd = shifted.svd(false, true);
-        let Some(vt) = svd.v_t else { continue };
-        let (min_idx, _) =
-            svd.singular_values
-                .iter()
-                .enumerate()
-                .fold(
-                    (0, f64::INFINITY),
-                    |acc, (i, &s)| if s < acc.1 { (i, s) } else { acc },
-                );
-        let v: SVector<f64, 10> = vt.row(min_idx).transpose();
-        if v[9].abs() < 1e-12 * v.amax() {
-            continue;
-        }
-        let (x, y, z) = (v[6] / v[9], v[7] / v[9], v[8] / v[9]);
-        let mut m = Matrix3::zeros();
-        for i in 0..3 {
-            for j in 0..3 {
-                let k = 3 * i + j;
-                m[(i, j)] = x * basis[0][k] + y * basis[1][k] + z * basis[2][k] + basis[3][k];
-            }
-        }
-        let norm = m.norm();
-        if norm > 0.0 && m.iter().all(|v| v.is_finite()) {
-            let m = m / norm;
-            if !solutions
-                .iter()
-                .any(|s: &Matrix3<f64>| (s - m).norm() < 1e-9 || (s + m).norm() < 1e-9)
-            {
-                solutions.push(m);
-            }
+    action
+}
+
+/// The essential matrix (not normalised) of a real eigenvalue of the action matrix: (x, y, z)
+/// read from its eigenvector (the right singular vector of the smallest singular value of the
+/// shifted matrix); `None` when the SVD fails or the vector's constant term vanishes.
+fn essential_of_eigenvalue(
+    action: &SMatrix<f64, 10, 10>,
+    lambda: f64,
+    basis: &[[f64; 9]],
+) -> Option<Matrix3<f64>> {
+    let shifted = action - SMatrix::<f64, 10, 10>::identity() * lambda;
+    let svd = shifted.svd(false, true);
+    let vt = svd.v_t?;
+    let (min_idx, _) =
+        svd.singular_values
+            .iter()
+            .enumerate()
+            .fold(
+                (0, f64::INFINITY),
+                |acc, (i, &s)| if s < acc.1 { (i, s) } else { acc },
+            );
+    let v: SVector<f64, 10> = vt.row(min_idx).transpose();
+    if v[9].abs() < 1e-12 * v.amax() {
+        return None;
+    }
+    let (x, y, z) = (v[6] / v[9], v[7] / v[9], v[8] / v[9]);
+    let mut m = Matrix3::zeros();
+    for i in 0..3 {
+        for j in 0..3 {
+            let k = 3 * i + j;
+            m[(i, j)] = x * basis[0][k] + y * basis[1][k] + z * basis[2][k] + basis[3][k];
         }
     }
-    Ok(solutions)
+    Some(m)
 }
 
 /// Linear least-squares essential matrix from eight or more correspondences (optionally weighted),
