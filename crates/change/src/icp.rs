@@ -105,6 +105,95 @@ pub fn icp(
     target: &[[f64; 3]],
     options: &IcpOptions,
 ) -> Result<IcpResult, ChangeError> {
+    let unknowns = check_input(source, target, options)?;
+    let index = PointIndex::new(target)?;
+    let centre = target
+        .iter()
+        .fold(Vector3::zeros(), |s, p| s + Vector3::from(*p))
+        / target.len() as f64;
+    let normals = target_normals(target, &index, options.normal_neighbours);
+    let frame = IcpFrame {
+        target,
+        index: &index,
+        normals,
+        centre,
+        source_c: source.iter().map(|p| Vector3::from(*p) - centre).collect(),
+    };
+
+    // Current transform in centred coordinates: y = s R x + t.
+    let mut current = Transform {
+        rotation: Matrix3::identity(),
+        translation: Vector3::zeros(),
+        scale: 1.0,
+    };
+    let mut converged = false;
+    let mut iterations = 0;
+    let mut pairs_used = 0;
+    let mut rms = f64::NAN;
+    let max_d2 = options.max_distance * options.max_distance;
+    let mut pairs: Vec<(f64, usize, u32)> = Vec::with_capacity(source.len());
+    for _ in 0..options.max_iterations {
+        iterations += 1;
+        frame.trimmed_pairs(&current, max_d2, options, unknowns, &mut pairs)?;
+        let (ata, atb) = frame.normal_equations(&current, &pairs);
+        let delta = solve(&ata, &atb, unknowns).ok_or_else(|| {
+            ChangeError::Degenerate(
+                "the stable surface does not constrain every degree of freedom (planar or too few \
+                 distinct normals)"
+                    .into(),
+            )
+        })?;
+        let (omega, dt, ds) = current.update(&delta, unknowns);
+        pairs_used = pairs.len();
+        rms = frame.rms(&current, &pairs);
+        if !(current.rotation.iter().all(|v| v.is_finite())
+            && current.translation.iter().all(|v| v.is_finite())
+            && current.scale.is_finite()
+            && current.scale > 0.0)
+        {
+            return Err(ChangeError::Degenerate(
+                "ICP diverged (non-finite transform)".into(),
+            ));
+        }
+        if omega.norm() < options.tolerance_rotation
+            && dt.norm() < options.tolerance_translation
+            && ds.abs() < options.tolerance_rotation
+        {
+            converged = true;
+            break;
+        }
+    }
+    let Transform {
+        rotation,
+        translation,
+        scale,
+    } = current;
+    // Back to the clouds' frame: y + c = s R (x − c) + t + c.
+    let world_translation = translation + centre - scale * (rotation * centre);
+    let angle = rotation_angle(&rotation).to_degrees();
+    Ok(IcpResult {
+        rotation: [0, 1, 2].map(|r| [0, 1, 2].map(|c| rotation[(r, c)])),
+        translation: [
+            world_translation.x,
+            world_translation.y,
+            world_translation.z,
+        ],
+        scale,
+        rotation_deg: angle,
+        iterations,
+        converged,
+        pairs: pairs_used,
+        rms,
+    })
+}
+
+/// Checks the options and the clouds' sizes and finiteness; returns the number of unknowns of
+/// the model (6 rigid, 7 with scale).
+fn check_input(
+    source: &[[f64; 3]],
+    target: &[[f64; 3]],
+    options: &IcpOptions,
+) -> Result<usize, ChangeError> {
     positive("max_distance", options.max_distance)?;
     if !(options.overlap > 0.0 && options.overlap <= 1.0) {
         return Err(ChangeError::InvalidParameter {
@@ -142,44 +231,92 @@ pub fn icp(
             "source point {i} has a non-finite coordinate"
         )));
     }
-    let index = PointIndex::new(target)?;
-    let centre = target
-        .iter()
-        .fold(Vector3::zeros(), |s, p| s + Vector3::from(*p))
-        / target.len() as f64;
+    Ok(unknowns)
+}
+
+/// The target's normals: PCA of each point's `neighbours` nearest points (`None` where no plane
+/// fits), oriented up.
+fn target_normals(
+    target: &[[f64; 3]],
+    index: &PointIndex,
+    neighbours: usize,
+) -> Vec<Option<Vector3<f64>>> {
     let up = Vector3::z();
-    let normals: Vec<Option<Vector3<f64>>> = target
+    target
         .par_iter()
         .map_init(
             || (Vec::new(), Vec::new()),
             |(indices, positions), p| {
-                index.nearest_k(p, options.normal_neighbours, indices);
+                index.nearest_k(p, neighbours, indices);
                 positions.clear();
                 positions.extend(indices.iter().map(|&i| target[i as usize]));
                 fit_plane(positions, p, &up).map(|f| f.normal)
             },
         )
-        .collect();
-    let centred = |p: &[f64; 3]| Vector3::from(*p) - centre;
-    let source_c: Vec<Vector3<f64>> = source.iter().map(centred).collect();
+        .collect()
+}
 
-    // Current transform in centred coordinates: y = s R x + t.
-    let mut rotation = Matrix3::identity();
-    let mut translation = Vector3::zeros();
-    let mut scale = 1.0;
-    let mut converged = false;
-    let mut iterations = 0;
-    let mut pairs_used = 0;
-    let mut rms = f64::NAN;
-    let max_d2 = options.max_distance * options.max_distance;
-    let mut pairs: Vec<(f64, usize, u32)> = Vec::with_capacity(source.len());
-    for _ in 0..options.max_iterations {
-        iterations += 1;
+/// The transform `y = s R x + t` in coordinates centred on the target's centroid.
+struct Transform {
+    rotation: Matrix3<f64>,
+    translation: Vector3<f64>,
+    scale: f64,
+}
+
+impl Transform {
+    /// Composes the linearised update `delta` (small rotation, translation, then scale when there
+    /// are 7 unknowns) onto the transform; returns the update's rotation vector, translation and
+    /// relative scale change.
+    fn update(
+        &mut self,
+        delta: &SVector<f64, 7>,
+        unknowns: usize,
+    ) -> (Vector3<f64>, Vector3<f64>, f64) {
+        let omega = Vector3::new(delta[0], delta[1], delta[2]);
+        let dt = Vector3::new(delta[3], delta[4], delta[5]);
+        let ds = if unknowns == 7 { delta[6] } else { 0.0 };
+        let dr = Rotation3::new(omega).into_inner();
+        self.rotation = dr * self.rotation;
+        self.translation = (1.0 + ds) * (dr * self.translation) + dt;
+        self.scale *= 1.0 + ds;
+        (omega, dt, ds)
+    }
+}
+
+/// What every ICP iteration reads: the target, its index and normals, and the source centred on
+/// the target's centroid `centre`.
+struct IcpFrame<'a> {
+    target: &'a [[f64; 3]],
+    index: &'a PointIndex<'a>,
+    normals: Vec<Option<Vector3<f64>>>,
+    centre: Vector3<f64>,
+    source_c: Vec<Vector3<f64>>,
+}
+
+impl IcpFrame<'_> {
+    /// Target point `j` in centred coordinates.
+    fn centred(&self, j: u32) -> Vector3<f64> {
+        Vector3::from(self.target[j as usize]) - self.centre
+    }
+
+    /// Fills `pairs` with (squared distance, source, target) of every transformed source point's
+    /// nearest target point within `max_d2` that has a normal, trimmed to the `overlap` fraction
+    /// of smallest distances; an error when fewer than three per unknown remain.
+    fn trimmed_pairs(
+        &self,
+        t: &Transform,
+        max_d2: f64,
+        options: &IcpOptions,
+        unknowns: usize,
+        pairs: &mut Vec<(f64, usize, u32)>,
+    ) -> Result<(), ChangeError> {
+        let (rotation, translation, scale, centre) =
+            (t.rotation, t.translation, t.scale, self.centre);
         pairs.clear();
-        pairs.par_extend(source_c.par_iter().enumerate().filter_map(|(i, x)| {
+        pairs.par_extend(self.source_c.par_iter().enumerate().filter_map(|(i, x)| {
             let y = scale * (rotation * x) + translation + centre;
-            let (j, d2) = index.nearest(&[y.x, y.y, y.z]);
-            (d2 <= max_d2 && normals[j as usize].is_some()).then_some((d2, i, j))
+            let (j, d2) = self.index.nearest(&[y.x, y.y, y.z]);
+            (d2 <= max_d2 && self.normals[j as usize].is_some()).then_some((d2, i, j))
         }));
         let keep = ((pairs.len() as f64) * options.overlap).ceil() as usize;
         if keep < 3 * unknowns {
@@ -193,12 +330,22 @@ pub fn icp(
             pairs.select_nth_unstable_by(keep, |a, b| a.0.total_cmp(&b.0));
             pairs.truncate(keep);
         }
+        Ok(())
+    }
+
+    /// Normal equations `AᵀA`, `Aᵀb` of the linearised point-to-plane distances of the pairs
+    /// (rotation, translation, scale), `b` the negated distances.
+    fn normal_equations(
+        &self,
+        t: &Transform,
+        pairs: &[(f64, usize, u32)],
+    ) -> (SMatrix<f64, 7, 7>, SVector<f64, 7>) {
         let mut ata = SMatrix::<f64, 7, 7>::zeros();
         let mut atb = SVector::<f64, 7>::zeros();
-        for &(_, i, j) in &pairs {
-            let y = scale * (rotation * source_c[i]) + translation;
-            let q = centred(&target[j as usize]);
-            let n = normals[j as usize].unwrap_or_else(Vector3::z);
+        for &(_, i, j) in pairs {
+            let y = t.scale * (t.rotation * self.source_c[i]) + t.translation;
+            let q = self.centred(j);
+            let n = self.normals[j as usize].unwrap_or_else(Vector3::z);
             let c = y.cross(&n);
             let row =
                 SVector::<f64, 7>::from_column_slice(&[c.x, c.y, c.z, n.x, n.y, n.z, n.dot(&y)]);
@@ -206,64 +353,21 @@ pub fn icp(
             ata += row * row.transpose();
             atb -= row * r;
         }
-        let delta = solve(&ata, &atb, unknowns).ok_or_else(|| {
-            ChangeError::Degenerate(
-                "the stable surface does not constrain every degree of freedom (planar or too few \
-                 distinct normals)"
-                    .into(),
-            )
-        })?;
-        let omega = Vector3::new(delta[0], delta[1], delta[2]);
-        let dt = Vector3::new(delta[3], delta[4], delta[5]);
-        let ds = if unknowns == 7 { delta[6] } else { 0.0 };
-        let dr = Rotation3::new(omega).into_inner();
-        rotation = dr * rotation;
-        translation = (1.0 + ds) * (dr * translation) + dt;
-        scale *= 1.0 + ds;
-        pairs_used = pairs.len();
+        (ata, atb)
+    }
+
+    /// RMS point-to-plane distance of the pairs under the transform.
+    fn rms(&self, t: &Transform, pairs: &[(f64, usize, u32)]) -> f64 {
         let sum_sq: f64 = pairs
             .iter()
             .map(|&(_, i, j)| {
-                let y = scale * (rotation * source_c[i]) + translation;
-                let n = normals[j as usize].unwrap_or_else(Vector3::z);
-                n.dot(&(y - centred(&target[j as usize]))).powi(2)
+                let y = t.scale * (t.rotation * self.source_c[i]) + t.translation;
+                let n = self.normals[j as usize].unwrap_or_else(Vector3::z);
+                n.dot(&(y - self.centred(j))).powi(2)
             })
             .sum();
-        rms = (sum_sq / pairs.len() as f64).sqrt();
-        if !(rotation.iter().all(|v| v.is_finite())
-            && translation.iter().all(|v| v.is_finite())
-            && scale.is_finite()
-            && scale > 0.0)
-        {
-            return Err(ChangeError::Degenerate(
-                "ICP diverged (non-finite transform)".into(),
-            ));
-        }
-        if omega.norm() < options.tolerance_rotation
-            && dt.norm() < options.tolerance_translation
-            && ds.abs() < options.tolerance_rotation
-        {
-            converged = true;
-            break;
-        }
+        (sum_sq / pairs.len() as f64).sqrt()
     }
-    // Back to the clouds' frame: y + c = s R (x − c) + t + c.
-    let world_translation = translation + centre - scale * (rotation * centre);
-    let angle = rotation_angle(&rotation).to_degrees();
-    Ok(IcpResult {
-        rotation: [0, 1, 2].map(|r| [0, 1, 2].map(|c| rotation[(r, c)])),
-        translation: [
-            world_translation.x,
-            world_translation.y,
-            world_translation.z,
-        ],
-        scale,
-        rotation_deg: angle,
-        iterations,
-        converged,
-        pairs: pairs_used,
-        rms,
-    })
 }
 
 /// Solves the first `n` unknowns of the normal equations (Cholesky), `None` when singular.

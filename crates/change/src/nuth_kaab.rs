@@ -172,20 +172,7 @@ pub fn nuth_kaab(
     options: &NuthKaabOptions,
 ) -> Result<NuthKaabResult, ChangeError> {
     check_same_crs(reference.grid.crs, to_align.grid.crs)?;
-    positive("tolerance_px", options.tolerance_px)?;
-    positive("outlier_nmads", options.outlier_nmads)?;
-    if !(options.min_slope_deg >= 0.0
-        && options.min_slope_deg < options.max_slope_deg
-        && options.max_slope_deg <= 90.0)
-    {
-        return Err(ChangeError::InvalidParameter {
-            name: "min_slope_deg/max_slope_deg",
-            reason: format!(
-                "{}..{} given; 0 ≤ min < max ≤ 90 was expected",
-                options.min_slope_deg, options.max_slope_deg
-            ),
-        });
-    }
+    check_options(options)?;
     let stable = match stable {
         Some(m) => Some(m.onto(&reference.grid)?),
         None => None,
@@ -204,70 +191,24 @@ pub fn nuth_kaab(
     let grid = reference.grid;
     let (cell_e, cell_n) = grid.metric_cell_size();
     // World units per metre, east and north (north-up: y grows north).
-    let world_per_m = [
-        grid.transform.pixel_width.abs() / cell_e,
-        grid.transform.pixel_height.abs() / cell_n,
-    ];
-    let mut shift_m = [0.0f64; 2];
-    let mut iterations = Vec::new();
-    let mut converged = !options.horizontal;
+    let scales = GridScales {
+        world_per_m: [
+            grid.transform.pixel_width.abs() / cell_e,
+            grid.transform.pixel_height.abs() / cell_n,
+        ],
+        cell_e,
+        cell_n,
+    };
     let mut dh = vec![f64::NAN; samples.len()];
-
-    let (cells_before, median_before, nmad_before) = {
-        differences(&samples, to_align, [0.0; 2], &mut dh);
-        let mut valid: Vec<f64> = dh.iter().copied().filter(|v| v.is_finite()).collect();
-        if valid.len() < 3 {
-            return Err(ChangeError::NoOverlap(format!(
-                "only {} stable cells hold a height in both DEMs",
-                valid.len()
-            )));
-        }
-        let n = valid.len();
-        let m = median(&mut valid);
-        (n, m, nmad(&mut valid))
+    let (cells_before, median_before, nmad_before) = spread_before(&samples, to_align, &mut dh)?;
+    let (shift_m, iterations, converged) = if options.horizontal {
+        horizontal_shift(&samples, to_align, options, &scales, &mut dh)?
+    } else {
+        ([0.0f64; 2], Vec::new(), true)
     };
-
-    if options.horizontal {
-        for _ in 0..options.max_iterations {
-            let world = [shift_m[0] * world_per_m[0], shift_m[1] * world_per_m[1]];
-            differences(&samples, to_align, world, &mut dh);
-            let (update, cells, spread) = fit_shift(&samples, &dh, options)?;
-            shift_m[0] += update[0];
-            shift_m[1] += update[1];
-            let update_px = (update[0] / cell_e).hypot(update[1] / cell_n);
-            iterations.push(NuthKaabIteration {
-                shift_m,
-                update_px,
-                nmad: spread,
-                cells,
-            });
-            if !(shift_m[0].is_finite() && shift_m[1].is_finite()) {
-                return Err(ChangeError::Degenerate(
-                    "the Nuth & Kääb fit diverged (non-finite shift)".into(),
-                ));
-            }
-            if update_px < options.tolerance_px {
-                converged = true;
-                break;
-            }
-        }
-    }
-    let world = [shift_m[0] * world_per_m[0], shift_m[1] * world_per_m[1]];
+    let world = scales.world(shift_m);
     differences(&samples, to_align, world, &mut dh);
-    let mut valid: Vec<f64> = dh.iter().copied().filter(|v| v.is_finite()).collect();
-    if valid.is_empty() {
-        return Err(ChangeError::NoOverlap(
-            "after the horizontal shift no stable cell holds a height in both DEMs".into(),
-        ));
-    }
-    let bias = match options.vertical {
-        VerticalEstimator::Median => median(&mut valid),
-        VerticalEstimator::Mean => valid.iter().sum::<f64>() / valid.len() as f64,
-    };
-    let shift_z = -bias;
-    let mut after: Vec<f64> = valid.iter().map(|v| v + shift_z).collect();
-    let median_after = median(&mut after);
-    let nmad_after = nmad(&mut after);
+    let (shift_z, median_after, nmad_after) = vertical_shift(&dh, options.vertical)?;
     Ok(NuthKaabResult {
         shift_east_m: shift_m[0],
         shift_north_m: shift_m[1],
@@ -285,6 +226,124 @@ pub fn nuth_kaab(
         median_before,
         median_after,
     })
+}
+
+/// Checks the tolerance, the outlier cut-off and the slope limits.
+fn check_options(options: &NuthKaabOptions) -> Result<(), ChangeError> {
+    positive("tolerance_px", options.tolerance_px)?;
+    positive("outlier_nmads", options.outlier_nmads)?;
+    if !(options.min_slope_deg >= 0.0
+        && options.min_slope_deg < options.max_slope_deg
+        && options.max_slope_deg <= 90.0)
+    {
+        return Err(ChangeError::InvalidParameter {
+            name: "min_slope_deg/max_slope_deg",
+            reason: format!(
+                "{}..{} given; 0 ≤ min < max ≤ 90 was expected",
+                options.min_slope_deg, options.max_slope_deg
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// The reference grid's metric scales: world units per metre (east, north) and its cell size in
+/// metres.
+struct GridScales {
+    world_per_m: [f64; 2],
+    cell_e: f64,
+    cell_n: f64,
+}
+
+impl GridScales {
+    /// A shift in metres (east, north) in world units.
+    fn world(&self, shift_m: [f64; 2]) -> [f64; 2] {
+        [
+            shift_m[0] * self.world_per_m[0],
+            shift_m[1] * self.world_per_m[1],
+        ]
+    }
+}
+
+/// The stable cells compared before alignment, and the median and NMAD of their dh (left in
+/// `dh`); an error when fewer than three hold a height in both DEMs.
+fn spread_before(
+    samples: &[Sample],
+    to_align: &Dem,
+    dh: &mut [f64],
+) -> Result<(usize, f64, f64), ChangeError> {
+    differences(samples, to_align, [0.0; 2], dh);
+    let mut valid: Vec<f64> = dh.iter().copied().filter(|v| v.is_finite()).collect();
+    if valid.len() < 3 {
+        return Err(ChangeError::NoOverlap(format!(
+            "only {} stable cells hold a height in both DEMs",
+            valid.len()
+        )));
+    }
+    let n = valid.len();
+    let m = median(&mut valid);
+    Ok((n, m, nmad(&mut valid)))
+}
+
+/// The horizontal shift (east, north, metres) by repeated fits on the re-sampled DEM, the
+/// iterations, and whether an update fell below the tolerance; `dh` is scratch.
+fn horizontal_shift(
+    samples: &[Sample],
+    to_align: &Dem,
+    options: &NuthKaabOptions,
+    scales: &GridScales,
+    dh: &mut [f64],
+) -> Result<([f64; 2], Vec<NuthKaabIteration>, bool), ChangeError> {
+    let mut shift_m = [0.0f64; 2];
+    let mut iterations = Vec::new();
+    let mut converged = false;
+    for _ in 0..options.max_iterations {
+        let world = scales.world(shift_m);
+        differences(samples, to_align, world, dh);
+        let (update, cells, spread) = fit_shift(samples, dh, options)?;
+        shift_m[0] += update[0];
+        shift_m[1] += update[1];
+        let update_px = (update[0] / scales.cell_e).hypot(update[1] / scales.cell_n);
+        iterations.push(NuthKaabIteration {
+            shift_m,
+            update_px,
+            nmad: spread,
+            cells,
+        });
+        if !(shift_m[0].is_finite() && shift_m[1].is_finite()) {
+            return Err(ChangeError::Degenerate(
+                "the Nuth & Kääb fit diverged (non-finite shift)".into(),
+            ));
+        }
+        if update_px < options.tolerance_px {
+            converged = true;
+            break;
+        }
+    }
+    Ok((shift_m, iterations, converged))
+}
+
+/// The vertical shift (minus the bias of `dh` by the estimator) and the median and NMAD of dh
+/// after it; an error when no cell holds a height in both DEMs.
+fn vertical_shift(
+    dh: &[f64],
+    estimator: VerticalEstimator,
+) -> Result<(f64, f64, f64), ChangeError> {
+    let mut valid: Vec<f64> = dh.iter().copied().filter(|v| v.is_finite()).collect();
+    if valid.is_empty() {
+        return Err(ChangeError::NoOverlap(
+            "after the horizontal shift no stable cell holds a height in both DEMs".into(),
+        ));
+    }
+    let bias = match estimator {
+        VerticalEstimator::Median => median(&mut valid),
+        VerticalEstimator::Mean => valid.iter().sum::<f64>() / valid.len() as f64,
+    };
+    let shift_z = -bias;
+    let mut after: Vec<f64> = valid.iter().map(|v| v + shift_z).collect();
+    let median_after = median(&mut after);
+    let nmad_after = nmad(&mut after);
+    Ok((shift_z, median_after, nmad_after))
 }
 
 fn reference_samples(

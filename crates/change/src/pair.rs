@@ -145,6 +145,71 @@ pub fn analyse_pair(
 ) -> Result<PairAnalysis, ChangeError> {
     check_same_crs(earlier.grid.crs, later.grid.crs)?;
     let mut warnings = Vec::new();
+    let coregistration = coregister(earlier, later, stable, options, &mut warnings)?;
+    let later = match &coregistration {
+        Some(r) => r.apply(later),
+        None => later.clone(),
+    };
+    let dod = dem_of_difference(earlier, &later)?;
+    let values = || dod.values.iter().map(|&v| v as f64);
+    let all = statistics(values())
+        .ok_or_else(|| ChangeError::NoOverlap("no cell holds a height in both DEMs".into()))?;
+    let stable_on_dod = match stable {
+        Some(m) => Some(m.onto(&dod.grid)?),
+        None => None,
+    };
+    let stable_stats = match &stable_on_dod {
+        Some(m) => Some(
+            statistics(values().zip(&m.cells).filter(|(_, s)| **s).map(|(v, _)| v)).ok_or_else(
+                || ChangeError::EmptyStable("no stable cell holds a height in both DEMs".into()),
+            )?,
+        ),
+        None => None,
+    };
+    let stable_trend = stable_on_dod
+        .as_ref()
+        .and_then(|m| stable_plane(&dod, m, &mut warnings));
+    let stable_variogram = stable_on_dod
+        .as_ref()
+        .and_then(|m| stable_correlation(&dod, m, &mut warnings));
+    let (lod, lod_source) = level_of_detection(options.sigmas, stable_stats.as_ref());
+    let region = match region {
+        Some(m) => Some(m.onto(&dod.grid)?),
+        None => None,
+    };
+    let uncertainty = volume_uncertainty(
+        options.sigmas,
+        stable_stats.as_ref(),
+        stable_variogram.as_ref(),
+    );
+    let (every_cell, beyond_lod) = pair_volumes(&dod, region.as_ref(), uncertainty, lod)?;
+    let significant_cells = lod.map(|l| significance(&dod, l).iter().filter(|&&f| f == 1).count());
+    Ok(PairAnalysis {
+        coregistration,
+        later,
+        dod,
+        all,
+        stable: stable_stats,
+        stable_trend,
+        stable_variogram,
+        lod95: lod,
+        lod_source,
+        significant_cells,
+        volumes: every_cell,
+        volumes_beyond_lod: beyond_lod,
+        warnings,
+    })
+}
+
+/// The co-registration of `later` onto `earlier` when the options ask for one, with the warnings
+/// it calls for: no stable areas, a stable NMAD it did not lower, no convergence.
+fn coregister(
+    earlier: &Dem,
+    later: &Dem,
+    stable: Option<&Mask>,
+    options: &PairOptions,
+    warnings: &mut Vec<String>,
+) -> Result<Option<NuthKaabResult>, ChangeError> {
     if stable.is_none() && options.coregistration.is_some() {
         warnings.push(
             "co-registration used every cell: without stable areas, real change biases the shift"
@@ -167,64 +232,49 @@ pub fn analyse_pair(
             warnings.push("co-registration stopped at its iteration limit".to_string());
         }
     }
-    let later = match &coregistration {
-        Some(r) => r.apply(later),
-        None => later.clone(),
-    };
-    let dod = dem_of_difference(earlier, &later)?;
-    let values = || dod.values.iter().map(|&v| v as f64);
-    let all = statistics(values())
-        .ok_or_else(|| ChangeError::NoOverlap("no cell holds a height in both DEMs".into()))?;
-    let stable_on_dod = match stable {
-        Some(m) => Some(m.onto(&dod.grid)?),
-        None => None,
-    };
-    let stable_stats = match &stable_on_dod {
-        Some(m) => Some(
-            statistics(values().zip(&m.cells).filter(|(_, s)| **s).map(|(v, _)| v)).ok_or_else(
-                || ChangeError::EmptyStable("no stable cell holds a height in both DEMs".into()),
-            )?,
-        ),
-        None => None,
-    };
-    let stable_trend = match &stable_on_dod {
-        Some(m) => match plane_trend(&dod, Some(m)) {
-            Ok(t) => Some(t),
-            Err(e) => {
-                warnings.push(format!("no plane through the stable areas: {e}"));
-                None
-            }
-        },
-        None => None,
-    };
-    let stable_variogram = match &stable_on_dod {
-        Some(m) => match variogram(&dod, Some(m)) {
-            Ok(v) => Some(v),
-            Err(e) => {
-                warnings.push(format!(
-                    "no variogram of the stable areas ({e}): volume uncertainties assume \
-                     independent cells and are too small"
-                ));
-                None
-            }
-        },
-        None => None,
-    };
-    let (lod, lod_source) = level_of_detection(options.sigmas, stable_stats.as_ref());
-    let region = match region {
-        Some(m) => Some(m.onto(&dod.grid)?),
-        None => None,
-    };
-    let uncertainty = volume_uncertainty(
-        options.sigmas,
-        stable_stats.as_ref(),
-        stable_variogram.as_ref(),
-    );
-    let every_cell = volumes(&dod, region.as_ref(), uncertainty)?;
+    Ok(coregistration)
+}
+
+/// The least-squares plane of the difference over the stable areas, or a warning saying why
+/// there is none.
+fn stable_plane(dod: &Dem, stable: &Mask, warnings: &mut Vec<String>) -> Option<PlaneTrend> {
+    match plane_trend(dod, Some(stable)) {
+        Ok(t) => Some(t),
+        Err(e) => {
+            warnings.push(format!("no plane through the stable areas: {e}"));
+            None
+        }
+    }
+}
+
+/// The variogram of the difference over the stable areas, or a warning that the volume
+/// uncertainties will assume independent cells.
+fn stable_correlation(dod: &Dem, stable: &Mask, warnings: &mut Vec<String>) -> Option<Variogram> {
+    match variogram(dod, Some(stable)) {
+        Ok(v) => Some(v),
+        Err(e) => {
+            warnings.push(format!(
+                "no variogram of the stable areas ({e}): volume uncertainties assume \
+                 independent cells and are too small"
+            ));
+            None
+        }
+    }
+}
+
+/// The volumes over the region with every cell counted, and counting only the cells beyond the
+/// LoD when there is one.
+fn pair_volumes(
+    dod: &Dem,
+    region: Option<&Mask>,
+    uncertainty: VolumeOptions,
+    lod: Option<f64>,
+) -> Result<(Volumes, Option<Volumes>), ChangeError> {
+    let every_cell = volumes(dod, region, uncertainty)?;
     let beyond_lod = match lod {
         Some(l) => Some(volumes(
-            &dod,
-            region.as_ref(),
+            dod,
+            region,
             VolumeOptions {
                 threshold: l,
                 ..uncertainty
@@ -232,22 +282,7 @@ pub fn analyse_pair(
         )?),
         None => None,
     };
-    let significant_cells = lod.map(|l| significance(&dod, l).iter().filter(|&&f| f == 1).count());
-    Ok(PairAnalysis {
-        coregistration,
-        later,
-        dod,
-        all,
-        stable: stable_stats,
-        stable_trend,
-        stable_variogram,
-        lod95: lod,
-        lod_source,
-        significant_cells,
-        volumes: every_cell,
-        volumes_beyond_lod: beyond_lod,
-        warnings,
-    })
+    Ok((every_cell, beyond_lod))
 }
 
 #[cfg(test)]
