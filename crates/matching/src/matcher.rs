@@ -156,37 +156,7 @@ pub fn match_descriptors(
             if da != db {
                 return Err(incompatible());
             }
-            let d = *da;
-            let norms_b: Vec<f32> = xb.chunks(d).map(squared_norm).collect();
-            let train = MatRef::from_row_major_slice(xb.as_slice(), nb, d);
-            (0..na.div_ceil(BLOCK))
-                .into_par_iter()
-                .map(|k| {
-                    let rows = k * BLOCK..((k + 1) * BLOCK).min(na);
-                    let block = &xa[rows.start * d..rows.end * d];
-                    // Column i of `products` (contiguous) holds query i's products with every
-                    // train descriptor.
-                    let queries = MatRef::from_column_major_slice(block, d, rows.len());
-                    let mut products = faer::Mat::<f32>::zeros(nb, rows.len());
-                    faer::linalg::matmul::matmul(
-                        products.as_mut(),
-                        Accum::Replace,
-                        train,
-                        queries,
-                        1.0,
-                        Par::Seq,
-                    );
-                    let norms_a: Vec<f32> = block.chunks(d).map(squared_norm).collect();
-                    scan_block(rows.start, rows.len(), nb, |i, out| {
-                        // Squared distance ‖a‖² + ‖b‖² − 2 a·b.
-                        let column = products.col(i);
-                        let na_i = norms_a[i];
-                        for ((o, nbj), j) in out.iter_mut().zip(&norms_b).zip(0..nb) {
-                            *o = na_i + nbj - 2.0 * column[j];
-                        }
-                    })
-                })
-                .collect()
+            float_blocks(xa, xb, *da, (na, nb))
         }
         (
             Descriptors::Binary {
@@ -201,31 +171,95 @@ pub fn match_descriptors(
             if ba != bb {
                 return Err(incompatible());
             }
-            let wa = to_words(xa, *ba);
-            let wb = to_words(xb, *bb);
-            let words = ba.div_ceil(8);
-            (0..na.div_ceil(BLOCK))
-                .into_par_iter()
-                .map(|k| {
-                    let rows = k * BLOCK..((k + 1) * BLOCK).min(na);
-                    scan_block(rows.start, rows.len(), nb, |i, out| {
-                        let qa = &wa[(rows.start + i) * words..(rows.start + i + 1) * words];
-                        for (o, qb) in out.iter_mut().zip(wb.chunks(words)) {
-                            *o = squared_hamming(qa, qb);
-                        }
-                    })
-                })
-                .collect()
+            binary_blocks(xa, xb, *ba, (na, nb))
         }
         _ => return Err(incompatible()),
     };
+    let angles = options.ratio_on == FloatDistance::Angle && matches!(a, Descriptors::Float { .. });
+    Ok(accepted_matches(&blocks, nb, options, angles))
+}
+
+/// The scan of every block of query rows of float descriptors (`d` values each) against the
+/// train descriptors, by Euclidean distance from faer's matrix products; `(na, nb)` are the
+/// descriptor counts.
+fn float_blocks(
+    xa: &[f32],
+    xb: &[f32],
+    d: usize,
+    (na, nb): (usize, usize),
+) -> Vec<(Vec<Nearest>, Vec<Nearest>)> {
+    let norms_b: Vec<f32> = xb.chunks(d).map(squared_norm).collect();
+    let train = MatRef::from_row_major_slice(xb, nb, d);
+    (0..na.div_ceil(BLOCK))
+        .into_par_iter()
+        .map(|k| {
+            let rows = k * BLOCK..((k + 1) * BLOCK).min(na);
+            let block = &xa[rows.start * d..rows.end * d];
+            // Column i of `products` (contiguous) holds query i's products with every train
+            // descriptor.
+            let queries = MatRef::from_column_major_slice(block, d, rows.len());
+            let mut products = faer::Mat::<f32>::zeros(nb, rows.len());
+            faer::linalg::matmul::matmul(
+                products.as_mut(),
+                Accum::Replace,
+                train,
+                queries,
+                1.0,
+                Par::Seq,
+            );
+            let norms_a: Vec<f32> = block.chunks(d).map(squared_norm).collect();
+            scan_block(rows.start, rows.len(), nb, |i, out| {
+                // Squared distance ‖a‖² + ‖b‖² − 2 a·b.
+                let column = products.col(i);
+                let na_i = norms_a[i];
+                for ((o, nbj), j) in out.iter_mut().zip(&norms_b).zip(0..nb) {
+                    *o = na_i + nbj - 2.0 * column[j];
+                }
+            })
+        })
+        .collect()
+}
+
+/// The scan of every block of query rows of binary descriptors (`bytes` each) against the
+/// train descriptors, by Hamming distance over 64-bit words; `(na, nb)` are the descriptor
+/// counts.
+fn binary_blocks(
+    xa: &[u8],
+    xb: &[u8],
+    bytes: usize,
+    (na, nb): (usize, usize),
+) -> Vec<(Vec<Nearest>, Vec<Nearest>)> {
+    let wa = to_words(xa, bytes);
+    let wb = to_words(xb, bytes);
+    let words = bytes.div_ceil(8);
+    (0..na.div_ceil(BLOCK))
+        .into_par_iter()
+        .map(|k| {
+            let rows = k * BLOCK..((k + 1) * BLOCK).min(na);
+            scan_block(rows.start, rows.len(), nb, |i, out| {
+                let qa = &wa[(rows.start + i) * words..(rows.start + i + 1) * words];
+                for (o, qb) in out.iter_mut().zip(wb.chunks(words)) {
+                    *o = squared_hamming(qa, qb);
+                }
+            })
+        })
+        .collect()
+}
+
+/// The matches of the blocks' rows that pass the ratio test and maximum distance (and, when
+/// asked, the mutual check against the columns merged over all blocks), ordered by query.
+fn accepted_matches(
+    blocks: &[(Vec<Nearest>, Vec<Nearest>)],
+    nb: usize,
+    options: &MatchOptions,
+    angles: bool,
+) -> Vec<Match> {
     let mut columns = vec![Nearest::EMPTY; nb];
-    for (_, block_columns) in &blocks {
+    for (_, block_columns) in blocks {
         for (c, n) in columns.iter_mut().zip(block_columns) {
             c.merge(n);
         }
     }
-    let angles = options.ratio_on == FloatDistance::Angle && matches!(a, Descriptors::Float { .. });
     let mut matches = Vec::new();
     for (i, row) in blocks.iter().flat_map(|(rows, _)| rows).enumerate() {
         if !row.passes(options, angles) {
@@ -242,7 +276,7 @@ pub fn match_descriptors(
             distance: row.best,
         });
     }
-    Ok(matches)
+    matches
 }
 
 /// Lanes of the row scan: independent running top-2s that vectorise, merged at the end.

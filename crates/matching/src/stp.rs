@@ -180,75 +180,144 @@ pub fn stable_tie_points(
     // above both its reference point's second best and its own best so far cannot change
     // either, and is not scored. With priors of a few metres the radius takes in thousands of
     // candidates per point, nearly all of them pruned so; the result is the same.
-    let means_of = |points: &[TiePoint]| -> Vec<f32> {
-        points
-            .par_iter()
-            .flat_map_iter(|t| mean_descriptor(t, dim))
-            .collect()
+    let search = CandidateSearch {
+        reference,
+        other,
+        dim,
+        origin,
+        tree: &tree,
+        reference_means: mean_descriptors(reference, dim),
+        other_means: mean_descriptors(other, dim),
+        r2: options.radius * options.radius,
+        options,
     };
-    let (reference_means, other_means) = (means_of(reference), means_of(other));
-    // Best and second-best candidate of every reference point, and each other point's best
-    // among the reference points (for the mutual check), in chunks of reference points.
-    let r2 = options.radius * options.radius;
-    let chunks: Vec<(Vec<BestMatch>, Vec<BestMatch>)> = reference
-        .par_chunks(REFERENCE_CHUNK)
-        .enumerate()
-        .map(|(c, chunk)| {
-            let mut best_of_reference = vec![None; chunk.len()];
-            let mut best_of_other: Vec<BestMatch> = vec![None; other.len()];
-            for (k, t) in chunk.iter().enumerate() {
-                let i = c * REFERENCE_CHUNK + k;
-                let mean = &reference_means[i * dim..(i + 1) * dim];
-                let q = [t.position.x - origin.x, t.position.y - origin.y];
-                let (mut best, mut second) = ((usize::MAX, f32::INFINITY), f32::INFINITY);
-                tree.query(&q)
-                    .within::<SquaredEuclidean<f64>>(r2)
-                    .unsorted()
-                    .visit(|n| {
-                        let j = n.item as usize;
-                        if let Some((_, b)) = best_of_other[j] {
-                            let bound =
-                                BOUND_SLACK * distance(mean, &other_means[j * dim..(j + 1) * dim]);
-                            if bound >= second && bound >= b {
-                                return;
-                            }
-                        }
-                        let s = score(t, &other[j], dim);
-                        if s < best.1 {
-                            second = best.1;
-                            best = (j, s);
-                        } else if s < second {
-                            second = s;
-                        }
-                        if best_of_other[j].is_none_or(|(_, b)| s < b) {
-                            best_of_other[j] = Some((i, s));
-                        }
-                    });
-                if best.0 != usize::MAX
-                    && best.1 <= options.max_score
-                    && best.1 < options.ratio * second
+    let (best_of_reference, best_of_other) = search.best_matches();
+    let candidates = mutual_pairs(&best_of_reference, &best_of_other);
+    if candidates.len() < options.min_pairs.max(3) {
+        return Err(MatchingError::InvalidOption {
+            name: "stable tie points",
+            value: candidates.len() as f64,
+            expected: "enough candidate pairs for a similarity (fewer found: widen the radius or check the epochs overlap)",
+        });
+    }
+    split_by_similarity(reference, other, candidates, origin, options)
+}
+
+/// The mean descriptors of `points`, `dim` values each, one after the other.
+fn mean_descriptors(points: &[TiePoint], dim: usize) -> Vec<f32> {
+    points
+        .par_iter()
+        .flat_map_iter(|t| mean_descriptor(t, dim))
+        .collect()
+}
+
+/// What the search for every reference point's best candidates reads.
+struct CandidateSearch<'a> {
+    reference: &'a [TiePoint],
+    other: &'a [TiePoint],
+    dim: usize,
+    /// Local origin of the tree's horizontal positions.
+    origin: Vector3<f64>,
+    /// Horizontal positions of `other` relative to `origin`.
+    tree: &'a ImmutableKdTree<f64, 2>,
+    /// Mean descriptors of `reference` and of `other`, for the pruning bound.
+    reference_means: Vec<f32>,
+    other_means: Vec<f32>,
+    /// Squared search radius.
+    r2: f64,
+    options: &'a StpOptions,
+}
+
+impl CandidateSearch<'_> {
+    /// Best and second-best candidate of every reference point (kept when it passes the score
+    /// and ratio tests), and each other point's best among the reference points (for the mutual
+    /// check), computed in chunks of reference points and merged in chunk order.
+    fn best_matches(&self) -> (Vec<BestMatch>, Vec<BestMatch>) {
+        let chunks: Vec<(Vec<BestMatch>, Vec<BestMatch>)> = self
+            .reference
+            .par_chunks(REFERENCE_CHUNK)
+            .enumerate()
+            .map(|(c, chunk)| self.search_chunk(c, chunk))
+            .collect();
+        let mut best_of_reference = Vec::with_capacity(self.reference.len());
+        let mut best_of_other: Vec<BestMatch> = vec![None; self.other.len()];
+        for (of_reference, of_other) in chunks {
+            best_of_reference.extend(of_reference);
+            // In chunk order with a strict comparison: the earliest reference point wins a tie,
+            // as in one sequential pass.
+            for (merged, found) in best_of_other.iter_mut().zip(of_other) {
+                if let Some((i, s)) = found
+                    && merged.is_none_or(|(_, b)| s < b)
                 {
-                    best_of_reference[k] = Some(best);
+                    *merged = Some((i, s));
                 }
             }
-            (best_of_reference, best_of_other)
-        })
-        .collect();
-    let mut best_of_reference = Vec::with_capacity(reference.len());
-    let mut best_of_other: Vec<BestMatch> = vec![None; other.len()];
-    for (of_reference, of_other) in chunks {
-        best_of_reference.extend(of_reference);
-        // In chunk order with a strict comparison: the earliest reference point wins a tie, as
-        // in one sequential pass.
-        for (merged, found) in best_of_other.iter_mut().zip(of_other) {
-            if let Some((i, s)) = found
-                && merged.is_none_or(|(_, b)| s < b)
+        }
+        (best_of_reference, best_of_other)
+    }
+
+    /// The accepted best match of each point of chunk `c`, and each other point's best among
+    /// the chunk's points.
+    fn search_chunk(&self, c: usize, chunk: &[TiePoint]) -> (Vec<BestMatch>, Vec<BestMatch>) {
+        let mut best_of_reference = vec![None; chunk.len()];
+        let mut best_of_other: Vec<BestMatch> = vec![None; self.other.len()];
+        for (k, t) in chunk.iter().enumerate() {
+            let i = c * REFERENCE_CHUNK + k;
+            let (best, second) = self.search_point(i, t, &mut best_of_other);
+            if best.0 != usize::MAX
+                && best.1 <= self.options.max_score
+                && best.1 < self.options.ratio * second
             {
-                *merged = Some((i, s));
+                best_of_reference[k] = Some(best);
             }
         }
+        (best_of_reference, best_of_other)
     }
-    let candidates: Vec<StablePair> = best_of_reference
+
+    /// The best candidate of reference point `i` (`t`) within the radius, as (index, score),
+    /// and the second-best score; updates the other points' best matches it scores.
+    fn search_point(
+        &self,
+        i: usize,
+        t: &TiePoint,
+        best_of_other: &mut [BestMatch],
+    ) -> ((usize, f32), f32) {
+        let dim = self.dim;
+        let mean = &self.reference_means[i * dim..(i + 1) * dim];
+        let q = [t.position.x - self.origin.x, t.position.y - self.origin.y];
+        let (mut best, mut second) = ((usize::MAX, f32::INFINITY), f32::INFINITY);
+        self.tree
+            .query(&q)
+            .within::<SquaredEuclidean<f64>>(self.r2)
+            .unsorted()
+            .visit(|n| {
+                let j = n.item as usize;
+                if let Some((_, b)) = best_of_other[j] {
+                    let bound =
+                        BOUND_SLACK * distance(mean, &self.other_means[j * dim..(j + 1) * dim]);
+                    if bound >= second && bound >= b {
+                        return;
+                    }
+                }
+                let s = score(t, &self.other[j], dim);
+                if s < best.1 {
+                    second = best.1;
+                    best = (j, s);
+                } else if s < second {
+                    second = s;
+                }
+                if best_of_other[j].is_none_or(|(_, b)| s < b) {
+                    best_of_other[j] = Some((i, s));
+                }
+            });
+        (best, second)
+    }
+}
+
+/// The pairs whose reference point's best match is an other point whose own best is that
+/// reference point, in reference order.
+fn mutual_pairs(best_of_reference: &[BestMatch], best_of_other: &[BestMatch]) -> Vec<StablePair> {
+    best_of_reference
         .iter()
         .enumerate()
         .filter_map(|(i, b)| {
@@ -259,14 +328,18 @@ pub fn stable_tie_points(
                 score: s,
             })
         })
-        .collect();
-    if candidates.len() < options.min_pairs.max(3) {
-        return Err(MatchingError::InvalidOption {
-            name: "stable tie points",
-            value: candidates.len() as f64,
-            expected: "enough candidate pairs for a similarity (fewer found: widen the radius or check the epochs overlap)",
-        });
-    }
+        .collect()
+}
+
+/// The RANSAC similarity of the candidate pairs (fitted about `origin`) and the pairs it keeps
+/// and rejects; the similarity comes back in absolute coordinates.
+fn split_by_similarity(
+    reference: &[TiePoint],
+    other: &[TiePoint],
+    candidates: Vec<StablePair>,
+    origin: Vector3<f64>,
+    options: &StpOptions,
+) -> Result<StpResult, MatchingError> {
     let src: Vec<Vector3<f64>> = candidates
         .iter()
         .map(|p| other[p.other].position - origin)

@@ -86,21 +86,7 @@ pub fn verify_pair(
     if matches.len() < options.min_inliers.max(8) {
         return Ok(None);
     }
-    let mut p1 = Vec::with_capacity(matches.len());
-    let mut p2 = Vec::with_capacity(matches.len());
-    let pixel = |keypoints: &[Keypoint], index: u32| {
-        keypoints
-            .get(index as usize)
-            .map(|k| Vector2::new(k.x, k.y))
-            .ok_or(MatchingError::KeypointIndex {
-                index: index as usize,
-                count: keypoints.len(),
-            })
-    };
-    for m in matches {
-        p1.push(pixel(a, m.query)?);
-        p2.push(pixel(b, m.train)?);
-    }
+    let (p1, p2) = matched_pixels(a, b, matches)?;
     let ransac_options = RansacOptions {
         max_error: options.max_error_px,
         confidence: options.confidence,
@@ -109,31 +95,9 @@ pub fn verify_pair(
         ..RansacOptions::default()
     };
     let (model, inlier_flags, fundamental) = match cameras {
-        Some((ca, cb)) => {
-            // Matches whose pixels cannot be unprojected are dropped before estimation.
-            let mut keep = Vec::new();
-            let mut x1: Vec<Vector3<f64>> = Vec::new();
-            let mut x2: Vec<Vector3<f64>> = Vec::new();
-            for (i, (u, v)) in p1.iter().zip(&p2).enumerate() {
-                if let (Ok(r1), Ok(r2)) = (ca.unproject(u), cb.unproject(v)) {
-                    keep.push(i);
-                    x1.push(r1);
-                    x2.push(r2);
-                }
-            }
-            let focal_px = focal_length(ca).max(1.0);
-            let estimator = EssentialEstimator {
-                x1: &x1,
-                x2: &x2,
-                focal_px,
-            };
-            let mut flags = vec![false; matches.len()];
-            if let Some(result) = decide(&estimator, &ransac_options, options.min_inliers) {
-                for (k, &i) in keep.iter().enumerate() {
-                    flags[i] = result.inliers[k];
-                }
-            }
-            let fundamental = pixel_fundamental(&p1, &p2, &flags, options);
+        Some(cameras) => {
+            let (flags, fundamental) =
+                essential_inliers(cameras, &p1, &p2, &ransac_options, options);
             (EpipolarModel::Essential, flags, fundamental)
         }
         None => {
@@ -187,6 +151,70 @@ pub fn verify_pair(
         })),
         _ => Ok(None),
     }
+}
+
+/// The pixels of the matches' keypoints in one image, in match order.
+type MatchPixels = Vec<Vector2<f64>>;
+
+/// The pixels of every match's keypoint in `a` and in `b`; an error names the first index
+/// beyond its image's keypoints.
+fn matched_pixels(
+    a: &[Keypoint],
+    b: &[Keypoint],
+    matches: &[Match],
+) -> Result<(MatchPixels, MatchPixels), MatchingError> {
+    let mut p1 = Vec::with_capacity(matches.len());
+    let mut p2 = Vec::with_capacity(matches.len());
+    let pixel = |keypoints: &[Keypoint], index: u32| {
+        keypoints
+            .get(index as usize)
+            .map(|k| Vector2::new(k.x, k.y))
+            .ok_or(MatchingError::KeypointIndex {
+                index: index as usize,
+                count: keypoints.len(),
+            })
+    };
+    for m in matches {
+        p1.push(pixel(a, m.query)?);
+        p2.push(pixel(b, m.train)?);
+    }
+    Ok((p1, p2))
+}
+
+/// Inlier flags of the essential matrix estimated on the cameras' rays (one per match; matches
+/// whose pixels cannot be unprojected are dropped before estimation and flagged outliers), and
+/// the pixel fundamental matrix of those inliers.
+fn essential_inliers(
+    (ca, cb): (&dyn CameraModel, &dyn CameraModel),
+    p1: &[Vector2<f64>],
+    p2: &[Vector2<f64>],
+    ransac_options: &RansacOptions,
+    options: &VerifyOptions,
+) -> (Vec<bool>, Option<Matrix3<f64>>) {
+    let mut keep = Vec::new();
+    let mut x1: Vec<Vector3<f64>> = Vec::new();
+    let mut x2: Vec<Vector3<f64>> = Vec::new();
+    for (i, (u, v)) in p1.iter().zip(p2).enumerate() {
+        if let (Ok(r1), Ok(r2)) = (ca.unproject(u), cb.unproject(v)) {
+            keep.push(i);
+            x1.push(r1);
+            x2.push(r2);
+        }
+    }
+    let focal_px = focal_length(ca).max(1.0);
+    let estimator = EssentialEstimator {
+        x1: &x1,
+        x2: &x2,
+        focal_px,
+    };
+    let mut flags = vec![false; p1.len()];
+    if let Some(result) = decide(&estimator, ransac_options, options.min_inliers) {
+        for (k, &i) in keep.iter().enumerate() {
+            flags[i] = result.inliers[k];
+        }
+    }
+    let fundamental = pixel_fundamental(p1, p2, &flags, options);
+    (flags, fundamental)
 }
 
 /// The fundamental matrix in pixels of an essential matrix's inliers, for guided matching: the
