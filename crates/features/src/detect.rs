@@ -191,8 +191,6 @@ fn refine(
     octave_height: usize,
     tests: &ExtremumTests,
 ) -> Option<Extremum> {
-    let width = stack.width();
-    let local_rows = stack.rows();
     let (mut x, mut y, mut s) = (x0 as isize, y0 as isize, s0 as isize);
     let mut visited = [(0isize, 0isize, 0isize); MAX_REFINE_STEPS];
     for step_count in 0..MAX_REFINE_STEPS {
@@ -200,6 +198,50 @@ fn refine(
         let d = |ds: isize, dy: isize, dx: isize| -> f64 {
             stack.dog((s + ds) as usize, (x + dx) as usize, (y + dy) as usize) as f64
         };
+        let fit = QuadraticFit::at(&d);
+        let mut offset = solve3(&fit.h, &fit.g)?.map(|v| -v);
+        // One sample at most per step: the reach of refinement stays within MAX_REFINE_STEPS
+        // samples, which bands of rows rely on.
+        let mut step = offset.map(|o| (o.round() as isize).clamp(-1, 1));
+        // Beyond the searched layers, the fit may still settle a little past the half-way point
+        // (the neighbouring octave has its own, slightly different, fit of the same blob).
+        let next_layer = s + step[2];
+        if (next_layer < 1 || next_layer > tests.layers as isize + 1)
+            && offset[2].abs() < 0.5 + SCALE_SLACK
+        {
+            step[2] = 0;
+        }
+        let next = (x + step[0], y + step[1], s + step[2]);
+        let returning = walk_ends(&visited, step_count, step, next);
+        if returning {
+            offset = offset.map(|o| o.clamp(-0.5 - SCALE_SLACK, 0.5 + SCALE_SLACK));
+        }
+        if returning || step == [0, 0, 0] {
+            return settle(&d, (x, y, s), &fit, offset, stack.row0, tests);
+        }
+        if offset.iter().any(|o| o.abs() > 1e6) {
+            return None;
+        }
+        x += step[0];
+        y += step[1];
+        s += step[2];
+        if !in_refinement_domain(stack, (x, y, s), octave_height, tests) {
+            return None;
+        }
+    }
+    None
+}
+
+/// Gradient and Hessian of the DoG at a sample, by central differences (x, y, s order).
+struct QuadraticFit {
+    g: [f64; 3],
+    h: [[f64; 3]; 3],
+}
+
+impl QuadraticFit {
+    /// The fit at the sample that `d(ds, dy, dx)` reads the DoG around.
+    #[inline]
+    fn at(d: &impl Fn(isize, isize, isize) -> f64) -> QuadraticFit {
         let v2 = 2.0 * d(0, 0, 0);
         let g = [
             0.5 * (d(0, 0, 1) - d(0, 0, -1)),
@@ -212,90 +254,99 @@ fn refine(
         let dxy = 0.25 * (d(0, 1, 1) - d(0, 1, -1) - d(0, -1, 1) + d(0, -1, -1));
         let dxs = 0.25 * (d(1, 0, 1) - d(1, 0, -1) - d(-1, 0, 1) + d(-1, 0, -1));
         let dys = 0.25 * (d(1, 1, 0) - d(1, -1, 0) - d(-1, 1, 0) + d(-1, -1, 0));
-        let h = [[dxx, dxy, dxs], [dxy, dyy, dys], [dxs, dys, dss]];
-        let mut offset = solve3(&h, &g)?.map(|v| -v);
-        // One sample at most per step: the reach of refinement stays within MAX_REFINE_STEPS
-        // samples, which bands of rows rely on.
-        let mut step = offset.map(|o| (o.round() as isize).clamp(-1, 1));
-        // Beyond the searched layers, the fit may still settle a little past the half-way point
-        // (the neighbouring octave has its own, slightly different, fit of the same blob).
-        let next_layer = s + step[2];
-        if (next_layer < 1 || next_layer > tests.layers as isize + 1)
-            && offset[2].abs() < 0.5 + SCALE_SLACK
-        {
-            step[2] = 0;
-        }
-        // An extremum half-way between samples can send the fit round a cycle of them (back and
-        // forth, or round a square in space and scale): it is then found, between them.
-        let next = (x + step[0], y + step[1], s + step[2]);
-        let returning = step != [0, 0, 0] && visited[..step_count].contains(&next);
-        // Half-way on all three axes, the fit can wander round the cube of eight samples around
-        // the extremum without coming back to one within the step budget: a last move that
-        // stays inside the cube the walk has spanned ends it there, as a return does. (Only
-        // walks that would otherwise end without a keypoint take this branch.)
-        let (lo, hi) = visited[..=step_count]
-            .iter()
-            .fold((next, next), |(lo, hi), v| {
-                (
-                    (lo.0.min(v.0), lo.1.min(v.1), lo.2.min(v.2)),
-                    (hi.0.max(v.0), hi.1.max(v.1), hi.2.max(v.2)),
-                )
-            });
-        let cornered = step_count + 1 == MAX_REFINE_STEPS
-            && step != [0, 0, 0]
-            && hi.0 - lo.0 <= 1
-            && hi.1 - lo.1 <= 1
-            && hi.2 - lo.2 <= 1;
-        let returning = returning || cornered;
-        if returning {
-            offset = offset.map(|o| o.clamp(-0.5 - SCALE_SLACK, 0.5 + SCALE_SLACK));
-        }
-        if returning || step == [0, 0, 0] {
-            let contrast =
-                d(0, 0, 0) + 0.5 * (g[0] * offset[0] + g[1] * offset[1] + g[2] * offset[2]);
-            if contrast.abs() * (tests.layers as f64) < tests.contrast {
-                return None;
-            }
-            let trace = dxx + dyy;
-            let det = dxx * dyy - dxy * dxy;
-            let r = tests.edge_ratio;
-            if det <= 0.0 || trace * trace * r >= (r + 1.0) * (r + 1.0) * det {
-                return None;
-            }
-            // The parabola through three samples of a peak is biased towards the nearest sample,
-            // by up to 0.05 sample at coarse octaves (0.2 px at octave 2). A parabola through the
-            // logarithms is exact for a Gaussian profile, which the DoG of a blob nearly is.
-            let dx = log_parabola_peak(d(0, 0, -1), d(0, 0, 0), d(0, 0, 1)).unwrap_or(offset[0]);
-            let dy = log_parabola_peak(d(0, -1, 0), d(0, 0, 0), d(0, 1, 0)).unwrap_or(offset[1]);
-            return Some(Extremum {
-                layer: s as usize,
-                x: x as f64 + dx,
-                y: (y as usize + stack.row0) as f64 + dy,
-                s: s as f64 + offset[2],
-                contrast: contrast.abs(),
-                row: y as usize + stack.row0,
-            });
-        }
-        if offset.iter().any(|o| o.abs() > 1e6) {
-            return None;
-        }
-        x += step[0];
-        y += step[1];
-        s += step[2];
-        let global_y = y + stack.row0 as isize;
-        if s < 1
-            || s > tests.layers as isize + 1
-            || x < BORDER as isize
-            || x >= (width - BORDER) as isize
-            || global_y < BORDER as isize
-            || global_y >= (octave_height - BORDER) as isize
-            || y < 1
-            || y >= local_rows as isize - 1
-        {
-            return None;
+        QuadraticFit {
+            g,
+            h: [[dxx, dxy, dxs], [dxy, dyy, dys], [dxs, dys, dss]],
         }
     }
-    None
+}
+
+/// Whether the walk ends at step `step_count` although its step to `next` is not zero: it
+/// returns to a sample visited before, or is cornered.
+///
+/// An extremum half-way between samples can send the fit round a cycle of them (back and
+/// forth, or round a square in space and scale): it is then found, between them. Half-way on
+/// all three axes, the fit can wander round the cube of eight samples around the extremum
+/// without coming back to one within the step budget: a last move that stays inside the cube
+/// the walk has spanned ends it there, as a return does. (Only walks that would otherwise end
+/// without a keypoint take this branch.)
+fn walk_ends(
+    visited: &[(isize, isize, isize); MAX_REFINE_STEPS],
+    step_count: usize,
+    step: [isize; 3],
+    next: (isize, isize, isize),
+) -> bool {
+    let returning = step != [0, 0, 0] && visited[..step_count].contains(&next);
+    let (lo, hi) = visited[..=step_count]
+        .iter()
+        .fold((next, next), |(lo, hi), v| {
+            (
+                (lo.0.min(v.0), lo.1.min(v.1), lo.2.min(v.2)),
+                (hi.0.max(v.0), hi.1.max(v.1), hi.2.max(v.2)),
+            )
+        });
+    let cornered = step_count + 1 == MAX_REFINE_STEPS
+        && step != [0, 0, 0]
+        && hi.0 - lo.0 <= 1
+        && hi.1 - lo.1 <= 1
+        && hi.2 - lo.2 <= 1;
+    returning || cornered
+}
+
+/// The extremum the walk settled on at sample (x, y, s) (band-local row; `row0` the band's
+/// first row) with `offset`, unless its contrast is too low or it lies on an edge.
+fn settle(
+    d: &impl Fn(isize, isize, isize) -> f64,
+    (x, y, s): (isize, isize, isize),
+    fit: &QuadraticFit,
+    offset: [f64; 3],
+    row0: usize,
+    tests: &ExtremumTests,
+) -> Option<Extremum> {
+    let g = &fit.g;
+    let contrast = d(0, 0, 0) + 0.5 * (g[0] * offset[0] + g[1] * offset[1] + g[2] * offset[2]);
+    if contrast.abs() * (tests.layers as f64) < tests.contrast {
+        return None;
+    }
+    let (dxx, dyy, dxy) = (fit.h[0][0], fit.h[1][1], fit.h[0][1]);
+    let trace = dxx + dyy;
+    let det = dxx * dyy - dxy * dxy;
+    let r = tests.edge_ratio;
+    if det <= 0.0 || trace * trace * r >= (r + 1.0) * (r + 1.0) * det {
+        return None;
+    }
+    // The parabola through three samples of a peak is biased towards the nearest sample, by up
+    // to 0.05 sample at coarse octaves (0.2 px at octave 2). A parabola through the logarithms
+    // is exact for a Gaussian profile, which the DoG of a blob nearly is.
+    let dx = log_parabola_peak(d(0, 0, -1), d(0, 0, 0), d(0, 0, 1)).unwrap_or(offset[0]);
+    let dy = log_parabola_peak(d(0, -1, 0), d(0, 0, 0), d(0, 1, 0)).unwrap_or(offset[1]);
+    Some(Extremum {
+        layer: s as usize,
+        x: x as f64 + dx,
+        y: (y as usize + row0) as f64 + dy,
+        s: s as f64 + offset[2],
+        contrast: contrast.abs(),
+        row: y as usize + row0,
+    })
+}
+
+/// Whether sample (x, y, s) (band-local row) is one refinement may fit at: within the searched
+/// layers, clear of the octave's border and inside the band's rows.
+fn in_refinement_domain(
+    stack: &BandStack,
+    (x, y, s): (isize, isize, isize),
+    octave_height: usize,
+    tests: &ExtremumTests,
+) -> bool {
+    let global_y = y + stack.row0 as isize;
+    !(s < 1
+        || s > tests.layers as isize + 1
+        || x < BORDER as isize
+        || x >= (stack.width() - BORDER) as isize
+        || global_y < BORDER as isize
+        || global_y >= (octave_height - BORDER) as isize
+        || y < 1
+        || y >= stack.rows() as isize - 1)
 }
 
 /// Offset of the peak of the Gaussian through three equally spaced samples of one sign around

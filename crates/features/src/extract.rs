@@ -11,12 +11,14 @@ use rayon::prelude::*;
 use timesift_core::Keypoint;
 
 use crate::FeatureError;
-use crate::detect::{ExtremumTests, SCALE_SLACK, find_extrema};
+use crate::detect::{Extremum, ExtremumTests, SCALE_SLACK, find_extrema};
 use crate::image::{GreyImage, Mask, Plane};
 use crate::limit::select_spread;
 use crate::options::{DetectorOptions, Orientation};
 use crate::orientation::orientations;
-use crate::pyramid::{Band, Octave, PlanePool, ScaleSpace, first_octave, octave_is_usable};
+use crate::pyramid::{
+    Band, BandStack, Octave, PlanePool, ScaleSpace, first_octave, octave_is_usable,
+};
 
 /// Images need at least this many pixels on each side.
 pub const MIN_IMAGE_SIDE: usize = 16;
@@ -101,120 +103,208 @@ pub(crate) fn extract<D: Describer>(
     }
     let space = ScaleSpace::new(options, describer.support());
     let layers = space.layers;
-    let tests = ExtremumTests {
-        layers,
-        prefilter: (0.5 * options.contrast_threshold / layers as f64) as f32,
-        contrast: options.contrast_threshold,
-        edge_ratio: options.edge_ratio,
-    };
-    let keep_layers = describer.width() > 0;
-    // A quarter of the budget keeps finished bands' layers; detection bands get half (see
-    // `ScaleSpace::bands`); the rest is headroom for the recomputation in the description pass.
-    let mut keep_budget = options.memory_budget / 4;
-    let mut records: Vec<OctaveRecord> = Vec::new();
-    let mut candidates: Vec<Candidate> = Vec::new();
     let pool = PlanePool::default();
-    let mut octave = first_octave(image, options);
-    while octave_is_usable(octave.base.width, octave.base.height) {
-        let (w, h) = (octave.base.width, octave.base.height);
-        let bands = space.bands(w, h);
-        let keep: Vec<bool> = bands
-            .iter()
-            .map(|band| {
-                let bytes = (layers + 1) * w * band.rows.len() * std::mem::size_of::<f32>();
-                let fits = keep_layers && bytes <= keep_budget;
-                if fits {
-                    keep_budget -= bytes;
-                }
-                fits
-            })
-            .collect();
-        let (next_w, next_h) = (w / 2, h / 2);
-        let slot = records.len();
-        let per_band: Vec<BandResult> = bands
-            .par_iter()
-            .enumerate()
-            .map(|(b, band)| {
-                let space = &space;
-                let mut stack = space.stack(&octave.base, band, layers + 3, &pool);
-                let last = !octave_is_usable(next_w, next_h);
-                let found: Vec<Candidate> = find_extrema(&stack, band, h, last, &tests)
-                    .into_par_iter()
-                    .flat_map_iter(|e| {
-                        let space = &space;
-                        let step = octave.step();
-                        let x = e.x * step + 0.5;
-                        let y = e.y * step + 0.5;
-                        let allowed = mask.is_none_or(|m| m.allows(x, y));
-                        // Orientation and descriptor windows scale with the layer's σ (Lowe's
-                        // convention); `Keypoint::scale` reports the blob's σ, half a layer up
-                        // (the DoG between two layers peaks there).
-                        let sigma = space.layer_sigma(e.s);
-                        let layer = &stack.gauss[e.layer];
-                        let angles = match (allowed, options.orientation) {
-                            (false, _) => Vec::new(),
-                            (true, Orientation::Upright) => vec![0.0],
-                            (true, Orientation::Dominant { peak_ratio }) => orientations(
-                                layer,
-                                e.x,
-                                e.y - stack.row0 as f64,
-                                sigma,
-                                peak_ratio as f32,
-                            ),
-                        };
-                        angles.into_iter().map(move |angle| Candidate {
-                            keypoint: Keypoint {
-                                x,
-                                y,
-                                scale: space.layer_sigma(e.s + 0.5) * step,
-                                orientation: angle as f64,
-                                response: e.contrast as f32,
-                                octave: octave.index as i16,
-                            },
-                            octave: slot,
-                            s: e.s,
-                            row: e.row,
-                            band: b,
-                            layer: e.layer,
-                            x: e.x,
-                            y: e.y,
-                            sigma,
-                        })
-                    })
-                    .collect();
-                let next = space.decimate_core(&stack, band, next_h);
-                let kept = keep[b].then(|| stack.gauss.drain(1..=layers + 1).collect());
-                stack.recycle(&pool);
-                BandResult {
-                    found,
-                    next_rows: next,
-                    kept,
-                }
-            })
-            .collect();
-        let mut next = Plane {
-            width: next_w,
-            height: next_h,
-            data: Vec::with_capacity(next_w * next_h),
-        };
-        let mut kept = Vec::with_capacity(bands.len());
-        for result in per_band {
-            candidates.extend(result.found);
-            next.data.extend(result.next_rows);
-            kept.push(result.kept);
-        }
-        let next_index = octave.index + 1;
-        records.push(OctaveRecord {
-            octave,
-            bands,
-            kept,
-        });
-        octave = Octave {
-            index: next_index,
-            base: next,
-        };
+    let detection = Detection {
+        space: &space,
+        tests: ExtremumTests {
+            layers,
+            prefilter: (0.5 * options.contrast_threshold / layers as f64) as f32,
+            contrast: options.contrast_threshold,
+            edge_ratio: options.edge_ratio,
+        },
+        mask,
+        options,
+        pool: &pool,
+    };
+    let (records, mut candidates) = detection.detect_octaves(image, describer.width() > 0);
+    deduplicate_and_order(&mut candidates, &records, layers);
+    let selected = select(&candidates, options, width, height);
+    let keypoints: Vec<Keypoint> = selected.iter().map(|&i| candidates[i].keypoint).collect();
+    let descriptor_width = describer.width();
+    let mut descriptors = vec![D::Elem::default(); selected.len() * descriptor_width];
+    if descriptor_width == 0 || selected.is_empty() {
+        return Ok((keypoints, descriptors));
     }
-    // Refinement can lead two starting samples to the same keypoint.
+    let description = Description {
+        space: &space,
+        pool: &pool,
+        records: &records,
+        candidates: &candidates,
+        describer,
+    };
+    description.describe(&selected, &mut descriptors);
+    Ok((keypoints, descriptors))
+}
+
+/// What the detection pass reads in every octave and band.
+struct Detection<'a> {
+    space: &'a ScaleSpace,
+    tests: ExtremumTests,
+    mask: Option<&'a Mask<'a>>,
+    options: &'a DetectorOptions,
+    pool: &'a PlanePool,
+}
+
+impl Detection<'_> {
+    /// Detects in every usable octave: each octave's record (with the Gaussian layers kept for
+    /// description, when `keep_layers` and they fit in a quarter of the memory budget) and the
+    /// candidates of all octaves, octave by octave and band by band.
+    fn detect_octaves(
+        &self,
+        image: &GreyImage,
+        keep_layers: bool,
+    ) -> (Vec<OctaveRecord>, Vec<Candidate>) {
+        // A quarter of the budget keeps finished bands' layers; detection bands get half (see
+        // `ScaleSpace::bands`); the rest is headroom for the recomputation in the description
+        // pass.
+        let mut keep_budget = self.options.memory_budget / 4;
+        let mut records: Vec<OctaveRecord> = Vec::new();
+        let mut candidates: Vec<Candidate> = Vec::new();
+        let mut octave = first_octave(image, self.options);
+        while octave_is_usable(octave.base.width, octave.base.height) {
+            let (w, h) = (octave.base.width, octave.base.height);
+            let bands = self.space.bands(w, h);
+            let keep = bands_to_keep(&bands, w, self.space.layers, keep_layers, &mut keep_budget);
+            let (next_w, next_h) = (w / 2, h / 2);
+            let slot = records.len();
+            let per_band: Vec<BandResult> = bands
+                .par_iter()
+                .enumerate()
+                .map(|(b, band)| self.detect_band(&octave, slot, b, band, keep[b]))
+                .collect();
+            let mut next = Plane {
+                width: next_w,
+                height: next_h,
+                data: Vec::with_capacity(next_w * next_h),
+            };
+            let mut kept = Vec::with_capacity(bands.len());
+            for result in per_band {
+                candidates.extend(result.found);
+                next.data.extend(result.next_rows);
+                kept.push(result.kept);
+            }
+            let next_index = octave.index + 1;
+            records.push(OctaveRecord {
+                octave,
+                bands,
+                kept,
+            });
+            octave = Octave {
+                index: next_index,
+                base: next,
+            };
+        }
+        (records, candidates)
+    }
+
+    /// Detection in band `b` of `octave` (record `slot`): its candidates, its rows of the next
+    /// octave's base and, when `keep`, its Gaussian layers 1 ..= L + 1.
+    fn detect_band(
+        &self,
+        octave: &Octave,
+        slot: usize,
+        b: usize,
+        band: &Band,
+        keep: bool,
+    ) -> BandResult {
+        let layers = self.space.layers;
+        let (w, h) = (octave.base.width, octave.base.height);
+        let (next_w, next_h) = (w / 2, h / 2);
+        let mut stack = self.space.stack(&octave.base, band, layers + 3, self.pool);
+        let last = !octave_is_usable(next_w, next_h);
+        let found: Vec<Candidate> = find_extrema(&stack, band, h, last, &self.tests)
+            .into_par_iter()
+            .flat_map_iter(|e| self.candidates_of(e, octave, &stack, slot, b))
+            .collect();
+        let next = self.space.decimate_core(&stack, band, next_h);
+        let kept = keep.then(|| stack.gauss.drain(1..=layers + 1).collect());
+        stack.recycle(self.pool);
+        BandResult {
+            found,
+            next_rows: next,
+            kept,
+        }
+    }
+
+    /// The candidates of extremum `e` of band `b`: one per orientation, none outside the mask.
+    fn candidates_of(
+        &self,
+        e: Extremum,
+        octave: &Octave,
+        stack: &BandStack,
+        slot: usize,
+        b: usize,
+    ) -> impl Iterator<Item = Candidate> {
+        let space = self.space;
+        let step = octave.step();
+        let x = e.x * step + 0.5;
+        let y = e.y * step + 0.5;
+        let allowed = self.mask.is_none_or(|m| m.allows(x, y));
+        // Orientation and descriptor windows scale with the layer's σ (Lowe's convention);
+        // `Keypoint::scale` reports the blob's σ, half a layer up (the DoG between two layers
+        // peaks there).
+        let sigma = space.layer_sigma(e.s);
+        let layer = &stack.gauss[e.layer];
+        let angles = match (allowed, self.options.orientation) {
+            (false, _) => Vec::new(),
+            (true, Orientation::Upright) => vec![0.0],
+            (true, Orientation::Dominant { peak_ratio }) => orientations(
+                layer,
+                e.x,
+                e.y - stack.row0 as f64,
+                sigma,
+                peak_ratio as f32,
+            ),
+        };
+        let octave_index = octave.index;
+        angles.into_iter().map(move |angle| Candidate {
+            keypoint: Keypoint {
+                x,
+                y,
+                scale: space.layer_sigma(e.s + 0.5) * step,
+                orientation: angle as f64,
+                response: e.contrast as f32,
+                octave: octave_index as i16,
+            },
+            octave: slot,
+            s: e.s,
+            row: e.row,
+            band: b,
+            layer: e.layer,
+            x: e.x,
+            y: e.y,
+            sigma,
+        })
+    }
+}
+
+/// Which of an octave's bands (`width` columns) keep their Gaussian layers for description: in
+/// band order, each whose layers fit in what is left of `keep_budget`, which it then takes.
+fn bands_to_keep(
+    bands: &[Band],
+    width: usize,
+    layers: usize,
+    keep_layers: bool,
+    keep_budget: &mut usize,
+) -> Vec<bool> {
+    bands
+        .iter()
+        .map(|band| {
+            let bytes = (layers + 1) * width * band.rows.len() * std::mem::size_of::<f32>();
+            let fits = keep_layers && bytes <= *keep_budget;
+            if fits {
+                *keep_budget -= bytes;
+            }
+            fits
+        })
+        .collect()
+}
+
+/// Removes the candidates found twice (refinement can lead two starting samples to the same
+/// keypoint; two octaves can both keep a blob), then sorts them into one order whatever the
+/// bands: a band also lists extrema that started beyond its core, so the order of discovery
+/// depends on where bands begin.
+fn deduplicate_and_order(candidates: &mut Vec<Candidate>, records: &[OctaveRecord], layers: usize) {
     let mut seen = HashSet::new();
     candidates.retain(|c| {
         let k = &c.keypoint;
@@ -225,9 +315,7 @@ pub(crate) fn extract<D: Describer>(
             k.orientation.to_bits(),
         ))
     });
-    drop_octave_duplicates(&mut candidates, &records, layers);
-    // One order whatever the bands: a band also lists extrema that started beyond its core, so
-    // the order of discovery depends on where bands begin.
+    drop_octave_duplicates(candidates, records, layers);
     candidates.sort_by(|a, b| {
         (a.octave, a.row, a.layer)
             .cmp(&(b.octave, b.row, b.layer))
@@ -236,7 +324,17 @@ pub(crate) fn extract<D: Describer>(
             .then(a.s.total_cmp(&b.s))
             .then(a.keypoint.orientation.total_cmp(&b.keypoint.orientation))
     });
-    let selected: Vec<usize> = match options.limit {
+}
+
+/// Indices of the candidates the keypoint budget keeps, in the order it took them (all of them,
+/// in order, without a limit).
+fn select(
+    candidates: &[Candidate],
+    options: &DetectorOptions,
+    width: usize,
+    height: usize,
+) -> Vec<usize> {
+    match options.limit {
         Some(limit) => {
             let points: Vec<(f64, f64, f32)> = candidates
                 .iter()
@@ -245,61 +343,85 @@ pub(crate) fn extract<D: Describer>(
             select_spread(&points, width, height, limit.max, limit.cells, limit.spread)
         }
         None => (0..candidates.len()).collect(),
-    };
-    let keypoints: Vec<Keypoint> = selected.iter().map(|&i| candidates[i].keypoint).collect();
-    let descriptor_width = describer.width();
-    let mut descriptors = vec![D::Elem::default(); selected.len() * descriptor_width];
-    if descriptor_width == 0 || selected.is_empty() {
-        return Ok((keypoints, descriptors));
     }
-    let mut groups: BTreeMap<(usize, usize), Vec<(usize, usize)>> = BTreeMap::new();
-    for (slot, &i) in selected.iter().enumerate() {
-        let c = &candidates[i];
-        groups
-            .entry((c.octave, c.band))
-            .or_default()
-            .push((slot, i));
-    }
-    let groups: Vec<BandMembers> = groups.into_iter().collect();
-    let described: Vec<(Vec<usize>, Vec<D::Elem>)> = groups
-        .par_iter()
-        .map(|((o, b), members)| {
-            let record = &records[*o];
-            let band = &record.bands[*b];
-            let recomputed;
-            let layer_planes: &[Plane] = match &record.kept[*b] {
-                Some(planes) => planes,
-                None => {
-                    let mut stack = space.stack(&record.octave.base, band, layers + 1, &pool);
-                    recomputed = stack.gauss.drain(1..).collect::<Vec<_>>();
-                    stack.recycle(&pool);
-                    &recomputed
-                }
-            };
-            let row0 = band.rows.start as f64;
-            let mut out = vec![D::Elem::default(); members.len() * descriptor_width];
-            out.par_chunks_mut(descriptor_width)
-                .zip(members.par_iter())
-                .for_each(|(dst, &(_, i))| {
-                    let c = &candidates[i];
-                    let local = LocalKeypoint {
-                        x: c.x,
-                        y: c.y - row0,
-                        sigma: c.sigma as f32,
-                        angle: c.keypoint.orientation as f32,
-                    };
-                    describer.describe(&layer_planes[c.layer - 1], &local, dst);
-                });
-            (members.iter().map(|m| m.0).collect(), out)
-        })
-        .collect();
-    for (slots, values) in described {
-        for (slot, value) in slots.iter().zip(values.chunks(descriptor_width)) {
-            descriptors[slot * descriptor_width..(slot + 1) * descriptor_width]
-                .copy_from_slice(value);
+}
+
+/// What the description pass reads: the detection's records and candidates, and how to
+/// recompute the Gaussian layers that were not kept.
+struct Description<'a, D: Describer> {
+    space: &'a ScaleSpace,
+    pool: &'a PlanePool,
+    records: &'a [OctaveRecord],
+    candidates: &'a [Candidate],
+    describer: &'a D,
+}
+
+impl<D: Describer> Description<'_, D> {
+    /// Writes the descriptor of every selected candidate into its slot of `descriptors`,
+    /// describing band by band (each band's layers are at hand once).
+    fn describe(&self, selected: &[usize], descriptors: &mut [D::Elem]) {
+        let descriptor_width = self.describer.width();
+        let mut groups: BTreeMap<(usize, usize), Vec<(usize, usize)>> = BTreeMap::new();
+        for (slot, &i) in selected.iter().enumerate() {
+            let c = &self.candidates[i];
+            groups
+                .entry((c.octave, c.band))
+                .or_default()
+                .push((slot, i));
+        }
+        let groups: Vec<BandMembers> = groups.into_iter().collect();
+        let described: Vec<(Vec<usize>, Vec<D::Elem>)> = groups
+            .par_iter()
+            .map(|((o, b), members)| self.describe_band(*o, *b, members))
+            .collect();
+        for (slots, values) in described {
+            for (slot, value) in slots.iter().zip(values.chunks(descriptor_width)) {
+                descriptors[slot * descriptor_width..(slot + 1) * descriptor_width]
+                    .copy_from_slice(value);
+            }
         }
     }
-    Ok((keypoints, descriptors))
+
+    /// The output slots of `members` (of band `b` of octave record `o`) and their descriptors,
+    /// from the band's kept Gaussian layers or layers recomputed for it.
+    fn describe_band(
+        &self,
+        o: usize,
+        b: usize,
+        members: &[(usize, usize)],
+    ) -> (Vec<usize>, Vec<D::Elem>) {
+        let descriptor_width = self.describer.width();
+        let record = &self.records[o];
+        let band = &record.bands[b];
+        let recomputed;
+        let layer_planes: &[Plane] = match &record.kept[b] {
+            Some(planes) => planes,
+            None => {
+                let mut stack =
+                    self.space
+                        .stack(&record.octave.base, band, self.space.layers + 1, self.pool);
+                recomputed = stack.gauss.drain(1..).collect::<Vec<_>>();
+                stack.recycle(self.pool);
+                &recomputed
+            }
+        };
+        let row0 = band.rows.start as f64;
+        let mut out = vec![D::Elem::default(); members.len() * descriptor_width];
+        out.par_chunks_mut(descriptor_width)
+            .zip(members.par_iter())
+            .for_each(|(dst, &(_, i))| {
+                let c = &self.candidates[i];
+                let local = LocalKeypoint {
+                    x: c.x,
+                    y: c.y - row0,
+                    sigma: c.sigma as f32,
+                    angle: c.keypoint.orientation as f32,
+                };
+                self.describer
+                    .describe(&layer_planes[c.layer - 1], &local, dst);
+            });
+        (members.iter().map(|m| m.0).collect(), out)
+    }
 }
 
 /// Removes keypoints found twice, by the top layers of one octave and the bottom layers of the

@@ -78,89 +78,23 @@ pub fn read(path: &Path, kind: DescriptorKind) -> Result<Features, FeatureError>
     let (_, header) = lines
         .next()
         .ok_or_else(|| error(1, "empty file, expected the header `N D`".into()))?;
-    let fields: Vec<&str> = header.split_whitespace().collect();
-    let parse_count = |s: &str| s.parse::<usize>().ok();
-    let (n, d) = match fields.as_slice() {
-        [n, d] => match (parse_count(n), parse_count(d)) {
-            (Some(n), Some(d)) => (n, d),
-            _ => {
-                return Err(error(
-                    1,
-                    format!("header `{header}` is not two counts `N D`"),
-                ));
-            }
-        },
-        _ => {
-            return Err(error(
-                1,
-                format!("header `{header}` is not two counts `N D`"),
-            ));
-        }
-    };
-    if d == 0 {
-        return Err(error(
-            1,
-            "descriptor length D is 0; expected at least 1".into(),
-        ));
-    }
-    let Some(values_per_line) = d.checked_add(4) else {
-        return Err(error(1, format!("descriptor length {d} is not plausible")));
-    };
+    let header = Header::parse(header, &error)?;
+    let n = header.n;
     // Capacity from what the file can hold, not from what the header claims.
-    let mut keypoints = Vec::with_capacity(n.min(text.len() / 8 + 1));
-    let mut floats = Vec::new();
-    let mut bytes = Vec::new();
+    let mut values = Values {
+        keypoints: Vec::with_capacity(n.min(text.len() / 8 + 1)),
+        floats: Vec::new(),
+        bytes: Vec::new(),
+    };
     for (number, line) in lines.by_ref().take(n) {
-        let fields: Vec<&str> = line.split_whitespace().collect();
-        if fields.len() != values_per_line {
-            return Err(error(
-                number,
-                format!(
-                    "expected {values_per_line} values (x y scale orientation + {d}), found {}",
-                    fields.len()
-                ),
-            ));
-        }
-        let mut geometry = [0.0f64; 4];
-        for (g, f) in geometry.iter_mut().zip(&fields[..4]) {
-            *g = f
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| error(number, format!("`{f}` is not a finite number")))?;
-        }
-        keypoints.push(Keypoint {
-            x: geometry[0],
-            y: geometry[1],
-            scale: geometry[2],
-            orientation: geometry[3],
-            response: 0.0,
-            octave: 0,
-        });
-        for f in &fields[4..] {
-            match kind {
-                DescriptorKind::Float => {
-                    floats.push(f.parse::<f32>().ok().filter(|v| v.is_finite()).ok_or_else(
-                        || {
-                            error(
-                                number,
-                                format!("descriptor value `{f}` is not a finite number"),
-                            )
-                        },
-                    )?)
-                }
-                DescriptorKind::Binary => bytes.push(f.parse::<u8>().map_err(|_| {
-                    error(number, format!("descriptor byte `{f}` is not in 0–255"))
-                })?),
-            }
-        }
+        values.push_line(number, line, &header, kind, &error)?;
     }
-    if keypoints.len() != n {
+    if values.keypoints.len() != n {
         return Err(error(
-            keypoints.len() + 2,
+            values.keypoints.len() + 2,
             format!(
                 "file ends after {} keypoints, header announced {n}",
-                keypoints.len()
+                values.keypoints.len()
             ),
         ));
     }
@@ -173,18 +107,139 @@ pub fn read(path: &Path, kind: DescriptorKind) -> Result<Features, FeatureError>
             ),
         ));
     }
-    let descriptors = match kind {
-        DescriptorKind::Float => Descriptors::Float {
-            dim: d,
-            data: floats,
-        },
-        DescriptorKind::Binary => Descriptors::Binary {
-            bytes: d,
-            data: bytes,
-        },
-    };
-    Ok(Features {
-        keypoints,
-        descriptors,
-    })
+    Ok(values.into_features(header.d, kind))
+}
+
+/// An error at a line of the file being read, with its message.
+type LineError<'a> = dyn Fn(usize, String) -> FeatureError + 'a;
+
+/// The header line `N D` of a feature file.
+struct Header {
+    /// Keypoints.
+    n: usize,
+    /// Descriptor length.
+    d: usize,
+    /// Values on a keypoint line: geometry and descriptor.
+    values_per_line: usize,
+}
+
+impl Header {
+    /// The header in `line` (line 1), or the error that says what is wrong with it.
+    fn parse(line: &str, error: &LineError) -> Result<Header, FeatureError> {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        let parse_count = |s: &str| s.parse::<usize>().ok();
+        let (n, d) = match fields.as_slice() {
+            [n, d] => match (parse_count(n), parse_count(d)) {
+                (Some(n), Some(d)) => (n, d),
+                _ => {
+                    return Err(error(1, format!("header `{line}` is not two counts `N D`")));
+                }
+            },
+            _ => {
+                return Err(error(1, format!("header `{line}` is not two counts `N D`")));
+            }
+        };
+        if d == 0 {
+            return Err(error(
+                1,
+                "descriptor length D is 0; expected at least 1".into(),
+            ));
+        }
+        let Some(values_per_line) = d.checked_add(4) else {
+            return Err(error(1, format!("descriptor length {d} is not plausible")));
+        };
+        Ok(Header {
+            n,
+            d,
+            values_per_line,
+        })
+    }
+}
+
+/// The keypoints and descriptor values read so far (floats or bytes, as the reader expects).
+struct Values {
+    keypoints: Vec<Keypoint>,
+    floats: Vec<f32>,
+    bytes: Vec<u8>,
+}
+
+impl Values {
+    /// Reads keypoint line `number`: its geometry and its descriptor values of `kind`.
+    fn push_line(
+        &mut self,
+        number: usize,
+        line: &str,
+        header: &Header,
+        kind: DescriptorKind,
+        error: &LineError,
+    ) -> Result<(), FeatureError> {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        if fields.len() != header.values_per_line {
+            return Err(error(
+                number,
+                format!(
+                    "expected {} values (x y scale orientation + {}), found {}",
+                    header.values_per_line,
+                    header.d,
+                    fields.len()
+                ),
+            ));
+        }
+        let mut geometry = [0.0f64; 4];
+        for (g, f) in geometry.iter_mut().zip(&fields[..4]) {
+            *g = f
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| error(number, format!("`{f}` is not a finite number")))?;
+        }
+        self.keypoints.push(Keypoint {
+            x: geometry[0],
+            y: geometry[1],
+            scale: geometry[2],
+            orientation: geometry[3],
+            response: 0.0,
+            octave: 0,
+        });
+        for f in &fields[4..] {
+            match kind {
+                DescriptorKind::Float => {
+                    self.floats
+                        .push(
+                            f.parse::<f32>()
+                                .ok()
+                                .filter(|v| v.is_finite())
+                                .ok_or_else(|| {
+                                    error(
+                                        number,
+                                        format!("descriptor value `{f}` is not a finite number"),
+                                    )
+                                })?,
+                        )
+                }
+                DescriptorKind::Binary => self.bytes.push(f.parse::<u8>().map_err(|_| {
+                    error(number, format!("descriptor byte `{f}` is not in 0–255"))
+                })?),
+            }
+        }
+        Ok(())
+    }
+
+    /// The features read, with descriptors of length `d` and `kind`.
+    fn into_features(self, d: usize, kind: DescriptorKind) -> Features {
+        let descriptors = match kind {
+            DescriptorKind::Float => Descriptors::Float {
+                dim: d,
+                data: self.floats,
+            },
+            DescriptorKind::Binary => Descriptors::Binary {
+                bytes: d,
+                data: self.bytes,
+            },
+        };
+        Features {
+            keypoints: self.keypoints,
+            descriptors,
+        }
+    }
 }
