@@ -143,6 +143,96 @@ pub fn orient_scan(
     options: &MeasureOptions,
 ) -> Result<ScanOrientation, FilmError> {
     options.validate()?;
+    let radius = search_radius(scan, frame, template, given, options)?;
+    let n_marks = frame.marks().len();
+    let search = MarkSearch {
+        scan,
+        frame,
+        template,
+        given,
+        options,
+        frame_px: (0..n_marks).map(|k| frame.mark_px(k)).collect(),
+        radius,
+        grey: GreyRaster::luminance(scan),
+    };
+    let (coarse, f) = search.coarse_marks()?;
+
+    // The similarity most marks agree with.
+    let tolerance = 3.0 * f;
+    let mut warnings = Vec::new();
+    let similarity = match search.agreed_similarity(&coarse, tolerance) {
+        Some(s) => s,
+        None => {
+            warnings.push(
+                "fewer than two marks agree on where the frame lies: searched around the scan's \
+                 centre only"
+                    .to_string(),
+            );
+            search.centred_similarity()?
+        }
+    };
+
+    // Fine: every mark refined where the similarity puts it.
+    let mut marks = search.refine_marks(&coarse, &similarity, tolerance);
+    for m in &marks {
+        if m.status == MarkStatus::NotFound {
+            warnings.push(format!(
+                "mark {} not found (correlation {:.2} < {})",
+                frame.marks()[m.mark].name,
+                m.correlation,
+                options.min_correlation
+            ));
+        }
+    }
+
+    // The interior orientation, the worst mark rejected while it stands out.
+    let transform = search.fit_rejecting_worst(&mut marks)?;
+    let used: Vec<&MarkMeasurement> = marks
+        .iter()
+        .filter(|m| matches!(m.status, MarkStatus::Measured | MarkStatus::Given))
+        .collect();
+    let rms_px = (used
+        .iter()
+        .map(|m| m.residual_px.unwrap_or(0.0).powi(2))
+        .sum::<f64>()
+        / used.len() as f64)
+        .sqrt();
+    push_residual_warnings(&marks, frame, options, &mut warnings);
+    if transform.model() == TransformModel::Similarity {
+        warnings.push(format!(
+            "only {} marks: a similarity, without the scan's shear and differential scale",
+            used.len()
+        ));
+    }
+    let centre = Vector2::new(0.5 * frame.width() as f64, 0.5 * frame.height() as f64);
+    let scales = transform.scales_at(&centre);
+    if (scales.0 - 1.0).abs() > options.scale_tolerance
+        || (scales.1 - 1.0).abs() > options.scale_tolerance
+    {
+        warnings.push(format!(
+            "the scan's scale is {:.4}–{:.4} × the certificate's: pixel_mm or the fiducial \
+             coordinates disagree with the scan",
+            scales.1, scales.0
+        ));
+    }
+    Ok(ScanOrientation {
+        marks,
+        transform,
+        rms_px,
+        scales,
+        warnings,
+    })
+}
+
+/// The radius of the search around a mark's nominal position, scan pixels, once the scan, the
+/// template and the given marks are checked against the frame.
+fn search_radius(
+    scan: &ImageView<'_>,
+    frame: &FilmFrame,
+    template: &Template,
+    given: &[(usize, Vector2<f64>)],
+    options: &MeasureOptions,
+) -> Result<f64, FilmError> {
     let (sw, sh) = (scan.width() as f64, scan.height() as f64);
     let (fw, fh) = (frame.width() as f64, frame.height() as f64);
     // Marks at the frame's edges reach half a template beyond it.
@@ -168,238 +258,294 @@ pub fn orient_scan(
             frame.marks().len()
         )));
     }
-    let n_marks = frame.marks().len();
-    let frame_px: Vec<Vector2<f64>> = (0..n_marks).map(|k| frame.mark_px(k)).collect();
-    let nominal = |p: &Vector2<f64>| p + Vector2::new(0.5 * (sw - fw), 0.5 * (sh - fh));
-    let given_at = |k: usize| given.iter().find(|(m, _)| *m == k).map(|(_, p)| *p);
+    Ok(radius)
+}
 
-    // Coarse: a reduced scan where the template keeps ten pixels or more.
-    let grey = GreyRaster::luminance(scan);
-    let mut factor = 1;
-    while factor < 16
-        && template.width().min(template.height()) / (2 * factor) >= 10
-        && radius / (2 * factor) as f64 >= 8.0
-    {
-        factor *= 2;
+/// What the search for one scan's marks reads.
+struct MarkSearch<'a> {
+    scan: &'a ImageView<'a>,
+    frame: &'a FilmFrame,
+    template: &'a Template,
+    given: &'a [(usize, Vector2<f64>)],
+    options: &'a MeasureOptions,
+    /// Every mark's position in the frame, pixels.
+    frame_px: Vec<Vector2<f64>>,
+    /// Radius of the coarse search, scan pixels.
+    radius: f64,
+    /// The scan's luminance.
+    grey: GreyRaster,
+}
+
+/// A mark's coarse position in the scan and its correlation; `None` when not found.
+type CoarseMark = Option<(Vector2<f64>, f64)>;
+
+impl MarkSearch<'_> {
+    /// The position of mark `k` measured by hand, if it was.
+    fn given_at(&self, k: usize) -> Option<Vector2<f64>> {
+        self.given.iter().find(|(m, _)| *m == k).map(|(_, p)| *p)
     }
-    let (coarse_scan, coarse_template) = if factor > 1 {
-        (grey.reduced(factor), template.reduced(factor)?)
-    } else {
-        (grey.clone(), template.clone())
-    };
-    let f = factor as f64;
-    // The reduced template covers whole blocks of the template: its centre lies this far from
-    // the full template's centre.
-    let reduction_offset = Vector2::new(
-        0.5 * (template.width() - coarse_template.width() * factor) as f64,
-        0.5 * (template.height() - coarse_template.height() * factor) as f64,
-    );
-    let coarse: Vec<Option<(Vector2<f64>, f64)>> = (0..n_marks)
-        .map(|k| {
-            if let Some(p) = given_at(k) {
-                return Some((p, 1.0));
-            }
-            let peak = ncc_search(
-                &coarse_scan,
-                &coarse_template,
-                &(nominal(&frame_px[k]) / f),
-                radius / f,
-            )?;
-            // At whole pixels a fine mark correlates less than it will once refined.
-            (peak.correlation >= 0.5 * options.min_correlation)
-                .then(|| (peak.centre * f + reduction_offset, peak.correlation))
-        })
-        .collect();
 
-    // The similarity most marks agree with.
-    let tolerance = 3.0 * f;
-    let candidates: Vec<usize> = (0..n_marks).filter(|&k| coarse[k].is_some()).collect();
-    let position = |k: usize| coarse[k].map(|c| c.0).unwrap_or_default();
-    let mut similarity = None;
-    let mut best = (0usize, f64::INFINITY);
-    for (a, &i) in candidates.iter().enumerate() {
-        for &j in &candidates[a + 1..] {
-            let Ok(s) = ScanTransform::fit(
-                TransformModel::Similarity,
-                &[frame_px[i], frame_px[j]],
-                &[position(i), position(j)],
-            ) else {
-                continue;
-            };
-            // A scan is not rescaled by more than the tolerance allowed for the certificate.
-            let (big, small) = s.scales_at(&frame_px[i]);
-            if big > 1.0 + 5.0 * options.scale_tolerance
-                || small < 1.0 - 5.0 * options.scale_tolerance
-            {
-                continue;
-            }
-            let (mut count, mut sum) = (0, 0.0);
-            for &k in &candidates {
-                let d = (s.scan_from_frame(&frame_px[k]) - position(k)).norm();
-                if d < tolerance {
-                    count += 1;
-                    sum += d;
+    /// Where the frame centred on the scan puts frame pixel `p`.
+    fn nominal(&self, p: &Vector2<f64>) -> Vector2<f64> {
+        let (sw, sh) = (self.scan.width() as f64, self.scan.height() as f64);
+        let (fw, fh) = (self.frame.width() as f64, self.frame.height() as f64);
+        p + Vector2::new(0.5 * (sw - fw), 0.5 * (sh - fh))
+    }
+
+    /// Every mark's coarse position (given marks as they are), searched around its nominal
+    /// position on a reduced scan where the template keeps ten pixels or more; with the
+    /// reduction factor.
+    fn coarse_marks(&self) -> Result<(Vec<CoarseMark>, f64), FilmError> {
+        let (template, radius) = (self.template, self.radius);
+        let mut factor = 1;
+        while factor < 16
+            && template.width().min(template.height()) / (2 * factor) >= 10
+            && radius / (2 * factor) as f64 >= 8.0
+        {
+            factor *= 2;
+        }
+        let (coarse_scan, coarse_template) = if factor > 1 {
+            (self.grey.reduced(factor), template.reduced(factor)?)
+        } else {
+            (self.grey.clone(), template.clone())
+        };
+        let f = factor as f64;
+        // The reduced template covers whole blocks of the template: its centre lies this far
+        // from the full template's centre.
+        let reduction_offset = Vector2::new(
+            0.5 * (template.width() - coarse_template.width() * factor) as f64,
+            0.5 * (template.height() - coarse_template.height() * factor) as f64,
+        );
+        let coarse = (0..self.frame_px.len())
+            .map(|k| {
+                if let Some(p) = self.given_at(k) {
+                    return Some((p, 1.0));
+                }
+                let peak = ncc_search(
+                    &coarse_scan,
+                    &coarse_template,
+                    &(self.nominal(&self.frame_px[k]) / f),
+                    radius / f,
+                )?;
+                // At whole pixels a fine mark correlates less than it will once refined.
+                (peak.correlation >= 0.5 * self.options.min_correlation)
+                    .then(|| (peak.centre * f + reduction_offset, peak.correlation))
+            })
+            .collect();
+        Ok((coarse, f))
+    }
+
+    /// The similarity most coarse marks agree with (within `tolerance`), refitted to them;
+    /// `None` when fewer than two agree.
+    fn agreed_similarity(&self, coarse: &[CoarseMark], tolerance: f64) -> Option<ScanTransform> {
+        let frame_px = &self.frame_px;
+        let candidates: Vec<usize> = (0..frame_px.len())
+            .filter(|&k| coarse[k].is_some())
+            .collect();
+        let position = |k: usize| coarse[k].map(|c| c.0).unwrap_or_default();
+        let s = self.best_pair_similarity(&candidates, &position, tolerance)?;
+        let inliers: Vec<usize> = candidates
+            .iter()
+            .copied()
+            .filter(|&k| (s.scan_from_frame(&frame_px[k]) - position(k)).norm() < tolerance)
+            .collect();
+        let f_in: Vec<_> = inliers.iter().map(|&k| frame_px[k]).collect();
+        let s_in: Vec<_> = inliers.iter().map(|&k| position(k)).collect();
+        Some(ScanTransform::fit(TransformModel::Similarity, &f_in, &s_in).unwrap_or(s))
+    }
+
+    /// Of the similarities through two of the `candidates` marks (at `position`) that do not
+    /// rescale the scan beyond the tolerance, the one most marks lie within `tolerance` of
+    /// (the smaller sum of their distances breaking ties).
+    fn best_pair_similarity(
+        &self,
+        candidates: &[usize],
+        position: &dyn Fn(usize) -> Vector2<f64>,
+        tolerance: f64,
+    ) -> Option<ScanTransform> {
+        let (frame_px, options) = (&self.frame_px, self.options);
+        let mut similarity = None;
+        let mut best = (0usize, f64::INFINITY);
+        for (a, &i) in candidates.iter().enumerate() {
+            for &j in &candidates[a + 1..] {
+                let Ok(s) = ScanTransform::fit(
+                    TransformModel::Similarity,
+                    &[frame_px[i], frame_px[j]],
+                    &[position(i), position(j)],
+                ) else {
+                    continue;
+                };
+                // A scan is not rescaled by more than the tolerance allowed for the certificate.
+                let (big, small) = s.scales_at(&frame_px[i]);
+                if big > 1.0 + 5.0 * options.scale_tolerance
+                    || small < 1.0 - 5.0 * options.scale_tolerance
+                {
+                    continue;
+                }
+                let (mut count, mut sum) = (0, 0.0);
+                for &k in candidates {
+                    let d = (s.scan_from_frame(&frame_px[k]) - position(k)).norm();
+                    if d < tolerance {
+                        count += 1;
+                        sum += d;
+                    }
+                }
+                if count > best.0 || (count == best.0 && sum < best.1) {
+                    best = (count, sum);
+                    similarity = Some(s);
                 }
             }
-            if count > best.0 || (count == best.0 && sum < best.1) {
-                best = (count, sum);
-                similarity = Some(s);
-            }
         }
+        similarity
     }
-    let mut warnings = Vec::new();
-    let similarity = match similarity {
-        Some(s) => {
-            let inliers: Vec<usize> = candidates
-                .iter()
-                .copied()
-                .filter(|&k| (s.scan_from_frame(&frame_px[k]) - position(k)).norm() < tolerance)
-                .collect();
-            let f_in: Vec<_> = inliers.iter().map(|&k| frame_px[k]).collect();
-            let s_in: Vec<_> = inliers.iter().map(|&k| position(k)).collect();
-            ScanTransform::fit(TransformModel::Similarity, &f_in, &s_in).unwrap_or(s)
-        }
-        None => {
-            warnings.push(
-                "fewer than two marks agree on where the frame lies: searched around the scan's \
-                 centre only"
-                    .to_string(),
-            );
-            ScanTransform::from_matrix(
-                TransformModel::Similarity,
-                nalgebra::Matrix3::new(
-                    1.0,
-                    0.0,
-                    0.5 * (sw - fw),
-                    0.0,
-                    1.0,
-                    0.5 * (sh - fh),
-                    0.0,
-                    0.0,
-                    1.0,
-                ),
-            )?
-        }
-    };
-    let m = similarity.scan_from_frame_matrix();
-    let linear = Matrix2::new(m[(0, 0)], m[(0, 1)], m[(1, 0)], m[(1, 1)]);
 
-    // Fine: every mark refined where the similarity puts it.
-    let local_radius = tolerance + 4.0;
-    let mut marks: Vec<MarkMeasurement> = (0..n_marks)
-        .map(|k| {
-            if let Some(p) = given_at(k) {
-                return MarkMeasurement {
-                    mark: k,
-                    scan_px: Some(p),
-                    correlation: 1.0,
-                    residual_px: None,
-                    status: MarkStatus::Given,
+    /// The frame centred on the scan, unscaled: the similarity when the marks agree on none.
+    fn centred_similarity(&self) -> Result<ScanTransform, FilmError> {
+        let (sw, sh) = (self.scan.width() as f64, self.scan.height() as f64);
+        let (fw, fh) = (self.frame.width() as f64, self.frame.height() as f64);
+        ScanTransform::from_matrix(
+            TransformModel::Similarity,
+            nalgebra::Matrix3::new(
+                1.0,
+                0.0,
+                0.5 * (sw - fw),
+                0.0,
+                1.0,
+                0.5 * (sh - fh),
+                0.0,
+                0.0,
+                1.0,
+            ),
+        )
+    }
+
+    /// Every mark refined by least-squares matching where `similarity` puts it, from its coarse
+    /// position when that agrees (within `tolerance`), else from a search around the prediction.
+    fn refine_marks(
+        &self,
+        coarse: &[CoarseMark],
+        similarity: &ScanTransform,
+        tolerance: f64,
+    ) -> Vec<MarkMeasurement> {
+        let m = similarity.scan_from_frame_matrix();
+        let linear = Matrix2::new(m[(0, 0)], m[(0, 1)], m[(1, 0)], m[(1, 1)]);
+        let local_radius = tolerance + 4.0;
+        let options = self.options;
+        (0..self.frame_px.len())
+            .map(|k| {
+                if let Some(p) = self.given_at(k) {
+                    return MarkMeasurement {
+                        mark: k,
+                        scan_px: Some(p),
+                        correlation: 1.0,
+                        residual_px: None,
+                        status: MarkStatus::Given,
+                    };
+                }
+                let predicted = similarity.scan_from_frame(&self.frame_px[k]);
+                let start = match coarse[k] {
+                    Some((p, _)) if (p - predicted).norm() < tolerance => Some(p),
+                    _ => ncc_search(&self.grey, self.template, &predicted, local_radius)
+                        .filter(|peak| peak.correlation >= 0.5 * options.min_correlation)
+                        .map(|peak| peak.centre),
                 };
-            }
-            let predicted = similarity.scan_from_frame(&frame_px[k]);
-            let start = match coarse[k] {
-                Some((p, _)) if (p - predicted).norm() < tolerance => Some(p),
-                _ => ncc_search(&grey, template, &predicted, local_radius)
-                    .filter(|peak| peak.correlation >= 0.5 * options.min_correlation)
-                    .map(|peak| peak.centre),
-            };
-            let refined = start.and_then(|s| least_squares_match(scan, template, &s, &linear, 3.0));
-            match refined {
-                Some(r) if r.correlation >= options.min_correlation => MarkMeasurement {
-                    mark: k,
-                    scan_px: Some(r.centre),
-                    correlation: r.correlation,
-                    residual_px: None,
-                    status: MarkStatus::Measured,
-                },
-                other => MarkMeasurement {
-                    mark: k,
-                    scan_px: None,
-                    correlation: other.map_or(0.0, |r| r.correlation),
-                    residual_px: None,
-                    status: MarkStatus::NotFound,
-                },
-            }
-        })
-        .collect();
-    for m in &marks {
-        if m.status == MarkStatus::NotFound {
-            warnings.push(format!(
-                "mark {} not found (correlation {:.2} < {})",
-                frame.marks()[m.mark].name,
-                m.correlation,
-                options.min_correlation
-            ));
-        }
+                let refined = start
+                    .and_then(|s| least_squares_match(self.scan, self.template, &s, &linear, 3.0));
+                match refined {
+                    Some(r) if r.correlation >= options.min_correlation => MarkMeasurement {
+                        mark: k,
+                        scan_px: Some(r.centre),
+                        correlation: r.correlation,
+                        residual_px: None,
+                        status: MarkStatus::Measured,
+                    },
+                    other => MarkMeasurement {
+                        mark: k,
+                        scan_px: None,
+                        correlation: other.map_or(0.0, |r| r.correlation),
+                        residual_px: None,
+                        status: MarkStatus::NotFound,
+                    },
+                }
+            })
+            .collect()
     }
 
-    // The interior orientation, the worst mark rejected while it stands out.
-    let model_for = |n: usize| {
-        if options.projective_from_eight && n >= 8 {
+    /// The transform for `n` marks: projective from eight when asked for, affine from three,
+    /// else a similarity.
+    fn model_for(&self, n: usize) -> TransformModel {
+        if self.options.projective_from_eight && n >= 8 {
             TransformModel::Projective
         } else if n >= 3 {
             TransformModel::Affine
         } else {
             TransformModel::Similarity
         }
-    };
-    let transform = loop {
-        let used: Vec<usize> = marks
-            .iter()
-            .filter(|m| matches!(m.status, MarkStatus::Measured | MarkStatus::Given))
-            .map(|m| m.mark)
-            .collect();
-        if used.len() < 2 {
-            return Err(FilmError::TooFewMarks {
-                found: used.len(),
-                needed: 3,
-                model: "affine",
-            });
-        }
-        let model = model_for(used.len());
-        let f_used: Vec<_> = used.iter().map(|&k| frame_px[k]).collect();
-        let s_used: Vec<_> = used
-            .iter()
-            .map(|&k| marks[k].scan_px.unwrap_or_default())
-            .collect();
-        let t = ScanTransform::fit(model, &f_used, &s_used)?;
-        for m in marks.iter_mut() {
-            m.residual_px = m
-                .scan_px
-                .map(|p| (t.scan_from_frame(&frame_px[m.mark]) - p).norm());
-        }
-        let worst = used
-            .iter()
-            .copied()
-            .filter(|&k| marks[k].status == MarkStatus::Measured)
-            .max_by(|&a, &b| {
-                marks[a]
-                    .residual_px
-                    .unwrap_or(0.0)
-                    .total_cmp(&marks[b].residual_px.unwrap_or(0.0))
-            });
-        match worst {
-            Some(k)
-                if marks[k].residual_px.unwrap_or(0.0) > options.max_residual_px
-                    && used.len() > model.min_marks() + 1 =>
-            {
-                marks[k].status = MarkStatus::Rejected;
+    }
+
+    /// The transform fitted to the marks used, after rejecting the worst measured mark while
+    /// its residual exceeds the limit and enough marks remain; every found mark's residual set.
+    fn fit_rejecting_worst(
+        &self,
+        marks: &mut [MarkMeasurement],
+    ) -> Result<ScanTransform, FilmError> {
+        let frame_px = &self.frame_px;
+        loop {
+            let used: Vec<usize> = marks
+                .iter()
+                .filter(|m| matches!(m.status, MarkStatus::Measured | MarkStatus::Given))
+                .map(|m| m.mark)
+                .collect();
+            if used.len() < 2 {
+                return Err(FilmError::TooFewMarks {
+                    found: used.len(),
+                    needed: 3,
+                    model: "affine",
+                });
             }
-            _ => break t,
+            let model = self.model_for(used.len());
+            let f_used: Vec<_> = used.iter().map(|&k| frame_px[k]).collect();
+            let s_used: Vec<_> = used
+                .iter()
+                .map(|&k| marks[k].scan_px.unwrap_or_default())
+                .collect();
+            let t = ScanTransform::fit(model, &f_used, &s_used)?;
+            for m in marks.iter_mut() {
+                m.residual_px = m
+                    .scan_px
+                    .map(|p| (t.scan_from_frame(&frame_px[m.mark]) - p).norm());
+            }
+            let worst = used
+                .iter()
+                .copied()
+                .filter(|&k| marks[k].status == MarkStatus::Measured)
+                .max_by(|&a, &b| {
+                    marks[a]
+                        .residual_px
+                        .unwrap_or(0.0)
+                        .total_cmp(&marks[b].residual_px.unwrap_or(0.0))
+                });
+            match worst {
+                Some(k)
+                    if marks[k].residual_px.unwrap_or(0.0) > self.options.max_residual_px
+                        && used.len() > model.min_marks() + 1 =>
+                {
+                    marks[k].status = MarkStatus::Rejected;
+                }
+                _ => return Ok(t),
+            }
         }
-    };
-    let used: Vec<&MarkMeasurement> = marks
-        .iter()
-        .filter(|m| matches!(m.status, MarkStatus::Measured | MarkStatus::Given))
-        .collect();
-    let rms_px = (used
-        .iter()
-        .map(|m| m.residual_px.unwrap_or(0.0).powi(2))
-        .sum::<f64>()
-        / used.len() as f64)
-        .sqrt();
-    for m in &marks {
+    }
+}
+
+/// Adds a warning for every rejected mark and every used mark whose residual exceeds the limit.
+fn push_residual_warnings(
+    marks: &[MarkMeasurement],
+    frame: &FilmFrame,
+    options: &MeasureOptions,
+    warnings: &mut Vec<String>,
+) {
+    for m in marks {
         let name = &frame.marks()[m.mark].name;
         let r = m.residual_px.unwrap_or(0.0);
         match m.status {
@@ -415,30 +561,6 @@ pub fn orient_scan(
             _ => {}
         }
     }
-    if transform.model() == TransformModel::Similarity {
-        warnings.push(format!(
-            "only {} marks: a similarity, without the scan's shear and differential scale",
-            used.len()
-        ));
-    }
-    let centre = Vector2::new(0.5 * fw, 0.5 * fh);
-    let scales = transform.scales_at(&centre);
-    if (scales.0 - 1.0).abs() > options.scale_tolerance
-        || (scales.1 - 1.0).abs() > options.scale_tolerance
-    {
-        warnings.push(format!(
-            "the scan's scale is {:.4}–{:.4} × the certificate's: pixel_mm or the fiducial \
-             coordinates disagree with the scan",
-            scales.1, scales.0
-        ));
-    }
-    Ok(ScanOrientation {
-        marks,
-        transform,
-        rms_px,
-        scales,
-        warnings,
-    })
 }
 
 #[cfg(test)]

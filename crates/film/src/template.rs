@@ -211,20 +211,22 @@ pub(crate) fn least_squares_match(
             })
         })
         .collect();
-    let values = &template.raster.data;
+    let fit = LsmFit {
+        scan,
+        offsets: &offsets,
+        values: &template.raster.data,
+    };
     let a0 = *scan_from_template;
-    let mut a = a0;
-    let mut t = *start;
     // Brightness: template ≈ r0 + r1 · scan, from a linear regression at the start.
-    let (mut r0, mut r1) = {
-        let samples: Vec<f64> = offsets
-            .iter()
-            .map(|x| {
-                let p = a * x + t;
-                scan.bicubic(p.x, p.y, 0)
-            })
-            .collect();
-        regression(&samples, values)?
+    let (r0, r1) = {
+        let samples: Vec<f64> = offsets.iter().map(|x| fit.sample(&a0, start, x)).collect();
+        regression(&samples, fit.values)?
+    };
+    let mut warp = Warp {
+        a: a0,
+        t: *start,
+        r0,
+        r1,
     };
     let mut converged = false;
     let mut last_step = f64::INFINITY;
@@ -233,14 +235,85 @@ pub(crate) fn least_squares_match(
     let contrast = (template.energy / offsets.len() as f64).sqrt();
     let mut scale = f64::INFINITY;
     for iteration in 0..40 {
+        let (mut jtj, mut jte) = fit.normal_equations(&warp, scale, &mut residuals)?;
+        if iteration >= 2 {
+            // Flat film around a mark fits exactly: a floor keeps its edges' interpolation
+            // error from counting as outliers.
+            scale = robust_scale(&residuals).max(0.05 * contrast);
+        }
+        pull_warp_towards(&mut jtj, &mut jte, &a0, &warp.a);
+        let step = jtj.cholesky()?.solve(&jte);
+        warp.t += Vector2::new(step[0], step[1]);
+        warp.a += Matrix2::new(step[2], step[3], step[4], step[5]);
+        warp.r0 += step[6];
+        warp.r1 += step[7];
+        let t = warp.t;
+        if !(t.x.is_finite() && t.y.is_finite()) || (t - start).norm() > max_shift {
+            return None;
+        }
+        // The warp may not fold or shrink the template away.
+        let det = warp.a.determinant();
+        if !(0.5..2.0).contains(&det.abs()) {
+            return None;
+        }
+        last_step = step[0].hypot(step[1]);
+        if last_step < 1e-4 {
+            converged = true;
+            break;
+        }
+    }
+    // Grain can keep the last digits moving: a step of a few thousandths of a pixel is done.
+    if !converged && last_step > 5e-3 {
+        return None;
+    }
+    Some(Refined {
+        centre: warp.t,
+        correlation: fit.kept_correlation(&warp, &residuals, scale)?,
+    })
+}
+
+/// The unknowns of least-squares matching: template offset x lies at scan pixel `a · x + t`,
+/// and template ≈ `r0 + r1 · scan`.
+struct Warp {
+    a: Matrix2<f64>,
+    t: Vector2<f64>,
+    r0: f64,
+    r1: f64,
+}
+
+/// What least-squares matching fits: the scan, and the template's pixels (offsets from its
+/// centre and values).
+struct LsmFit<'a> {
+    scan: &'a ImageView<'a>,
+    offsets: &'a [Vector2<f64>],
+    values: &'a [f32],
+}
+
+impl LsmFit<'_> {
+    /// The scan (channel 0) at `a · x + t` for template offset `x`.
+    fn sample(&self, a: &Matrix2<f64>, t: &Vector2<f64>, x: &Vector2<f64>) -> f64 {
+        let p = a * x + t;
+        self.scan.bicubic(p.x, p.y, 0)
+    }
+
+    /// The Gauss-Newton normal equations (JᵀWJ, JᵀWe) of the 8 unknowns (t, a, r0, r1) at
+    /// `warp`, Huber-weighted at `scale`, with every pixel's residual written to `residuals`;
+    /// `None` when a pixel falls outside what the scan supports.
+    fn normal_equations(
+        &self,
+        warp: &Warp,
+        scale: f64,
+        residuals: &mut [f64],
+    ) -> Option<(SMatrix<f64, 8, 8>, SVector<f64, 8>)> {
+        let (r0, r1) = (warp.r0, warp.r1);
         let mut jtj = SMatrix::<f64, 8, 8>::zeros();
         let mut jte = SVector::<f64, 8>::zeros();
-        for (k, (x, &v)) in offsets.iter().zip(values).enumerate() {
-            let p = a * x + t;
-            if !scan.supports(p.x, p.y) {
+        for (k, (x, &v)) in self.offsets.iter().zip(self.values).enumerate() {
+            let p = warp.a * x + warp.t;
+            if !self.scan.supports(p.x, p.y) {
                 return None;
             }
-            let (s, gx, gy) = scan.bicubic_with_gradient(p.x, p.y);
+            let (s, gx, gy) = self.scan.bicubic_with_gradient(p.x, p.y);
             let e = v as f64 - r0 - r1 * s;
             residuals[k] = e;
             let w = huber_weight(e, scale);
@@ -258,65 +331,46 @@ pub(crate) fn least_squares_match(
             jtj += w * j * j.transpose();
             jte += w * j * e;
         }
-        if iteration >= 2 {
-            // Flat film around a mark fits exactly: a floor keeps its edges' interpolation
-            // error from counting as outliers.
-            scale = robust_scale(&residuals).max(0.05 * contrast);
-        }
-        // A weak pull of the warp towards its start: a round mark does not tell its rotation,
-        // and a warp the data cannot see must not wander.
-        let pull = 1e-3 * 0.5 * (jtj[(0, 0)] + jtj[(1, 1)]);
-        for (k, start) in [
-            (2, a0[(0, 0)]),
-            (3, a0[(0, 1)]),
-            (4, a0[(1, 0)]),
-            (5, a0[(1, 1)]),
-        ] {
-            let current = a[((k - 2) / 2, (k - 2) % 2)];
-            jtj[(k, k)] += pull;
-            jte[k] += pull * (start - current);
-        }
-        let step = jtj.cholesky()?.solve(&jte);
-        t += Vector2::new(step[0], step[1]);
-        a += Matrix2::new(step[2], step[3], step[4], step[5]);
-        r0 += step[6];
-        r1 += step[7];
-        if !(t.x.is_finite() && t.y.is_finite()) || (t - start).norm() > max_shift {
+        Some((jtj, jte))
+    }
+
+    /// The correlation of the template with the scan under `warp`, over the pixels the robust
+    /// fit kept (a scratch is not the mark's fault); `None` when it kept fewer than half.
+    fn kept_correlation(&self, warp: &Warp, residuals: &[f64], scale: f64) -> Option<f64> {
+        let (samples, kept): (Vec<f64>, Vec<f32>) = self
+            .offsets
+            .iter()
+            .zip(self.values)
+            .zip(residuals)
+            .filter(|(_, e)| huber_weight(**e, scale) >= 0.5)
+            .map(|((x, &v), _)| (self.sample(&warp.a, &warp.t, x), v))
+            .unzip();
+        if samples.len() * 2 < self.offsets.len() {
             return None;
         }
-        // The warp may not fold or shrink the template away.
-        let det = a.determinant();
-        if !(0.5..2.0).contains(&det.abs()) {
-            return None;
-        }
-        last_step = step[0].hypot(step[1]);
-        if last_step < 1e-4 {
-            converged = true;
-            break;
-        }
+        Some(correlation(&samples, &kept))
     }
-    // Grain can keep the last digits moving: a step of a few thousandths of a pixel is done.
-    if !converged && last_step > 5e-3 {
-        return None;
+}
+
+/// Adds a weak pull of the warp `a` towards its start `a0` to the normal equations: a round
+/// mark does not tell its rotation, and a warp the data cannot see must not wander.
+fn pull_warp_towards(
+    jtj: &mut SMatrix<f64, 8, 8>,
+    jte: &mut SVector<f64, 8>,
+    a0: &Matrix2<f64>,
+    a: &Matrix2<f64>,
+) {
+    let pull = 1e-3 * 0.5 * (jtj[(0, 0)] + jtj[(1, 1)]);
+    for (k, start) in [
+        (2, a0[(0, 0)]),
+        (3, a0[(0, 1)]),
+        (4, a0[(1, 0)]),
+        (5, a0[(1, 1)]),
+    ] {
+        let current = a[((k - 2) / 2, (k - 2) % 2)];
+        jtj[(k, k)] += pull;
+        jte[k] += pull * (start - current);
     }
-    // The correlation over the pixels the robust fit kept (a scratch is not the mark's fault).
-    let (samples, kept): (Vec<f64>, Vec<f32>) = offsets
-        .iter()
-        .zip(values)
-        .zip(&residuals)
-        .filter(|(_, e)| huber_weight(**e, scale) >= 0.5)
-        .map(|((x, &v), _)| {
-            let p = a * x + t;
-            (scan.bicubic(p.x, p.y, 0), v)
-        })
-        .unzip();
-    if samples.len() * 2 < offsets.len() {
-        return None;
-    }
-    Some(Refined {
-        centre: t,
-        correlation: correlation(&samples, &kept),
-    })
 }
 
 /// Huber's weight of a residual for a scale (1 within 2 scales, falling beyond).
