@@ -76,6 +76,60 @@ pub fn grid_cloud(
 ) -> Result<Dem, RasterError> {
     validate(options)?;
     let cells = lattice.len();
+    let (start, binned) = bin_by_cell(points, lattice)?;
+
+    let width = lattice.width();
+    let mut height = vec![f32::NAN; cells];
+    let mut count = vec![0u32; cells];
+    let mut spread = vec![f32::NAN; cells];
+    let binned = &binned;
+    let start = &start;
+    height
+        .par_chunks_mut(width)
+        .zip(count.par_chunks_mut(width))
+        .zip(spread.par_chunks_mut(width))
+        .enumerate()
+        .for_each_init(Vec::new, |scratch, (row, ((h_row, n_row), s_row))| {
+            for col in 0..width {
+                let cell = row * width + col;
+                let own = &binned[start[cell]..start[cell + 1]];
+                let (h, n) = match options.height {
+                    CellHeight::Median => cell_median(own, scratch),
+                    CellHeight::Max => (
+                        own.iter().map(|p| p[2]).fold(f64::NEG_INFINITY, f64::max),
+                        own.len(),
+                    ),
+                    CellHeight::InverseDistance { radius, power } => {
+                        inverse_distance(lattice, binned, start, (col, row), radius, power)
+                    }
+                };
+                if n >= options.min_points && n > 0 && h.is_finite() {
+                    h_row[col] = h as f32;
+                    n_row[col] = own.len() as u32;
+                    s_row[col] = standard_deviation(own);
+                }
+            }
+        });
+    let mut filled = vec![false; cells];
+    if options.max_gap > 0 {
+        fill_gaps(&mut height, &mut filled, lattice, options.max_gap);
+    }
+    Ok(Dem {
+        lattice: *lattice,
+        height,
+        count,
+        spread,
+        filled,
+    })
+}
+
+/// The finite points inside the lattice, sorted by cell (a counting sort, in input order within
+/// a cell), and where each cell's points start: cell c holds `binned[start[c]..start[c + 1]]`.
+fn bin_by_cell(
+    points: &[[f64; 3]],
+    lattice: &Lattice,
+) -> Result<(Vec<usize>, Vec<[f64; 3]>), RasterError> {
+    let cells = lattice.len();
     // Cell of every point (u32::MAX outside), then a counting sort of the heights by cell.
     let cell_of: Vec<u32> = points
         .par_iter()
@@ -123,52 +177,7 @@ pub fn grid_cloud(
             *slot += 1;
         }
     }
-    drop(cell_of);
-    drop(next);
-
-    let width = lattice.width();
-    let mut height = vec![f32::NAN; cells];
-    let mut count = vec![0u32; cells];
-    let mut spread = vec![f32::NAN; cells];
-    let binned = &binned;
-    let start = &start;
-    height
-        .par_chunks_mut(width)
-        .zip(count.par_chunks_mut(width))
-        .zip(spread.par_chunks_mut(width))
-        .enumerate()
-        .for_each_init(Vec::new, |scratch, (row, ((h_row, n_row), s_row))| {
-            for col in 0..width {
-                let cell = row * width + col;
-                let own = &binned[start[cell]..start[cell + 1]];
-                let (h, n) = match options.height {
-                    CellHeight::Median => cell_median(own, scratch),
-                    CellHeight::Max => (
-                        own.iter().map(|p| p[2]).fold(f64::NEG_INFINITY, f64::max),
-                        own.len(),
-                    ),
-                    CellHeight::InverseDistance { radius, power } => {
-                        inverse_distance(lattice, binned, start, (col, row), radius, power)
-                    }
-                };
-                if n >= options.min_points && n > 0 && h.is_finite() {
-                    h_row[col] = h as f32;
-                    n_row[col] = own.len() as u32;
-                    s_row[col] = standard_deviation(own);
-                }
-            }
-        });
-    let mut filled = vec![false; cells];
-    if options.max_gap > 0 {
-        fill_gaps(&mut height, &mut filled, lattice, options.max_gap);
-    }
-    Ok(Dem {
-        lattice: *lattice,
-        height,
-        count,
-        spread,
-        filled,
-    })
+    Ok((start, binned))
 }
 
 fn validate(options: &DemOptions) -> Result<(), RasterError> {

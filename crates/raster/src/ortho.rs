@@ -942,14 +942,13 @@ impl TileData {
         jumps: &mut JumpSums,
     ) -> usize {
         let mut painted = 0;
-        let l = ctx.lattice;
-        let f = ctx.options.factor;
-        let ow = l.width() * f;
+        let mut band = BandPixels {
+            rgba: out,
+            row0: band_row0,
+            width: ctx.lattice.width() * ctx.options.factor,
+        };
         let k = self.cands.len();
         let ew = self.width();
-        let eh = self.ext.3 - self.ext.1;
-        let fe = ctx.options.feather as isize;
-        let sub = 1.0 / f as f64;
         let mut weights = vec![0.0f32; k];
         for row in self.core.1..self.core.3 {
             for col in self.core.0..self.core.2 {
@@ -958,107 +957,162 @@ impl TileData {
                 if self.label[cell] == u8::MAX {
                     continue;
                 }
-                // Feathering weights: how often each view paints the window around the cell,
-                // among the views that see this cell.
-                weights.iter_mut().for_each(|w| *w = 0.0);
-                for dr in -fe..=fe {
-                    for dc in -fe..=fe {
-                        let (nc, nr) = (c as isize + dc, r as isize + dr);
-                        if nc < 0 || nr < 0 || nc >= ew as isize || nr >= eh as isize {
-                            continue;
-                        }
-                        let lab = self.label[nr as usize * ew + nc as usize];
-                        if lab != u8::MAX && self.cost[cell * k + lab as usize].is_finite() {
-                            weights[lab as usize] += 1.0;
-                        }
-                    }
-                }
+                self.feather_weights(ctx, (c, r), &mut weights);
                 let on_seam = weights.iter().filter(|w| **w > 0.0).count() > 1;
-                for sr in 0..f {
-                    for sc in 0..f {
-                        let (x, y) = (
-                            l.west() + (col as f64 + (sc as f64 + 0.5) * sub) * l.cell_width(),
-                            l.north() - (row as f64 + (sr as f64 + 0.5) * sub) * l.cell_height(),
-                        );
-                        let p = Vector3::new(x, y, ctx.height_at(x, y));
-                        let (mut sum, mut wsum) = ([0.0f32; 3], 0.0f32);
-                        for j in 0..k {
-                            if weights[j] == 0.0 {
-                                continue;
-                            }
-                            let v = &ctx.views[self.cands[j]];
-                            let pc = v.view.cam_from_world.transform_point(&p);
-                            let Ok(px) = v.view.camera.project(&pc) else {
-                                continue;
-                            };
-                            let cam = &v.view.camera;
-                            if !(pc.z > 0.0
-                                && px.x >= 0.5
-                                && px.y >= 0.5
-                                && px.x <= cam.width() as f64 - 0.5
-                                && px.y <= cam.height() as f64 - 0.5)
-                            {
-                                continue;
-                            }
-                            let Some(rgb) =
-                                sample(&self.images[j], &px, ctx.options.black_is_nodata)
-                            else {
-                                continue;
-                            };
-                            let rgb = apply_gain(rgb, &self.gains[j]);
-                            for b in 0..3 {
-                                sum[b] += weights[j] * rgb[b];
-                            }
-                            wsum += weights[j];
-                        }
-                        if wsum == 0.0 {
-                            continue;
-                        }
-                        let orow = row * f + sr - band_row0;
-                        let i = (orow * ow + col * f + sc) * 4;
-                        for b in 0..3 {
-                            out[i + b] = (sum[b] / wsum).round().clamp(0.0, 255.0) as u8;
-                        }
-                        out[i + 3] = 255;
-                        painted += 1;
-                    }
-                }
-                // Colour steps to the west and north neighbours' ortho cells (already painted
-                // when they lie in this band), on a seam where the two DEM cells' views differ,
-                // in the interior where no other view is within the feather.
-                let label = self.label[cell];
-                let mut step = |a: usize, b: usize, other: u8| {
-                    if out[a + 3] != 255 || out[b + 3] != 255 {
-                        return;
-                    }
-                    let d = (0..3)
-                        .map(|q| (out[a + q] as f64 - out[b + q] as f64).abs())
-                        .sum::<f64>()
-                        / 3.0;
-                    if other != label && other != u8::MAX {
-                        jumps.seam += d;
-                        jumps.seam_n += 1;
-                    } else if !on_seam {
-                        jumps.interior += d;
-                        jumps.interior_n += 1;
-                    }
-                };
-                if c > 0 {
-                    for sr in 0..f {
-                        let a = ((row * f + sr - band_row0) * ow + col * f) * 4;
-                        step(a, a - 4, self.label[cell - 1]);
-                    }
-                }
-                if r > 0 && row * f > band_row0 {
-                    for sc in 0..f {
-                        let a = ((row * f - band_row0) * ow + col * f + sc) * 4;
-                        step(a, a - ow * 4, self.label[cell - ew]);
-                    }
-                }
+                painted += self.paint_cell(ctx, (col, row), &weights, &mut band);
+                self.add_jumps(ctx, (col, row), on_seam, &band, jumps);
             }
         }
         painted
     }
+
+    /// Feathering weights of tile cell (c, r): how often each view paints the window around
+    /// the cell, among the views that see this cell.
+    fn feather_weights(&self, ctx: &Context<'_>, (c, r): (usize, usize), weights: &mut [f32]) {
+        let k = self.cands.len();
+        let ew = self.width();
+        let eh = self.ext.3 - self.ext.1;
+        let fe = ctx.options.feather as isize;
+        let cell = r * ew + c;
+        weights.iter_mut().for_each(|w| *w = 0.0);
+        for dr in -fe..=fe {
+            for dc in -fe..=fe {
+                let (nc, nr) = (c as isize + dc, r as isize + dr);
+                if nc < 0 || nr < 0 || nc >= ew as isize || nr >= eh as isize {
+                    continue;
+                }
+                let lab = self.label[nr as usize * ew + nc as usize];
+                if lab != u8::MAX && self.cost[cell * k + lab as usize].is_finite() {
+                    weights[lab as usize] += 1.0;
+                }
+            }
+        }
+    }
+
+    /// Paints the ortho cells of DEM cell (col, row) with the views' colours blended by
+    /// `weights`; returns how many it painted (those no weighted view sees stay unpainted).
+    fn paint_cell(
+        &self,
+        ctx: &Context<'_>,
+        (col, row): (usize, usize),
+        weights: &[f32],
+        band: &mut BandPixels<'_>,
+    ) -> usize {
+        let l = ctx.lattice;
+        let f = ctx.options.factor;
+        let sub = 1.0 / f as f64;
+        let mut painted = 0;
+        for sr in 0..f {
+            for sc in 0..f {
+                let (x, y) = (
+                    l.west() + (col as f64 + (sc as f64 + 0.5) * sub) * l.cell_width(),
+                    l.north() - (row as f64 + (sr as f64 + 0.5) * sub) * l.cell_height(),
+                );
+                let p = Vector3::new(x, y, ctx.height_at(x, y));
+                let (sum, wsum) = self.blend(ctx, &p, weights);
+                if wsum == 0.0 {
+                    continue;
+                }
+                let orow = row * f + sr - band.row0;
+                let i = (orow * band.width + col * f + sc) * 4;
+                for b in 0..3 {
+                    band.rgba[i + b] = (sum[b] / wsum).round().clamp(0.0, 255.0) as u8;
+                }
+                band.rgba[i + 3] = 255;
+                painted += 1;
+            }
+        }
+        painted
+    }
+
+    /// The weighted sum of the colours (gains applied) of the views with a weight that see
+    /// ground point `p`, and the sum of their weights.
+    fn blend(&self, ctx: &Context<'_>, p: &Vector3<f64>, weights: &[f32]) -> ([f32; 3], f32) {
+        let (mut sum, mut wsum) = ([0.0f32; 3], 0.0f32);
+        for j in 0..self.cands.len() {
+            if weights[j] == 0.0 {
+                continue;
+            }
+            let v = &ctx.views[self.cands[j]];
+            let pc = v.view.cam_from_world.transform_point(p);
+            let Ok(px) = v.view.camera.project(&pc) else {
+                continue;
+            };
+            let cam = &v.view.camera;
+            if !(pc.z > 0.0
+                && px.x >= 0.5
+                && px.y >= 0.5
+                && px.x <= cam.width() as f64 - 0.5
+                && px.y <= cam.height() as f64 - 0.5)
+            {
+                continue;
+            }
+            let Some(rgb) = sample(&self.images[j], &px, ctx.options.black_is_nodata) else {
+                continue;
+            };
+            let rgb = apply_gain(rgb, &self.gains[j]);
+            for b in 0..3 {
+                sum[b] += weights[j] * rgb[b];
+            }
+            wsum += weights[j];
+        }
+        (sum, wsum)
+    }
+
+    /// Adds the colour steps from DEM cell (col, row)'s ortho cells to their west and north
+    /// neighbours' (already painted when they lie in this band): on a seam where the two DEM
+    /// cells' views differ, in the interior where no other view is within the feather.
+    fn add_jumps(
+        &self,
+        ctx: &Context<'_>,
+        (col, row): (usize, usize),
+        on_seam: bool,
+        band: &BandPixels<'_>,
+        jumps: &mut JumpSums,
+    ) {
+        let f = ctx.options.factor;
+        let (ow, band_row0, out) = (band.width, band.row0, &*band.rgba);
+        let ew = self.width();
+        let (c, r) = (col - self.ext.0, row - self.ext.1);
+        let cell = r * ew + c;
+        let label = self.label[cell];
+        let mut step = |a: usize, b: usize, other: u8| {
+            if out[a + 3] != 255 || out[b + 3] != 255 {
+                return;
+            }
+            let d = (0..3)
+                .map(|q| (out[a + q] as f64 - out[b + q] as f64).abs())
+                .sum::<f64>()
+                / 3.0;
+            if other != label && other != u8::MAX {
+                jumps.seam += d;
+                jumps.seam_n += 1;
+            } else if !on_seam {
+                jumps.interior += d;
+                jumps.interior_n += 1;
+            }
+        };
+        if c > 0 {
+            for sr in 0..f {
+                let a = ((row * f + sr - band_row0) * ow + col * f) * 4;
+                step(a, a - 4, self.label[cell - 1]);
+            }
+        }
+        if r > 0 && row * f > band_row0 {
+            for sc in 0..f {
+                let a = ((row * f - band_row0) * ow + col * f + sc) * 4;
+                step(a, a - ow * 4, self.label[cell - ew]);
+            }
+        }
+    }
+}
+
+/// The band of ortho rows a tile paints into: RGBA, `width` cells per row, from ortho row
+/// `row0`.
+struct BandPixels<'o> {
+    rgba: &'o mut [u8],
+    row0: usize,
+    width: usize,
 }
 
 fn apply_gain(rgb: [f32; 3], gain: &[f64; 3]) -> [f32; 3] {
