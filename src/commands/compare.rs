@@ -4,7 +4,6 @@
 
 use std::path::{Path, PathBuf};
 
-use image::ImageEncoder;
 use serde::Serialize;
 use timesift_change::ChangeError;
 use timesift_change::checkpoints::{CheckPointReport, dem_residuals};
@@ -301,16 +300,7 @@ fn load_mask(path: &Path, grid: Grid) -> Result<Mask, ProjectError> {
 }
 
 fn write_png(path: &Path, img: &image::RgbImage) -> Result<(), ProjectError> {
-    let mut bytes = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut bytes)
-        .write_image(
-            img.as_raw(),
-            img.width(),
-            img.height(),
-            image::ExtendedColorType::Rgb8,
-        )
-        .map_err(|e| IoError::invalid(path, format!("PNG encoding failed: {e}")))?;
-    timesift_io::fsutil::write_bytes_atomically(path, &bytes)?;
+    timesift_io::image::write_png(path, img.width(), img.height(), 3, img.as_raw())?;
     Ok(())
 }
 

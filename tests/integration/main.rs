@@ -19,3 +19,4 @@ mod run_match;
 mod run_raster;
 mod synth;
 mod tidy;
+mod tidy_sources;

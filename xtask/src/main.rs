@@ -506,7 +506,7 @@ fn main() -> anyhow::Result<()> {
                 .map_err(|e: String| anyhow::anyhow!("--scale: {e}"))?;
             let mut spec = timesift_synth::scenes::build(&scene, scale, seed)?;
             if film {
-                timesift_synth::film::scan_every_epoch(&mut spec);
+                spec.scan_every_epoch();
             }
             let start = std::time::Instant::now();
             let written = timesift_synth::writer::write_scene(

@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use crate::pyramid::{BORDER, Band, BandStack};
+use crate::pyramid::{BORDER, Band, BandStack, MAX_REFINE_STEPS, SCALE_SLACK};
 
 /// A refined extremum in octave coordinates (pixel centres at integer indices).
 #[derive(Debug, Clone, Copy)]
@@ -30,15 +30,6 @@ pub(crate) struct ExtremumTests {
     pub contrast: f64,
     pub edge_ratio: f64,
 }
-
-/// Refinement moves at most one sample per step, so a keypoint lies within this many samples of
-/// the extremum it started from.
-pub(crate) const MAX_REFINE_STEPS: usize = 5;
-
-/// How far (in layers) beyond the half-way point to the next octave an octave still keeps an
-/// extremum. Fits of the same blob in two octaves disagree by a few hundredths of a layer; the
-/// overlap makes sure one of them keeps it, and `extract` removes the duplicates.
-pub(crate) const SCALE_SLACK: f64 = 0.25;
 
 /// All refined extrema whose final sample lies in the band's core rows. Starting samples are
 /// sought up to `MAX_REFINE_STEPS` rows beyond the core, so that each keypoint is found by exactly

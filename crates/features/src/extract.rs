@@ -11,11 +11,12 @@ use rayon::prelude::*;
 use timesift_core::Keypoint;
 
 use crate::FeatureError;
-use crate::detect::{Extremum, ExtremumTests, SCALE_SLACK, find_extrema};
+use crate::detect::{Extremum, ExtremumTests, find_extrema};
 use crate::image::{GreyImage, Mask, Plane};
 use crate::limit::select_spread;
 use crate::options::{DetectorOptions, Orientation};
 use crate::orientation::orientations;
+use crate::pyramid::SCALE_SLACK;
 use crate::pyramid::{
     Band, BandStack, Octave, PlanePool, ScaleSpace, first_octave, octave_is_usable,
 };

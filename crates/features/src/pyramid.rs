@@ -9,9 +9,17 @@
 use std::ops::Range;
 
 use crate::blur::{Kernel, blur, upsample2};
-use crate::detect::{MAX_REFINE_STEPS, SCALE_SLACK};
 use crate::image::{GreyImage, Plane};
 use crate::options::{DetectorOptions, Upsample};
+
+/// Refinement moves at most one sample per step, so a keypoint lies within this many samples of
+/// the extremum it started from.
+pub(crate) const MAX_REFINE_STEPS: usize = 5;
+
+/// How far (in layers) beyond the half-way point to the next octave an octave still keeps an
+/// extremum. Fits of the same blob in two octaves disagree by a few hundredths of a layer; the
+/// overlap makes sure one of them keeps it, and `extract` removes the duplicates.
+pub(crate) const SCALE_SLACK: f64 = 0.25;
 
 /// Keypoints closer than this to the image border (in octave pixels) are not sought, as in Lowe's
 /// and OpenCV's SIFT.

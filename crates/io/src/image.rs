@@ -83,6 +83,41 @@ pub fn write_png(
     channels: u8,
     data: &[u8],
 ) -> Result<(), IoError> {
+    let colour = png_colour(path, width, height, channels, data)?;
+    crate::fsutil::write_atomically(path, |w| {
+        use image::ImageEncoder;
+        image::codecs::png::PngEncoder::new(w)
+            .write_image(data, width, height, colour)
+            .map_err(|e| IoError::invalid(path, format!("cannot encode PNG: {e}")))
+    })
+}
+
+/// An 8-bit PNG of 1 to 4 channels as bytes (to inline in a page), `name` saying what it is
+/// in messages.
+pub fn encode_png(
+    name: &Path,
+    width: u32,
+    height: u32,
+    channels: u8,
+    data: &[u8],
+) -> Result<Vec<u8>, IoError> {
+    use image::ImageEncoder;
+    let colour = png_colour(name, width, height, channels, data)?;
+    let mut bytes = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut bytes)
+        .write_image(data, width, height, colour)
+        .map_err(|e| IoError::invalid(name, format!("cannot encode PNG: {e}")))?;
+    Ok(bytes)
+}
+
+/// The PNG colour type of `channels`, which `data` must fill for `width × height`.
+fn png_colour(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: u8,
+    data: &[u8],
+) -> Result<image::ExtendedColorType, IoError> {
     let colour = match channels {
         1 => image::ExtendedColorType::L8,
         2 => image::ExtendedColorType::La8,
@@ -101,12 +136,7 @@ pub fn write_png(
             format!("{} bytes for {width} × {height} × {channels}", data.len()),
         ));
     }
-    crate::fsutil::write_atomically(path, |w| {
-        use image::ImageEncoder;
-        image::codecs::png::PngEncoder::new(w)
-            .write_image(data, width, height, colour)
-            .map_err(|e| IoError::invalid(path, format!("cannot encode PNG: {e}")))
-    })
+    Ok(colour)
 }
 
 /// Width and height of an image, reading only its header.

@@ -428,28 +428,3 @@ impl CameraModel for ScanCamera<'_> {
             .ok_or(CoreError::BehindCamera { z: 0.0 })
     }
 }
-
-/// Makes every epoch of a scene that is not already on film a set of film scans (`cargo xtask
-/// synth --film`): its camera's photographs inside a frame of eight marks (the patterns in
-/// turn), scanned as TIFF at the pixel size that makes the frame 230 mm wide.
-pub fn scan_every_epoch(spec: &mut crate::scene::SceneSpec) {
-    const PATTERNS: [MarkPattern; 4] = [
-        MarkPattern::RcType,
-        MarkPattern::RmkType,
-        MarkPattern::Cross,
-        MarkPattern::DotInCircle,
-    ];
-    for (e, epoch) in spec.epochs.iter_mut().enumerate() {
-        if epoch.film.is_some() {
-            continue;
-        }
-        let pixel_mm = 230.0 / epoch.camera.width.max(epoch.camera.height) as f64;
-        epoch.film = Some(FilmSpec::eight_marks(
-            &epoch.camera,
-            pixel_mm,
-            PATTERNS[e % PATTERNS.len()],
-            Vector2::new(0.003 * e as f64, -0.002 * e as f64),
-        ));
-        epoch.format = crate::scene::ImageFormat::Tiff;
-    }
-}

@@ -303,6 +303,34 @@ pub struct SceneSpec {
 }
 
 impl SceneSpec {
+    /// Makes every epoch that is not already on film a set of film scans (`cargo xtask synth
+    /// --film`): its camera's photographs inside a frame of eight marks (the patterns in turn),
+    /// scanned as TIFF at the pixel size that makes the frame 230 mm wide.
+    pub fn scan_every_epoch(&mut self) {
+        use crate::film::{FilmSpec, MarkPattern};
+        const PATTERNS: [MarkPattern; 4] = [
+            MarkPattern::RcType,
+            MarkPattern::RmkType,
+            MarkPattern::Cross,
+            MarkPattern::DotInCircle,
+        ];
+        for (e, epoch) in self.epochs.iter_mut().enumerate() {
+            if epoch.film.is_some() {
+                continue;
+            }
+            let pixel_mm = 230.0 / epoch.camera.width.max(epoch.camera.height) as f64;
+            epoch.film = Some(FilmSpec::eight_marks(
+                &epoch.camera,
+                pixel_mm,
+                PATTERNS[e % PATTERNS.len()],
+                nalgebra::Vector2::new(0.003 * e as f64, -0.002 * e as f64),
+            ));
+            epoch.format = ImageFormat::Tiff;
+        }
+    }
+}
+
+impl SceneSpec {
     /// Keeps the first `n` images of every epoch (in flight order), for a smaller block of the
     /// same ground: tests and examples that need a block, not the whole survey.
     pub fn keep_first_images(&mut self, n: usize) {
