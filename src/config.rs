@@ -1,5 +1,8 @@
 //! `project.toml`: the typed configuration of a project. Every option has a default, documented
 //! here and in the file `timesift init` writes; unknown keys are errors naming the key.
+//!
+//! Long module: it is the reference of the file format, every section's keys with their
+//! documented defaults and checks in one place, read top to bottom as the file is.
 
 use std::path::Path;
 
