@@ -419,15 +419,27 @@ fn no_file_outside_io_encodes_or_decodes_a_file_format() {
         assert!(root().join(file).is_file(), "{file} no longer exists");
         assert!(!reason.is_empty());
     }
+    // The scan itself: a crate's own path is seen, a longer name or io's module is not.
+    assert!(names_path(
+        "let d = tiff::decoder::Decoder::new(f);",
+        "tiff::"
+    ));
+    assert!(names_path("line.split(',')", "split(',')"));
+    assert!(!names_path("use timesift_io::geotiff::read_f32;", "tiff::"));
+    assert!(!names_path(
+        "timesift_io::exr::read_f32_channels(p)",
+        "exr::"
+    ));
 }
 
-/// Whether `code` holds `pattern` as a path of its own (`tiff::` but not `geotiff::`).
+/// Whether `code` holds `pattern` as a path of its own: `tiff::` but neither `geotiff::` nor
+/// io's own module (`timesift_io::exr::`).
 fn names_path(code: &str, pattern: &str) -> bool {
     code.match_indices(pattern).any(|(at, _)| {
         !code[..at]
             .chars()
             .next_back()
-            .is_some_and(|c| c.is_alphanumeric() || c == '_')
+            .is_some_and(|c| c.is_alphanumeric() || c == '_' || c == ':')
     })
 }
 
