@@ -120,6 +120,9 @@ enum Task {
         /// Fail when more functions than this are over the bound, or any has no reason.
         #[arg(long)]
         check: Option<usize>,
+        /// Another checkout to measure (default: this workspace).
+        #[arg(long)]
+        root: Option<PathBuf>,
     },
     /// The public API of every library crate against its snapshot under `api/`.
     Api {
@@ -339,8 +342,12 @@ fn write_results(
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().task {
-        Task::FnLengths { max_lines, check } => fn_lengths::run(
-            &api::workspace_root(),
+        Task::FnLengths {
+            max_lines,
+            check,
+            root,
+        } => fn_lengths::run(
+            &root.unwrap_or_else(api::workspace_root),
             max_lines,
             check.unwrap_or(usize::MAX),
             check.is_some(),

@@ -83,7 +83,7 @@ pub struct SfmOptions {
     /// Which flights' GNSS priors the final adjustment weighs by their own scatter about their
     /// offset rather than by their stated σ.
     pub scatter_weighing: ScatterWeighing,
-    /// `timesift` with a descriptor matcher ([`crate::JoinedSingleBlock`]): after the first
+    /// `timesift` with a descriptor matcher ([`crate::SingleBlock::matcher`]): after the first
     /// block, tie points of two epochs that the block puts within two ground pixels of each
     /// other and whose descriptors match are joined into inter-epoch ties, and the block is
     /// oriented again with them. Off by default: it doubles the orientation's time for gains
