@@ -282,14 +282,15 @@ fn reference_table(rows: &[Row]) -> String {
     }
     let mut groups: Vec<Group> = Vec::new();
     let mut seen: Vec<(&str, &str)> = Vec::new();
-    for r in rows.iter().filter(|r| r.method != "independent") {
+    let independent = Method::Independent.name();
+    for r in rows.iter().filter(|r| r.method != independent) {
         if seen.contains(&(r.scene.as_str(), r.method.as_str())) {
             continue;
         }
         seen.push((&r.scene, &r.method));
         let (Some(a), Some(b)) = (
             first_epoch(&r.scene, &r.method),
-            first_epoch(&r.scene, "independent"),
+            first_epoch(&r.scene, independent),
         ) else {
             continue;
         };
@@ -586,22 +587,23 @@ fn findings(rows: &[Row]) -> String {
             list(&no),
         ));
     };
+    let (timesift, independent) = (Method::Timesift.name(), Method::Independent.name());
     compare(
         "`chunk` worse than `timesift` in height (check dH, GSD)",
-        "chunk",
-        "timesift",
+        Method::Chunk.name(),
+        timesift,
         |(check, _)| check,
     );
     compare(
         "`timesift` disagrees more than `stp` between epochs in height (m)",
-        "timesift",
-        "stp",
+        timesift,
+        Method::Stp.name(),
         |(_, apart)| apart,
     );
     compare(
         "`independent` disagrees more than `timesift` between epochs in height (m)",
-        "independent",
-        "timesift",
+        independent,
+        timesift,
         |(_, apart)| apart,
     );
     s
@@ -716,7 +718,10 @@ fn product_table(rows: &[ProductRow]) -> String {
     }
     // The papers' ordering on the products: the single block and msfm co-register the epochs
     // better than independent blocks on biased GNSS.
-    for (better, worse) in [("timesift", "independent"), ("msfm", "independent")] {
+    for (better, worse) in [
+        (Method::Timesift.name(), Method::Independent.name()),
+        (Method::Msfm.name(), Method::Independent.name()),
+    ] {
         let mut verdicts = Vec::new();
         for scene in rows
             .iter()
