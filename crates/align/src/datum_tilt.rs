@@ -60,10 +60,15 @@ pub fn datum_tilt(
     if usable.len() < 3 {
         return None;
     }
-    // Centred and scaled to about one, so the normal matrix is well conditioned whatever the
-    // block's size and origin.
-    let n = usable.len() as f64;
-    let mean = usable.iter().fold(Vector2::zeros(), |s, o| s + o.xy) / n;
+    // Centred on the weighted mean and scaled to about one, so the normal matrix is well
+    // conditioned whatever the block's size and origin, and the tilt is uncorrelated with the
+    // datum's height (which the prior below may then touch without touching the tilt).
+    let weight = |o: &HeightObservation| 1.0 / (o.sigma_z * o.sigma_z);
+    let total: f64 = usable.iter().map(|o| weight(o)).sum();
+    let mean = usable
+        .iter()
+        .fold(Vector2::zeros(), |s, o| s + o.xy * weight(o))
+        / total;
     let scale = usable
         .iter()
         .map(|o| (o.xy - mean).norm())
@@ -101,7 +106,9 @@ pub fn datum_tilt(
     // Without absolute heights, the datum's height and the offsets are one unknown: a prior
     // a billion times weaker than the data separates them. The tilt does not depend on how
     // (their confounded direction has no tilt component), only the matrix needs it.
-    normal[(0, 0)] *= 1.0 + 1e-9;
+    if usable.iter().all(|o| o.offset.is_some()) {
+        normal[(0, 0)] *= 1.0 + 1e-9;
+    }
     let covariance = normal.cholesky()?.inverse();
     // Back to metres per metre, then to mm per m.
     let tilt = Matrix2::new(
