@@ -627,27 +627,27 @@ impl InputFiles<'_> {
             Some(p) => csv_inputs::read_gcps(&p)?,
             None => Vec::new(),
         };
-        let checkpoints = match self.path("checkpoints", &inputs.checkpoints, "checkpoints.csv")? {
-            Some(p) => csv_inputs::read_checkpoints(&p)?,
+        let checkpoints_path = self.path("checkpoints", &inputs.checkpoints, "checkpoints.csv")?;
+        let checkpoints = match &checkpoints_path {
+            Some(p) => csv_inputs::read_checkpoints(p)?,
             None => Vec::new(),
         };
         let scale_bars = match self.path("scalebars", &inputs.scalebars, "scalebars.csv")? {
             Some(p) => csv_inputs::read_scale_bars(&p)?,
             None => Vec::new(),
         };
-        let stable_points =
-            match self.path("stable_points", &inputs.stable_points, "stable_points.csv")? {
-                Some(p) => csv_inputs::read_stable_points(&p)?,
-                None => Vec::new(),
-            };
+        let stable_points_path =
+            self.path("stable_points", &inputs.stable_points, "stable_points.csv")?;
+        let stable_points = match &stable_points_path {
+            Some(p) => csv_inputs::read_stable_points(p)?,
+            None => Vec::new(),
+        };
         if let Some(s) = stable_points
             .iter()
             .find(|s| gcps.iter().chain(&checkpoints).any(|g| g.name == s.name))
         {
             return Err(ProjectError::Reference {
-                path: self
-                    .path("stable_points", &inputs.stable_points, "stable_points.csv")?
-                    .unwrap_or_default(),
+                path: stable_points_path.unwrap_or_default(),
                 line: s.line,
                 message: format!(
                     "point \"{}\" is also a GCP or check point; a natural stable point has no \
@@ -673,9 +673,7 @@ impl InputFiles<'_> {
             .find(|c| points.gcps.iter().any(|g| g.name == c.name))
         {
             return Err(ProjectError::Reference {
-                path: self
-                    .path("checkpoints", &inputs.checkpoints, "checkpoints.csv")?
-                    .unwrap_or_default(),
+                path: checkpoints_path.unwrap_or_default(),
                 line: c.line,
                 message: format!(
                     "point \"{}\" is also a GCP; a check point must be independent",

@@ -185,7 +185,7 @@ fn align_section(text: &mut String, reference: &str) {
         text,
         "method = \"{}\"  # {}",
         timesift_align::Method::default(),
-        timesift_align::Method::ALL.map(|m| m.name()).join(" | ")
+        timesift_align::Method::names(" | ")
     );
     let _ = writeln!(text, "reference_epoch = {}", toml_string(reference));
     let _ = writeln!(text, "features = \"sift\"  # sift | ldb");

@@ -157,7 +157,7 @@ fn keep_carried_offsets(kept: &mut Vec<EstimatedOffset>, part: &[EstimatedOffset
 }
 
 /// The input with only the track elements in images that `keep` accepts.
-pub(crate) fn restrict(input: &SfmInput, keep: &dyn Fn(usize) -> bool) -> SfmInput {
+fn restrict(input: &SfmInput, keep: &dyn Fn(usize) -> bool) -> SfmInput {
     SfmInput {
         cameras: input.cameras.clone(),
         images: input.images.clone(),
@@ -179,10 +179,7 @@ pub(crate) fn restrict(input: &SfmInput, keep: &dyn Fn(usize) -> bool) -> SfmInp
 }
 
 /// Priors and markers of the images that `keep` accepts.
-pub(crate) fn restrict_ground(
-    geo: &GeoreferenceInput,
-    keep: &dyn Fn(usize) -> bool,
-) -> GeoreferenceInput {
+fn restrict_ground(geo: &GeoreferenceInput, keep: &dyn Fn(usize) -> bool) -> GeoreferenceInput {
     GeoreferenceInput {
         centre_priors: geo
             .centre_priors

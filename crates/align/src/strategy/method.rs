@@ -50,9 +50,10 @@ impl Method {
         }
     }
 
-    /// Every name, comma-separated, for messages.
-    pub fn names() -> String {
-        Method::ALL.map(Method::name).join(", ")
+    /// Every name, in the order of [`Method::ALL`], joined by `separator` (for messages and
+    /// comments).
+    pub fn names(separator: &str) -> String {
+        Method::ALL.map(Method::name).join(separator)
     }
 }
 
@@ -72,7 +73,7 @@ impl std::str::FromStr for Method {
             .ok_or_else(|| {
                 AlignError::InvalidInput(format!(
                     "unknown method `{name}`, expected one of {}",
-                    Method::names()
+                    Method::names(", ")
                 ))
             })
     }
@@ -92,7 +93,7 @@ impl<'de> serde::Deserialize<'de> for Method {
         name.parse().map_err(|_| {
             serde::de::Error::custom(format!(
                 "unknown variant `{name}`, expected one of {}",
-                Method::ALL.map(|m| format!("`{m}`")).join(", ")
+                Method::names(", ")
             ))
         })
     }
