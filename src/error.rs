@@ -56,6 +56,9 @@ pub enum ProjectError {
         /// What failed.
         source: timesift_change::ChangeError,
     },
+    /// A comparison with a synthetic scene's truth failed.
+    #[error(transparent)]
+    Eval(#[from] timesift_eval::EvalError),
     /// A stage of `timesift run` failed.
     #[error("{stage}: {message}")]
     Stage {

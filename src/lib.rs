@@ -13,15 +13,15 @@
 pub mod commands;
 pub mod config;
 mod error;
+pub mod eval;
 pub mod film;
 pub mod html;
-pub mod layout;
 pub mod project;
 pub mod report;
 pub mod stable_matcher;
 pub mod stages;
-pub mod true_scene;
-pub mod truth;
 
 pub use error::ProjectError;
 pub use project::Project;
+/// The paths of a project directory (`timesift_io::layout`), under the name the stages use.
+pub use timesift_io::layout;

@@ -10,12 +10,13 @@ use std::time::Instant;
 
 use crate::commands::compare::DemReport;
 use crate::config::{DenseConfig, PairSelection};
+use crate::eval::{oriented_epochs, project_truth};
 use crate::report::read_json;
 use crate::stages::{Stage, epoch_pairs, run};
-use crate::truth::{
-    epoch_accuracy, epoch_dem_error, ground_sampling_distance, region_volumes, triple,
-};
 use crate::{Project, ProjectError};
+use timesift_eval::accuracy::{epoch_accuracy, ground_sampling_distance};
+use timesift_eval::products::{epoch_dem_error, region_volumes};
+use timesift_eval::{ProjectTruth, triple};
 
 /// The demo scene.
 pub const DEMO_SCENE: &str = "landslide";
@@ -139,7 +140,8 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
     let project = Project::load(dir)?;
     let start = Instant::now();
     let outcomes = run(&project, Some(Stage::Features), Some(Stage::Report))?;
-    let gsd = ground_sampling_distance(&project)?;
+    let truth = project_truth(&project)?;
+    let gsd = ground_sampling_distance(&truth)?;
     let times: Vec<String> = outcomes
         .iter()
         .map(|o| format!("{} {:.0} s", o.stage.name(), o.seconds))
@@ -160,7 +162,8 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
         "(in GSD)",
         "camera centres dE/dN/dH (mm)"
     ));
-    for row in epoch_accuracy(&project, &project.layout().out_dir(), gsd)? {
+    let out = project.layout().out_dir();
+    for row in epoch_accuracy(&truth, &oriented_epochs(&out)?, &out, gsd)? {
         let mm = |v: Option<[f64; 3]>| v.map(|v| v.map(|x| x * 1000.0));
         text.push_str(&format!(
             "{:<18} {:>9} {:>8} {:>30} {:>22} {:>30}\n",
@@ -172,7 +175,7 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
             triple(mm(row.centre_rmse_m), 1),
         ));
     }
-    text.push_str(&products_against_truth(&project, gsd)?);
+    text.push_str(&products_against_truth(&project, &truth, gsd)?);
     text.push_str(&format!(
         "\nreport: {}\nproducts: {}/out/ (cameras.json, epochs/<epoch>/dense.laz, dem.tif, \
          ortho.tif, change/<a>__<b>/)\n",
@@ -183,13 +186,17 @@ pub fn demo(dir: &Path) -> Result<String, ProjectError> {
 }
 
 /// The DEMs, the stable-area DoDs and the volumes against the truth, as printed lines.
-fn products_against_truth(project: &Project, gsd: f64) -> Result<String, ProjectError> {
+fn products_against_truth(
+    project: &Project,
+    truth: &ProjectTruth<'_>,
+    gsd: f64,
+) -> Result<String, ProjectError> {
     let mut text = format!(
         "\nDEMs against the true surface (cells measured from the dense cloud)\n{:<18} {:>8} {:>10} {:>10} {:>10} {:>9}\n",
         "epoch", "cells", "mean mm", "median mm", "NMAD mm", "NMAD GSD"
     );
     for e in &project.epochs {
-        if let Some((n, mean, median, nmad)) = epoch_dem_error(project, &e.name)? {
+        if let Some((n, mean, median, nmad)) = epoch_dem_error(&truth.layout, &e.name)? {
             text.push_str(&format!(
                 "{:<18} {:>8} {:>10.1} {:>10.1} {:>10.1} {:>9.2}\n",
                 e.name,
@@ -229,7 +236,7 @@ fn products_against_truth(project: &Project, gsd: f64) -> Result<String, Project
          in both DEMs are not counted)\n{:<10} {:<26} {:>11} {:>18} {:>8} {:>9}\n",
         "region", "pair", "true m³", "measured m³ ± σ", "error", "covered"
     ));
-    for v in region_volumes(project)? {
+    for v in region_volumes(truth)? {
         text.push_str(&format!(
             "{:<10} {:<26} {:>11.1} {:>18} {:>7.1}% {:>8.0}%\n",
             v.region,

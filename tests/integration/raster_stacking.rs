@@ -9,7 +9,7 @@ use std::path::Path;
 
 use crate::common::{grey_images, timesift};
 use timesift::report::{GridFile, read_json};
-use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
+use timesift_eval::true_scene::{write_sampled_clouds, write_true_orientation};
 use timesift_io::cameras_json::read_cameras_json;
 use timesift_io::geotiff::{read_f32, read_rgb8};
 use timesift_synth::scenes::{SCENES, Scale, build};

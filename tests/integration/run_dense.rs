@@ -7,7 +7,7 @@ use std::path::Path;
 
 use crate::common::{quick_dense_level_4, timesift};
 use timesift::report::{DenseReport, read_json};
-use timesift::true_scene::write_true_orientation;
+use timesift_eval::true_scene::write_true_orientation;
 use timesift_io::pointcloud::{AttributeValues, PointCloud, read_las};
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};

@@ -9,10 +9,10 @@ use std::path::Path;
 
 use crate::common::{grey_images, timesift};
 use timesift::report::{GridFile, RasterReport, read_json};
-use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
-use timesift::truth::{dem_height_errors, ortho_target_errors};
 use timesift_change::grid::Dem;
 use timesift_change::stats::nmad;
+use timesift_eval::products::{dem_height_errors, ortho_target_errors};
+use timesift_eval::true_scene::{write_sampled_clouds, write_true_orientation};
 use timesift_io::geotiff::{read_f32, read_rgb8};
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
@@ -125,7 +125,9 @@ fn dems_and_orthos_stack_are_accurate_and_show_the_targets_where_they_are() {
         let radius = build("orchard", Scale::Small, 1)
             .expect("scene")
             .target_radius;
-        let (found, rmse) = ortho_target_errors(dir, &ortho, radius).expect("targets");
+        let (found, rmse) =
+            ortho_target_errors(&timesift::layout::Layout::new(dir), &ortho, radius)
+                .expect("targets");
         assert!(found >= 4, "{name}: {found} targets inside the ortho");
         let rmse = rmse.unwrap_or(f64::INFINITY);
         println!("{name}: {found} targets, RMSE {rmse:.2} ortho cells");

@@ -354,7 +354,7 @@ fn the_import_scan_finds_a_cycle_and_follows_re_exports() {
 
 /// Code that encodes or decodes a file format (images, rasters, point clouds, CSV), outside
 /// `timesift-io`, with the reason each exception stands.
-const FORMAT_EXCEPTIONS: [(&str, &str); 4] = [
+const FORMAT_EXCEPTIONS: [(&str, &str); 3] = [
     (
         "crates/synth/src/writer.rs",
         "renders the scenes' images as JPEG, PNG or TIFF: synth writes projects and knows no \
@@ -369,11 +369,6 @@ const FORMAT_EXCEPTIONS: [(&str, &str); 4] = [
         "crates/features/src/text.rs",
         "the feature text format of docs/design.md is the features crate's public exchange \
          format (OpenCV and COLMAP benches read and write it)",
-    ),
-    (
-        "src/truth.rs",
-        "reads the truth CSVs synth writes, for tests and benches only; moves with the truth \
-         helpers to an evaluation crate",
     ),
 ];
 

@@ -19,7 +19,7 @@ use anyhow::{Context, bail};
 use serde_json::Value;
 
 /// The library crates whose API is recorded, in publication order.
-pub const CRATES: [&str; 12] = [
+pub const CRATES: [&str; 13] = [
     "timesift-core",
     "timesift-geometry",
     "timesift-film",
@@ -30,6 +30,7 @@ pub const CRATES: [&str; 12] = [
     "timesift-matching",
     "timesift-align",
     "timesift-change",
+    "timesift-eval",
     "timesift-dense",
     "timesift-raster",
 ];

@@ -22,7 +22,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use timesift::Project;
 use timesift::stages::{Stage, run, run_stage};
-use timesift::true_scene::{TrueEpoch, focal, write_true_orientation};
+use timesift_eval::true_scene::{TrueEpoch, focal, write_true_orientation};
 use timesift_io::cameras_json::{Reconstruction, read_cameras_json};
 use timesift_synth::render::Material;
 use timesift_synth::scene::SceneSpec;
@@ -251,7 +251,10 @@ fn truth_copy(spec: &SceneSpec, dir: &Path, truth_dir: &Path) -> anyhow::Result<
     }
     std::fs::copy(dir.join("project.toml"), truth_dir.join("project.toml"))?;
     write_true_orientation(truth_dir, spec, 15.0)?;
-    Ok(Project::load(truth_dir)?)
+    let project = Project::load(truth_dir)?;
+    // Film scans get the interior orientations the pipeline would give them.
+    timesift::stages::fiducials_stage(&project)?;
+    Ok(project)
 }
 
 /// The truth of one epoch of a scene, with what scoring needs.

@@ -17,11 +17,12 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use timesift::Project;
 use timesift::config::DenseConfig;
+use timesift::eval::{oriented_epochs, project_truth};
 use timesift::report::{FiducialsReport, read_json};
 use timesift::stages::{Stage, run};
-use timesift::truth::{
-    EpochAccuracy, epoch_accuracy, epoch_dem_error, ground_sampling_distance, triple,
-};
+use timesift_eval::accuracy::{EpochAccuracy, epoch_accuracy, ground_sampling_distance};
+use timesift_eval::products::epoch_dem_error;
+use timesift_eval::triple;
 
 /// What to run.
 pub struct FilmBench {
@@ -143,13 +144,15 @@ fn variant(dir: &Path, products: bool) -> anyhow::Result<(Vec<EpochAccuracy>, De
     let mut project = Project::load(dir)?;
     project.config.dense = DenseConfig::quick();
     run(&project, Some(Stage::Features), Some(Stage::Align))?;
-    let gsd = ground_sampling_distance(&project)?;
-    let accuracy = epoch_accuracy(&project, &dir.join("out"), gsd)?;
+    let truth = project_truth(&project)?;
+    let gsd = ground_sampling_distance(&truth)?;
+    let out = dir.join("out");
+    let accuracy = epoch_accuracy(&truth, &oriented_epochs(&out)?, &out, gsd)?;
     let mut dems = Vec::new();
     if products {
         run(&project, Some(Stage::Dense), Some(Stage::Dem))?;
         for epoch in &project.epochs {
-            let e = epoch_dem_error(&project, &epoch.name)?
+            let e = epoch_dem_error(&truth.layout, &epoch.name)?
                 .map(|(_, mean, _, nmad)| (mean / gsd, nmad / gsd));
             dems.push((epoch.name.clone(), e));
         }

@@ -17,12 +17,13 @@ use anyhow::Context;
 use timesift::Project;
 use timesift::commands::compare::DemReport;
 use timesift::config::DenseConfig;
+use timesift::eval::{oriented_epochs, project_truth};
 use timesift::report::read_json;
 use timesift::stages::{Stage, run, run_stage};
-use timesift::truth::{
-    EpochAccuracy, epoch_accuracy, ground_sampling_distance, region_volumes, triple,
-};
 use timesift_align::Method;
+use timesift_eval::accuracy::{EpochAccuracy, epoch_accuracy, ground_sampling_distance};
+use timesift_eval::products::region_volumes;
+use timesift_eval::triple;
 
 /// What to run.
 pub struct MethodsBench {
@@ -173,7 +174,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             "{scene}: features and matches in {:.1} s",
             start.elapsed().as_secs_f64()
         );
-        let gsd = ground_sampling_distance(&project)?;
+        let gsd = ground_sampling_distance(&project_truth(&project)?)?;
         println!("{scene}: ground sampling distance at the check points {gsd:.4} m");
         let variants = bench.methods.iter().flat_map(|&m| {
             bench.ties.iter().enumerate().map(move |(k, t)| {
@@ -256,7 +257,7 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
 /// The reference epoch's check-point height error of every strategy against `independent`'s (the
 /// reference epoch oriented alone with its own control): does the rest of the block drag the
 /// reference datum? Measured (with the markers' click noise, as a user sees it) and the
-/// orientation's own (exact pixels of the check points, [`timesift::truth::orientation_check_errors`]).
+/// orientation's own (exact pixels of the check points, [`timesift_eval::accuracy::orientation_check_errors`]).
 /// With four check points a scene's ratio varies from seed to seed by more than the 10 % it is
 /// judged by, so the rows of one scene run with several seeds (`scene#seed`) are pooled: the
 /// ratio of the RMS over the seeds of each run's RMSE (with as many check points in every run,
@@ -432,20 +433,22 @@ fn evaluate(
     seconds: f64,
     clicks: f64,
 ) -> anyhow::Result<Vec<Row>> {
-    Ok(epoch_accuracy(project, out, gsd)?
-        .into_iter()
-        .map(|mut a| {
-            a.check_markers_rmse_m = a.check_markers_rmse_m.map(|m| m.map(|v| v * clicks));
-            a
-        })
-        .map(|a| Row {
-            scene: scene.to_string(),
-            method: method.to_string(),
-            accuracy: Some(a),
-            seconds,
-            error: None,
-        })
-        .collect())
+    Ok(
+        epoch_accuracy(&project_truth(project)?, &oriented_epochs(out)?, out, gsd)?
+            .into_iter()
+            .map(|mut a| {
+                a.check_markers_rmse_m = a.check_markers_rmse_m.map(|m| m.map(|v| v * clicks));
+                a
+            })
+            .map(|a| Row {
+                scene: scene.to_string(),
+                method: method.to_string(),
+                accuracy: Some(a),
+                seconds,
+                error: None,
+            })
+            .collect(),
+    )
 }
 
 fn table(rows: &[Row]) -> String {
@@ -640,7 +643,7 @@ fn products(scene: &str, method: &str, project: &Project) -> ProductRow {
             }
         }
         if layout.truth_dir().join("change.json").is_file() {
-            let all = region_volumes(project)?;
+            let all = region_volumes(&project_truth(project)?)?;
             let volumes: Vec<_> = all.iter().filter(|v| v.measured_m3.is_finite()).collect();
             row.regions_measured = (volumes.len(), all.len());
             let wrong: f64 = volumes

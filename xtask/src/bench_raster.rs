@@ -23,13 +23,14 @@ use std::time::Instant;
 
 use anyhow::Context;
 use timesift::Project;
+use timesift::layout::Layout;
 use timesift::report::{GridFile, RasterReport, read_json};
 use timesift::stages::{Stage, run_stage};
-use timesift::true_scene::{write_sampled_clouds, write_true_orientation};
-use timesift::truth::{dem_height_errors, ortho_target_errors};
 use timesift_change::grid::Dem;
 use timesift_change::stats::{median, nmad};
 use timesift_change::trend::plane_trend;
+use timesift_eval::products::{dem_height_errors, ortho_target_errors};
+use timesift_eval::true_scene::{write_sampled_clouds, write_true_orientation};
 use timesift_io::cameras_json::read_cameras_json;
 use timesift_io::geotiff::{GeoRaster, read_f32, read_rgb8};
 use timesift_synth::scene::{Frame, SceneSpec};
@@ -111,6 +112,8 @@ pub fn run_bench(bench: &RasterBench) -> anyhow::Result<()> {
             &timesift_synth::writer::WriteOptions::default(),
         )?;
         write_true_orientation(&dir, &spec, 15.0)?;
+        // Film scans get the interior orientations the pipeline would give them.
+        timesift::stages::fiducials_stage(&Project::load(&dir)?)?;
         let gsds = write_sampled_clouds(&dir, &spec, 2.0, 0.5, bench.seed)?;
         let project = Project::load(&dir)?;
         crate::bench_dense::pool(2)?.install(|| run_stage(&project, Stage::Dem))?;
@@ -316,7 +319,7 @@ fn score_ortho(
     report: &RasterReport,
 ) -> anyhow::Result<OrthoScore> {
     let ortho = read_rgb8(&dir.join("out/epochs").join(name).join("ortho.tif"))?;
-    let (found, rmse) = ortho_target_errors(dir, &ortho, spec.target_radius)?;
+    let (found, rmse) = ortho_target_errors(&Layout::new(dir), &ortho, spec.target_radius)?;
     let r = report.epochs.get(name).cloned().unwrap_or_default();
     Ok(OrthoScore {
         targets: found,

@@ -1,5 +1,7 @@
 //! The planar trend of a difference grid over a set of cells: the least-squares plane
-//! `dz = a + b·x + c·y` through the stable cells of a DoD.
+//! `dz = a + b·x + c·y` through the stable cells of a DoD ([`plane_trend`]), and the same of
+//! scattered height residuals, robust to blunders ([`residual_plane`]: tie points against a
+//! surface).
 //!
 //! Why: a co-registration error that tilts one epoch (a roll about a corridor's axis, a bent
 //! block) leaves the stable area's median near zero while the DoD climbs from one side to the
@@ -102,6 +104,71 @@ pub fn plane_trend(dod: &Dem, mask: Option<&Mask>) -> Result<PlaneTrend, ChangeE
     })
 }
 
+/// How a set of points sits on a true surface: the height residuals' median and the plane
+/// fitted to them, which shows a tilt (a roll about a corridor's axis) that check points along
+/// the corridor cannot.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceAgreement {
+    /// Points compared.
+    pub count: usize,
+    /// Median height residual (point − surface), metres.
+    pub median_m: f64,
+    /// Slope of the plane fitted to the residuals, mm per m.
+    pub tilt_mm_per_m: f64,
+    /// Downhill direction of that plane, degrees clockwise from north.
+    pub tilt_azimuth_deg: f64,
+}
+
+/// Least points for a plane fit of residuals.
+const MIN_PLANE_POINTS: usize = 20;
+
+/// The plane `dz = a + b·x + c·y` through height residuals at `xy`, fitted by least squares,
+/// then again without the residuals beyond 3 NMAD of the first fit (blunders among tie
+/// points); `None` with fewer than 20 points or a degenerate spread.
+pub fn residual_plane(points: &[(f64, f64, f64)]) -> Option<SurfaceAgreement> {
+    if points.len() < MIN_PLANE_POINTS {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(sx, sy), p| (sx + p.0 / n, sy + p.1 / n));
+    // Points along a line fix no plane across it.
+    let (sxx, syy, sxy) = points.iter().fold((0.0, 0.0, 0.0), |(a, b, c), p| {
+        let (x, y) = (p.0 - mx, p.1 - my);
+        (a + x * x, b + y * y, c + x * y)
+    });
+    if sxx * syy - sxy * sxy <= 1e-9 * (sxx + syy).powi(2) {
+        return None;
+    }
+    let fit = |keep: &dyn Fn(&(f64, f64, f64)) -> bool| -> Option<nalgebra::Vector3<f64>> {
+        let mut normal = nalgebra::Matrix3::<f64>::zeros();
+        let mut rhs = nalgebra::Vector3::<f64>::zeros();
+        for p in points.iter().filter(|p| keep(p)) {
+            let row = nalgebra::Vector3::new(1.0, p.0 - mx, p.1 - my);
+            normal += row * row.transpose();
+            rhs += row * p.2;
+        }
+        normal.cholesky().map(|c| c.solve(&rhs))
+    };
+    let first = fit(&|_| true)?;
+    let residual = |c: &nalgebra::Vector3<f64>, p: &(f64, f64, f64)| {
+        p.2 - (c[0] + c[1] * (p.0 - mx) + c[2] * (p.1 - my))
+    };
+    let stats = crate::stats::statistics(points.iter().map(|p| residual(&first, p)))?;
+    let bound = 3.0 * stats.nmad.max(1e-9);
+    let plane = fit(&|p| residual(&first, p).abs() <= bound)?;
+    let median = crate::stats::statistics(points.iter().map(|p| p.2))?.median;
+    let (gx, gy) = (plane[1], plane[2]);
+    Some(SurfaceAgreement {
+        count: points.len(),
+        median_m: median,
+        tilt_mm_per_m: 1000.0 * gx.hypot(gy),
+        // Downhill: against the gradient; azimuth from north (y) clockwise towards east (x).
+        tilt_azimuth_deg: (-gx).atan2(-gy).to_degrees().rem_euclid(360.0),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -193,5 +260,35 @@ mod tests {
             plane_trend(&few, Some(&other)),
             Err(ChangeError::InvalidInput(_))
         ));
+    }
+
+    #[test]
+    fn a_tilted_plane_of_residuals_is_recovered_despite_blunders() {
+        let mut rng = timesift_core::SeededRng::new(4);
+        // 2 mm/m rising towards the north-east (downhill to the south-west, 225°), 5 cm above.
+        let g = 0.002 / std::f64::consts::SQRT_2;
+        let mut points: Vec<(f64, f64, f64)> = (0..400)
+            .map(|_| {
+                let (x, y) = (
+                    rng.uniform_range(-150.0, 150.0),
+                    rng.uniform_range(-40.0, 40.0),
+                );
+                (500_000.0 + x, 5_000_000.0 + y, 0.05 + g * x + g * y)
+            })
+            .collect();
+        for p in points.iter_mut().step_by(40) {
+            p.2 += 3.0;
+        }
+        let a = residual_plane(&points).unwrap();
+        assert_eq!(a.count, 400);
+        assert!((a.tilt_mm_per_m - 2.0).abs() < 1e-6, "{a:?}");
+        assert!((a.tilt_azimuth_deg - 225.0).abs() < 1e-4, "{a:?}");
+        assert!((a.median_m - 0.05).abs() < 0.02, "{a:?}");
+        // Too few points, or points along a line, fix no plane.
+        assert_eq!(residual_plane(&points[..10]), None);
+        let line: Vec<(f64, f64, f64)> = (0..50)
+            .map(|k| (k as f64, 2.0 * k as f64 + 1.0, 0.0))
+            .collect();
+        assert_eq!(residual_plane(&line), None);
     }
 }

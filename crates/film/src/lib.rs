@@ -79,6 +79,7 @@ mod frame;
 mod measure;
 mod raster;
 mod resample;
+mod target;
 mod template;
 mod transform;
 
@@ -87,5 +88,6 @@ pub use frame::{FiducialMark, FilmFrame, FrameMargins};
 pub use measure::{MarkMeasurement, MarkStatus, MeasureOptions, ScanOrientation, orient_scan};
 pub use raster::{GreyRaster, ImageView};
 pub use resample::{FrameImage, resample_to_frame};
+pub use target::locate_target;
 pub use template::Template;
 pub use transform::{ScanTransform, TransformModel};

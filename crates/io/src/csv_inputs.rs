@@ -91,14 +91,14 @@ pub struct ScaleBarInput {
 }
 
 /// One data row: its fields and line number.
-struct Row {
-    fields: Vec<String>,
-    line: usize,
+pub(crate) struct Row {
+    pub(crate) fields: Vec<String>,
+    pub(crate) line: usize,
 }
 
 /// Reads the rows of a CSV file, skipping comments, blank lines and a header equal (case-
 /// insensitive) to one of `headers`; rows must have one of `counts` fields.
-fn read_rows(
+pub(crate) fn read_rows(
     path: &Path,
     headers: &[&[&str]],
     counts: &[usize],
@@ -145,7 +145,7 @@ fn read_rows(
     Ok(rows)
 }
 
-fn number(path: &Path, row: &Row, index: usize, column: &str) -> Result<f64, IoError> {
+pub(crate) fn number(path: &Path, row: &Row, index: usize, column: &str) -> Result<f64, IoError> {
     let text = &row.fields[index];
     text.parse::<f64>()
         .ok()
@@ -159,7 +159,12 @@ fn number(path: &Path, row: &Row, index: usize, column: &str) -> Result<f64, IoE
         })
 }
 
-fn non_empty(path: &Path, row: &Row, index: usize, column: &str) -> Result<String, IoError> {
+pub(crate) fn non_empty(
+    path: &Path,
+    row: &Row,
+    index: usize,
+    column: &str,
+) -> Result<String, IoError> {
     let text = row.fields[index].clone();
     if text.is_empty() {
         return Err(IoError::line(

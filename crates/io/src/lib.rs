@@ -23,6 +23,7 @@ pub mod exr;
 pub mod fsutil;
 pub mod geotiff;
 pub mod image;
+pub mod layout;
 pub mod libmv;
 pub mod metashape;
 pub mod opensfm;
@@ -30,6 +31,7 @@ pub mod ply;
 pub mod pointcloud;
 pub mod tiled_tiff;
 pub mod topocentric;
+pub mod truth_csv;
 pub mod wkt;
 
 pub use error::IoError;

@@ -2,7 +2,7 @@
 //! cameras, which of them see a point —, and an orientation made from it (`out/cameras.json`
 //! from `truth/cameras.json`, sparse points sampled on the true surface), so that the stages
 //! after `align` can be run and judged on the true cameras. Used by `cargo xtask bench dense`
-//! and the tests of the dense stage.
+//! and `bench raster`, and the tests of the dense and raster stages.
 
 use std::path::Path;
 
@@ -14,14 +14,12 @@ use timesift_synth::render::Scene;
 use timesift_synth::scene::{Frame, SceneSpec};
 use timesift_synth::terrain::Heightfield;
 
-use crate::ProjectError;
-use crate::layout::Layout;
+use timesift_io::layout::Layout;
 
-fn synth_error(e: impl std::fmt::Display) -> ProjectError {
-    ProjectError::Stage {
-        stage: "truth",
-        message: e.to_string(),
-    }
+use crate::EvalError;
+
+fn synth_error(e: impl std::fmt::Display) -> EvalError {
+    EvalError::Scene(e.to_string())
 }
 
 /// One epoch of a synthetic scene, in the scene's local frame (world minus `spec.origin`).
@@ -48,7 +46,7 @@ impl<'a> TrueEpoch<'a> {
         epoch: usize,
         truth: &Reconstruction,
         name: &str,
-    ) -> Result<TrueEpoch<'a>, ProjectError> {
+    ) -> Result<TrueEpoch<'a>, EvalError> {
         let field = spec.heightfield(epoch);
         let scene = spec.scene(&field, epoch).map_err(synth_error)?;
         let images: Vec<usize> = truth
@@ -167,15 +165,15 @@ pub fn focal(camera: &Camera) -> f64 {
 
 /// Writes the orientation of a synthetic project from its truth: `out/cameras.json` as
 /// `truth/cameras.json`, and `out/colmap/` with sparse points on each epoch's true surface
-/// every `spacing_gsd` ground sampling distances, observed by the images that see them. Scans of
-/// film epochs get their interior orientations as the pipeline gives them (the fiducials step),
-/// so that the stages after `align` see them in their cameras' frames. Returns the number of
-/// sparse points.
+/// every `spacing_gsd` ground sampling distances, observed by the images that see them. Returns
+/// the number of sparse points. Scans of film epochs need their interior orientations as the
+/// pipeline gives them: the caller runs the fiducials step afterwards (the root's
+/// `stages::fiducials_stage`), so that the stages after `align` see them in their cameras' frames.
 pub fn write_true_orientation(
     dir: &Path,
     spec: &SceneSpec,
     spacing_gsd: f64,
-) -> Result<usize, ProjectError> {
+) -> Result<usize, EvalError> {
     let layout = Layout::new(dir);
     let truth = read_cameras_json(&layout.truth_cameras())?;
     write_cameras_json(&layout.cameras_json(), &truth)?;
@@ -229,9 +227,6 @@ pub fn write_true_orientation(
         }
     }
     write_colmap_text(&layout.colmap_dir(), &model)?;
-    if spec.epochs.iter().any(|e| e.film.is_some()) {
-        crate::stages::fiducials_stage(&crate::Project::load(dir)?)?;
-    }
     Ok(next as usize - 1)
 }
 
@@ -246,7 +241,7 @@ pub fn write_sampled_clouds(
     spacing_gsd: f64,
     noise_gsd: f64,
     seed: u64,
-) -> Result<Vec<(String, f64)>, ProjectError> {
+) -> Result<Vec<(String, f64)>, EvalError> {
     let layout = Layout::new(dir);
     let truth = read_cameras_json(&layout.truth_cameras())?;
     let crs: timesift_io::coords::Crs = spec.crs.parse().map_err(synth_error)?;
@@ -270,10 +265,7 @@ pub fn write_sampled_clouds(
         }
         let path = layout.dense_cloud(&epoch.name);
         if let Some(parent) = path.parent() {
-            std::fs::create_dir_all(parent).map_err(|e| ProjectError::Path {
-                path: parent.to_path_buf(),
-                message: e.to_string(),
-            })?;
+            std::fs::create_dir_all(parent).map_err(|e| timesift_io::IoError::io(parent, e))?;
         }
         let cloud = timesift_io::pointcloud::PointCloud {
             positions,

@@ -1,5 +1,5 @@
-//! Every path of a project directory that timesift reads or writes, in one place: the inputs'
-//! defaults live in `config`, everything under `work/` (resumable intermediate results) and
+//! Every path of a project directory that timesift reads or writes, in one place (the project
+//! directory of docs/design.md): the inputs' defaults live in the root's `config`, everything under `work/` (resumable intermediate results) and
 //! `out/` (the products of docs/design.md) is named here and nowhere else.
 
 use std::path::{Path, PathBuf};
@@ -246,13 +246,13 @@ impl Layout {
         self.epoch_dir(epoch).join("ortho.png")
     }
 
-    /// `out/change/<a>__<b>/stats.json`: the DEM comparison's [`crate::commands::compare::DemReport`].
+    /// `out/change/<a>__<b>/stats.json`: the DEM comparison's `DemReport` (the root's `compare`).
     pub fn change_stats(&self, a: &str, b: &str) -> PathBuf {
         self.change_dir(a, b).join("stats.json")
     }
 
     /// `out/change/<a>__<b>/m3c2_stats.json`: the cloud comparison's
-    /// [`crate::commands::compare::CloudReport`].
+    /// `CloudReport` (the root's `compare`).
     pub fn m3c2_stats(&self, a: &str, b: &str) -> PathBuf {
         self.change_dir(a, b).join("m3c2_stats.json")
     }
