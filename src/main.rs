@@ -277,8 +277,10 @@ fn run_pipeline(
     to: Option<stages::Stage>,
     quiet: bool,
 ) -> anyhow::Result<()> {
-    let project = Project::load(dir)?;
-    stages::set_quiet(quiet);
+    let mut project = Project::load(dir)?;
+    if quiet {
+        project.progress = timesift::project::Progress::Hidden;
+    }
     let start = std::time::Instant::now();
     let outcomes = stages::run_with(&project, from, to, &mut |o| {
         if !quiet {

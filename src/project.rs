@@ -61,6 +61,16 @@ pub struct CameraPrior {
     pub source: PriorSource,
 }
 
+/// Whether the stages of a run draw progress bars.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Progress {
+    /// Bars on stderr when it is a terminal.
+    #[default]
+    OnTerminal,
+    /// No bars (`timesift run --quiet`).
+    Hidden,
+}
+
 /// A validated project.
 #[derive(Debug, Clone)]
 pub struct Project {
@@ -98,6 +108,9 @@ pub struct Project {
     pub fiducial_marks: Vec<csv_inputs::FiducialMeasurement>,
     /// `[[camera]] mask` images by camera group.
     pub camera_masks: BTreeMap<String, crate::film::CameraMask>,
+    /// Whether the stages draw progress bars (not a setting of the project: the caller's,
+    /// `timesift run --quiet`).
+    pub progress: Progress,
 }
 
 /// A focal length the user gave for a camera group.
@@ -293,6 +306,7 @@ impl Project {
             film,
             fiducial_marks,
             camera_masks,
+            progress: Progress::default(),
         })
     }
 
@@ -458,6 +472,18 @@ fn projected_crs(cfg_path: &Path, config: &ProjectConfig) -> Result<Crs, Project
             cfg_path,
             "epoch",
             "no [[epoch]] is defined",
+        ));
+    }
+    // The epochs a tie point is seen in are a fixed-size set.
+    let most = timesift_io::ply::EpochSet::CAPACITY;
+    if config.epochs.len() > most {
+        return Err(ProjectError::config(
+            cfg_path,
+            "epoch",
+            format!(
+                "{} epochs are defined; timesift handles at most {most} in one project",
+                config.epochs.len()
+            ),
         ));
     }
     Ok(crs)

@@ -193,11 +193,11 @@ pub fn tie_matrix(epochs: usize, points: &[TiePoint]) -> Vec<Vec<usize>> {
     let mut m = vec![vec![0usize; epochs]; epochs];
     for p in points {
         for (a, row) in m.iter_mut().enumerate() {
-            if p.epochs & (1 << a) == 0 {
+            if !p.epochs.contains(a) {
                 continue;
             }
             for (b, cell) in row.iter_mut().enumerate() {
-                if p.epochs & (1 << b) != 0 {
+                if p.epochs.contains(b) {
                     *cell += 1;
                 }
             }
@@ -210,12 +210,11 @@ pub fn tie_matrix(epochs: usize, points: &[TiePoint]) -> Vec<Vec<usize>> {
 /// 5–95 % box of the inter-epoch points over that of all the epoch's points (1 when they span
 /// it all). `None` when either set has fewer than ten points.
 pub fn tie_spread(points: &[TiePoint], epoch: usize) -> Option<f64> {
-    let bit = 1u32 << epoch;
-    let all: Vec<&TiePoint> = points.iter().filter(|p| p.epochs & bit != 0).collect();
+    let all: Vec<&TiePoint> = points.iter().filter(|p| p.epochs.contains(epoch)).collect();
     let inter: Vec<&TiePoint> = all
         .iter()
         .copied()
-        .filter(|p| p.epochs & !bit != 0)
+        .filter(|p| p.epochs.has_other_than(epoch))
         .collect();
     if all.len() < 10 || inter.len() < 10 {
         return None;
@@ -283,17 +282,17 @@ mod tests {
 
     #[test]
     fn tie_matrix_counts_shared_points_and_spread_sees_a_strip() {
-        let p = |x: f64, y: f64, epochs: u32| TiePoint {
+        let p = |x: f64, y: f64, epochs: &[usize]| TiePoint {
             position: Vector3::new(x, y, 0.0),
             observations: 2,
-            epochs,
+            epochs: epochs.iter().copied().collect(),
         };
         let mut points = Vec::new();
         for i in 0..20 {
             for j in 0..20 {
                 // Epoch 0 everywhere; epoch 1 shares only a strip x < 2.
                 let both = i < 2;
-                points.push(p(i as f64, j as f64, if both { 0b11 } else { 0b01 }));
+                points.push(p(i as f64, j as f64, if both { &[0, 1] } else { &[0] }));
             }
         }
         let m = tie_matrix(2, &points);

@@ -302,7 +302,7 @@ fn connectivity_section(
         for (e, name) in names.iter().enumerate() {
             let inter = points
                 .iter()
-                .filter(|p| p.epochs & (1 << e) != 0 && p.epochs & !(1u32 << e) != 0)
+                .filter(|p| p.epochs.contains(e) && p.epochs.has_other_than(e))
                 .count();
             if inter < FEW_INTER_EPOCH_TIES {
                 warnings.push(format!(
@@ -367,16 +367,13 @@ fn tie_matrix_rows(names: &[String], m: &[Vec<usize>]) -> Vec<Vec<String>> {
 fn tie_map(project: &Project, inputs: &Inputs, frame: MapFrame, points: &[TiePoint]) -> String {
     let mut s = String::new();
     let u = frame.unit();
-    let inter: Vec<&TiePoint> = points
-        .iter()
-        .filter(|p| p.epochs.count_ones() > 1)
-        .collect();
+    let inter: Vec<&TiePoint> = points.iter().filter(|p| p.epochs.len() > 1).collect();
     // At most 20 000 dots, every k-th point.
     let stride = inter.len().div_ceil(20_000).max(1);
     let mut overlay = String::new();
     for p in inter.iter().step_by(stride) {
         let (x, y) = frame.at(p.position.x, p.position.y);
-        let colour = match p.epochs.count_ones() {
+        let colour = match p.epochs.len() {
             2 => "#f1c40f",
             3 => "#e67e22",
             _ => "#c0392b",

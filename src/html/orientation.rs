@@ -11,7 +11,7 @@ pub(super) fn ground_height(inputs: &Inputs, epoch: usize) -> f64 {
     };
     let mut z: Vec<f64> = points
         .iter()
-        .filter(|p| p.epochs & (1 << epoch) != 0)
+        .filter(|p| p.epochs.contains(epoch))
         .map(|p| p.position.z)
         .collect();
     if z.is_empty() {

@@ -138,7 +138,13 @@ pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
         message: e,
     })?;
     let mut report = read_report(project);
-    let bar = super::progress_bar("dem", "", project.epochs.len() as u64, "epochs");
+    let bar = super::progress_bar(
+        project.progress,
+        "dem",
+        "",
+        project.epochs.len() as u64,
+        "epochs",
+    );
     for epoch in &project.epochs {
         bar.inc(1);
         let name = &epoch.name;

@@ -19,7 +19,6 @@ mod report;
 use std::fmt;
 use std::io::IsTerminal;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
@@ -35,6 +34,7 @@ pub use matching::match_stage;
 pub use ortho::ortho_stage;
 pub use report::report_stage;
 
+use crate::project::Progress;
 use crate::report::{RunLog, StageRun, read_json, write_json};
 use crate::{Project, ProjectError};
 
@@ -136,18 +136,16 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
         .collect())
 }
 
-/// Set by `--quiet`: no progress bars.
-static QUIET: AtomicBool = AtomicBool::new(false);
-
-/// Hides every progress bar (`timesift run --quiet`); bars are otherwise shown on a terminal.
-pub fn set_quiet(quiet: bool) {
-    QUIET.store(quiet, Ordering::Relaxed);
-}
-
-/// A progress bar for one epoch of a stage on a terminal (hidden otherwise, and with
-/// `--quiet`): `what` names the unit counted.
-pub(crate) fn progress_bar(stage: &str, epoch: &str, total: u64, what: &str) -> ProgressBar {
-    if QUIET.load(Ordering::Relaxed) || !std::io::stderr().is_terminal() {
+/// A progress bar for one epoch of a stage on a terminal (hidden otherwise, and when the
+/// project's `progress` says so): `what` names the unit counted.
+pub(crate) fn progress_bar(
+    progress: Progress,
+    stage: &str,
+    epoch: &str,
+    total: u64,
+    what: &str,
+) -> ProgressBar {
+    if progress == Progress::Hidden || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(total);

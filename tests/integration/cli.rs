@@ -221,6 +221,24 @@ fn geographic_crs_is_refused_by_key() {
 }
 
 #[test]
+fn more_epochs_than_a_tie_point_can_name_are_refused_by_key() {
+    let p = small_project();
+    let epochs: String = (0..257)
+        .map(|e| format!("[[epoch]]\nname = \"e{e}\"\nimages = \"images/e{e}/*.png\"\n"))
+        .collect();
+    write(
+        p.path(),
+        "project.toml",
+        &format!("crs = \"local\"\n{epochs}"),
+    );
+    let e = info_error(p.path());
+    assert!(
+        e.contains("key `epoch`") && e.contains("257 epochs") && e.contains("at most 256"),
+        "{e}"
+    );
+}
+
+#[test]
 fn marker_naming_unknown_point_or_image_names_file_and_line() {
     let p = small_project();
     write(

@@ -2,6 +2,7 @@
 //! `out/report.json` with each epoch's orientation.
 
 use super::*;
+use timesift_io::ply::EpochSet;
 
 pub(super) fn write_outputs(
     project: &Project,
@@ -43,7 +44,8 @@ pub(super) fn write_outputs(
             epochs: p
                 .observations
                 .iter()
-                .fold(0u32, |m, e| m | 1u32 << (epoch_of[e.image.index()] % 32)),
+                .map(|e| epoch_of[e.image.index()])
+                .collect(),
         })
         .collect();
     let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
@@ -200,12 +202,12 @@ fn epoch_pair_ties(
         spread(&all, &major).unwrap_or(0.0),
     );
     let mut pairs = Vec::new();
-    for a in 0..project.epochs.len().min(32) {
-        for b in a + 1..project.epochs.len().min(32) {
-            let both = (1u32 << a) | (1u32 << b);
+    for a in 0..project.epochs.len() {
+        for b in a + 1..project.epochs.len() {
+            let both: EpochSet = [a, b].into_iter().collect();
             let shared: Vec<Vector2<f64>> = tiepoints
                 .iter()
-                .filter(|p| p.epochs & both == both)
+                .filter(|p| p.epochs.contains_all(&both))
                 .map(|p| p.position.xy() - mean)
                 .collect();
             pairs.push(crate::report::EpochPairTies {
@@ -387,11 +389,10 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
         .map(|(_, r)| *r)
         .collect();
     let rms = (errors.iter().map(|r| r * r).sum::<f64>() / errors.len() as f64).sqrt();
-    let bit = 1u32 << (e % 32);
-    let tie = tiepoints.iter().filter(|p| p.epochs & bit != 0).count();
+    let tie = tiepoints.iter().filter(|p| p.epochs.contains(e)).count();
     let inter = tiepoints
         .iter()
-        .filter(|p| p.epochs & bit != 0 && p.epochs & !bit != 0)
+        .filter(|p| p.epochs.contains(e) && p.epochs.has_other_than(e))
         .count();
     let per_epoch = if block.datum == Datum::Local {
         Vec::new()

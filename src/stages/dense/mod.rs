@@ -475,7 +475,13 @@ fn compute_maps(
     options: &DenseOptions,
 ) -> Result<usize, ProjectError> {
     let views = plan.views.len();
-    let bar = super::progress_bar("dense", name, (passes.len() * views) as u64, "depth maps");
+    let bar = super::progress_bar(
+        cache.project.progress,
+        "dense",
+        name,
+        (passes.len() * views) as u64,
+        "depth maps",
+    );
     let mut computed = 0;
     for (k, pass) in passes.iter().enumerate() {
         for view in 0..views {
