@@ -16,6 +16,7 @@ mod error;
 pub mod eval;
 pub mod film;
 pub mod html;
+pub mod progress;
 pub mod project;
 pub mod report;
 pub mod stable_matcher;

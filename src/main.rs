@@ -279,7 +279,7 @@ fn run_pipeline(
 ) -> anyhow::Result<()> {
     let mut project = Project::load(dir)?;
     if quiet {
-        project.progress = timesift::project::Progress::Hidden;
+        project.progress = timesift::progress::Progress::Hidden;
     }
     let start = std::time::Instant::now();
     let outcomes = stages::run_with(&project, from, to, &mut |o| {

@@ -61,16 +61,6 @@ pub struct CameraPrior {
     pub source: PriorSource,
 }
 
-/// Whether the stages of a run draw progress bars.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Progress {
-    /// Bars on stderr when it is a terminal.
-    #[default]
-    OnTerminal,
-    /// No bars (`timesift run --quiet`).
-    Hidden,
-}
-
 /// A validated project.
 #[derive(Debug, Clone)]
 pub struct Project {
@@ -110,7 +100,7 @@ pub struct Project {
     pub camera_masks: BTreeMap<String, crate::film::CameraMask>,
     /// Whether the stages draw progress bars (not a setting of the project: the caller's,
     /// `timesift run --quiet`).
-    pub progress: Progress,
+    pub progress: crate::progress::Progress,
 }
 
 /// A focal length the user gave for a camera group.
@@ -306,7 +296,7 @@ impl Project {
             film,
             fiducial_marks,
             camera_masks,
-            progress: Progress::default(),
+            progress: crate::progress::Progress::default(),
         })
     }
 

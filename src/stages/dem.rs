@@ -138,7 +138,7 @@ pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
         message: e,
     })?;
     let mut report = read_report(project);
-    let bar = super::progress_bar(
+    let bar = crate::progress::progress_bar(
         project.progress,
         "dem",
         "",

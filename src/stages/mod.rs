@@ -17,11 +17,8 @@ mod ortho;
 mod report;
 
 use std::fmt;
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
-
-use indicatif::{ProgressBar, ProgressStyle};
 
 pub use align::align_stage;
 pub(crate) use cache::Fnv1a;
@@ -34,7 +31,6 @@ pub use matching::match_stage;
 pub use ortho::ortho_stage;
 pub use report::report_stage;
 
-use crate::project::Progress;
 use crate::report::{RunLog, StageRun, read_json, write_json};
 use crate::{Project, ProjectError};
 
@@ -134,28 +130,6 @@ pub fn stage_range(from: Option<Stage>, to: Option<Stage>) -> Result<Vec<Stage>,
         .into_iter()
         .filter(|s| *s >= from && *s <= to)
         .collect())
-}
-
-/// A progress bar for one epoch of a stage on a terminal (hidden otherwise, and when the
-/// project's `progress` says so): `what` names the unit counted.
-pub(crate) fn progress_bar(
-    progress: Progress,
-    stage: &str,
-    epoch: &str,
-    total: u64,
-    what: &str,
-) -> ProgressBar {
-    if progress == Progress::Hidden || !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(total);
-    if let Ok(style) = ProgressStyle::with_template(&format!(
-        "{{prefix}} [{{bar:30}}] {{pos}}/{{len}} {what}, {{eta}} left"
-    )) {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    bar.set_prefix(format!("{stage} {epoch}"));
-    bar
 }
 
 /// What one stage of a run did.

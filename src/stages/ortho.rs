@@ -228,7 +228,7 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
             .collect();
         let cache = ImageCache::new(project, &source, images, &views);
         let start = Instant::now();
-        let bar = super::progress_bar(project.progress, "ortho", name, 0, "tiles");
+        let bar = crate::progress::progress_bar(project.progress, "ortho", name, 0, "tiles");
         let progress = |done: usize, total: usize| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);

@@ -475,7 +475,7 @@ fn compute_maps(
     options: &DenseOptions,
 ) -> Result<usize, ProjectError> {
     let views = plan.views.len();
-    let bar = super::progress_bar(
+    let bar = crate::progress::progress_bar(
         cache.project.progress,
         "dense",
         name,
