@@ -1,5 +1,5 @@
 //! The JSON reports timesift writes, as typed structs shared by their writers, their readers
-//! (`truth`, `timesift demo`, the benches, tests) and their documentation: `out/report.json` of
+//! (`eval`, `timesift demo`, the benches, tests) and their documentation: `out/report.json` of
 //! the align stage, `work/matches/summary.json` of the match stage, `out/dense.json` of the
 //! dense stage, `out/grid.json` (the project's lattice) and `out/raster.json` of the dem and
 //! ortho stages. Field names are the JSON keys.
