@@ -184,13 +184,14 @@ pub fn read_tiepoints(path: &Path) -> Result<(Vec<String>, Vec<TiePoint>), IoErr
         .map(str::to_string)
         .chain((0..words).map(|k| format!("uint {}", mask_property(k))))
         .collect();
-    if words == 0 || words > EpochSet::CAPACITY / 32 || properties != expected {
+    if words != epochs.len().div_ceil(32).max(1) || properties != expected {
         return Err(IoError::invalid(
             path,
             format!(
-                "vertex properties {:?}: expected x, y, z (double), observations (ushort), then \
-                 epochs, epochs_32, … (uint)",
-                properties
+                "vertex properties {:?} for {} epochs: expected x, y, z (double), observations \
+                 (ushort), then epochs, epochs_32, … (uint, one per 32 epochs)",
+                properties,
+                epochs.len()
             ),
         ));
     }
@@ -209,6 +210,15 @@ pub fn read_tiepoints(path: &Path) -> Result<(Vec<String>, Vec<TiePoint>), IoErr
         for k in 0..words {
             let b = &record[26 + 4 * k..30 + 4 * k];
             set.set_word32(k, u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+        }
+        if (epochs.len()..32 * words).any(|e| set.contains(e)) {
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "vertex {k} is seen in an epoch beyond the {} named",
+                    epochs.len()
+                ),
+            ));
         }
         points.push(TiePoint {
             position: Vector3::new(f(0), f(1), f(2)),
@@ -284,6 +294,19 @@ mod tests {
         let err = write_tiepoints(&dir.path().join("u.ply"), &many, &[]).unwrap_err();
         assert!(err.to_string().contains("at most 256"), "{err}");
         assert!(!dir.path().join("u.ply").exists());
+        // A point seen in an epoch the header does not name is refused.
+        let stray = dir.path().join("s.ply");
+        let three = vec!["a".to_string(), "b".into(), "c".into()];
+        let odd = TiePoint {
+            epochs: EpochSet::only(5),
+            ..points[0]
+        };
+        write_tiepoints(&stray, &three, &[odd]).unwrap();
+        let err = read_tiepoints(&stray).unwrap_err().to_string();
+        assert!(
+            err.contains("vertex 0") && err.contains("beyond the 3 named"),
+            "{err}"
+        );
         // A mask property missing or misnamed is refused.
         let bytes = std::fs::read(&path).unwrap();
         let broken = String::from_utf8_lossy(&bytes).replacen("epochs_32", "epochs_33", 1);
