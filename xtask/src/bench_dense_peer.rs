@@ -9,8 +9,8 @@ use anyhow::{Context, bail};
 use nalgebra::Vector3;
 use timesift::Project;
 use timesift::film::ImageSource;
-use timesift::stages::dense_input;
-use timesift_dense::{ImageView, PlanOptions, UndistortMap, plan_epoch};
+use timesift::stages::{dense_input, dense_view};
+use timesift_dense::{PlanOptions, UndistortMap, plan_epoch};
 
 /// SGBM's clouds per epoch (world coordinates) and its wall times over every image.
 pub struct PeerResult {
@@ -47,16 +47,7 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
         for (v, vp) in plan.views.iter().enumerate() {
             let (decoded, mask) = source.read(project, images[v], false)?.into_dense_parts();
             let map = UndistortMap::new(&input.views[v].camera, vp.camera, plan.level);
-            let working = map.apply(
-                &ImageView {
-                    width: decoded.width as usize,
-                    height: decoded.height as usize,
-                    channels: decoded.channels as usize,
-                    data: &decoded.data,
-                },
-                mask.as_ref(),
-                true,
-            )?;
+            let working = map.apply(&dense_view(&decoded), mask.as_ref(), true)?;
             let png = dir.join(format!("{v}.png"));
             let grey: Vec<u8> = working
                 .grey

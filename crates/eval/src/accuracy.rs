@@ -199,15 +199,14 @@ pub fn epoch_accuracy(
         .transpose()?;
     let reference = epochs
         .get(reference_name)
-        .map(|e| e.check_residuals.clone())
-        .unwrap_or_default();
+        .map_or(&[][..], |e| e.check_residuals.as_slice());
     let reference_alone = orientation_check_errors(project, &ours, &truth, reference_name);
     let mut rows = Vec::new();
     for (name, epoch) in epochs {
         let checks = &epoch.check_residuals;
         let alone = orientation_check_errors(project, &ours, &truth, name);
         let vectors: Vec<Vector3<f64>> = checks.iter().map(|c| c.1).collect();
-        let disagreement = differences(checks, &reference);
+        let disagreement = differences(checks, reference);
         let centres: Vec<Vector3<f64>> = ours
             .images
             .iter()

@@ -40,6 +40,16 @@ use crate::layout::Layout;
 use crate::report::{DenseReport, EpochDense, read_json, write_json};
 use crate::{Project, ProjectError};
 pub use input::{dense_input, dense_inputs};
+
+/// A decoded image as the dense crate borrows it (its pixels, not a copy).
+pub fn dense_view(decoded: &timesift_io::image::ImageF32) -> ImageView<'_> {
+    ImageView {
+        width: decoded.width as usize,
+        height: decoded.height as usize,
+        channels: decoded.channels as usize,
+        data: &decoded.data,
+    }
+}
 use input::{epoch_input, match_orientation, orientation_fingerprint};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
@@ -199,16 +209,7 @@ impl ImageCache<'_> {
             UndistortMap::new(camera, self.plan.views[view].camera, self.plan.level)
         });
         let working = map
-            .apply(
-                &ImageView {
-                    width: decoded.width as usize,
-                    height: decoded.height as usize,
-                    channels: decoded.channels as usize,
-                    data: &decoded.data,
-                },
-                mask.as_ref(),
-                self.black_is_nodata,
-            )
+            .apply(&dense_view(&decoded), mask.as_ref(), self.black_is_nodata)
             .map_err(|e| {
                 stage_error(
                     "dense",
