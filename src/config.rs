@@ -329,6 +329,11 @@ pub struct AlignConfig {
     /// orient the block again with them (twice the orientation's time). Default `false`.
     #[serde(default)]
     pub join_epoch_ties: bool,
+    /// After the first block, seek each tie point among the keypoints near its projection in
+    /// the other epochs' images, and orient the block again with what matches
+    /// (`timesift_align::SfmOptions::guided_epoch_ties`). Default `false`.
+    #[serde(default)]
+    pub guided_epoch_ties: bool,
 }
 
 /// `[align] outlier_bound`: whose noise the observation outlier bound (4 σ) follows.
@@ -386,6 +391,7 @@ impl Default for AlignConfig {
             inter_epoch_ties: InterEpochTies::default(),
             outlier_bound: OutlierBoundConfig::default(),
             join_epoch_ties: false,
+            guided_epoch_ties: false,
         }
     }
 }

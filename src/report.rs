@@ -37,6 +37,10 @@ pub struct AlignReport {
     /// put them together (`[align] join_epoch_ties`).
     #[serde(default)]
     pub inter_epoch_ties_joined: usize,
+    /// Inter-epoch ties found near where the first block projects a point into another
+    /// epoch's images (`[align] guided_epoch_ties`): keypoints added and tracks joined.
+    #[serde(default)]
+    pub inter_epoch_ties_guided: usize,
     /// Regions found changed from the block's own inter-epoch ties (`[align] inter_epoch_ties =
     /// "auto"` without stable areas); 0 otherwise.
     #[serde(default)]
@@ -82,6 +86,10 @@ pub struct EpochPairTies {
     pub all_across_std_m: f64,
     /// Every tie point's standard deviation along the block, metres.
     pub all_along_std_m: f64,
+    /// The tilt of the second epoch's surface against the first's (the DoD's tilt) that the
+    /// block allows, from its covariance: what the inter-epoch ties, GNSS and control hold.
+    #[serde(default)]
+    pub dod_tilt: Option<DatumTiltReport>,
 }
 
 /// One epoch of [`AlignReport`].
@@ -109,6 +117,11 @@ pub struct EpochOrientation {
     /// How loosely the control the epoch rests on fixes the tilt of its datum.
     #[serde(default)]
     pub datum_tilt: Option<DatumTiltReport>,
+    /// The tilt of the epoch's surface against the world that the whole block allows, from its
+    /// covariance (`timesift_bundle::rigid`): unlike `datum_tilt`, it follows how the epoch
+    /// hangs on its inter-epoch ties, and how the tie points may bend it as a whole.
+    #[serde(default)]
+    pub block_tilt: Option<DatumTiltReport>,
 }
 
 /// The standard deviation of a datum's tilt that its control allows, predicted from the

@@ -14,7 +14,11 @@ pub(super) fn volume_row(label: &str, v: &timesift_change::volume::Volumes) -> V
     ]
 }
 
-pub(super) fn change_section(project: &Project, warnings: &mut Vec<String>) -> String {
+pub(super) fn change_section(
+    project: &Project,
+    align: &AlignReport,
+    warnings: &mut Vec<String>,
+) -> String {
     let layout = project.layout();
     let mut s = String::from(
         "<p>Later minus earlier: red where the ground rose, blue where it lowered; cells within \
@@ -38,7 +42,12 @@ pub(super) fn change_section(project: &Project, warnings: &mut Vec<String>) -> S
                 continue;
             }
         };
-        s.push_str(&dod_statistics(&a, &b, &dem, warnings));
+        let predicted = align
+            .epoch_pairs
+            .iter()
+            .find(|p| p.epochs[0] == a && p.epochs[1] == b)
+            .and_then(|p| p.dod_tilt);
+        s.push_str(&dod_statistics(&a, &b, &dem, predicted, warnings));
         s.push_str(&dod_volumes_and_maps(&dir, &dem));
         for w in &dem.warnings {
             warnings.push(format!("{a} → {b}: {w}"));
@@ -50,7 +59,13 @@ pub(super) fn change_section(project: &Project, warnings: &mut Vec<String>) -> S
 
 /// A DoD's statistics (every cell, the stable areas), the stable areas' plane (a warning where
 /// it tilts by more than the LoD95), the LoD95 and the correlation of the stable errors.
-fn dod_statistics(a: &str, b: &str, dem: &DemReport, warnings: &mut Vec<String>) -> String {
+fn dod_statistics(
+    a: &str,
+    b: &str,
+    dem: &DemReport,
+    predicted: Option<crate::report::DatumTiltReport>,
+    warnings: &mut Vec<String>,
+) -> String {
     let mut s = String::new();
     let mut rows = vec![stat_row("all cells", &dem.all)];
     if let Some(st) = &dem.stable {
@@ -73,6 +88,29 @@ fn dod_statistics(a: &str, b: &str, dem: &DemReport, warnings: &mut Vec<String>)
                 num(Some(t.gain_m), 3),
                 num(Some(t.extent_m), 0)
             );
+            if let Some(p) = predicted {
+                let sigmas = t.slope * 1000.0 / p.sigma_max_mm_per_m;
+                let _ = write!(
+                    s,
+                    "<p>The block allows this DoD a tilt of σ = {} mm/m (loosest, gradient at \
+                     {}° from east; firmest {} mm/m), from its covariance: what the \
+                     inter-epoch ties, GNSS and control hold. The stable areas tilt by {} σ.</p>",
+                    num(Some(p.sigma_max_mm_per_m), 2),
+                    num(Some(p.loose_azimuth_deg), 0),
+                    num(Some(p.sigma_min_mm_per_m), 2),
+                    num(Some(sigmas), 1)
+                );
+                if sigmas > 3.0 {
+                    warnings.push(format!(
+                        "{a} → {b}: the stable areas tilt by {:.2} mm/m, {sigmas:.1} times \
+                         the σ the block predicts ({:.2} mm/m): a fault the adjustment does \
+                         not model (ground that moved taken as stable, a camera model that \
+                         bends the block), not noise",
+                        t.slope * 1000.0,
+                        p.sigma_max_mm_per_m
+                    ));
+                }
+            }
             if let Some(lod) = dem.lod95
                 && t.gain_m > lod
             {

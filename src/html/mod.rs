@@ -135,7 +135,7 @@ pub fn build_report(project: &Project) -> Result<ReportPage, ProjectError> {
         (
             "change",
             "Change between epochs",
-            change::change_section(project, &mut warnings),
+            change::change_section(project, &inputs.align, &mut warnings),
         ),
         (
             "settings",

@@ -231,6 +231,7 @@ pub(super) fn orientation_section(
             "check RMSE dE/dN/dH mm",
             "GNSS offset E/N/H m",
             "datum tilt σ mm/m: loosest / firmest",
+            "block tilt σ mm/m: loosest / firmest",
         ],
         &rows,
     );
@@ -285,13 +286,19 @@ fn orientation_row(name: &str, r: &EpochOrientation) -> Vec<String> {
                 o.offset[0], o.offset[1], o.offset[2]
             )
         }),
-        r.datum_tilt.map_or("–".into(), |t| {
-            format!(
-                "{:.2} (gradient at {:.0}°) / {:.2}",
-                t.sigma_max_mm_per_m, t.loose_azimuth_deg, t.sigma_min_mm_per_m
-            )
-        }),
+        tilt_cell(r.datum_tilt),
+        tilt_cell(r.block_tilt),
     ]
+}
+
+/// A tilt σ: loosest (with its gradient's direction) / firmest.
+fn tilt_cell(t: Option<crate::report::DatumTiltReport>) -> String {
+    t.map_or("–".into(), |t| {
+        format!(
+            "{:.2} (gradient at {:.0}°) / {:.2}",
+            t.sigma_max_mm_per_m, t.loose_azimuth_deg, t.sigma_min_mm_per_m
+        )
+    })
 }
 
 /// The warnings one epoch's orientation calls for: a loose datum tilt, a GNSS offset the focal

@@ -60,6 +60,11 @@ fn project(dir: &Path) {
         check_points,
         gnss_offset: None,
         datum_tilt: None,
+        block_tilt: Some(timesift::report::DatumTiltReport {
+            sigma_max_mm_per_m: 0.83,
+            sigma_min_mm_per_m: 0.27,
+            loose_azimuth_deg: 161.0,
+        }),
     };
     let report = AlignReport {
         method: timesift_align::Method::Timesift,
@@ -71,6 +76,7 @@ fn project(dir: &Path) {
         inter_epoch_ties_split_as_moved: 0,
         inter_epoch_ties_split_off_stable: 0,
         inter_epoch_ties_joined: 0,
+        inter_epoch_ties_guided: 0,
         changed_regions: 0,
         observation_bound_px: Some(2.0),
         group_noise: Vec::new(),
@@ -101,6 +107,7 @@ fn a_report_of_the_orientation_alone_has_every_section_and_says_what_is_missing(
     for id in timesift::html::SECTIONS {
         assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
     }
+    assert!(html.contains("block tilt σ mm/m") && html.contains("0.83 (gradient at 161°) / 0.27"));
     assert!(html.contains("epoch 2019: 1 of 2 images could not be oriented"));
     assert!(html.contains("out/tiepoints.ply is missing"));
     assert!(html.contains("Not computed (change stage)"));

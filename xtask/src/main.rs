@@ -28,6 +28,7 @@ mod api;
 mod bench_align;
 mod bench_bundle;
 mod bench_change;
+mod bench_coreg;
 mod bench_dense;
 mod bench_dense_lund;
 mod bench_dense_peer;
@@ -180,6 +181,20 @@ enum BenchStage {
     Matching,
     /// Images to oriented block on `lund` against COLMAP's CPU pipeline (2 threads).
     Align,
+    /// DoD-level co-registration on rendered-mar (two real beach surveys rendered with exact
+    /// truth): each epoch's DEM and the DoD against the truth over stable ground (median, tilt
+    /// of a plane), check points and the report's predicted tilt σ, per variant.
+    Coreg {
+        /// Variants, comma-separated: default, joined, gcps-all, truth (the true cameras).
+        #[arg(long, value_delimiter = ',', default_value = "default,truth")]
+        variants: Vec<String>,
+        /// Output folder.
+        #[arg(long, default_value = "target/bench-coreg")]
+        out: PathBuf,
+        /// Products with the default `[dense]` settings rather than the lighter ones.
+        #[arg(long)]
+        full_dense: bool,
+    },
     /// Dense clouds of the synth scenes against the truth (true and align-stage cameras) and
     /// OpenCV's StereoSGBM on the same images; lund's fused points (pip install
     /// opencv-python-headless).
@@ -397,6 +412,18 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Align,
         } => bench_align::run()?,
+        Task::Bench {
+            stage:
+                BenchStage::Coreg {
+                    variants,
+                    out,
+                    full_dense,
+                },
+        } => bench_coreg::run_bench(&bench_coreg::CoregBench {
+            variants,
+            out,
+            full_dense,
+        })?,
         Task::Bench {
             stage:
                 BenchStage::Film {

@@ -83,6 +83,9 @@ pub(crate) struct Adjustment<'p> {
     pub focal_fixed: &'p [bool],
     /// Also compute the standard deviations of the free intrinsics (needs a fixed datum).
     pub precision: bool,
+    /// With `precision`: sets of images (input indices) whose rigid motion's covariance is
+    /// computed too ([`Adjusted::rigid_covariance`]).
+    pub rigid_sets: &'p [Vec<usize>],
 }
 
 /// What an adjustment gives back besides the updated state.
@@ -97,6 +100,9 @@ pub(crate) struct Adjusted {
     /// Per offset: the largest |correlation| of its up component with a free focal length,
     /// when asked for and some focal length was free.
     pub offset_focal_correlation: Option<Vec<Option<f64>>>,
+    /// The covariance of the rigid motions of [`Adjustment::rigid_sets`], 6 rows per set, when
+    /// asked for, every set had two free images and the datum was fixed.
+    pub rigid_covariance: Option<nalgebra::DMatrix<f64>>,
 }
 
 /// Robust loss of tie-point residuals (in sigmas) while the block grows: soft L1 beyond about
@@ -132,6 +138,10 @@ impl State<'_> {
         let report = timesift_bundle::solve(&mut problem, &options)?;
         let (intrinsic_std, offset_std, offset_focal_correlation) =
             adjusted_precision(&problem, a.precision);
+        let rigid_covariance = match a.precision && !a.rigid_sets.is_empty() {
+            true => rigid_covariance(&problem, &slot, a.rigid_sets),
+            false => None,
+        };
         for (value, offset) in self.offsets.iter_mut().zip(&problem.prior_offsets) {
             *value = offset.value;
         }
@@ -149,6 +159,7 @@ impl State<'_> {
             intrinsic_std,
             offset_std,
             offset_focal_correlation,
+            rigid_covariance,
         })
     }
 
@@ -308,6 +319,39 @@ fn add_marked_points(
             });
         }
     }
+}
+
+/// The a-posteriori covariance of the rigid motions of `sets` (input image indices, mapped to
+/// the problem's by `slot`), rotations weighed by the median distance from camera to point;
+/// `None` where it cannot be had (a set with fewer than two free images, a free datum).
+fn rigid_covariance(
+    problem: &BundleProblem,
+    slot: &BTreeMap<usize, usize>,
+    sets: &[Vec<usize>],
+) -> Option<nalgebra::DMatrix<f64>> {
+    let sets: Vec<Vec<usize>> = sets
+        .iter()
+        .map(|set| set.iter().filter_map(|i| slot.get(i).copied()).collect())
+        .collect();
+    let mut distances: Vec<f64> = problem
+        .observations
+        .iter()
+        .step_by(7)
+        .map(|o| (problem.points[o.point].position - problem.images[o.image].pose.center()).norm())
+        .collect();
+    if distances.is_empty() {
+        return None;
+    }
+    let middle = distances.len() / 2;
+    let lever = *distances.select_nth_unstable_by(middle, f64::total_cmp).1;
+    timesift_bundle::rigid::rigid_motion_covariance(
+        problem,
+        &sets,
+        lever,
+        timesift_bundle::precision::CovarianceScale::Posterior,
+    )
+    .map_err(|e| tracing::info!("no covariance of the epochs' rigid motions: {e}"))
+    .ok()
 }
 
 /// The intrinsics' standard deviations, the offsets' (the larger of the a-priori and the

@@ -67,6 +67,9 @@ pub struct GeoreferenceInput {
     pub points: Vec<GroundPoint>,
     /// Standard deviation of marker measurements, pixels.
     pub marker_sigma_px: f64,
+    /// Sets of images (each epoch's) whose rigid motion's covariance the final adjustment
+    /// reports ([`Georeferenced::set_motion_covariance`]); empty: none asked for.
+    pub rigid_sets: Vec<Vec<usize>>,
 }
 
 /// What fixed the datum.
@@ -165,6 +168,12 @@ pub struct Georeferenced {
     pub gnss_offsets: Vec<EstimatedOffset>,
     /// What was left out, rejected, split or joined on the way.
     pub diagnostics: Diagnostics,
+    /// The covariance of the rigid motions (rotation, radians; translation, metres) of
+    /// [`GeoreferenceInput::rigid_sets`] in the final adjustment, 6 rows per set
+    /// (`timesift_bundle::rigid::rigid_motion_covariance`, a-posteriori): how firmly the
+    /// block holds each epoch, and each against the others. `None` when none was asked for,
+    /// a set had fewer than two oriented images, or the datum was not fixed.
+    pub set_motion_covariance: Option<nalgebra::DMatrix<f64>>,
 }
 
 /// What a georeferencing and the strategy around it left out, rejected, split or joined: for
@@ -184,6 +193,10 @@ pub struct Diagnostics {
     /// Inter-epoch ties joined by descriptor after a first block (`timesift` with
     /// [`crate::SfmOptions::join_epoch_ties`]; 0 otherwise).
     pub joined_ties: usize,
+    /// Inter-epoch ties found by keypoint near where a first block projects a point into
+    /// another epoch's images (`timesift` with [`crate::SfmOptions::guided_epoch_ties`]; 0
+    /// otherwise): keypoints added to a point, or tracks joined to it.
+    pub guided_ties: usize,
     /// Regions of the block found changed from its own inter-epoch ties
     /// ([`crate::ChangeDetection::Regional`]), over every round; 0 without the detection.
     pub changed_regions: usize,
@@ -208,6 +221,7 @@ impl Georeferenced {
             group_sigma_px: Vec::new(),
             gnss_offsets: Vec::new(),
             diagnostics: Diagnostics::default(),
+            set_motion_covariance: None,
         }
     }
 }
@@ -364,7 +378,7 @@ pub fn georeference(
     let mut rounds = PriorAdjustment::new(input, geo, options, priors);
     rounds.settle_focal_lengths(&mut state)?;
     rounds.measure_noise(&mut state)?;
-    let gnss_offsets = rounds.final_adjustment(&mut state)?;
+    let (gnss_offsets, set_motion_covariance) = rounds.final_adjustment(&mut state)?;
     let group_sigma_px = state
         .group_noise()
         .into_iter()
@@ -385,6 +399,7 @@ pub fn georeference(
         group_sigma_px,
         gnss_offsets,
         diagnostics,
+        set_motion_covariance,
     })
 }
 
@@ -506,6 +521,18 @@ impl<'a> PriorAdjustment<'a> {
         precision: bool,
         between: impl FnOnce(&mut State<'_>, &crate::adjust::Adjusted),
     ) -> Result<crate::adjust::Adjusted, AlignError> {
+        self.round_with_sets(state, precision, &[], between)
+    }
+
+    /// [`Self::round`], with the covariance of the rigid motions of `rigid_sets` when
+    /// `precision` is asked for.
+    fn round_with_sets(
+        &self,
+        state: &mut State<'_>,
+        precision: bool,
+        rigid_sets: &[Vec<usize>],
+        between: impl FnOnce(&mut State<'_>, &crate::adjust::Adjusted),
+    ) -> Result<crate::adjust::Adjusted, AlignError> {
         let marked = marked_points(self.input, &state.rec, self.geo);
         let points = state.live_points();
         let adjusted = state.adjust(&Adjustment {
@@ -519,6 +546,7 @@ impl<'a> PriorAdjustment<'a> {
             iterations: self.options.global_iterations,
             focal_fixed: &self.focal_fixed,
             precision,
+            rigid_sets,
         })?;
         tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
         between(state, &adjusted);
@@ -587,12 +615,15 @@ impl<'a> PriorAdjustment<'a> {
 
     /// Round 3: the final adjustment, with the offsets' precision when there are offsets; the
     /// offsets as estimated.
-    fn final_adjustment(&self, state: &mut State<'_>) -> Result<Vec<EstimatedOffset>, AlignError> {
+    #[allow(clippy::type_complexity)]
+    fn final_adjustment(
+        &self,
+        state: &mut State<'_>,
+    ) -> Result<(Vec<EstimatedOffset>, Option<nalgebra::DMatrix<f64>>), AlignError> {
         let mut offsets = Vec::new();
-        self.round(
-            state,
-            !self.geo.prior_offsets.is_empty(),
-            |state, adjusted| {
+        let precision = !self.geo.prior_offsets.is_empty() || !self.geo.rigid_sets.is_empty();
+        let adjusted =
+            self.round_with_sets(state, precision, &self.geo.rigid_sets, |state, adjusted| {
                 offsets = estimated_offsets(
                     self.geo,
                     &self.priors,
@@ -603,9 +634,8 @@ impl<'a> PriorAdjustment<'a> {
                         weighing: &self.weighing,
                     },
                 );
-            },
-        )?;
-        Ok(offsets)
+            })?;
+        Ok((offsets, adjusted.rigid_covariance))
     }
 }
 
@@ -973,6 +1003,7 @@ mod tests {
                 point("CHK1", true, &[2, 3, 4]),
             ],
             marker_sigma_px: 0.5,
+            rigid_sets: Vec::new(),
         };
         assert_eq!(
             scatter_weighed_flights(&geo, ScatterWeighing::Controlled),

@@ -132,6 +132,7 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
         iterations: state.options.local_iterations,
         focal_fixed: &[],
         precision: false,
+        rigid_sets: &[],
     })?;
     state.filter_points(&points);
     state.complete_tracks_of_image(image);
@@ -156,6 +157,7 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
             // determines it (a nadir block over flat ground does not: f trades with height).
             focal_fixed: &focal_fixed,
             precision: false,
+            rigid_sets: &[],
         })?
         .report;
     let dropped = state.filter_points(&points);

@@ -122,7 +122,8 @@ pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{ChangeDetection, OutlierBound, ScatterWeighing, SelfCalibration, SfmOptions};
 pub use stable_ground::StableGround;
 pub use strategy::{
-    Block, ChunkAlignment, DatumControl, Independent, MIN_REFERENCE_IMAGES, ManualStablePoints,
-    Method, NaturalPoint, OfferedTiePoint, ProgressiveMerge, SingleBlock, StableMatch,
-    StableMatcher, StableSearch, StableTiePoints, Strategy, strategy,
+    Block, ChunkAlignment, DatumControl, GuidedMatch, GuidedQuery, Independent,
+    MIN_REFERENCE_IMAGES, ManualStablePoints, Method, NaturalPoint, OfferedTiePoint,
+    ProgressiveMerge, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
+    Strategy, strategy,
 };

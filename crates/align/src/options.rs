@@ -89,6 +89,13 @@ pub struct SfmOptions {
     /// oriented again with them. Off by default: it doubles the orientation's time for gains
     /// within the spread of the synthetic scenes except on vegetation and film.
     pub join_epoch_ties: bool,
+    /// `timesift` with a descriptor matcher ([`crate::SingleBlock::matcher`]): after the first
+    /// block, each tie point is projected into the images of the epochs it is not seen in, and
+    /// a keypoint within a few pixels whose descriptor clearly matches the point's becomes an
+    /// observation of it (module `guided`); the block is oriented again with them. Matching
+    /// at the block's own geometry finds ties where the feature matching's ratio test over
+    /// whole images fails: ground whose appearance changed between epochs.
+    pub guided_epoch_ties: bool,
     /// Seed of every RANSAC.
     pub seed: u64,
 }
@@ -162,6 +169,7 @@ impl Default for SfmOptions {
             outlier_bound: OutlierBound::default(),
             scatter_weighing: ScatterWeighing::default(),
             join_epoch_ties: false,
+            guided_epoch_ties: false,
             seed: 0xa1_16e,
         }
     }

@@ -7,10 +7,10 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    GroundPoint, Independent, ManualStablePoints, Marker, NaturalPoint, OfferedTiePoint,
-    OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing, SfmImage, SfmInput, SfmOptions,
-    SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints, Strategy, georeference,
-    ground_point_residuals, reconstruct,
+    GroundPoint, GuidedMatch, GuidedQuery, Independent, ManualStablePoints, Marker, NaturalPoint,
+    OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing, SfmImage,
+    SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
+    Strategy, georeference, ground_point_residuals, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -228,6 +228,7 @@ fn gnss_priors_place_the_block_in_the_world() {
         prior_offsets: Vec::new(),
         points: Vec::new(),
         marker_sigma_px: 0.5,
+        rigid_sets: Vec::new(),
     };
     let placed = georeference(&s.input, components, &geo, &SfmOptions::default()).unwrap();
     assert_eq!(placed.datum, Datum::Gnss);
@@ -393,6 +394,10 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
             offset: None,
         })
         .collect();
+    // Each epoch's rigid motion is asked for: the covariance runs in every block test.
+    let rigid_sets = (0..2)
+        .map(|e| (0..epoch_of.len()).filter(|&i| epoch_of[i] == e).collect())
+        .collect();
     Block {
         sfm: s.input.clone(),
         ground: GeoreferenceInput {
@@ -400,6 +405,7 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
             prior_offsets: Vec::new(),
             points: Vec::new(),
             marker_sigma_px: 0.5,
+            rigid_sets,
         },
         epoch_of,
         epoch_names: vec!["first".into(), "second".into()],
@@ -784,6 +790,32 @@ impl StableMatcher for SameTrack {
             })
             .collect())
     }
+
+    /// The candidate of the query point's own scene track, if offered.
+    fn guided_matches(
+        &self,
+        queries: &[GuidedQuery<'_>],
+    ) -> Result<Vec<Option<GuidedMatch>>, String> {
+        Ok(queries
+            .iter()
+            .map(|q| {
+                let t = self.track_of.get(q.observations.first()?)?;
+                q.candidates
+                    .iter()
+                    .find(|&&feature| {
+                        let e = TrackElement {
+                            image: q.image,
+                            feature,
+                        };
+                        self.track_of.get(&e) == Some(t)
+                    })
+                    .map(|&feature| GuidedMatch {
+                        feature,
+                        distance: 0.1,
+                    })
+            })
+            .collect())
+    }
 }
 
 /// How many epochs observe a point.
@@ -1145,24 +1177,13 @@ fn regional_change_detection_finds_nothing_where_nothing_changed() {
     assert_eq!(detected.diagnostics.unstable_ties_split, 0);
 }
 
-/// Two epochs whose feature matching joined only one scene point in twenty across them (the
-/// others are a track per epoch), and whose second epoch sees a slide (a disc 4 m in radius
-/// around (4, 0)) moved 0.5 m east: the second look joins the stable points' two tracks into
-/// inter-epoch ties, not the slide's (beyond the search radius), and the epochs then agree
-/// better than on the few ties the matching found.
-#[test]
-fn a_second_look_joins_the_epochs_tie_points_of_one_stable_ground_point() {
-    let on_slide = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm() < 4.0;
-    let s = scene_with_motion(17, 0.3, 1500, &|i, x| {
-        if i >= 10 && on_slide(x) {
-            Vector3::new(0.5, 0.0, 0.0)
-        } else {
-            Vector3::zeros()
-        }
-    });
-    let mut block = two_epoch_block(&s, Vector3::new(1.0, -0.5, 0.8));
-    // The scene's own tracks are one per point: matching by them is matching by the truth.
-    let matcher = SameTrack::new(&s.input);
+/// The scene's tracks as a feature matching that tied only one stable point in twenty across
+/// the two epochs would give: the others a track per epoch.
+fn one_tie_in_twenty(
+    s: &Scene,
+    block: &Block,
+    on_slide: &dyn Fn(&Vector3<f64>) -> bool,
+) -> Vec<Track> {
     let mut tracks = Vec::new();
     for (k, track) in s.input.tracks.iter().enumerate() {
         if k % 20 == 0 && !on_slide(&s.points[k]) {
@@ -1181,7 +1202,28 @@ fn a_second_look_joins_the_epochs_tie_points_of_one_stable_ground_point() {
             }
         }
     }
-    block.sfm.tracks = tracks;
+    tracks
+}
+
+/// Two epochs whose feature matching joined only one scene point in twenty across them (the
+/// others are a track per epoch), and whose second epoch sees a slide (a disc 4 m in radius
+/// around (4, 0)) moved 0.5 m east: the second look joins the stable points' two tracks into
+/// inter-epoch ties, not the slide's (beyond the search radius), and the epochs then agree
+/// better than on the few ties the matching found.
+#[test]
+fn a_second_look_joins_the_epochs_tie_points_of_one_stable_ground_point() {
+    let on_slide = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm() < 4.0;
+    let s = scene_with_motion(17, 0.3, 1500, &|i, x| {
+        if i >= 10 && on_slide(x) {
+            Vector3::new(0.5, 0.0, 0.0)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let mut block = two_epoch_block(&s, Vector3::new(1.0, -0.5, 0.8));
+    // The scene's own tracks are one per point: matching by them is matching by the truth.
+    let matcher = SameTrack::new(&s.input);
+    block.sfm.tracks = one_tie_in_twenty(&s, &block, &on_slide);
     // Inter-epoch ties off the slide and on it (by the scene point they measure: the block's
     // frame is the biased priors', not the truth's).
     let ties = |g: &Georeferenced| {
@@ -1301,6 +1343,7 @@ fn a_ground_point_s_markers_sigma_is_the_scatter_of_its_clicks() {
                     marker_sigma_px: None,
                 }],
                 marker_sigma_px: sigma_px,
+                rigid_sets: Vec::new(),
             };
             let residual = &ground_point_residuals(&s.input, &rec, &geo, &|_| true)[0];
             assert_eq!(residual.images, images);
@@ -1327,4 +1370,71 @@ fn a_ground_point_s_markers_sigma_is_the_scatter_of_its_clicks() {
         height_sigma[0],
         height_sigma[1]
     );
+}
+
+/// The same two epochs as the second look's test, tied by one scene point in twenty: projected
+/// into the other epoch's images by the first block, the points find their own keypoints among
+/// the few near their projection, and the epochs are tied by every stable point both see —
+/// not by the slide, which moved beyond the search radius.
+#[test]
+fn a_guided_look_finds_each_point_near_its_projection_in_the_other_epoch() {
+    let on_slide = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm() < 4.0;
+    let s = scene_with_motion(17, 0.3, 1500, &|i, x| {
+        if i >= 10 && on_slide(x) {
+            Vector3::new(0.5, 0.0, 0.0)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let mut block = two_epoch_block(&s, Vector3::new(1.0, -0.5, 0.8));
+    let matcher = SameTrack::new(&s.input);
+    block.sfm.tracks = one_tie_in_twenty(&s, &block, &on_slide);
+    let ties = |g: &Georeferenced| {
+        let (mut stable, mut slide) = (0, 0);
+        for p in &g.reconstruction.points {
+            if epoch_count(&block, p) < 2 {
+                continue;
+            }
+            if on_slide(&s.points[matcher.track_of[&p.observations[0]]]) {
+                slide += 1;
+            } else {
+                stable += 1;
+            }
+        }
+        (stable, slide)
+    };
+    let options = SfmOptions::default();
+    let few = SingleBlock::default().orient(&block, &options).unwrap();
+    let guided = SingleBlock {
+        matcher: Some(&matcher),
+    }
+    .orient(
+        &block,
+        &SfmOptions {
+            guided_epoch_ties: true,
+            ..options.clone()
+        },
+    )
+    .unwrap();
+    let (few_stable, _) = ties(&few);
+    let (stable, slide) = ties(&guided);
+    println!(
+        "matching alone: {few_stable} ties, misfit {:.4} m; guided: {} found, {stable} ties \
+         ({slide} on the slide), misfit {:.4} m",
+        rigid_misfit(&few, &s),
+        guided.diagnostics.guided_ties,
+        rigid_misfit(&guided, &s)
+    );
+    assert_eq!(few.diagnostics.guided_ties, 0);
+    assert!(
+        guided.diagnostics.guided_ties >= 10 * few_stable,
+        "{} found",
+        guided.diagnostics.guided_ties
+    );
+    assert!(
+        stable >= 10 * few_stable,
+        "{stable} ties against {few_stable}"
+    );
+    assert_eq!(slide, 0, "the slide moved beyond the search radius");
+    assert!(rigid_misfit(&guided, &s) < rigid_misfit(&few, &s));
 }

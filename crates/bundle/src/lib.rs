@@ -71,6 +71,7 @@ pub mod loss;
 pub mod precision;
 pub mod problem;
 mod reduced;
+pub mod rigid;
 mod schur;
 pub mod solver;
 

@@ -229,3 +229,92 @@ fn a_free_network_has_no_covariance() {
     let e = precision(&p, CovarianceScale::Posterior).unwrap_err();
     assert!(matches!(e, BundleError::Singular(_)), "{e}");
 }
+
+/// The rigid motions of two sets of cameras (each half of the ring with one nadir view) and
+/// their difference, against their spread over 50 noise realisations: the covariance of
+/// `rigid_motion_covariance`, cross terms included, is what the adjustment's errors do.
+#[test]
+fn rigid_motion_covariance_matches_the_spread_of_two_sets_over_50_runs() {
+    use timesift_bundle::rigid::{rigid_motion, rigid_motion_covariance};
+    let t = truth();
+    let sets = [vec![0, 1, 2, 3, 8], vec![4, 5, 6, 7, 9]];
+    let lever = 35.0;
+    let runs = 50;
+    let mut predicted = [0.0f64; 3]; // rotation of set 0, of set 1, of their difference
+    let mut motions: Vec<[nalgebra::Vector6<f64>; 2]> = Vec::new();
+    for run in 0..runs {
+        let mut p = realisation(&t, 2000 + run);
+        solve(&mut p, &options()).expect("solve");
+        let c =
+            rigid_motion_covariance(&p, &sets, lever, CovarianceScale::Prior).expect("covariance");
+        for k in 0..3 {
+            predicted[0] += c[(k, k)] / (3 * runs) as f64;
+            predicted[1] += c[(6 + k, 6 + k)] / (3 * runs) as f64;
+            predicted[2] +=
+                (c[(k, k)] + c[(6 + k, 6 + k)] - 2.0 * c[(k, 6 + k)]) / (3 * runs) as f64;
+        }
+        let motion = |set: &[usize]| {
+            let truth: Vec<Pose> = set.iter().map(|&i| t.poses[i]).collect();
+            let adjusted: Vec<Pose> = set.iter().map(|&i| p.images[i].pose).collect();
+            rigid_motion(&truth, &adjusted, lever).expect("motion")
+        };
+        motions.push([motion(&sets[0]), motion(&sets[1])]);
+    }
+    let pooled = |value: &dyn Fn(&[nalgebra::Vector6<f64>; 2], usize) -> f64| {
+        (0..3)
+            .map(|k| {
+                let v: Vec<f64> = motions.iter().map(|m| value(m, k)).collect();
+                common::spread(&v).powi(2) / 3.0
+            })
+            .sum::<f64>()
+    };
+    let measured = [
+        pooled(&|m, k| m[0][k]),
+        pooled(&|m, k| m[1][k]),
+        pooled(&|m, k| m[1][k] - m[0][k]),
+    ];
+    for (name, (m, p)) in ["set 0", "set 1", "difference"]
+        .iter()
+        .zip(measured.iter().zip(&predicted))
+    {
+        let ratio = (m / p).sqrt();
+        println!(
+            "{name}: rotation spread {:.2e} rad, predicted σ {:.2e} rad, ratio {ratio:.3}",
+            m.sqrt(),
+            p.sqrt()
+        );
+        assert!(
+            (ratio - 1.0).abs() < 0.2,
+            "{name}: spread/predicted = {ratio}"
+        );
+    }
+}
+
+#[test]
+fn a_rigid_motion_of_the_cameras_is_recovered_exactly_and_one_camera_is_refused() {
+    use timesift_bundle::rigid::rigid_motion;
+    let t = truth();
+    let theta = nalgebra::Vector3::new(2e-4, -3e-4, 1e-4);
+    let tau = nalgebra::Vector3::new(0.05, -0.02, 0.1);
+    let centroid = t.poses.iter().fold(Vector3::zeros(), |a, p| a + p.center()) / 10.0;
+    let q = nalgebra::UnitQuaternion::from_scaled_axis(theta);
+    // The world turned by Q about the centroid and shifted: cameras that see it alike.
+    let moved: Vec<Pose> = t
+        .poses
+        .iter()
+        .map(|p| {
+            let centre = q * (p.center() - centroid) + centroid + tau;
+            let rotation = p.rotation * q.inverse();
+            Pose::new(rotation, -(rotation * centre))
+        })
+        .collect();
+    let motion = rigid_motion(&t.poses, &moved, 35.0).expect("motion");
+    for k in 0..3 {
+        // First order in θ: the recovered motion is exact to O(θ²).
+        assert!((motion[k] - theta[k]).abs() < 1e-7, "{motion:?}");
+        assert!((motion[3 + k] - tau[k]).abs() < 1e-4, "{motion:?}");
+    }
+    assert!(rigid_motion(&t.poses[..1], &moved[..1], 35.0).is_err());
+    assert!(rigid_motion(&t.poses, &moved[..3], 35.0).is_err());
+    assert!(rigid_motion(&t.poses, &moved, f64::NAN).is_err());
+}

@@ -315,6 +315,15 @@ pub(super) fn ground_input(
             prior_offsets,
             points,
             marker_sigma_px: project.config.align.marker_accuracy_px,
+            rigid_sets: (0..project.epochs.len())
+                .map(|e| {
+                    let images = project.images.iter().enumerate();
+                    images
+                        .filter(|(_, im)| im.epoch.index() == e)
+                        .map(|(i, _)| i)
+                        .collect()
+                })
+                .collect(),
         },
         natural_points,
     ))

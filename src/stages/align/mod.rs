@@ -147,6 +147,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
             WeighByScatter::NoFlight => ScatterWeighing::NoFlight,
         },
         join_epoch_ties: project.config.align.join_epoch_ties,
+        guided_epoch_ties: project.config.align.guided_epoch_ties,
         ..SfmOptions::default()
     };
     options.self_calibration.min_images = 3;

@@ -167,10 +167,12 @@ fn rmse_of(vectors: &[Vector3<f64>]) -> Option<Rmse> {
 }
 
 /// Per pair of epochs, the tie points both observe, and their spread across and along the
-/// principal horizontal axes of every tie point.
+/// principal horizontal axes of every tie point; the tilt σ of their DoD from the block's
+/// covariance of the epochs' rigid motions.
 fn epoch_pair_ties(
     project: &Project,
     tiepoints: &[timesift_io::ply::TiePoint],
+    set_motion_covariance: Option<&nalgebra::DMatrix<f64>>,
 ) -> Vec<crate::report::EpochPairTies> {
     let n = tiepoints.len().max(1) as f64;
     let mean = tiepoints
@@ -220,10 +222,43 @@ fn epoch_pair_ties(
                 along_std_m: spread(&shared, &major),
                 all_across_std_m: all_across,
                 all_along_std_m: all_along,
+                dod_tilt: set_motion_covariance.and_then(|c| tilt_of(c, &[(b, 1.0), (a, -1.0)])),
             });
         }
     }
     pairs
+}
+
+/// The tilt σ of a combination `Σ w·motion(set)` of the rigid motions whose covariance `c`
+/// holds (6 rows per set, rotation first): the horizontal components of the rotation are the
+/// surface's slope (radians), their covariance's eigenvalues the loosest and firmest tilt.
+fn tilt_of(c: &nalgebra::DMatrix<f64>, combination: &[(usize, f64)]) -> Option<DatumTiltReport> {
+    let mut cov = nalgebra::Matrix2::<f64>::zeros();
+    for &(s, ws) in combination {
+        for &(t, wt) in combination {
+            for r in 0..2 {
+                for q in 0..2 {
+                    cov[(r, q)] += ws * wt * *c.get((6 * s + r, 6 * t + q))?;
+                }
+            }
+        }
+    }
+    let eigen = cov.symmetric_eigen();
+    let (loose, firm) = match eigen.eigenvalues[0] >= eigen.eigenvalues[1] {
+        true => (0, 1),
+        false => (1, 0),
+    };
+    let (max, min) = (eigen.eigenvalues[loose], eigen.eigenvalues[firm]);
+    if !(max.is_finite() && min >= -1e-18) {
+        return None;
+    }
+    // A rotation (θx, θy) raises the ground by θx·y − θy·x: its gradient is (−θy, θx).
+    let axis = eigen.eigenvectors.column(loose);
+    Some(DatumTiltReport {
+        sigma_max_mm_per_m: 1000.0 * max.sqrt(),
+        sigma_min_mm_per_m: 1000.0 * min.max(0.0).sqrt(),
+        loose_azimuth_deg: (axis[0]).atan2(-axis[1]).to_degrees().rem_euclid(180.0),
+    })
 }
 
 /// How loosely the control an epoch's orientation rests on fixes its datum's tilt
@@ -311,7 +346,7 @@ fn report(
         epochs.insert(epoch.name.clone(), epoch_orientation(&of_block, e));
     }
     AlignReport {
-        epoch_pairs: epoch_pair_ties(project, tiepoints),
+        epoch_pairs: epoch_pair_ties(project, tiepoints, block.set_motion_covariance.as_ref()),
         method: strategy.method(),
         datum: format!("{:?}", block.datum),
         images_given: project.images.len(),
@@ -321,6 +356,7 @@ fn report(
         inter_epoch_ties_split_as_moved: block.diagnostics.moved_ties_split,
         inter_epoch_ties_split_off_stable: block.diagnostics.unstable_ties_split,
         inter_epoch_ties_joined: block.diagnostics.joined_ties,
+        inter_epoch_ties_guided: block.diagnostics.guided_ties,
         changed_regions: block.diagnostics.changed_regions,
         observation_bound_px: block.observation_bound_px,
         group_noise: (0..rec.cameras.len())
@@ -409,6 +445,10 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
         control_points: residuals_of(&per_epoch, false),
         check_points: residuals_of(&per_epoch, true),
         datum_tilt: datum_tilt_of_epoch(project, geo, block, control, e),
+        block_tilt: block
+            .set_motion_covariance
+            .as_ref()
+            .and_then(|c| tilt_of(c, &[(e, 1.0)])),
         gnss_offset: block
             .gnss_offsets
             .iter()

@@ -141,6 +141,8 @@ impl Block {
             group_sigma_px,
             gnss_offsets,
             diagnostics,
+            // Parts adjusted apart: no covariance joins them.
+            set_motion_covariance: None,
         }
     }
 }
@@ -202,6 +204,8 @@ fn restrict_ground(geo: &GeoreferenceInput, keep: &dyn Fn(usize) -> bool) -> Geo
             })
             .collect(),
         marker_sigma_px: geo.marker_sigma_px,
+        // A part is adjusted apart: no covariance of epochs across parts.
+        rigid_sets: Vec::new(),
     }
 }
 

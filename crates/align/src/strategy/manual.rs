@@ -178,6 +178,7 @@ fn control_epoch(
         prior_offsets: ground.prior_offsets.clone(),
         points: ground.points.clone(),
         marker_sigma_px: ground.marker_sigma_px,
+        rigid_sets: Vec::new(),
     };
     let mut used = 0;
     for point in intersected {

@@ -24,6 +24,7 @@
 
 mod block;
 mod chunk;
+mod guided;
 mod independent;
 mod joined;
 mod manual;
@@ -33,6 +34,7 @@ mod one_block;
 mod similarity;
 mod single;
 mod stp;
+mod track_sets;
 
 pub use block::{Block, NaturalPoint};
 pub use chunk::ChunkAlignment;
@@ -41,7 +43,10 @@ pub use manual::{MIN_REFERENCE_IMAGES, ManualStablePoints};
 pub use method::{DatumControl, Method, Strategy};
 pub use msfm::ProgressiveMerge;
 pub use single::SingleBlock;
-pub use stp::{OfferedTiePoint, StableMatch, StableMatcher, StableSearch, StableTiePoints};
+pub use stp::{
+    GuidedMatch, GuidedQuery, OfferedTiePoint, StableMatch, StableMatcher, StableSearch,
+    StableTiePoints,
+};
 
 /// The strategy `method` names. `stp`, and `timesift` with
 /// [`crate::SfmOptions::join_epoch_ties`], compare descriptors, which `matcher` does.

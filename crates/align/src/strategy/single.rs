@@ -1,6 +1,6 @@
 //! `timesift`: every epoch's images in one reconstruction and one georeferencing; with
-//! [`SfmOptions::join_epoch_ties`], a second look for inter-epoch ties by descriptor (module
-//! `joined`).
+//! [`SfmOptions::join_epoch_ties`] or [`SfmOptions::guided_epoch_ties`], a second look for
+//! inter-epoch ties by descriptor (modules `joined` and `guided`).
 
 use crate::AlignError;
 use crate::georef::Georeferenced;
@@ -17,7 +17,8 @@ use super::stp::StableMatcher;
 #[derive(Default, Clone, Copy)]
 pub struct SingleBlock<'m> {
     /// Descriptor matching of tie points, for the second look
-    /// ([`SfmOptions::join_epoch_ties`]); without one, that option is an error.
+    /// ([`SfmOptions::join_epoch_ties`], [`SfmOptions::guided_epoch_ties`]); without one,
+    /// those options are an error.
     pub matcher: Option<&'m dyn StableMatcher>,
 }
 
@@ -33,12 +34,15 @@ impl Strategy for SingleBlock<'_> {
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
         let components = reconstruct(&block.sfm, options)?;
         let first = adjust_as_one_block(block, components, options)?;
-        if !options.join_epoch_ties || block.epoch_names.len() < 2 {
+        let second_look_asked = options.join_epoch_ties || options.guided_epoch_ties;
+        if !second_look_asked || block.epoch_names.len() < 2 {
             return Ok(first);
         }
         let matcher = self.matcher.ok_or_else(|| {
             AlignError::InvalidInput(
-                "join_epoch_ties needs a descriptor matcher (SingleBlock::matcher)".into(),
+                "join_epoch_ties and guided_epoch_ties need a descriptor matcher \
+                 (SingleBlock::matcher)"
+                    .into(),
             )
         })?;
         second_look(block, first, matcher, options)

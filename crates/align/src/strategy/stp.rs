@@ -10,7 +10,7 @@
 //! caller (the orchestrator reads the feature files and uses `timesift-matching::stp`).
 
 use nalgebra::Vector3;
-use timesift_core::TrackElement;
+use timesift_core::{FeatureIndex, ImageId, TrackElement};
 
 use crate::AlignError;
 use crate::georef::{Datum, GeoreferenceInput, Georeferenced, GroundPoint, Marker, georeference};
@@ -62,6 +62,39 @@ pub trait StableMatcher {
         other: &[OfferedTiePoint<'_>],
         search: &StableSearch,
     ) -> Result<Vec<StableMatch>, String>;
+
+    /// For each query, the keypoint among its candidates whose descriptor is clearly the
+    /// nearest to the point's, or `None` (`timesift`'s guided look for inter-epoch ties,
+    /// [`crate::SfmOptions::guided_epoch_ties`]). A matcher that cannot compare single
+    /// keypoints says so.
+    fn guided_matches(
+        &self,
+        queries: &[GuidedQuery<'_>],
+    ) -> Result<Vec<Option<GuidedMatch>>, String> {
+        let _ = queries;
+        Err("this matcher does not match single keypoints (guided inter-epoch ties)".into())
+    }
+}
+
+/// A tie point of one epoch sought among the keypoints of an image of another epoch, near
+/// where the oriented block projects it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GuidedQuery<'a> {
+    /// The point's observations, whose descriptors describe it.
+    pub observations: &'a [TrackElement],
+    /// The image it is sought in.
+    pub image: ImageId,
+    /// Keypoints of that image within the search radius of the projection, nearest first.
+    pub candidates: Vec<FeatureIndex>,
+}
+
+/// The keypoint a [`GuidedQuery`] found and its descriptor distance (lower is more certain).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GuidedMatch {
+    /// The keypoint, in the query's image.
+    pub feature: FeatureIndex,
+    /// Descriptor distance to the nearest of the point's descriptors.
+    pub distance: f64,
 }
 
 /// The `stp` strategy, with the matcher that compares descriptors.
@@ -156,6 +189,7 @@ impl StableTiePoints<'_> {
             prior_offsets: Vec::new(),
             points: ground.points.clone(),
             marker_sigma_px: ground.marker_sigma_px,
+            rigid_sets: Vec::new(),
         };
         // The stable points' observations are tie points of this epoch: weighted by the
         // epoch's own measured reprojection noise (σ per axis from the RMS), not as hand-placed
@@ -206,6 +240,7 @@ fn place_roughly(
         prior_offsets: ground.prior_offsets.clone(),
         points: Vec::new(),
         marker_sigma_px: ground.marker_sigma_px,
+        rigid_sets: Vec::new(),
     };
     // Placed by the priors when they place it (three or more, not all rejected).
     let by_priors = if ground.centre_priors.len() >= 3 {
