@@ -36,30 +36,12 @@ impl FeatureFileMatcher {
                     .push(e.feature.index());
             }
         }
-        let mut dim = None;
-        let mut table: BTreeMap<(usize, usize), Vec<f32>> = BTreeMap::new();
-        for (image, features) in wanted {
-            let path = self.features_dir.join(format!("{image}.feat"));
-            let (_, descriptors) = read_features(&path).map_err(|e| e.to_string())?;
-            for f in features {
-                let v = descriptor(&descriptors, f)
-                    .ok_or_else(|| format!("{}: keypoint {f} has no descriptor", path.display()))?;
-                match dim {
-                    None => dim = Some(v.len()),
-                    Some(d) if d != v.len() => {
-                        return Err(format!(
-                            "{}: descriptors of {} values where others have {d} (features of \
-                             different methods in one project?)",
-                            path.display(),
-                            v.len()
-                        ));
-                    }
-                    Some(_) => {}
-                }
-                table.insert((image, f), v);
-            }
-        }
-        let dim = dim.ok_or_else(|| "no tie point to match".to_string())?;
+        let table = self.descriptors_of(wanted)?;
+        let dim = table
+            .values()
+            .next()
+            .map(Vec::len)
+            .ok_or_else(|| "no tie point to match".to_string())?;
         let tie_points = points
             .iter()
             .map(|p| TiePoint {
@@ -85,11 +67,13 @@ const GUIDED_MAX_DISTANCE: f32 = 0.8;
 const GUIDED_RATIO: f32 = 0.9;
 
 impl FeatureFileMatcher {
-    /// Per image, the descriptors of the keypoints `wanted` names, unit-norm, by keypoint.
+    /// Per image, the descriptors of the keypoints `wanted` names, unit-norm, by keypoint; each
+    /// feature file read once. Descriptors of unequal length are an error naming the file.
     fn descriptors_of(
         &self,
         wanted: BTreeMap<usize, Vec<usize>>,
     ) -> Result<BTreeMap<(usize, usize), Vec<f32>>, String> {
+        let mut dim = None;
         let mut table = BTreeMap::new();
         for (image, mut features) in wanted {
             features.sort_unstable();
@@ -99,6 +83,18 @@ impl FeatureFileMatcher {
             for f in features {
                 let v = descriptor(&descriptors, f)
                     .ok_or_else(|| format!("{}: keypoint {f} has no descriptor", path.display()))?;
+                match dim {
+                    None => dim = Some(v.len()),
+                    Some(d) if d != v.len() => {
+                        return Err(format!(
+                            "{}: descriptors of {} values where others have {d} (features of \
+                             different methods in one project?)",
+                            path.display(),
+                            v.len()
+                        ));
+                    }
+                    Some(_) => {}
+                }
                 table.insert((image, f), v);
             }
         }

@@ -193,7 +193,8 @@ fn run_variant(
         run_stage(&project, stage)?;
     }
     let mut surfaces = Vec::new();
-    let mut dems = Vec::new();
+    // Per epoch, its DEM's errors on the stable ground; a DoD's are their differences.
+    let mut errors = Vec::new();
     for epoch in &project.epochs {
         let name = epoch.name.as_str();
         let dem = Dem::from_raster(timesift_io::geotiff::read_f32(&layout.dem(name))?, None)?;
@@ -201,23 +202,21 @@ fn run_variant(
             timesift_io::geotiff::read_f32(&layout.dem_count(name))?,
             None,
         )?;
-        let errors = truth.errors(&dem, &count, name)?;
-        surfaces.push(agreement(name, gsd_of(name), &errors));
-        dems.push((name.to_string(), dem, count));
+        let own = truth.errors(&dem, &count, name)?;
+        surfaces.push(agreement(name, gsd_of(name), &own));
+        errors.push((name.to_string(), own));
     }
-    for pair in dems.windows(2) {
-        let ((a, dem_a, count_a), (b, dem_b, count_b)) = (&pair[0], &pair[1]);
-        let ea = truth.errors(dem_a, count_a, a)?;
-        let eb = truth.errors(dem_b, count_b, b)?;
-        // Cells measured in both: the DoD's error is the difference of the two DEMs' errors.
-        let by_cell: std::collections::HashMap<(i64, i64), f64> = ea
-            .iter()
-            .map(|&(x, y, e)| ((x.round() as i64, y.round() as i64), e))
-            .collect();
+    for pair in errors.windows(2) {
+        let ((a, ea), (b, eb)) = (&pair[0], &pair[1]);
+        // Cells measured in both (one lattice: equal centres, keyed to the millimetre): the
+        // DoD's error is the difference of the two DEMs' errors.
+        let key = |x: f64, y: f64| ((x * 1e3).round() as i64, (y * 1e3).round() as i64);
+        let by_cell: std::collections::HashMap<(i64, i64), f64> =
+            ea.iter().map(|&(x, y, e)| (key(x, y), e)).collect();
         let dod: Vec<(f64, f64, f64)> = eb
             .iter()
             .filter_map(|&(x, y, e)| {
-                let a = by_cell.get(&(x.round() as i64, y.round() as i64))?;
+                let a = by_cell.get(&key(x, y))?;
                 Some((x, y, e - a))
             })
             .collect();

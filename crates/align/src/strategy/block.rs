@@ -55,6 +55,17 @@ impl Block {
         move |i| self.epoch_of[i] == e
     }
 
+    /// The caller's stable ground, where `placed` has a datum it can be looked up in (a
+    /// block in its own local frame has no world coordinates to compare).
+    pub(crate) fn stable_ground_for(
+        &self,
+        placed: &crate::georef::Georeferenced,
+    ) -> Option<&StableGround> {
+        self.stable_ground
+            .as_ref()
+            .filter(|_| placed.datum != crate::georef::Datum::Local)
+    }
+
     /// The tracks of epoch `e` alone (elements in its images; tracks left with fewer than two
     /// dropped), over every image of the block.
     pub(crate) fn epoch_input(&self, e: usize) -> SfmInput {

@@ -23,7 +23,7 @@ use std::collections::HashMap;
 use nalgebra::{Vector2, Vector3};
 use timesift_core::{CameraModel, FeatureIndex, ImageId, TrackElement, project_world};
 
-use crate::georef::{Datum, Georeferenced};
+use crate::georef::Georeferenced;
 
 use super::block::Block;
 use super::stp::{GuidedQuery, StableMatcher};
@@ -44,10 +44,7 @@ pub(super) fn guided_ties(
     sets: &mut TrackSets<'_>,
 ) -> usize {
     let rec = &placed.reconstruction;
-    let stable = block
-        .stable_ground
-        .as_ref()
-        .filter(|_| placed.datum != Datum::Local);
+    let stable = block.stable_ground_for(placed);
     let sought: Vec<usize> = (0..rec.points.len())
         .filter(|&k| {
             let p = &rec.points[k];

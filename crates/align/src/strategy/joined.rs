@@ -28,7 +28,7 @@
 use timesift_core::TrackElement;
 
 use crate::AlignError;
-use crate::georef::{Datum, Georeferenced};
+use crate::georef::Georeferenced;
 use crate::incremental::reconstruct;
 use crate::options::SfmOptions;
 
@@ -107,10 +107,7 @@ fn join_ties(
     let rec = &placed.reconstruction;
     let tracks = &block.sfm.tracks;
     let epoch_of_image = |e: &TrackElement| block.epoch_of.get(e.image.index()).copied();
-    let stable = block
-        .stable_ground
-        .as_ref()
-        .filter(|_| placed.datum != Datum::Local);
+    let stable = block.stable_ground_for(placed);
     // Per epoch, the points it may offer.
     let mut offered: Vec<Vec<usize>> = vec![Vec::new(); block.epoch_names.len()];
     for (k, p) in rec.points.iter().enumerate() {
