@@ -334,6 +334,16 @@ pub struct AlignConfig {
     /// (`timesift_align::SfmOptions::guided_epoch_ties`). Default `false`.
     #[serde(default)]
     pub guided_epoch_ties: bool,
+    /// `timesift`, `msfm`: hold the later epochs' own tie points on stable ground to the
+    /// reference epoch's surface by height observations, and adjust the block again
+    /// (`timesift_align::SfmOptions::surface_ties`). Default `true`.
+    #[serde(default = "yes")]
+    pub surface_ties: bool,
+    /// The intrinsics the final adjustments estimate, by name (`f`, `cx`, `cy`, `b1`, `b2`,
+    /// `k1`…`k4`, `p1`, `p2`), as Metashape's "adjust" list. Default: f, cx, cy, k1, k2, k3,
+    /// p1, p2. A calibrated focal length (`[[camera]]`) stays held whatever the list says.
+    #[serde(default)]
+    pub self_calibration: Option<Vec<String>>,
 }
 
 /// `[align] outlier_bound`: whose noise the observation outlier bound (4 σ) follows.
@@ -392,6 +402,8 @@ impl Default for AlignConfig {
             outlier_bound: OutlierBoundConfig::default(),
             join_epoch_ties: false,
             guided_epoch_ties: false,
+            surface_ties: true,
+            self_calibration: None,
         }
     }
 }

@@ -45,6 +45,10 @@ pub struct AlignReport {
     /// "auto"` without stable areas); 0 otherwise.
     #[serde(default)]
     pub changed_regions: usize,
+    /// Height observations from the reference epoch's surface on the later epochs' tie points
+    /// (`[align] surface_ties`); 0 without them.
+    #[serde(default)]
+    pub surface_heights: usize,
     /// Observations beyond this reprojection error were outliers, pixels (pooled over the
     /// block; each camera group's own bound is in `group_noise`).
     pub observation_bound_px: Option<f64>,
@@ -122,6 +126,56 @@ pub struct EpochOrientation {
     /// hangs on its inter-epoch ties, and how the tie points may bend it as a whole.
     #[serde(default)]
     pub block_tilt: Option<DatumTiltReport>,
+    /// The epoch's own tie points on stable ground against the reference epoch's surface in
+    /// the final block (not for the reference epoch): what separates their surfaces, term by
+    /// term, each with its σ.
+    #[serde(default)]
+    pub surface_fit: Option<SurfaceFitReport>,
+}
+
+/// A later epoch's tie points against the reference epoch's surface (the local plane of the
+/// reference epoch's tie points around each): their height misses decomposed by least squares
+/// into an offset, a tilt (two slopes), a dome (a term in the squared distance from their
+/// centroid) and a height scale (a term in the height above their mean), each with its σ from
+/// the scatter about the fit. A term beyond 3 σ is a systematic difference the epochs' DEMs and
+/// DoDs will show over stable ground; within, the block holds the epochs together to that σ.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceFitReport {
+    /// Points compared (on stable ground where given, where the reference surface is known).
+    pub points_compared: usize,
+    /// Points kept (the others miss by more than 2.5 σ: ground that changed, wrong points).
+    pub points_kept: usize,
+    /// One point's miss about the fit, metres (robust σ).
+    pub sigma_m: f64,
+    /// Offset at the points' centroid, metres.
+    pub offset_m: Term,
+    /// Slope of the misses eastwards, mm/m.
+    pub slope_east_mm_per_m: Term,
+    /// Slope of the misses northwards, mm/m.
+    pub slope_north_mm_per_m: Term,
+    /// Magnitude of the tilt, mm/m.
+    pub tilt_mm_per_m: Term,
+    /// The dome's rise at 100 m from the centroid, mm.
+    pub dome_mm_at_100m: Option<Term>,
+    /// Height scale: mm of miss per metre of the reference surface's height above its own
+    /// best plane; `None` over ground too flat to tell it from a tilt.
+    pub height_scale_mm_per_m: Option<Term>,
+}
+
+/// An estimate with its standard deviation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Term {
+    /// Value.
+    pub value: f64,
+    /// Standard deviation.
+    pub sigma: f64,
+}
+
+impl Term {
+    /// Beyond 3 σ.
+    pub fn significant(&self) -> bool {
+        self.value.abs() > 3.0 * self.sigma
+    }
 }
 
 /// The standard deviation of a datum's tilt that its control allows, predicted from the

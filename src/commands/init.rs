@@ -203,7 +203,15 @@ fn align_section(text: &mut String, reference: &str) {
     );
     let _ = writeln!(
         text,
-        "# join_epoch_ties = false  # true: after the first block, join two epochs' tie points that it puts together and whose descriptors match; orient again (twice the time)\n"
+        "# join_epoch_ties = false  # true: after the first block, join two epochs' tie points that it puts together and whose descriptors match; orient again (twice the time)"
+    );
+    let _ = writeln!(
+        text,
+        "# surface_ties = true  # hold the later epochs' tie points on stable ground to the reference epoch's surface (false: ties by features alone)"
+    );
+    let _ = writeln!(
+        text,
+        "# self_calibration = [\"f\", \"cx\", \"cy\", \"k1\", \"k2\", \"k3\", \"p1\", \"p2\"]  # intrinsics the final adjustments estimate (also b1, b2, k4)\n"
     );
 }
 

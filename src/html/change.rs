@@ -26,6 +26,15 @@ pub(super) fn change_section(
          how well the epochs are co-registered: a median and a plane near zero are what the \
          Time-SIFT block should deliver without any co-registration step.</p>",
     );
+    if crate::stages::stable_file(project).is_none() && layout.stable_found().is_file() {
+        s.push_str(
+            "<p>No stable areas were given (<code>stable.csv</code>): the stable areas here are \
+             the ground the align stage found unchanged, where the later epochs' tie points met \
+             the reference epoch's surface (<code>out/stable_found.tif</code>, 5 m cells). \
+             Ground that changed by less than a tie point's scatter passes as stable; give \
+             <code>stable.csv</code> where you know better.</p>",
+        );
+    }
     for (a, b) in epoch_pairs(project) {
         let dir = layout.change_dir(&a, &b);
         let _ = write!(s, "<h3>{} → {}</h3>", esc(&a), esc(&b));

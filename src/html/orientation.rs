@@ -239,9 +239,97 @@ pub(super) fn orientation_section(
         (Some(model), Some(recon)) => figures::reprojection_errors(model, recon),
         _ => BTreeMap::new(),
     };
+    s.push_str(&surface_fit_table(project, a, warnings));
     for k in 0..project.epochs.len() {
         s.push_str(&epoch_orientation(project, inputs, frame, &errors, k));
     }
+    s
+}
+
+/// Each later epoch's tie points against the reference epoch's surface, term by term; a warning
+/// for each term beyond 3 σ. Empty when no epoch was compared.
+fn surface_fit_table(
+    project: &Project,
+    a: &crate::report::AlignReport,
+    warnings: &mut Vec<String>,
+) -> String {
+    let mut rows = Vec::new();
+    for e in &project.epochs {
+        let Some(f) = a.epochs.get(&e.name).and_then(|r| r.surface_fit) else {
+            continue;
+        };
+        let terms = [
+            ("offset", f.offset_m, "m", 3),
+            ("slope east", f.slope_east_mm_per_m, "mm/m", 2),
+            ("slope north", f.slope_north_mm_per_m, "mm/m", 2),
+            ("tilt", f.tilt_mm_per_m, "mm/m", 2),
+        ];
+        let shape = [
+            ("dome at 100 m", f.dome_mm_at_100m, "mm", 1),
+            ("height scale", f.height_scale_mm_per_m, "mm/m", 2),
+        ];
+        let terms = terms
+            .into_iter()
+            .map(|(name, t, unit, digits)| (name, Some(t), unit, digits))
+            .chain(shape);
+        let mut row = vec![
+            esc(&e.name),
+            format!("{} / {}", f.points_kept, f.points_compared),
+            format!("{:.3}", f.sigma_m),
+        ];
+        for (name, t, unit, digits) in terms {
+            let Some(t) = t else {
+                row.push("–".into());
+                continue;
+            };
+            let cell = format!("{:.*} ± {:.*}", digits, t.value, digits, t.sigma);
+            if t.significant() {
+                row.push(format!("<b>{cell}</b>"));
+                // The tilt speaks for its two slopes.
+                if name.starts_with("slope") {
+                    continue;
+                }
+                warnings.push(format!(
+                    "epoch {}: its tie points miss the reference epoch's surface by a {name} of \
+                     {:.*} {unit} (σ {:.*}, {:.1} σ) over stable ground: its DEM and the DoDs \
+                     with it carry that difference",
+                    e.name,
+                    digits,
+                    t.value,
+                    digits,
+                    t.sigma,
+                    t.value.abs() / t.sigma.max(f64::MIN_POSITIVE)
+                ));
+            } else {
+                row.push(cell);
+            }
+        }
+        rows.push(row);
+    }
+    if rows.is_empty() {
+        return String::new();
+    }
+    let mut s = format!(
+        "<p>Each later epoch's own tie points on stable ground against the reference epoch's \
+         surface (a local plane through its tie points), their height misses decomposed term by \
+         term with σ; {} of them held to it by height observations (surface ties). Bold: beyond \
+         3 σ.</p>",
+        a.surface_heights
+    );
+    s.push_str(&table(
+        &[
+            "epoch",
+            "points kept / compared",
+            "σ of one point m",
+            "offset m",
+            "slope east mm/m",
+            "slope north mm/m",
+            "tilt mm/m",
+            "dome at 100 m mm",
+            "height scale mm/m",
+        ],
+        &rows,
+    ));
     s
 }
 

@@ -84,6 +84,13 @@ pub fn stable_file(project: &Project) -> Option<PathBuf> {
         .or_else(|| Some(project.dir.join("stable.csv")).filter(|p| p.is_file()))
 }
 
+/// The stable areas the change stage judges co-registration on: the project's
+/// ([`stable_file`]), else the ground the align stage found unchanged (`out/stable_found.tif`)
+/// when it wrote it.
+pub fn change_stable_areas(project: &Project) -> Option<PathBuf> {
+    stable_file(project).or_else(|| Some(project.layout().stable_found()).filter(|p| p.is_file()))
+}
+
 /// Compares every pair; returns (pairs computed, pairs up to date).
 fn run_change(project: &Project) -> Result<(usize, usize), ProjectError> {
     let config = &project.config.change;
@@ -97,7 +104,7 @@ fn run_change(project: &Project) -> Result<(usize, usize), ProjectError> {
             ),
         ));
     }
-    let stable = stable_file(project);
+    let stable = change_stable_areas(project);
     let layout = project.layout();
     let (mut done, mut skipped) = (0, 0);
     for (a, b) in epoch_pairs(project) {

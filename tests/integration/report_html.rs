@@ -49,7 +49,21 @@ fn project(dir: &Path) {
             n: 1,
         }),
     };
-    let epoch = |oriented, check_points| EpochOrientation {
+    let term = |value, sigma| timesift::report::Term { value, sigma };
+    // The later epoch's tie points against the reference epoch's surface: a tilt of 1.2 ± 0.1
+    // mm/m (significant), the rest within their σ.
+    let surface = timesift::report::SurfaceFitReport {
+        points_compared: 900,
+        points_kept: 800,
+        sigma_m: 0.085,
+        offset_m: term(-0.012, 0.01),
+        slope_east_mm_per_m: term(-1.2, 0.1),
+        slope_north_mm_per_m: term(0.05, 0.1),
+        tilt_mm_per_m: term(1.2, 0.1),
+        dome_mm_at_100m: Some(term(0.4, 0.5)),
+        height_scale_mm_per_m: None,
+    };
+    let epoch = |oriented, check_points, surface_fit| EpochOrientation {
         images_given: 2,
         images_oriented: oriented,
         rms_reprojection_px: Some(0.4),
@@ -65,6 +79,7 @@ fn project(dir: &Path) {
             sigma_min_mm_per_m: 0.27,
             loose_azimuth_deg: 161.0,
         }),
+        surface_fit,
     };
     let report = AlignReport {
         method: timesift_align::Method::Timesift,
@@ -78,6 +93,7 @@ fn project(dir: &Path) {
         inter_epoch_ties_joined: 0,
         inter_epoch_ties_guided: 0,
         changed_regions: 0,
+        surface_heights: 400,
         observation_bound_px: Some(2.0),
         group_noise: Vec::new(),
         components_dropped: 0,
@@ -86,8 +102,11 @@ fn project(dir: &Path) {
         cameras: Vec::new(),
         seconds: 1.0,
         epochs: BTreeMap::from([
-            ("2018".into(), epoch(2, check)),
-            ("2019".into(), epoch(1, PointResiduals::default())),
+            ("2018".into(), epoch(2, check, None)),
+            (
+                "2019".into(),
+                epoch(1, PointResiduals::default(), Some(surface)),
+            ),
         ]),
         epoch_pairs: Vec::new(),
     };
@@ -102,13 +121,29 @@ fn a_report_of_the_orientation_alone_has_every_section_and_says_what_is_missing(
     let d = dir.to_str().expect("utf-8");
     let (ok, _, err) = timesift(&["run", d, "--from", "report", "--to", "report"]);
     assert!(ok, "{err}");
-    assert!(err.contains("1 warnings"), "{err}");
+    assert!(err.contains("2 warnings"), "{err}");
     let html = std::fs::read_to_string(dir.join("out/report.html")).expect("html");
     for id in timesift::html::SECTIONS {
         assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
     }
     assert!(html.contains("block tilt σ mm/m") && html.contains("0.83 (gradient at 161°) / 0.27"));
     assert!(html.contains("epoch 2019: 1 of 2 images could not be oriented"));
+    // The surface fit: its table, the significant tilt in bold and warned about, a height
+    // scale not fitted.
+    assert!(
+        html.contains("400 of them held to it by height observations"),
+        "{html}"
+    );
+    assert!(html.contains("<td>800 / 900</td>"), "{html}");
+    assert!(html.contains("<b>1.20 ± 0.10</b>"), "{html}");
+    assert!(
+        html.contains("<td>0.4 ± 0.5</td>") && html.contains("<td>–</td>"),
+        "{html}"
+    );
+    assert!(
+        html.contains("epoch 2019: its tie points miss the reference epoch&#39;s surface by a tilt of 1.20 mm/m"),
+        "{html}"
+    );
     assert!(html.contains("out/tiepoints.ply is missing"));
     assert!(html.contains("Not computed (change stage)"));
     assert!(!html.contains("src=\"http"), "no network resource");

@@ -130,6 +130,24 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
         .filter(|e| !e["datum_tilt"].is_null())
         .count();
     assert_eq!(predicted, 1);
+    // `stp` compares no epoch with the reference's surface: no mask of what it found stable.
+    let found = out.join("stable_found.tif");
+    assert!(!found.exists());
+
+    // `timesift` without stable areas: the ground the block found unchanged (its surviving
+    // inter-epoch ties; the later epoch's points that met the reference epoch's surface) is
+    // the change stage's stable areas.
+    std::fs::write(&config, text).unwrap();
+    let _ = std::fs::remove_file(dir.path().join("stable.csv"));
+    let (ok, _, err) = timesift(&["run", path, "--from", "align", "--to", "align"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    check_epochs(&report, gsd);
+    let mask = timesift_io::geotiff::read_f32(&found).expect("stable_found.tif");
+    assert_eq!(mask.georef.crs, ours.crs.parse().unwrap());
+    let stable = mask.data.iter().filter(|v| **v == 1.0).count();
+    assert!(stable > 0 && mask.data.iter().all(|v| *v == 0.0 || *v == 1.0));
 }
 
 /// Every epoch fully oriented, RMS within 0.5 px, check points within 1 GSD across the wall

@@ -30,10 +30,15 @@ pub struct CoregBench {
 
 /// The variants: a name and the lines added to `[align]` of the project (`truth` is special:
 /// the true cameras replace the align stage's).
-pub const VARIANTS: [(&str, &str); 5] = [
+pub const VARIANTS: [(&str, &str); 7] = [
     ("default", ""),
     ("joined", "join_epoch_ties = true"),
     ("guided", "guided_epoch_ties = true"),
+    ("nosurface", "surface_ties = false"),
+    (
+        "b1",
+        "self_calibration = [\"f\", \"cx\", \"cy\", \"b1\", \"k1\", \"k2\", \"k3\", \"p1\", \"p2\"]",
+    ),
     ("gcps-all", "gcps_in_all_epochs = true"),
     ("truth", ""),
 ];

@@ -48,7 +48,8 @@ pub struct MethodsBench {
     /// of each camera group's own), or `auto-blind` (the regional change detection, the stable
     /// areas hidden from the align stage; the products are still judged on them), or
     /// `joined` (the project's ties and a second look for inter-epoch ties by descriptor,
-    /// `[align] join_epoch_ties = true`), or `refgnss` (the GNSS priors of the reference epoch
+    /// `[align] join_epoch_ties = true`), or `nosurface` (no surface ties,
+    /// `[align] surface_ties = false`: as before they existed), or `refgnss` (the GNSS priors of the reference epoch
     /// only: whether the other epochs' priors move the reference epoch's datum), or
     /// `scatter-all` (every flight's GNSS priors weighed by their scatter about their offset,
     /// `[gnss] weigh_by_scatter = "all"`, as before the default became the controlled flights).
@@ -70,6 +71,7 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
         "joined" => project.config.align.join_epoch_ties = true,
+        "nosurface" => project.config.align.surface_ties = false,
         "scatter-all" => {
             project.config.gnss.weigh_by_scatter = timesift::config::WeighByScatter::All
         }
@@ -90,7 +92,7 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         other => {
             anyhow::bail!(
-                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, joined, refgnss, scatter-all)"
+                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, joined, nosurface, refgnss, scatter-all)"
             )
         }
     }

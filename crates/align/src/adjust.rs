@@ -86,6 +86,8 @@ pub(crate) struct Adjustment<'p> {
     /// With `precision`: sets of images (input indices) whose rigid motion's covariance is
     /// computed too ([`Adjusted::rigid_covariance`]).
     pub rigid_sets: &'p [Vec<usize>],
+    /// Height observations of points, by track (sorted by track).
+    pub heights: &'p [crate::SurfaceHeight],
 }
 
 /// What an adjustment gives back besides the updated state.
@@ -247,6 +249,16 @@ impl State<'_> {
                     point: k,
                     pixel: input.pixel(e),
                     sigma_px: self.options.tie_point_sigma_px,
+                });
+            }
+            if let Ok(h) = a.heights.binary_search_by_key(&point.track, |h| h.track) {
+                let h = a.heights[h];
+                // A height alone: no horizontal weight.
+                problem.point_priors.push(PointPrior {
+                    point: k,
+                    position: Vector3::new(point.position.x, point.position.y, h.height),
+                    sigma_xy: f64::INFINITY,
+                    sigma_z: h.sigma,
                 });
             }
         }

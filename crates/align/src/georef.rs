@@ -70,6 +70,10 @@ pub struct GeoreferenceInput {
     /// Sets of images (each epoch's) whose rigid motion's covariance the final adjustment
     /// reports ([`Georeferenced::set_motion_covariance`]); empty: none asked for.
     pub rigid_sets: Vec<Vec<usize>>,
+    /// Height observations of tie points (by track) from a reference surface; empty: none.
+    /// The single-block strategies add those of the reference epoch's own surface
+    /// ([`crate::SfmOptions::surface_ties`]).
+    pub surface_heights: Vec<crate::SurfaceHeight>,
 }
 
 /// What fixed the datum.
@@ -174,6 +178,10 @@ pub struct Georeferenced {
     /// block holds each epoch, and each against the others. `None` when none was asked for,
     /// a set had fewer than two oriented images, or the datum was not fixed.
     pub set_motion_covariance: Option<nalgebra::DMatrix<f64>>,
+    /// Each later epoch's own tie points against the reference epoch's surface in the final
+    /// block ([`crate::SurfaceFit`]: offset, tilt, dome, height scale, with σ); empty where
+    /// the strategy does not compare them or too few points could be compared.
+    pub surface_fits: Vec<crate::SurfaceFit>,
 }
 
 /// What a georeferencing and the strategy around it left out, rejected, split or joined: for
@@ -200,6 +208,9 @@ pub struct Diagnostics {
     /// Regions of the block found changed from its own inter-epoch ties
     /// ([`crate::ChangeDetection::Regional`]), over every round; 0 without the detection.
     pub changed_regions: usize,
+    /// Height observations from the reference epoch's surface on the later epochs' tie points
+    /// ([`crate::SfmOptions::surface_ties`]); 0 without them.
+    pub surface_heights: usize,
 }
 
 impl Georeferenced {
@@ -222,6 +233,7 @@ impl Georeferenced {
             gnss_offsets: Vec::new(),
             diagnostics: Diagnostics::default(),
             set_motion_covariance: None,
+            surface_fits: Vec::new(),
         }
     }
 }
@@ -400,6 +412,7 @@ pub fn georeference(
         gnss_offsets,
         diagnostics,
         set_motion_covariance,
+        surface_fits: Vec::new(),
     })
 }
 
@@ -547,6 +560,7 @@ impl<'a> PriorAdjustment<'a> {
             focal_fixed: &self.focal_fixed,
             precision,
             rigid_sets,
+            heights: &self.geo.surface_heights,
         })?;
         tracing::debug!(report = ?adjusted.report, "georeferenced adjustment");
         between(state, &adjusted);
@@ -1004,6 +1018,7 @@ mod tests {
             ],
             marker_sigma_px: 0.5,
             rigid_sets: Vec::new(),
+            surface_heights: Vec::new(),
         };
         assert_eq!(
             scatter_weighed_flights(&geo, ScatterWeighing::Controlled),

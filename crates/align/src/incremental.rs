@@ -133,6 +133,7 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
         focal_fixed: &[],
         precision: false,
         rigid_sets: &[],
+        heights: &[],
     })?;
     state.filter_points(&points);
     state.complete_tracks_of_image(image);
@@ -158,6 +159,7 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
             focal_fixed: &focal_fixed,
             precision: false,
             rigid_sets: &[],
+            heights: &[],
         })?
         .report;
     let dropped = state.filter_points(&points);

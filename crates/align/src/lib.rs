@@ -109,6 +109,7 @@ mod robust;
 mod stable_ground;
 mod state;
 mod strategy;
+mod surface;
 
 pub use adjust::{CentrePrior, OffsetPrior};
 pub use datum_tilt::{DatumTilt, HeightObservation, datum_tilt};
@@ -127,3 +128,4 @@ pub use strategy::{
     ProgressiveMerge, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
     Strategy, strategy,
 };
+pub use surface::{SurfaceFit, SurfaceHeight};

@@ -96,6 +96,13 @@ pub struct SfmOptions {
     /// at the block's own geometry finds ties where the feature matching's ratio test over
     /// whole images fails: ground whose appearance changed between epochs.
     pub guided_epoch_ties: bool,
+    /// `timesift` and `msfm`: once the block is georeferenced, each later epoch's own tie
+    /// points on stable ground (given, or where they meet the reference epoch's surface once
+    /// the block's offset and tilt are removed) get height observations from the surface of
+    /// the reference epoch's tie points, and the block is adjusted again (module `surface`):
+    /// the epochs are tied across their whole common ground, not only where their features
+    /// matched.
+    pub surface_ties: bool,
     /// Seed of every RANSAC.
     pub seed: u64,
 }
@@ -170,6 +177,7 @@ impl Default for SfmOptions {
             scatter_weighing: ScatterWeighing::default(),
             join_epoch_ties: false,
             guided_epoch_ties: false,
+            surface_ties: true,
             seed: 0xa1_16e,
         }
     }

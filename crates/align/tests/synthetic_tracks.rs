@@ -229,6 +229,7 @@ fn gnss_priors_place_the_block_in_the_world() {
         points: Vec::new(),
         marker_sigma_px: 0.5,
         rigid_sets: Vec::new(),
+        surface_heights: Vec::new(),
     };
     let placed = georeference(&s.input, components, &geo, &SfmOptions::default()).unwrap();
     assert_eq!(placed.datum, Datum::Gnss);
@@ -406,6 +407,7 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
             points: Vec::new(),
             marker_sigma_px: 0.5,
             rigid_sets,
+            surface_heights: Vec::new(),
         },
         epoch_of,
         epoch_names: vec!["first".into(), "second".into()],
@@ -1344,6 +1346,7 @@ fn a_ground_point_s_markers_sigma_is_the_scatter_of_its_clicks() {
                 }],
                 marker_sigma_px: sigma_px,
                 rigid_sets: Vec::new(),
+                surface_heights: Vec::new(),
             };
             let residual = &ground_point_residuals(&s.input, &rec, &geo, &|_| true)[0];
             assert_eq!(residual.images, images);

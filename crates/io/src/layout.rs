@@ -160,6 +160,12 @@ impl Layout {
         self.out_dir().join("report.json")
     }
 
+    /// `out/stable_found.tif`: the ground the align stage found unchanged, where no stable
+    /// areas were given.
+    pub fn stable_found(&self) -> PathBuf {
+        self.out_dir().join("stable_found.tif")
+    }
+
     /// `out/fiducials.json`: every scan's marks and interior orientation.
     pub fn fiducials_json(&self) -> PathBuf {
         self.out_dir().join("fiducials.json")
@@ -278,6 +284,7 @@ impl Layout {
             self.tiepoints_ply(),
             self.report_json(),
             self.report_html(),
+            self.stable_found(),
             self.grid_json(),
         ];
         for e in epochs {

@@ -324,6 +324,7 @@ pub(super) fn ground_input(
                         .collect()
                 })
                 .collect(),
+            surface_heights: Vec::new(),
         },
         natural_points,
     ))

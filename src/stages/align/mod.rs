@@ -124,6 +124,40 @@ fn stage_error(message: String) -> ProjectError {
     }
 }
 
+/// The intrinsics every camera model of the project has, by name.
+const INTRINSIC_NAMES: [&str; 11] = [
+    "f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2",
+];
+
+/// `[align] self_calibration`: the final adjustments' list as given; the growing block's the
+/// part of it among f, k1, k2 (the principal point and decentring need the whole block).
+fn self_calibration(
+    project: &Project,
+    names: &[String],
+) -> Result<timesift_align::SelfCalibration, ProjectError> {
+    if let Some(bad) = names
+        .iter()
+        .find(|n| !INTRINSIC_NAMES.contains(&n.as_str()))
+    {
+        return Err(stage_error(format!(
+            "{}: [align] self_calibration names \"{bad}\"; expected some of {}",
+            project.layout().project_toml().display(),
+            INTRINSIC_NAMES.join(", ")
+        )));
+    }
+    let defaults = timesift_align::SelfCalibration::default();
+    Ok(timesift_align::SelfCalibration {
+        parameters: names
+            .iter()
+            .filter(|n| ["f", "k1", "k2"].contains(&n.as_str()))
+            .cloned()
+            .collect(),
+        final_parameters: names.to_vec(),
+        min_images: 3,
+        ..defaults
+    })
+}
+
 /// Orients the block by the configured strategy and writes the outputs. Returns the report.
 pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     let start = Instant::now();
@@ -148,9 +182,13 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         },
         join_epoch_ties: project.config.align.join_epoch_ties,
         guided_epoch_ties: project.config.align.guided_epoch_ties,
+        surface_ties: project.config.align.surface_ties,
         ..SfmOptions::default()
     };
     options.self_calibration.min_images = 3;
+    if let Some(names) = &project.config.align.self_calibration {
+        options.self_calibration = self_calibration(project, names)?;
+    }
     tracing::debug!(cameras = ?input.cameras, "initial cameras");
     let matcher = FeatureFileMatcher {
         features_dir: project.layout().features_dir(),

@@ -52,7 +52,103 @@ pub(super) fn write_outputs(
     timesift_io::ply::write_tiepoints(&layout.tiepoints_ply(), &epoch_names, &tiepoints)?;
     let report = report(project, input, geo, block, strategy, &tiepoints, seconds);
     write_json(&layout.report_json(), &report)?;
+    write_stable_found(project, block, origin, &tiepoints)?;
     Ok(report)
+}
+
+/// Cell of `out/stable_found.tif`, metres: tie points lie a few metres apart.
+const STABLE_FOUND_CELL_M: f64 = 5.0;
+
+/// `out/stable_found.tif` where no stable areas were given, for a block that ties its epochs:
+/// 1 in a cell where the block found the ground unchanged — an inter-epoch tie point that
+/// survived the moved-point and changed-region tests, or a later epoch's point that met the
+/// reference epoch's surface (`Georeferenced::surface_fits`) — and no point of a later epoch
+/// missed that surface; 0 elsewhere. Otherwise the file is removed: an earlier run's must not
+/// stand for this one's.
+fn write_stable_found(
+    project: &Project,
+    block: &Georeferenced,
+    origin: Vector3<f64>,
+    tiepoints: &[timesift_io::ply::TiePoint],
+) -> Result<(), ProjectError> {
+    let path = project.layout().stable_found();
+    let given = !project.stable_areas.is_empty() || crate::stages::stable_file(project).is_some();
+    // Everything in the block's frame.
+    let ties: Vec<[f64; 2]> = tiepoints
+        .iter()
+        .filter(|p| p.epochs.len() >= 2)
+        .map(|p| [p.position.x - origin.x, p.position.y - origin.y])
+        .collect();
+    let unchanged = || {
+        block
+            .surface_fits
+            .iter()
+            .flat_map(|f| &f.unchanged)
+            .chain(&ties)
+    };
+    let changed = || block.surface_fits.iter().flat_map(|f| &f.changed);
+    let points = || unchanged().chain(changed());
+    let single_block = matches!(
+        project.config.align.method,
+        timesift_align::Method::Timesift | timesift_align::Method::Msfm
+    );
+    if given || !single_block || block.datum == Datum::Local || unchanged().next().is_none() {
+        if path.is_file() {
+            std::fs::remove_file(&path).map_err(|e| timesift_io::IoError::io(&path, e))?;
+        }
+        return Ok(());
+    }
+    let crs: timesift_io::coords::Crs = project.config.crs.parse().map_err(|e: String| {
+        stage_error(format!(
+            "{}: crs = \"{}\": {e}",
+            project.layout().project_toml().display(),
+            project.config.crs
+        ))
+    })?;
+    let cell = STABLE_FOUND_CELL_M;
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in points() {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k] + origin[k]);
+            hi[k] = hi[k].max(p[k] + origin[k]);
+        }
+    }
+    let (left, top) = ((lo[0] / cell).floor() * cell, (hi[1] / cell).ceil() * cell);
+    let width = (((hi[0] - left) / cell).floor() as usize) + 1;
+    let height = (((top - lo[1]) / cell).floor() as usize) + 1;
+    let index = |p: &[f64; 2]| {
+        let col = ((p[0] + origin[0] - left) / cell).floor() as usize;
+        let row = ((top - (p[1] + origin[1])) / cell).floor() as usize;
+        (row.min(height - 1)) * width + col.min(width - 1)
+    };
+    // 0 unknown, 1 agreed, 2 missed (wins).
+    let mut cells = vec![0u8; width * height];
+    for p in unchanged() {
+        let c = &mut cells[index(p)];
+        *c = (*c).max(1);
+    }
+    for p in changed() {
+        cells[index(p)] = 2;
+    }
+    let raster = timesift_io::geotiff::GeoRaster {
+        width,
+        height,
+        bands: 1,
+        data: cells.into_iter().map(|c| u8::from(c == 1)).collect(),
+        georef: timesift_io::geotiff::GeoReference {
+            transform: timesift_io::geotiff::GeoTransform {
+                origin_x: left,
+                origin_y: top,
+                pixel_width: cell,
+                pixel_height: -cell,
+            },
+            crs,
+            nodata: None,
+            pixel_is_point: false,
+        },
+    };
+    timesift_io::geotiff::write_u8(&path, &raster)?;
+    Ok(())
 }
 
 /// `cameras.json`: every camera group (named by its first epoch's group) and every image's pose
@@ -172,7 +268,7 @@ fn rmse_of(vectors: &[Vector3<f64>]) -> Option<Rmse> {
 fn epoch_pair_ties(
     project: &Project,
     tiepoints: &[timesift_io::ply::TiePoint],
-    set_motion_covariance: Option<&nalgebra::DMatrix<f64>>,
+    motions: Option<&EpochMotions<'_>>,
 ) -> Vec<crate::report::EpochPairTies> {
     let n = tiepoints.len().max(1) as f64;
     let mean = tiepoints
@@ -222,27 +318,89 @@ fn epoch_pair_ties(
                 along_std_m: spread(&shared, &major),
                 all_across_std_m: all_across,
                 all_along_std_m: all_along,
-                dod_tilt: set_motion_covariance.and_then(|c| tilt_of(c, &[(b, 1.0), (a, -1.0)])),
+                dod_tilt: motions.and_then(|m| m.dod(a, b)),
             });
         }
     }
     pairs
 }
 
-/// The tilt σ of a combination `Σ w·motion(set)` of the rigid motions whose covariance `c`
-/// holds (6 rows per set, rotation first): the horizontal components of the rotation are the
-/// surface's slope (radians), their covariance's eigenvalues the loosest and firmest tilt.
-fn tilt_of(c: &nalgebra::DMatrix<f64>, combination: &[(usize, f64)]) -> Option<DatumTiltReport> {
-    let mut cov = nalgebra::Matrix2::<f64>::zeros();
-    for &(s, ws) in combination {
-        for &(t, wt) in combination {
-            for r in 0..2 {
-                for q in 0..2 {
-                    cov[(r, q)] += ws * wt * *c.get((6 * s + r, 6 * t + q))?;
+/// The epochs' rigid motions as the block holds them, from its covariance (6 rows per epoch,
+/// rotation first). An epoch held to the reference epoch's surface by height observations
+/// (surface ties) is special: the adjustment takes those heights as known, so its covariance
+/// is the epoch's motion *relative to that surface*, and the surface moves with the reference
+/// epoch. Its motion is then the reference epoch's plus its own relative one (independent).
+struct EpochMotions<'a> {
+    covariance: &'a nalgebra::DMatrix<f64>,
+    reference: usize,
+    /// Per epoch: held to the reference epoch's surface.
+    on_surface: Vec<bool>,
+}
+
+impl EpochMotions<'_> {
+    fn of<'a>(
+        block: &'a Georeferenced,
+        reference: usize,
+        epochs: usize,
+    ) -> Option<EpochMotions<'a>> {
+        let covariance = block.set_motion_covariance.as_ref()?;
+        let tied = block.diagnostics.surface_heights > 0;
+        let on_surface = (0..epochs)
+            .map(|e| tied && e != reference && block.surface_fits.iter().any(|f| f.epoch == e))
+            .collect();
+        Some(EpochMotions {
+            covariance,
+            reference,
+            on_surface,
+        })
+    }
+
+    /// Tilt covariance (2 × 2, radians²) of `Σ w·motion(set)` as the covariance holds it.
+    fn raw(&self, combination: &[(usize, f64)]) -> Option<nalgebra::Matrix2<f64>> {
+        let c = self.covariance;
+        let mut cov = nalgebra::Matrix2::<f64>::zeros();
+        for &(s, ws) in combination {
+            for &(t, wt) in combination {
+                for r in 0..2 {
+                    for q in 0..2 {
+                        cov[(r, q)] += ws * wt * *c.get((6 * s + r, 6 * t + q))?;
+                    }
                 }
             }
         }
+        Some(cov)
     }
+
+    /// The tilt σ of epoch `e` against the world.
+    fn epoch(&self, e: usize) -> Option<DatumTiltReport> {
+        let own = self.raw(&[(e, 1.0)])?;
+        match self.on_surface.get(e) == Some(&true) {
+            true => tilt_report(own + self.raw(&[(self.reference, 1.0)])?),
+            false => tilt_report(own),
+        }
+    }
+
+    /// The tilt σ of the DoD `b − a`.
+    fn dod(&self, a: usize, b: usize) -> Option<DatumTiltReport> {
+        let held = |e: usize| self.on_surface.get(e) == Some(&true);
+        let relative = |e: usize| -> Option<nalgebra::Matrix2<f64>> {
+            match (e == self.reference, held(e)) {
+                (true, _) => Some(nalgebra::Matrix2::zeros()),
+                (false, true) => self.raw(&[(e, 1.0)]),
+                (false, false) => None,
+            }
+        };
+        match (relative(a), relative(b)) {
+            // Both follow the reference surface: only their motions relative to it differ.
+            (Some(ca), Some(cb)) => tilt_report(ca + cb),
+            _ => tilt_report(self.raw(&[(b, 1.0), (a, -1.0)])?),
+        }
+    }
+}
+
+/// The tilt σ report of a tilt covariance: the horizontal components of a rotation are the
+/// surface's slope (radians), their covariance's eigenvalues the loosest and firmest tilt.
+fn tilt_report(cov: nalgebra::Matrix2<f64>) -> Option<DatumTiltReport> {
     let eigen = cov.symmetric_eigen();
     let (loose, firm) = match eigen.eigenvalues[0] >= eigen.eigenvalues[1] {
         true => (0, 1),
@@ -346,7 +504,11 @@ fn report(
         epochs.insert(epoch.name.clone(), epoch_orientation(&of_block, e));
     }
     AlignReport {
-        epoch_pairs: epoch_pair_ties(project, tiepoints, block.set_motion_covariance.as_ref()),
+        epoch_pairs: epoch_pair_ties(
+            project,
+            tiepoints,
+            EpochMotions::of(block, project.reference_epoch.index(), project.epochs.len()).as_ref(),
+        ),
         method: strategy.method(),
         datum: format!("{:?}", block.datum),
         images_given: project.images.len(),
@@ -358,6 +520,7 @@ fn report(
         inter_epoch_ties_joined: block.diagnostics.joined_ties,
         inter_epoch_ties_guided: block.diagnostics.guided_ties,
         changed_regions: block.diagnostics.changed_regions,
+        surface_heights: block.diagnostics.surface_heights,
         observation_bound_px: block.observation_bound_px,
         group_noise: (0..rec.cameras.len())
             .map(|g| GroupNoise {
@@ -445,10 +608,13 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
         control_points: residuals_of(&per_epoch, false),
         check_points: residuals_of(&per_epoch, true),
         datum_tilt: datum_tilt_of_epoch(project, geo, block, control, e),
-        block_tilt: block
-            .set_motion_covariance
-            .as_ref()
-            .and_then(|c| tilt_of(c, &[(e, 1.0)])),
+        block_tilt: EpochMotions::of(block, project.reference_epoch.index(), project.epochs.len())
+            .and_then(|m| m.epoch(e)),
+        surface_fit: block
+            .surface_fits
+            .iter()
+            .find(|f| f.epoch == e)
+            .map(surface_fit_report),
         gnss_offset: block
             .gnss_offsets
             .iter()
@@ -461,5 +627,30 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
                 within_flight_sigma_m: o.within_flight_sigma,
                 scatter_weighs_priors: o.scatter_weighs_priors,
             }),
+    }
+}
+
+/// An epoch's surface fit in the report's units.
+fn surface_fit_report(f: &timesift_align::SurfaceFit) -> crate::report::SurfaceFitReport {
+    use crate::report::Term;
+    let (tilt, tilt_sigma) = f.tilt_mm_per_m();
+    let term = |value: f64, sigma: f64, unit: f64| Term {
+        value: value * unit,
+        sigma: sigma * unit,
+    };
+    crate::report::SurfaceFitReport {
+        points_compared: f.compared,
+        points_kept: f.kept,
+        sigma_m: f.sigma,
+        offset_m: term(f.plane[0], f.plane_std[0], 1.0),
+        slope_east_mm_per_m: term(f.plane[1], f.plane_std[1], 1e3),
+        slope_north_mm_per_m: term(f.plane[2], f.plane_std[2], 1e3),
+        tilt_mm_per_m: Term {
+            value: tilt,
+            sigma: tilt_sigma,
+        },
+        // m per m², times (100 m)², in mm.
+        dome_mm_at_100m: f.dome.map(|(v, s)| term(v, s, 1e4 * 1e3)),
+        height_scale_mm_per_m: f.height_scale.map(|(v, s)| term(v, s, 1e3)),
     }
 }

@@ -154,6 +154,7 @@ impl Block {
             diagnostics,
             // Parts adjusted apart: no covariance joins them.
             set_motion_covariance: None,
+            surface_fits: Vec::new(),
         }
     }
 }
@@ -217,6 +218,8 @@ fn restrict_ground(geo: &GeoreferenceInput, keep: &dyn Fn(usize) -> bool) -> Geo
         marker_sigma_px: geo.marker_sigma_px,
         // A part is adjusted apart: no covariance of epochs across parts.
         rigid_sets: Vec::new(),
+        // Tracks of the whole block; a part's heights are its strategy's own.
+        surface_heights: Vec::new(),
     }
 }
 

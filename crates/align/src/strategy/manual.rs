@@ -179,6 +179,7 @@ fn control_epoch(
         points: ground.points.clone(),
         marker_sigma_px: ground.marker_sigma_px,
         rigid_sets: Vec::new(),
+        surface_heights: Vec::new(),
     };
     let mut used = 0;
     for point in intersected {

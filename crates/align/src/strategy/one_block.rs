@@ -5,16 +5,21 @@
 
 use crate::AlignError;
 use crate::changed::detect_changed_ground;
-use crate::georef::{Datum, Georeferenced, georeference};
+use crate::georef::{Datum, Diagnostics, Georeferenced, georeference};
 use crate::model::Reconstruction;
 use crate::moved::{Separated, separate_moved_points};
 use crate::options::{ChangeDetection, SfmOptions};
+use crate::surface::SurfaceComparison;
 
 use super::block::Block;
+use super::similarity::median_ground_pixel;
 
 /// Most rounds of change detection: each takes the most significant regions left and adjusts
 /// the block without their ties, which shows what is left more clearly.
 const CHANGE_DETECTION_ROUNDS: usize = 6;
+/// Rounds of surface ties: the second compares the points once the first has removed most of
+/// the epoch's offset and tilt, so that fewer points on changed ground pass.
+const SURFACE_ROUNDS: usize = 2;
 
 /// The components of the whole block (largest first) adjusted and georeferenced as one.
 pub(crate) fn adjust_as_one_block(
@@ -31,7 +36,8 @@ pub(crate) fn adjust_as_one_block(
     )?;
     let components = std::mem::take(&mut separated.components);
     let placed = georeference(&separated.input, components, &block.ground, options)?;
-    let mut placed = tie_on_stable_ground(block, &mut separated, placed, options)?;
+    let placed = tie_on_stable_ground(block, &mut separated, placed, options)?;
+    let mut placed = tie_by_surface(block, &separated, placed, options)?;
     placed.diagnostics.moved_ties_split = separated.split;
     separated.restore_track_ids(&mut placed.reconstruction);
     Ok(placed)
@@ -109,5 +115,72 @@ fn tie_on_stable_ground(
     }
     placed.diagnostics.unstable_ties_split = total;
     placed.diagnostics.changed_regions = regions;
+    Ok(placed)
+}
+
+/// With [`SfmOptions::surface_ties`], the later epochs' own tie points get height observations
+/// from the reference epoch's surface (module `surface`) and the block is adjusted again with
+/// them; either way, each later epoch's fit against that surface in the final block
+/// ([`Georeferenced::surface_fits`]). A block without a datum has no "up" to compare heights
+/// along, and is returned as it is.
+fn tie_by_surface(
+    block: &Block,
+    separated: &Separated,
+    placed: Georeferenced,
+    options: &SfmOptions,
+) -> Result<Georeferenced, AlignError> {
+    let epochs = block.epoch_names.len();
+    if placed.datum == Datum::Local || epochs < 2 {
+        return Ok(placed);
+    }
+    let stable = block.stable_ground_for(&placed);
+    let ground_px = median_ground_pixel(&placed.reconstruction);
+    let mut placed = placed;
+    let comparison = SurfaceComparison {
+        epoch_of: &block.epoch_of,
+        reference: block.reference,
+        epochs,
+        stable,
+        ground_px,
+    };
+    if options.surface_ties {
+        for round in 0..SURFACE_ROUNDS {
+            let (mut heights, before) = comparison.heights(&placed.reconstruction);
+            for fit in &before {
+                let (tilt, sigma) = fit.tilt_mm_per_m();
+                tracing::info!(
+                    round,
+                    epoch = %block.epoch_names[fit.epoch],
+                    kept = fit.kept,
+                    compared = fit.compared,
+                    sigma = fit.sigma,
+                    offset = fit.plane[0],
+                    tilt_mm_per_m = tilt,
+                    tilt_sigma = sigma,
+                    "an epoch's tie points against the reference epoch's surface"
+                );
+            }
+            if heights.is_empty() {
+                break;
+            }
+            heights.sort_by_key(|h| h.track);
+            let geo = crate::georef::GeoreferenceInput {
+                surface_heights: heights,
+                ..block.ground.clone()
+            };
+            let count = geo.surface_heights.len();
+            let mut again =
+                georeference(&separated.input, vec![placed.reconstruction], &geo, options)?;
+            let diagnostics = placed.diagnostics;
+            again.diagnostics = Diagnostics {
+                surface_heights: count,
+                dropped_components: diagnostics.dropped_components
+                    + again.diagnostics.dropped_components,
+                ..diagnostics
+            };
+            placed = again;
+        }
+    }
+    placed.surface_fits = comparison.fits(&placed.reconstruction);
     Ok(placed)
 }

@@ -190,6 +190,7 @@ impl StableTiePoints<'_> {
             points: ground.points.clone(),
             marker_sigma_px: ground.marker_sigma_px,
             rigid_sets: Vec::new(),
+            surface_heights: Vec::new(),
         };
         // The stable points' observations are tie points of this epoch: weighted by the
         // epoch's own measured reprojection noise (σ per axis from the RMS), not as hand-placed
@@ -241,6 +242,7 @@ fn place_roughly(
         points: Vec::new(),
         marker_sigma_px: ground.marker_sigma_px,
         rigid_sets: Vec::new(),
+        surface_heights: Vec::new(),
     };
     // Placed by the priors when they place it (three or more, not all rejected).
     let by_priors = if ground.centre_priors.len() >= 3 {

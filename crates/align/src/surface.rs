@@ -1,0 +1,828 @@
+//! Surface ties: the later epochs' own tie points held to the reference epoch's surface where
+//! the ground did not change.
+//!
+//! Why: an epoch joins the block through the tie points it shares with the others, and where
+//! appearance changed (a beach, a corridor, decades of film) these are few and lie in a band.
+//! A band fixes the epoch's position along it but hardly its roll about it: on the rendered
+//! beach of `rendered-mar` its 45 ties lie within 60 m of a 180 m-wide corridor and the second
+//! epoch's DEM rolls 3.3 mm/m while the block believes it to 0.8. Yet the epoch's own tie
+//! points cover the whole corridor, and on stable ground they lie on the surface the reference
+//! epoch's tie points describe. Each becomes a height observation (ASP's heights-from-DEM, with
+//! the reference epoch's own points as the DEM): thousands of them, across the whole width.
+//!
+//! Where the ground changed, an epoch's points miss the reference surface. The misses are
+//! compared after removing what the block as a whole got wrong (an offset and a tilt, fitted
+//! robustly to all of them) and a point that still misses by more than [`KEEP_SIGMAS`] of their
+//! scatter is left out; with stable ground given, only points on it are used.
+//!
+//! The same comparison, made on the final block, is each epoch's decomposition against the
+//! reference epoch ([`SurfaceFit`]): offset, two slopes, dome and height scale with their σ.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+
+use crate::model::Reconstruction;
+use crate::stable_ground::StableGround;
+
+/// A height observation of a tie point (by its track): from a reference surface, with its σ.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceHeight {
+    /// Index of the point's track in the input's tracks.
+    pub track: usize,
+    /// Height of the reference surface at the point, metres.
+    pub height: f64,
+    /// Standard deviation of the observation, metres.
+    pub sigma: f64,
+}
+
+/// How an epoch's tie points sit on the reference surface: the misses (point height minus the
+/// surface's) decomposed by least squares over the points kept, each term with its σ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceFit {
+    /// The epoch (index).
+    pub epoch: usize,
+    /// Points compared (on the reference surface, stable ground where given).
+    pub compared: usize,
+    /// Points kept (not missing by more than 2.5 times the scatter about the plane).
+    pub kept: usize,
+    /// Robust σ of one point's miss about the plane, metres.
+    pub sigma: f64,
+    /// Offset at the points' centroid, tilt (east and north slopes), metres and m/m.
+    pub plane: [f64; 3],
+    /// Standard deviations of `plane`.
+    pub plane_std: [f64; 3],
+    /// Dome fitted beside the plane: the miss per squared metre from the points' centroid
+    /// (m/m²), with its σ.
+    pub dome: Option<(f64, f64)>,
+    /// Height scale fitted beside the plane and the dome: the miss per metre of the reference
+    /// surface's height above its own best plane (m/m), with its σ; `None` over ground too
+    /// flat to tell it from a tilt.
+    pub height_scale: Option<(f64, f64)>,
+    /// Centroid of the kept points (x, y, z), where `plane` is referred.
+    pub centroid: [f64; 3],
+    /// Where the compared points lie (x, y), those kept: ground the epochs agree on.
+    pub unchanged: Vec<[f64; 2]>,
+    /// Where the compared points that missed the surface lie: ground that changed, or wrong
+    /// points.
+    pub changed: Vec<[f64; 2]>,
+}
+
+impl SurfaceFit {
+    /// The tilt's magnitude, mm/m, and its σ (the σ of the slope along the tilt's direction).
+    pub fn tilt_mm_per_m(&self) -> (f64, f64) {
+        let (gx, gy) = (self.plane[1], self.plane[2]);
+        let tilt = gx.hypot(gy);
+        let sigma = if tilt > 0.0 {
+            ((gx * self.plane_std[1]).powi(2) + (gy * self.plane_std[2]).powi(2)).sqrt() / tilt
+        } else {
+            self.plane_std[1].max(self.plane_std[2])
+        };
+        (1e3 * tilt, 1e3 * sigma)
+    }
+}
+
+/// Fewest observations of a later epoch's point before it is compared: two-view points are
+/// too loose in height to say anything of the surface.
+const MIN_OBSERVATIONS: usize = 3;
+/// Reference points fitted by a local plane around each compared point.
+const NEIGHBOURS: usize = 8;
+/// Fewest of them within [`RADIUS_GROUND_PX`] for the plane.
+const MIN_NEIGHBOURS: usize = 5;
+/// How far a neighbour may lie, in ground pixels: the reference surface is sampled by its tie
+/// points a few metres apart, and the plane through them must not bridge a break of slope.
+const RADIUS_GROUND_PX: f64 = 40.0;
+/// Most RMS scatter of the reference points about their local plane, ground pixels: tie points
+/// on smooth ground scatter by a fraction of a ground pixel in height; more is ground with
+/// no surface between its points (vegetation, buildings, boulders).
+const MAX_ROUGHNESS_GROUND_PX: f64 = 3.0;
+/// A point missing the surface (after the fitted offset and tilt) by more than this many
+/// robust σ is on ground that changed, or a wrong point.
+const KEEP_SIGMAS: f64 = 2.5;
+/// Fewest compared points of an epoch before its surface ties are used.
+const MIN_COMPARED: usize = 30;
+/// Smallest RMS relief about the surface's best plane, metres, for a height scale to be fitted.
+const MIN_RELIEF: f64 = 1e-3;
+/// Smallest eigenvalue of the column-normalised normal matrix, relative to its largest, of a
+/// fit that is solved.
+const MIN_CONDITION: f64 = 1e-10;
+/// Smallest scatter the trimming uses, metres: below it, misses are rounding.
+const MIN_SIGMA: f64 = 1e-9;
+/// Rounds of the robust fit (trimming at [`KEEP_SIGMAS`], refitting).
+const ROBUST_ROUNDS: usize = 8;
+
+/// The reference surface: the reference epoch's tie points (two observations in its images at
+/// least), horizontally indexed.
+struct ReferenceSurface {
+    origin: [f64; 2],
+    tree: ImmutableKdTree<f64, 2>,
+    heights: Vec<f64>,
+    xy: Vec<[f64; 2]>,
+}
+
+impl ReferenceSurface {
+    fn of(rec: &Reconstruction, epoch_of: &[usize], reference: usize) -> Option<Self> {
+        let points: Vec<[f64; 3]> = rec
+            .points
+            .iter()
+            .filter(|p| {
+                p.observations
+                    .iter()
+                    .filter(|e| epoch_of.get(e.image.index()) == Some(&reference))
+                    .count()
+                    >= 2
+            })
+            .map(|p| [p.position.x, p.position.y, p.position.z])
+            .filter(|p| p.iter().all(|v| v.is_finite()))
+            .collect();
+        let first = points.first()?;
+        let origin = [first[0], first[1]];
+        let xy: Vec<[f64; 2]> = points
+            .iter()
+            .map(|p| [p[0] - origin[0], p[1] - origin[1]])
+            .collect();
+        let tree = ImmutableKdTree::new_from_slice(&xy).ok()?;
+        Some(ReferenceSurface {
+            origin,
+            tree,
+            heights: points.iter().map(|p| p[2]).collect(),
+            xy,
+        })
+    }
+
+    /// The height of a local plane through the nearest reference points at (x, y), when enough
+    /// lie within `radius` around it (not all on one side or one line) and off the plane by
+    /// `max_roughness` at most (RMS).
+    fn height_at(&self, x: f64, y: f64, radius: f64, max_roughness: f64) -> Option<f64> {
+        let q = [x - self.origin[0], y - self.origin[1]];
+        let found = self
+            .tree
+            .query(&q)
+            .nearest_n::<SquaredEuclidean<f64>>(std::num::NonZeroUsize::new(NEIGHBOURS)?)
+            .execute();
+        let r2 = radius * radius;
+        // Normal equations of z = a + b dx + c dy about the query.
+        let mut n = Matrix3::<f64>::zeros();
+        let mut rhs = Vector3::<f64>::zeros();
+        let mut count = 0;
+        let mut centroid = [0.0; 2];
+        for nb in found.iter().filter(|nb| nb.distance <= r2) {
+            let p = self.xy[nb.item as usize];
+            let row = Vector3::new(1.0, p[0] - q[0], p[1] - q[1]);
+            n += row * row.transpose();
+            rhs += row * self.heights[nb.item as usize];
+            centroid[0] += row[1];
+            centroid[1] += row[2];
+            count += 1;
+        }
+        if count < MIN_NEIGHBOURS {
+            return None;
+        }
+        // The query must lie among its neighbours, not beyond them: the centroid's offset
+        // within half the radius.
+        let c = count as f64;
+        if (centroid[0] / c).hypot(centroid[1] / c) > 0.5 * radius {
+            return None;
+        }
+        let chol = n.cholesky()?;
+        // A plane through points on one line is no plane: the xy spread's smallest eigenvalue.
+        let spread = Matrix3::from_fn(|i, j| n[(i, j)])
+            .fixed_view::<2, 2>(1, 1)
+            .into_owned()
+            / c
+            - nalgebra::Matrix2::new(
+                centroid[0] * centroid[0],
+                centroid[0] * centroid[1],
+                centroid[1] * centroid[0],
+                centroid[1] * centroid[1],
+            ) / (c * c);
+        let smallest = spread.symmetric_eigenvalues().min();
+        if !(smallest > (0.1 * radius).powi(2)) {
+            return None;
+        }
+        let plane = chol.solve(&rhs);
+        // How far the neighbours lie off their plane (RMS, 3 parameters fitted): vegetation,
+        // buildings, blocks of rock are no surface a point between them lies on.
+        let mut misfit = 0.0;
+        for nb in found.iter().filter(|nb| nb.distance <= r2) {
+            let p = self.xy[nb.item as usize];
+            let fitted = plane[0] + plane[1] * (p[0] - q[0]) + plane[2] * (p[1] - q[1]);
+            misfit += (self.heights[nb.item as usize] - fitted).powi(2);
+        }
+        let roughness = (misfit / (c - 3.0)).sqrt();
+        (plane[0].is_finite() && roughness <= max_roughness).then_some(plane[0])
+    }
+}
+
+/// One later epoch's point compared with the surface.
+struct Compared {
+    track: usize,
+    position: Vector3<f64>,
+    surface: f64,
+}
+
+/// The later epochs' points compared with the reference epoch's surface, per epoch: those
+/// seen in one epoch only (not the reference), by [`MIN_OBSERVATIONS`] images at least, on
+/// `stable` ground where given, where the surface is known.
+fn compare(
+    rec: &Reconstruction,
+    epoch_of: &[usize],
+    reference: usize,
+    epochs: usize,
+    stable: Option<&StableGround>,
+    radius: f64,
+    max_roughness: f64,
+) -> Vec<Vec<Compared>> {
+    let mut out: Vec<Vec<Compared>> = (0..epochs).map(|_| Vec::new()).collect();
+    let Some(surface) = ReferenceSurface::of(rec, epoch_of, reference) else {
+        return out;
+    };
+    for p in &rec.points {
+        if p.observations.len() < MIN_OBSERVATIONS
+            || !p.position.iter().all(|v| v.is_finite())
+            || stable.is_some_and(|s| !s.contains(&p.position))
+        {
+            continue;
+        }
+        let Some(&epoch) = p
+            .observations
+            .first()
+            .and_then(|e| epoch_of.get(e.image.index()))
+        else {
+            continue;
+        };
+        let one_epoch = p
+            .observations
+            .iter()
+            .all(|e| epoch_of.get(e.image.index()) == Some(&epoch));
+        if epoch == reference || !one_epoch || epoch >= epochs {
+            continue;
+        }
+        if let Some(surface) = surface.height_at(p.position.x, p.position.y, radius, max_roughness)
+        {
+            out[epoch].push(Compared {
+                track: p.track,
+                position: p.position,
+                surface,
+            });
+        }
+    }
+    out
+}
+
+/// Least squares of each point's miss (its height minus the surface's) on the columns
+/// `design` gives it; the solution, its covariance at unit σ, and the residuals. `None` when
+/// singular.
+fn least_squares(
+    points: &[&Compared],
+    columns: usize,
+    design: &dyn Fn(&Compared, &mut [f64]),
+) -> Option<(DVector<f64>, DMatrix<f64>, Vec<f64>)> {
+    least_squares_of(points, columns, design, &|p| p.position.z - p.surface)
+}
+
+/// [`least_squares`] of any `observed` value of the points.
+fn least_squares_of(
+    points: &[&Compared],
+    columns: usize,
+    design: &dyn Fn(&Compared, &mut [f64]),
+    observed: &dyn Fn(&Compared) -> f64,
+) -> Option<(DVector<f64>, DMatrix<f64>, Vec<f64>)> {
+    if points.len() <= columns {
+        return None;
+    }
+    let mut a = DMatrix::<f64>::zeros(points.len(), columns);
+    let mut b = DVector::<f64>::zeros(points.len());
+    let mut row = vec![0.0; columns];
+    for (i, p) in points.iter().enumerate() {
+        design(p, &mut row);
+        for (j, v) in row.iter().enumerate() {
+            a[(i, j)] = *v;
+        }
+        b[i] = observed(p);
+    }
+    let normal = a.transpose() * &a;
+    // Columns scaled to unit norm before the factorisation: a nearly collinear column must
+    // fail it rather than give a huge, meaningless coefficient.
+    let scale: Vec<f64> = (0..columns)
+        .map(|j| normal[(j, j)].sqrt().max(f64::MIN_POSITIVE))
+        .collect();
+    let scaled = DMatrix::from_fn(columns, columns, |i, j| {
+        normal[(i, j)] / (scale[i] * scale[j])
+    });
+    let eigen = scaled.clone().symmetric_eigen();
+    if !(eigen.eigenvalues.min() > MIN_CONDITION * eigen.eigenvalues.max()) {
+        return None;
+    }
+    let chol = normal.cholesky()?;
+    let x = chol.solve(&(a.transpose() * &b));
+    let inverse = chol.inverse();
+    let residuals = (0..points.len())
+        .map(|i| b[i] - (a.row(i) * &x)[(0, 0)])
+        .collect();
+    x.iter()
+        .all(|v| v.is_finite())
+        .then_some((x, inverse, residuals))
+}
+
+/// Median absolute deviation about the median, scaled to a normal σ.
+fn robust_sigma(values: &[f64]) -> f64 {
+    let mut v: Vec<f64> = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let median = v[v.len() / 2];
+    let mut dev: Vec<f64> = v.iter().map(|x| (x - median).abs()).collect();
+    dev.sort_by(f64::total_cmp);
+    1.4826 * dev[dev.len() / 2]
+}
+
+/// The robust plane fit of one epoch's misses: which points are kept, the plane about
+/// `centre`, and the scatter about it.
+fn robust_plane(points: &[Compared], centre: [f64; 2]) -> Option<(Vec<bool>, f64)> {
+    let design = |p: &Compared, row: &mut [f64]| {
+        row[0] = 1.0;
+        row[1] = p.position.x - centre[0];
+        row[2] = p.position.y - centre[1];
+    };
+    let mut keep = vec![true; points.len()];
+    let mut sigma = f64::INFINITY;
+    for _ in 0..ROBUST_ROUNDS {
+        let kept: Vec<&Compared> = points
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| p)
+            .collect();
+        let (x, _, _) = least_squares(&kept, 3, &design)?;
+        let misses: Vec<f64> = points
+            .iter()
+            .map(|p| {
+                p.position.z
+                    - p.surface
+                    - (x[0] + x[1] * (p.position.x - centre[0]) + x[2] * (p.position.y - centre[1]))
+            })
+            .collect();
+        let kept_misses: Vec<f64> = misses
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(m, _)| *m)
+            .collect();
+        sigma = robust_sigma(&kept_misses);
+        if !sigma.is_finite() {
+            return None;
+        }
+        // Noise-free misses (σ 0) keep what the plane fits to rounding.
+        let bound = KEEP_SIGMAS * sigma.max(MIN_SIGMA);
+        let next: Vec<bool> = misses.iter().map(|m| m.abs() <= bound).collect();
+        if next == keep {
+            break;
+        }
+        keep = next;
+        if keep.iter().filter(|k| **k).count() < MIN_COMPARED {
+            return None;
+        }
+    }
+    Some((keep, sigma))
+}
+
+/// The decomposition of the kept points' misses (plane; dome and height scale beside it) with
+/// its σ. The height scale's regressor is the reference surface's height above its own best
+/// plane: over planar ground a height scale cannot be told from a tilt, and is not fitted.
+fn decompose(epoch: usize, points: &[Compared], keep: &[bool]) -> Option<SurfaceFit> {
+    let kept: Vec<&Compared> = points
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(p, _)| p)
+        .collect();
+    let n = kept.len() as f64;
+    let centroid = kept.iter().fold([0.0; 3], |c, p| {
+        [
+            c[0] + p.position.x / n,
+            c[1] + p.position.y / n,
+            c[2] + p.position.z / n,
+        ]
+    });
+    let plane_design = |p: &Compared, row: &mut [f64]| {
+        row[0] = 1.0;
+        row[1] = p.position.x - centroid[0];
+        row[2] = p.position.y - centroid[1];
+    };
+    let (plane, plane_cov, residuals) = least_squares(&kept, 3, &plane_design)?;
+    let s = robust_sigma(&residuals);
+    let std = |s: f64, cov: &DMatrix<f64>, i: usize| s * cov[(i, i)].max(0.0).sqrt();
+    // The surface's own best plane, to take out of its heights.
+    let relief = least_squares_of(&kept, 3, &plane_design, &|p| p.surface).map(|(x, _, _)| x)?;
+    let above = |p: &Compared| {
+        p.surface
+            - (relief[0]
+                + relief[1] * (p.position.x - centroid[0])
+                + relief[2] * (p.position.y - centroid[1]))
+    };
+    let relief_spread = (kept.iter().map(|p| above(p).powi(2)).sum::<f64>() / n).sqrt();
+    let shape_design = |p: &Compared, row: &mut [f64]| {
+        let (dx, dy) = (p.position.x - centroid[0], p.position.y - centroid[1]);
+        row[0] = 1.0;
+        row[1] = dx;
+        row[2] = dy;
+        row[3] = dx * dx + dy * dy;
+        if row.len() > 4 {
+            row[4] = above(p);
+        }
+    };
+    let with_scale = relief_spread > MIN_RELIEF;
+    let columns = if with_scale { 5 } else { 4 };
+    let shape = least_squares(&kept, columns, &shape_design).map(|(x, cov, residuals)| {
+        let s = robust_sigma(&residuals);
+        let term = |i: usize| (i < columns).then(|| (x[i], std(s, &cov, i)));
+        (term(3), term(4))
+    });
+    let (dome, height_scale) = shape.unwrap_or((None, None));
+    Some(SurfaceFit {
+        epoch,
+        compared: points.len(),
+        kept: kept.len(),
+        sigma: s,
+        plane: [plane[0], plane[1], plane[2]],
+        plane_std: [
+            std(s, &plane_cov, 0),
+            std(s, &plane_cov, 1),
+            std(s, &plane_cov, 2),
+        ],
+        dome,
+        height_scale,
+        centroid,
+        unchanged: points
+            .iter()
+            .zip(keep)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| [p.position.x, p.position.y])
+            .collect(),
+        changed: points
+            .iter()
+            .zip(keep)
+            .filter(|(_, k)| !**k)
+            .map(|(p, _)| [p.position.x, p.position.y])
+            .collect(),
+    })
+}
+
+/// How a block's later epochs' points are compared with the reference epoch's surface: the
+/// epochs, and where the ground is known stable.
+pub(crate) struct SurfaceComparison<'a> {
+    pub epoch_of: &'a [usize],
+    pub reference: usize,
+    pub epochs: usize,
+    pub stable: Option<&'a StableGround>,
+    /// The block's median ground pixel, metres: the scale of the neighbourhoods and bounds.
+    pub ground_px: f64,
+}
+
+impl SurfaceComparison<'_> {
+    /// Every later epoch's points compared with the surface.
+    fn compared(&self, rec: &Reconstruction) -> Vec<Vec<Compared>> {
+        compare(
+            rec,
+            self.epoch_of,
+            self.reference,
+            self.epochs,
+            self.stable,
+            RADIUS_GROUND_PX * self.ground_px,
+            MAX_ROUGHNESS_GROUND_PX * self.ground_px,
+        )
+    }
+
+    /// Height observations for the later epochs' points on the reference epoch's surface
+    /// (every other one, [`holds`]), and each later epoch's fit against it (before the
+    /// observations act).
+    pub fn heights(&self, rec: &Reconstruction) -> (Vec<SurfaceHeight>, Vec<SurfaceFit>) {
+        let mut heights = Vec::new();
+        let mut fits = Vec::new();
+        for (epoch, points) in self.compared(rec).iter().enumerate() {
+            let Some((keep, sigma, fit)) = fit_epoch(epoch, points) else {
+                continue;
+            };
+            // A point's σ: the scatter of the misses about the plane, which holds the point's
+            // own noise, the surface's, and the roughness a local plane misses.
+            let sigma = sigma.max(0.5 * self.ground_px);
+            heights.extend(
+                points
+                    .iter()
+                    .zip(&keep)
+                    .filter(|(p, k)| **k && holds(p.track))
+                    .map(|(p, _)| SurfaceHeight {
+                        track: p.track,
+                        height: p.surface,
+                        sigma,
+                    }),
+            );
+            fits.push(fit);
+        }
+        (heights, fits)
+    }
+
+    /// Each later epoch's decomposition against the reference epoch's surface, on a block as
+    /// it is (its final state, for the report), from the points [`Self::heights`] never holds.
+    pub fn fits(&self, rec: &Reconstruction) -> Vec<SurfaceFit> {
+        self.compared(rec)
+            .into_iter()
+            .enumerate()
+            .filter_map(|(epoch, mut points)| {
+                points.retain(|p| !holds(p.track));
+                fit_epoch(epoch, &points).map(|(_, _, fit)| fit)
+            })
+            .collect()
+    }
+}
+
+/// Whether a point (by track) may be held to the surface: every other one. The others are
+/// never held, so that [`SurfaceComparison::fits`] measures how the epoch as a whole sits on
+/// the surface, not how closely the adjustment pulled the held points onto it.
+fn holds(track: usize) -> bool {
+    track % 2 == 0
+}
+
+/// The robust plane of one epoch's compared points, the points kept and their scatter, and
+/// the decomposition; `None` with too few points or a fit that fails.
+fn fit_epoch(epoch: usize, points: &[Compared]) -> Option<(Vec<bool>, f64, SurfaceFit)> {
+    if points.len() < MIN_COMPARED {
+        return None;
+    }
+    let n = points.len() as f64;
+    let centre = points.iter().fold([0.0; 2], |c, p| {
+        [c[0] + p.position.x / n, c[1] + p.position.y / n]
+    });
+    let (keep, sigma) = robust_plane(points, centre)?;
+    let fit = decompose(epoch, points, &keep)?;
+    Some((keep, sigma, fit))
+}
+
+#[cfg(test)]
+mod tests {
+    use timesift_core::{FeatureIndex, ImageId, SeededRng, TrackElement};
+
+    use super::*;
+    use crate::model::SparsePoint;
+
+    /// Images 0–2 in epoch 0 (the reference), 3–5 in epoch 1.
+    const EPOCH_OF: [usize; 6] = [0, 0, 0, 1, 1, 1];
+
+    /// The comparison of the two epochs, at a ground pixel of 0.2 m.
+    fn compare_with(stable: Option<&StableGround>) -> SurfaceComparison<'_> {
+        SurfaceComparison {
+            epoch_of: &EPOCH_OF,
+            reference: 0,
+            epochs: 2,
+            stable,
+            ground_px: 0.2,
+        }
+    }
+
+    /// The true ground: a slope of 5 % east and 2 % north.
+    fn ground(x: f64, y: f64) -> f64 {
+        10.0 + 0.05 * x + 0.02 * y
+    }
+
+    fn point(track: usize, position: Vector3<f64>, images: &[usize]) -> SparsePoint {
+        SparsePoint {
+            position,
+            track,
+            observations: images
+                .iter()
+                .map(|&i| TrackElement {
+                    image: ImageId::from(i),
+                    feature: FeatureIndex::from(track),
+                })
+                .collect(),
+        }
+    }
+
+    /// Reference points on a 3 m grid over 180 × 120 m, and later points between them with a
+    /// planted miss (offset + tilt), `noise` σ, and, inside `changed`, 1 m of change.
+    fn scene(
+        noise: f64,
+        miss: impl Fn(f64, f64) -> f64,
+        changed: impl Fn(f64, f64) -> bool,
+    ) -> Reconstruction {
+        let mut rng = SeededRng::new(7);
+        let mut points = Vec::new();
+        for i in 0..60 {
+            for j in 0..40 {
+                let (x, y) = (3.0 * i as f64, 3.0 * j as f64);
+                let reference = Vector3::new(x, y, ground(x, y));
+                let (x, y) = (x + 1.3, y + 1.7);
+                let change = if changed(x, y) { 1.0 } else { 0.0 };
+                let z = ground(x, y) + miss(x, y) + change + noise * rng.normal();
+                let later = Vector3::new(x, y, z);
+                // Tracks in varying order, so that later points have both parities.
+                let (first, second) = match j % 2 {
+                    0 => ((reference, [0, 1, 2]), (later, [3, 4, 5])),
+                    _ => ((later, [3, 4, 5]), (reference, [0, 1, 2])),
+                };
+                for (position, images) in [first, second] {
+                    let track = points.len();
+                    points.push(point(track, position, &images));
+                }
+            }
+        }
+        Reconstruction {
+            cameras: Vec::new(),
+            poses: vec![None; 6],
+            points,
+        }
+    }
+
+    fn planted(x: f64, y: f64) -> f64 {
+        -0.3 + 0.003 * (x - 90.0) - 0.001 * (y - 60.0)
+    }
+
+    #[test]
+    fn a_planted_offset_and_tilt_is_recovered_exactly_without_noise() {
+        let rec = scene(0.0, planted, |_, _| false);
+        let (heights, fits) = compare_with(None).heights(&rec);
+        assert_eq!(fits.len(), 1);
+        let f = &fits[0];
+        assert_eq!(f.epoch, 1);
+        // The later points' misses at their centroid, and the slopes.
+        let expected = planted(f.centroid[0], f.centroid[1]);
+        assert!((f.plane[0] - expected).abs() < 1e-9, "{:?}", f.plane);
+        assert!((f.plane[1] - 0.003).abs() < 1e-9, "{:?}", f.plane);
+        assert!((f.plane[2] + 0.001).abs() < 1e-9, "{:?}", f.plane);
+        // No dome; over a planar surface no height scale is fitted.
+        assert!(f.dome.is_some_and(|(d, _)| d.abs() < 1e-12), "{:?}", f.dome);
+        assert_eq!(f.height_scale, None);
+        // Every height observation is the true ground under its point (the reference
+        // surface is a plane, which the local planes reproduce exactly).
+        // Every other point is held; the others are left to check the fit.
+        assert!(heights.len() > 1000, "{}", heights.len());
+        assert!(heights.iter().all(|h| holds(h.track)));
+        let checked = compare_with(None).fits(&rec);
+        assert!(
+            (checked[0].plane[1] - 0.003).abs() < 1e-9,
+            "{:?}",
+            checked[0].plane
+        );
+        assert!(checked[0].kept + heights.len() <= f.kept + 1);
+        for h in &heights {
+            let p = &rec.points[h.track];
+            assert!((h.height - ground(p.position.x, p.position.y)).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn changed_ground_is_left_out_and_the_tilt_found_within_its_sigma_under_noise() {
+        let changed = |x: f64, y: f64| x > 120.0 && y < 50.0;
+        let rec = scene(0.1, planted, changed);
+        let (heights, fits) = compare_with(None).heights(&rec);
+        let f = &fits[0];
+        let (tilt, sigma) = f.tilt_mm_per_m();
+        let truth = 0.003f64.hypot(0.001) * 1e3;
+        assert!(
+            sigma > 0.0 && (tilt - truth).abs() < 4.0 * sigma,
+            "{tilt} ± {sigma}"
+        );
+        assert!((f.sigma - 0.1).abs() < 0.02, "σ {}", f.sigma);
+        for k in 1..3 {
+            assert!(
+                (f.plane[k] * 1e3 - [0.0, 3.0, -1.0][k]).abs() < 4.0 * f.plane_std[k] * 1e3,
+                "{:?} ± {:?}",
+                f.plane,
+                f.plane_std
+            );
+        }
+        // No point on the changed ground is held to the surface.
+        let on_change = heights
+            .iter()
+            .filter(|h| {
+                let p = &rec.points[h.track].position;
+                changed(p.x, p.y)
+            })
+            .count();
+        assert_eq!(on_change, 0);
+        // The final fit (on the points never held) says where the ground changed.
+        let checked = &compare_with(None).fits(&rec)[0];
+        assert!(checked.changed.len() > 100, "{}", checked.changed.len());
+        let misplaced = checked
+            .changed
+            .iter()
+            .filter(|p| !changed(p[0], p[1]))
+            .count();
+        // A 2.5 σ test flags 1.2 % of the stable points' normal noise.
+        assert!(
+            misplaced * 100 <= 3 * checked.unchanged.len(),
+            "{misplaced} of {}",
+            checked.unchanged.len()
+        );
+        assert!(checked.unchanged.iter().all(|p| !changed(p[0], p[1])));
+    }
+
+    #[test]
+    fn stable_ground_given_limits_the_comparison_to_it() {
+        let rec = scene(0.0, planted, |_, _| false);
+        let stable =
+            StableGround::rasterise([0.0, 0.0], 1.0, 200, 130, |x, _| x < 60.0).expect("grid");
+        let (heights, fits) = compare_with(Some(&stable)).heights(&rec);
+        assert!(!heights.is_empty());
+        assert!(
+            heights
+                .iter()
+                .all(|h| rec.points[h.track].position.x < 60.0)
+        );
+        assert!(fits[0].compared < 1000, "{}", fits[0].compared);
+    }
+
+    #[test]
+    fn too_few_points_or_a_reference_on_one_line_give_no_heights() {
+        // 20 later points: fewer than the fit needs.
+        let mut rec = scene(0.0, planted, |_, _| false);
+        let mut later = 0;
+        rec.points.retain(|p| {
+            let keep = p.observations[0].image.index() < 3 || later < 20;
+            later += usize::from(p.observations[0].image.index() >= 3);
+            keep
+        });
+        let (heights, fits) = compare_with(None).heights(&rec);
+        assert!(heights.is_empty() && fits.is_empty());
+        // Reference points along one line: no local plane anywhere.
+        let mut rec = scene(0.0, planted, |_, _| false);
+        rec.points
+            .retain(|p| p.observations[0].image.index() >= 3 || p.position.y == 0.0);
+        let (heights, fits) = compare_with(None).heights(&rec);
+        assert!(heights.is_empty() && fits.is_empty());
+        // Reference points scattered by 3 m RMS about the ground (15 ground pixels of 0.2 m):
+        // vegetation, not a surface.
+        let mut rec = scene(0.0, planted, |_, _| false);
+        let mut rng = SeededRng::new(11);
+        for p in rec
+            .points
+            .iter_mut()
+            .filter(|p| p.observations[0].image.index() < 3)
+        {
+            p.position.z += 3.0 * rng.uniform_range(-1.0, 1.0) * 3f64.sqrt();
+        }
+        let (heights, fits) = compare_with(None).heights(&rec);
+        assert!(heights.is_empty() && fits.is_empty(), "{}", heights.len());
+        // Non-finite positions are skipped, never propagated.
+        let mut rec = scene(0.0, planted, |_, _| false);
+        rec.points[1].position.z = f64::NAN;
+        let (heights, fits) = compare_with(None).heights(&rec);
+        assert!(heights.iter().all(|h| h.height.is_finite() && h.track != 1));
+        assert!(fits[0].plane.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn a_planted_dome_and_height_scale_are_recovered_exactly() {
+        // Points on a surface with relief (a ridge), missing it by every term at once.
+        let mut rng = SeededRng::new(3);
+        let points: Vec<Compared> = (0..400)
+            .map(|track| {
+                let (x, y) = (rng.uniform_range(0.0, 200.0), rng.uniform_range(0.0, 100.0));
+                let surface = 5.0 + 0.01 * x + 3.0 * (-((y - 50.0) / 15.0).powi(2)).exp();
+                Compared {
+                    track,
+                    position: Vector3::new(x, y, surface),
+                    surface,
+                }
+            })
+            .collect();
+        let keep = vec![true; points.len()];
+        // The regressors as `decompose` defines them, from a first pass.
+        let first = decompose(1, &points, &keep).expect("fit");
+        assert_eq!(first.plane, [0.0; 3]);
+        let c = first.centroid;
+        let (dome, scale) = (2e-6, 0.004);
+        let relief_plane = {
+            let kept: Vec<&Compared> = points.iter().collect();
+            least_squares_of(
+                &kept,
+                3,
+                &|p, row| {
+                    row[0] = 1.0;
+                    row[1] = p.position.x - c[0];
+                    row[2] = p.position.y - c[1];
+                },
+                &|p| p.surface,
+            )
+            .expect("plane")
+            .0
+        };
+        let missed: Vec<Compared> = points
+            .iter()
+            .map(|p| {
+                let (dx, dy) = (p.position.x - c[0], p.position.y - c[1]);
+                let above =
+                    p.surface - (relief_plane[0] + relief_plane[1] * dx + relief_plane[2] * dy);
+                let miss =
+                    0.1 + 0.002 * dx - 0.001 * dy + dome * (dx * dx + dy * dy) + scale * above;
+                Compared {
+                    position: Vector3::new(p.position.x, p.position.y, p.surface + miss),
+                    ..*p
+                }
+            })
+            .collect();
+        let f = decompose(1, &missed, &keep).expect("fit");
+        let (d, ds) = f.dome.expect("dome");
+        let (h, hs) = f.height_scale.expect("height scale");
+        assert!((d - dome).abs() < 1e-12 && ds < 1e-12, "{d} ± {ds}");
+        assert!((h - scale).abs() < 1e-9 && hs < 1e-9, "{h} ± {hs}");
+    }
+}
