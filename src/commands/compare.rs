@@ -472,17 +472,18 @@ pub fn compare_clouds(
     let cloud_b = read_las(b)?;
     let pair = format!("{} and {}", a.display(), b.display());
     check_same_crs(cloud_a.crs, cloud_b.crs).map_err(change_err(pair.clone()))?;
-    let stable = match &options.stable {
-        Some(path) => Some(read_polygons(path)?),
-        None => None,
-    };
     let mut positions_b = cloud_b.positions.clone();
     let icp_result = match options.icp {
         Some(model) => {
+            // Only ICP selects points by the stable areas.
+            let stable = match &options.stable {
+                Some(path) => Some(StableAreas::read(path)?),
+                None => None,
+            };
             let r = icp_on_stable(
                 &cloud_a.positions,
                 &positions_b,
-                stable.as_deref(),
+                stable.as_ref(),
                 model,
                 &pair,
             )?;
@@ -557,21 +558,54 @@ pub fn compare_clouds(
     Ok(report)
 }
 
+/// Stable areas as points are judged against them: polygons, or a mask GeoTIFF (non-zero,
+/// finite = stable) such as the align stage's `out/stable_found.tif`.
+enum StableAreas {
+    Polygons(Vec<Polygon>),
+    Mask(timesift_io::geotiff::GeoRaster<f32>),
+}
+
+impl StableAreas {
+    fn read(path: &Path) -> Result<StableAreas, ProjectError> {
+        let is_tiff = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"));
+        Ok(match is_tiff {
+            true => StableAreas::Mask(timesift_io::geotiff::read_f32(path)?),
+            false => StableAreas::Polygons(read_polygons(path)?),
+        })
+    }
+
+    fn contains(&self, x: f64, y: f64) -> bool {
+        match self {
+            StableAreas::Polygons(polygons) => polygons.iter().any(|p| p.contains(x, y)),
+            StableAreas::Mask(mask) => {
+                let (col, row) = mask.georef.transform.world_to_pixel(x, y);
+                let inside = col >= 0.0
+                    && row >= 0.0
+                    && (col as usize) < mask.width
+                    && (row as usize) < mask.height;
+                inside && {
+                    let v = mask.data[row as usize * mask.width + col as usize];
+                    v.is_finite() && v != 0.0 && mask.georef.nodata != Some(v as f64)
+                }
+            }
+        }
+    }
+}
+
 /// ICP of cloud `b` onto cloud `a` over their points in the stable areas (every point without
 /// them).
 fn icp_on_stable(
     a: &[[f64; 3]],
     b: &[[f64; 3]],
-    stable: Option<&[Polygon]>,
+    stable: Option<&StableAreas>,
     model: IcpModel,
     pair: &str,
 ) -> Result<IcpResult, ProjectError> {
     let in_stable = |points: &[[f64; 3]]| -> Vec<bool> {
         match stable {
-            Some(polygons) => points
-                .iter()
-                .map(|p| polygons.iter().any(|poly| poly.contains(p[0], p[1])))
-                .collect(),
+            Some(areas) => points.iter().map(|p| areas.contains(p[0], p[1])).collect(),
             None => vec![true; points.len()],
         }
     };

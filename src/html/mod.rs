@@ -304,6 +304,24 @@ fn connectivity_section(
                 .iter()
                 .filter(|p| p.epochs.contains(e) && p.epochs.has_other_than(e))
                 .count();
+            // An epoch held to the reference epoch's surface over its stable ground does not
+            // hang on its feature ties alone (the orientation section shows that fit), nor
+            // does the reference epoch when every other one is.
+            let fitted = |name: &String| {
+                inputs
+                    .align
+                    .epochs
+                    .get(name)
+                    .is_some_and(|r| r.surface_fit.is_some())
+            };
+            let reference = project.reference_epoch.index();
+            let on_surface = inputs.align.surface_heights > 0
+                && (fitted(name)
+                    || (e == reference
+                        && names.iter().enumerate().all(|(k, n)| k == e || fitted(n))));
+            if on_surface {
+                continue;
+            }
             if inter < FEW_INTER_EPOCH_TIES {
                 warnings.push(format!(
                     "epoch {name} hangs on {inter} inter-epoch tie points (fewer than \

@@ -291,6 +291,95 @@ fn cloud_compare_runs_icp_then_m3c2_on_sandpyper() {
     }
 }
 
+/// ICP on the stable ground of a mask GeoTIFF (as the align stage's `out/stable_found.tif`):
+/// half the survey rose by 2 m, the mask marks the other half stable, and the known offset is
+/// undone from it alone.
+#[test]
+fn cloud_icp_takes_its_stable_ground_from_a_mask_geotiff() {
+    let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/sandpyper-mar/dsm");
+    let raster = read_f32(&shared.join("mar_20180601_dsm_resampled_1m.tif")).expect("dsm");
+    let dem = Dem::from_raster(raster, Some(-10000.0)).expect("dem");
+    let points = dem.to_points();
+    let mid = {
+        let mut x: Vec<f64> = points.iter().map(|p| p[0]).collect();
+        x.sort_by(f64::total_cmp);
+        x[x.len() / 2]
+    };
+    let dir = tempfile::tempdir().expect("tmp");
+    let (a, b) = (dir.path().join("a.laz"), dir.path().join("b.laz"));
+    write_cloud(&a, points.clone());
+    write_cloud(
+        &b,
+        points
+            .iter()
+            .map(|p| {
+                let rise = if p[0] > mid { 2.0 } else { 0.0 };
+                [p[0] + 0.4, p[1] - 0.3, p[2] + 0.2 + rise]
+            })
+            .collect(),
+    );
+    // 1 west of the middle, 0 east of it.
+    let mut values = vec![0.0f32; dem.grid.width * dem.grid.height];
+    for r in 0..dem.grid.height {
+        for c in 0..dem.grid.width {
+            let (x, _) = dem.grid.cell_center(c, r);
+            values[r * dem.grid.width + c] = if x < mid { 1.0 } else { 0.0 };
+        }
+    }
+    let mask = dir.path().join("mask.tif");
+    write_f32(
+        &mask,
+        &Dem {
+            grid: dem.grid,
+            values,
+        }
+        .to_raster(),
+    )
+    .expect("mask");
+    let out = dir.path().join("out");
+    let (ok, stdout, err) = timesift(&[
+        "compare",
+        path(&a),
+        path(&b),
+        "--icp",
+        "rigid",
+        "--stable",
+        path(&mask),
+        "--normal-radius",
+        "2.5",
+        "--cylinder-radius",
+        "1.5",
+        "--max-depth",
+        "4.5",
+        "--core-spacing",
+        "2",
+        "--out",
+        path(&out),
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("ICP:"), "{stdout}");
+    let result = read_las(&out.join("m3c2.laz")).expect("m3c2.laz");
+    let distance = result
+        .attributes
+        .iter()
+        .find(|a| a.name == "distance")
+        .expect("distance attribute");
+    let AttributeValues::F64(d) = &distance.values else {
+        panic!("distance is f64");
+    };
+    // West of the middle (a few metres in): no change left but the LAS millimetre grid's.
+    let west: Vec<f64> = result
+        .positions
+        .iter()
+        .zip(d)
+        .filter(|(p, v)| p[0] < mid - 5.0 && v.is_finite())
+        .map(|(_, v)| *v)
+        .collect();
+    assert!(west.len() > 5_000, "{}", west.len());
+    let worst = west.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(worst < 5e-3, "{worst}");
+}
+
 #[test]
 fn change_stage_compares_epoch_dems() {
     let dir = tempfile::tempdir().expect("tmp");

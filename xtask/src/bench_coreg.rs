@@ -6,7 +6,8 @@
 //! and the tilt of the plane fitted to the errors (mm/m), which check points along the corridor
 //! cannot see, beside the check-point RMSE and the datum-tilt σ the align report predicts.
 //! `truth` runs the products on the true cameras: the floor of what dense matching and gridding
-//! allow. Written as `coreg.md` and `coreg.json` in the output folder and printed.
+//! allow. Each DoD has a second row, `land`, without the sea (stable cells whose true height is
+//! below 1.5 m: the source's sea surface, held still and textured per epoch). Written as `coreg.md` and `coreg.json` in the output folder and printed.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -45,6 +46,9 @@ pub const VARIANTS: [(&str, &str); 7] = [
 
 /// The ground sampling distance of each epoch of rendered-mar (its README), m.
 const GSD: [(&str, f64); 2] = [("20180925", 0.354), ("20190205", 0.300)];
+/// Below this true height the scene's stable ground is sea held still (its README: "mask the
+/// sea"), textured by each epoch's orthophoto; a DoD row without it is printed too.
+const SEA_LEVEL_M: f64 = 1.5;
 
 /// One epoch's DEM, or one pair's DoD, against the truth over the stable ground.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -230,6 +234,16 @@ fn run_variant(
             gsd_of(a).min(gsd_of(b)),
             &dod,
         ));
+        let land: Vec<(f64, f64, f64)> = dod
+            .iter()
+            .filter(|&&(x, y, _)| truth.height(a, x, y).is_some_and(|z| z > SEA_LEVEL_M))
+            .copied()
+            .collect();
+        surfaces.push(agreement(
+            &format!("{a}__{b} land"),
+            gsd_of(a).min(gsd_of(b)),
+            &land,
+        ));
     }
     let epochs: Vec<_> = report.epochs.iter().collect();
     let row = VariantRow {
@@ -309,6 +323,12 @@ impl Truth {
             None,
         )?;
         Ok(Truth { dems, stable })
+    }
+
+    /// The true height of `epoch` at (x, y), where known.
+    fn height(&self, epoch: &str, x: f64, y: f64) -> Option<f64> {
+        let (_, dem) = self.dems.iter().find(|(e, _)| e == epoch)?;
+        Some(dem.bilinear(x, y)).filter(|z| z.is_finite())
     }
 
     /// Height errors (DEM − the true surface of `epoch`) at the centres of the measured cells of

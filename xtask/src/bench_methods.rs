@@ -48,7 +48,8 @@ pub struct MethodsBench {
     /// of each camera group's own), or `auto-blind` (the regional change detection, the stable
     /// areas hidden from the align stage; the products are still judged on them), or
     /// `joined` (the project's ties and a second look for inter-epoch ties by descriptor,
-    /// `[align] join_epoch_ties = true`), or `nosurface` (no surface ties,
+    /// `[align] join_epoch_ties = true`), or `auto-blind-nosurface` (`auto-blind` without surface
+    /// ties), or `nosurface` (no surface ties,
     /// `[align] surface_ties = false`: as before they existed), or `refgnss` (the GNSS priors of the reference epoch
     /// only: whether the other epochs' priors move the reference epoch's datum), or
     /// `scatter-all` (every flight's GNSS priors weighed by their scatter about their offset,
@@ -86,13 +87,14 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
                 .collect();
             project.gnss.retain(|g| keep.contains(&g.image));
         }
-        "auto-blind" => {
+        "auto-blind" | "auto-blind-nosurface" => {
             project.config.align.inter_epoch_ties = InterEpochTies::Auto;
             project.stable_areas.clear();
+            project.config.align.surface_ties = ties == "auto-blind";
         }
         other => {
             anyhow::bail!(
-                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, joined, nosurface, refgnss, scatter-all)"
+                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, auto-blind-nosurface, joined, nosurface, refgnss, scatter-all)"
             )
         }
     }

@@ -108,7 +108,8 @@ enum Task {
         /// for the whole block, not one per camera group), auto-blind (change detected from the
         /// ties, stable areas hidden from align), joined (a second look for inter-epoch ties by
         /// descriptor after the first block), nosurface (no surface ties: the later epochs' tie
-        /// points not held to the reference epoch's surface), refgnss (only the reference epoch's GNSS priors),
+        /// points not held to the reference epoch's surface), auto-blind-nosurface (auto-blind without
+        /// them), refgnss (only the reference epoch's GNSS priors),
         /// scatter-all (every flight's GNSS priors weighed by their scatter).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
