@@ -152,7 +152,11 @@ fn tie_by_surface(
                 (0..epochs)
                     .map(|e| {
                         let fit = before.iter().find(|f| f.epoch == e);
-                        stable.is_some() || fit.is_some_and(|f| plausible(block, &placed, f))
+                        stable.is_some()
+                            || fit.is_some_and(|f| {
+                                let covariance = placed.set_motion_covariance.as_ref();
+                                plausible(covariance, &block.epoch_names[e], f)
+                            })
                     })
                     .collect()
             });
@@ -214,8 +218,12 @@ const PLAUSIBLE_SIGMAS: f64 = 10.0;
 /// Whether an epoch's offset and tilt against the reference surface are within
 /// [`PLAUSIBLE_SIGMAS`] of the σ the block's covariance gives its rigid motion (vertical
 /// translation; tilt about the loosest axis); without that covariance, no.
-fn plausible(block: &Block, placed: &Georeferenced, fit: &crate::surface::SurfaceFit) -> bool {
-    let Some(c) = placed.set_motion_covariance.as_ref() else {
+fn plausible(
+    covariance: Option<&nalgebra::DMatrix<f64>>,
+    name: &str,
+    fit: &crate::surface::SurfaceFit,
+) -> bool {
+    let Some(c) = covariance else {
         return false;
     };
     let e = fit.epoch;
@@ -229,7 +237,7 @@ fn plausible(block: &Block, placed: &Georeferenced, fit: &crate::surface::Surfac
     let ok = fit.plane[0].abs() <= PLAUSIBLE_SIGMAS * offset_sigma
         && tilt <= PLAUSIBLE_SIGMAS * tilt_sigma;
     tracing::info!(
-        epoch = %block.epoch_names[e],
+        epoch = name,
         offset = fit.plane[0],
         offset_sigma,
         tilt_mm_per_m = 1e3 * tilt,
@@ -242,7 +250,7 @@ fn plausible(block: &Block, placed: &Georeferenced, fit: &crate::surface::Surfac
             "epoch {}: its tie points miss the reference epoch's surface by {:.3} m and {:.2} \
              mm/m, beyond {PLAUSIBLE_SIGMAS} σ of what the block allows ({:.3} m, {:.2} mm/m): \
              taken as change, not held to it (give stable.csv to say where the ground is stable)",
-            block.epoch_names[e],
+            name,
             fit.plane[0],
             1e3 * tilt,
             offset_sigma,
@@ -250,4 +258,43 @@ fn plausible(block: &Block, placed: &Georeferenced, fit: &crate::surface::Surfac
         );
     }
     ok
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::surface::SurfaceFit;
+
+    /// A fit of epoch 1 with this offset (m) and tilt (m/m, eastwards).
+    fn fit(offset: f64, tilt: f64) -> SurfaceFit {
+        SurfaceFit {
+            epoch: 1,
+            compared: 100,
+            kept: 100,
+            sigma: 0.1,
+            plane: [offset, tilt, 0.0],
+            plane_std: [0.01, 1e-4, 1e-4],
+            dome: None,
+            height_scale: None,
+            centroid: [0.0; 3],
+            unchanged: Vec::new(),
+            changed: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_miss_within_ten_sigma_of_the_blocks_rigid_motion_is_held_and_beyond_is_change() {
+        // Epoch 1's rotation σ 0.5 mm/m about x and 0.2 about y, vertical translation σ 0.1 m.
+        let mut c = nalgebra::DMatrix::<f64>::zeros(12, 12);
+        c[(6, 6)] = 0.5e-3f64.powi(2);
+        c[(7, 7)] = 0.2e-3f64.powi(2);
+        c[(11, 11)] = 0.01;
+        assert!(plausible(Some(&c), "b", &fit(-0.24, 2.5e-3)));
+        assert!(plausible(Some(&c), "b", &fit(0.99, 4.9e-3)));
+        // A glacier's metres of thinning, or a tilt beyond 10 σ of the loosest axis.
+        assert!(!plausible(Some(&c), "b", &fit(-4.0, 1e-3)));
+        assert!(!plausible(Some(&c), "b", &fit(0.1, 5.1e-3)));
+        // Without a covariance nothing can be judged: not held.
+        assert!(!plausible(None, "b", &fit(0.0, 0.0)));
+    }
 }
