@@ -280,11 +280,15 @@ pub fn read_polygons(path: &Path) -> Result<Vec<Polygon>, ProjectError> {
 }
 
 /// A mask on `grid` from a polygons file or a mask GeoTIFF.
+/// Whether a stable-area or region file is a mask GeoTIFF (by its extension) rather than
+/// polygons.
+fn is_tiff(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"))
+}
+
 fn load_mask(path: &Path, grid: Grid) -> Result<Mask, ProjectError> {
-    let is_tiff = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"));
-    let mask = if is_tiff {
+    let mask = if is_tiff(path) {
         let raster = load_dem(path, None)?;
         Mask::from_raster(grid, &raster).map_err(change_err(path.display().to_string()))?
     } else {
@@ -567,10 +571,7 @@ enum StableAreas {
 
 impl StableAreas {
     fn read(path: &Path) -> Result<StableAreas, ProjectError> {
-        let is_tiff = path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"));
-        Ok(match is_tiff {
+        Ok(match is_tiff(path) {
             true => StableAreas::Mask(timesift_io::geotiff::read_f32(path)?),
             false => StableAreas::Polygons(read_polygons(path)?),
         })

@@ -26,7 +26,7 @@ pub(super) fn change_section(
          how well the epochs are co-registered: a median and a plane near zero are what the \
          Time-SIFT block should deliver without any co-registration step.</p>",
     );
-    if crate::stages::stable_file(project).is_none() && layout.stable_found().is_file() {
+    if crate::stages::change_stable_areas(project).is_some_and(|p| p == layout.stable_found()) {
         s.push_str(
             "<p>No stable areas were given (<code>stable.csv</code>): the stable areas here are \
              the ground the align stage found unchanged, where the later epochs' tie points met \

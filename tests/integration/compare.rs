@@ -232,6 +232,38 @@ fn write_cloud(path: &Path, points: Vec<[f64; 3]>) {
     write_las(path, &cloud, &LasWriteOptions::default()).expect("write las");
 }
 
+/// `timesift compare a b --icp rigid` with M3C2 on the sandpyper DSMs' scale and `extra`
+/// arguments, into `out`; the core points and their M3C2 distances.
+fn icp_then_m3c2(a: &Path, b: &Path, extra: &[&str], out: &Path) -> (Vec<[f64; 3]>, Vec<f64>) {
+    let mut args = vec!["compare", path(a), path(b), "--icp", "rigid"];
+    args.extend_from_slice(extra);
+    args.extend([
+        "--normal-radius",
+        "2.5",
+        "--cylinder-radius",
+        "1.5",
+        "--max-depth",
+        "4.5",
+        "--core-spacing",
+        "2",
+        "--out",
+        path(out),
+    ]);
+    let (ok, stdout, err) = timesift(&args);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("ICP:"), "{stdout}");
+    let result = read_las(&out.join("m3c2.laz")).expect("m3c2.laz");
+    let distance = result
+        .attributes
+        .iter()
+        .find(|a| a.name == "distance")
+        .expect("distance attribute");
+    let AttributeValues::F64(d) = &distance.values else {
+        panic!("distance is f64");
+    };
+    (result.positions.clone(), d.clone())
+}
+
 #[test]
 fn cloud_compare_runs_icp_then_m3c2_on_sandpyper() {
     let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/sandpyper-mar/dsm");
@@ -253,34 +285,7 @@ fn cloud_compare_runs_icp_then_m3c2_on_sandpyper() {
             .collect(),
     );
     let out = dir.path().join("out");
-    let (ok, stdout, err) = timesift(&[
-        "compare",
-        path(&a),
-        path(&b),
-        "--icp",
-        "rigid",
-        "--normal-radius",
-        "2.5",
-        "--cylinder-radius",
-        "1.5",
-        "--max-depth",
-        "4.5",
-        "--core-spacing",
-        "2",
-        "--out",
-        path(&out),
-    ]);
-    assert!(ok, "{err}");
-    assert!(stdout.contains("ICP:"), "{stdout}");
-    let result = read_las(&out.join("m3c2.laz")).expect("m3c2.laz");
-    let distance = result
-        .attributes
-        .iter()
-        .find(|a| a.name == "distance")
-        .expect("distance attribute");
-    let AttributeValues::F64(d) = &distance.values else {
-        panic!("distance is f64");
-    };
+    let (_, d) = icp_then_m3c2(&a, &b, &[], &out);
     let defined: Vec<f64> = d.iter().copied().filter(|v| v.is_finite()).collect();
     assert!(defined.len() > 10_000, "{}", defined.len());
     // Rounding to the LAS millimetre grid is the only difference left.
@@ -337,41 +342,11 @@ fn cloud_icp_takes_its_stable_ground_from_a_mask_geotiff() {
     )
     .expect("mask");
     let out = dir.path().join("out");
-    let (ok, stdout, err) = timesift(&[
-        "compare",
-        path(&a),
-        path(&b),
-        "--icp",
-        "rigid",
-        "--stable",
-        path(&mask),
-        "--normal-radius",
-        "2.5",
-        "--cylinder-radius",
-        "1.5",
-        "--max-depth",
-        "4.5",
-        "--core-spacing",
-        "2",
-        "--out",
-        path(&out),
-    ]);
-    assert!(ok, "{err}");
-    assert!(stdout.contains("ICP:"), "{stdout}");
-    let result = read_las(&out.join("m3c2.laz")).expect("m3c2.laz");
-    let distance = result
-        .attributes
-        .iter()
-        .find(|a| a.name == "distance")
-        .expect("distance attribute");
-    let AttributeValues::F64(d) = &distance.values else {
-        panic!("distance is f64");
-    };
+    let (positions, d) = icp_then_m3c2(&a, &b, &["--stable", path(&mask)], &out);
     // West of the middle (a few metres in): no change left but the LAS millimetre grid's.
-    let west: Vec<f64> = result
-        .positions
+    let west: Vec<f64> = positions
         .iter()
-        .zip(d)
+        .zip(&d)
         .filter(|(p, v)| p[0] < mid - 5.0 && v.is_finite())
         .map(|(_, v)| *v)
         .collect();

@@ -261,20 +261,14 @@ fn run_variant(
             .collect(),
         predicted_tilt_sigma: epochs
             .iter()
-            .map(|(n, e)| {
-                let sigma = e.datum_tilt.as_ref().map(|t| t.sigma_max_mm_per_m);
-                (n.to_string(), sigma)
-            })
+            .map(|(n, e)| (n.to_string(), loosest(&e.datum_tilt)))
             .collect(),
         block_tilt_sigma: epochs
             .iter()
-            .map(|(n, e)| {
-                let sigma = e.block_tilt.as_ref().map(|t| t.sigma_max_mm_per_m);
-                (n.to_string(), sigma)
-            })
+            .map(|(n, e)| (n.to_string(), loosest(&e.block_tilt)))
             .chain(report.epoch_pairs.iter().map(|p| {
-                let sigma = p.dod_tilt.as_ref().map(|t| t.sigma_max_mm_per_m);
-                (format!("{}__{}", p.epochs[0], p.epochs[1]), sigma)
+                let name = format!("{}__{}", p.epochs[0], p.epochs[1]);
+                (name, loosest(&p.dod_tilt))
             }))
             .collect(),
         surfaces,
@@ -285,6 +279,11 @@ fn run_variant(
     let _ = std::fs::remove_dir_all(&kept);
     std::fs::rename(layout.out_dir(), &kept)?;
     Ok(row)
+}
+
+/// A tilt σ about its loosest axis, mm/m.
+fn loosest(tilt: &Option<timesift::report::DatumTiltReport>) -> Option<f64> {
+    tilt.as_ref().map(|t| t.sigma_max_mm_per_m)
 }
 
 fn gsd_of(epoch: &str) -> f64 {

@@ -169,41 +169,29 @@ impl ReferenceSurface {
             .nearest_n::<SquaredEuclidean<f64>>(std::num::NonZeroUsize::new(NEIGHBOURS)?)
             .execute();
         let r2 = radius * radius;
-        // Normal equations of z = a + b dx + c dy about the query.
+        // Normal equations of z = a + b dx + c dy about the query: their first row holds the
+        // neighbours' count and the sums of their offsets.
         let mut n = Matrix3::<f64>::zeros();
         let mut rhs = Vector3::<f64>::zeros();
-        let mut count = 0;
-        let mut centroid = [0.0; 2];
         for nb in found.iter().filter(|nb| nb.distance <= r2) {
             let p = self.xy[nb.item as usize];
             let row = Vector3::new(1.0, p[0] - q[0], p[1] - q[1]);
             n += row * row.transpose();
             rhs += row * self.heights[nb.item as usize];
-            centroid[0] += row[1];
-            centroid[1] += row[2];
-            count += 1;
         }
-        if count < MIN_NEIGHBOURS {
+        let c = n[(0, 0)];
+        if c < MIN_NEIGHBOURS as f64 {
             return None;
         }
         // The query must lie among its neighbours, not beyond them: the centroid's offset
         // within half the radius.
-        let c = count as f64;
-        if (centroid[0] / c).hypot(centroid[1] / c) > 0.5 * radius {
+        let centroid = nalgebra::Vector2::new(n[(0, 1)], n[(0, 2)]) / c;
+        if centroid.norm() > 0.5 * radius {
             return None;
         }
-        let chol = n.cholesky()?;
         // A plane through points on one line is no plane: the xy spread's smallest eigenvalue.
-        let spread = Matrix3::from_fn(|i, j| n[(i, j)])
-            .fixed_view::<2, 2>(1, 1)
-            .into_owned()
-            / c
-            - nalgebra::Matrix2::new(
-                centroid[0] * centroid[0],
-                centroid[0] * centroid[1],
-                centroid[1] * centroid[0],
-                centroid[1] * centroid[1],
-            ) / (c * c);
+        let spread = n.fixed_view::<2, 2>(1, 1) / c - centroid * centroid.transpose();
+        let chol = n.cholesky()?;
         let smallest = spread.symmetric_eigenvalues().min();
         if !(smallest > (0.1 * radius).powi(2)) {
             return None;
@@ -483,6 +471,13 @@ fn decompose(epoch: usize, points: &[Compared], keep: &[bool]) -> Option<Surface
     })
 }
 
+/// One later epoch against the reference epoch's surface: its fit, and the height
+/// observations its points would get.
+pub(crate) struct EpochSurface {
+    pub fit: SurfaceFit,
+    pub held: Vec<SurfaceHeight>,
+}
+
 /// How a block's later epochs' points are compared with the reference epoch's surface: the
 /// epochs, and where the ground is known stable.
 pub(crate) struct SurfaceComparison<'a> {
@@ -508,12 +503,11 @@ impl SurfaceComparison<'_> {
         )
     }
 
-    /// Height observations for the later epochs' points on the reference epoch's surface
-    /// (every other one, [`holds`]), and each later epoch's fit against it (before the
-    /// observations act).
-    pub fn heights(&self, rec: &Reconstruction) -> (Vec<SurfaceHeight>, Vec<SurfaceFit>) {
-        let mut heights = Vec::new();
-        let mut fits = Vec::new();
+    /// Per later epoch compared, its fit against the reference epoch's surface (before the
+    /// observations act) and the height observations its points would get (every other one,
+    /// [`holds`]; none below [`MIN_HELD`]).
+    pub fn heights(&self, rec: &Reconstruction) -> Vec<EpochSurface> {
+        let mut epochs = Vec::new();
         for (epoch, points) in self.compared(rec).iter().enumerate() {
             let Some((keep, _, fit)) = fit_epoch(epoch, points) else {
                 continue;
@@ -521,7 +515,7 @@ impl SurfaceComparison<'_> {
             // The observation's σ is the surface's, not the misses' scatter: that holds the
             // point's own height noise too, which its rays already carry in the adjustment.
             let sigma = SURFACE_SIGMA_GROUND_PX * self.ground_px;
-            let held: Vec<SurfaceHeight> = points
+            let mut held: Vec<SurfaceHeight> = points
                 .iter()
                 .zip(&keep)
                 .filter(|(p, k)| **k && holds(p.track))
@@ -531,12 +525,12 @@ impl SurfaceComparison<'_> {
                     sigma,
                 })
                 .collect();
-            if held.len() >= MIN_HELD {
-                heights.extend(held);
+            if held.len() < MIN_HELD {
+                held.clear();
             }
-            fits.push(fit);
+            epochs.push(EpochSurface { fit, held });
         }
-        (heights, fits)
+        epochs
     }
 
     /// Each later epoch's decomposition against the reference epoch's surface, on a block as
@@ -584,6 +578,17 @@ mod tests {
 
     /// Images 0–2 in epoch 0 (the reference), 3–5 in epoch 1.
     const EPOCH_OF: [usize; 6] = [0, 0, 0, 1, 1, 1];
+
+    /// Every epoch's height observations, and the fits.
+    fn split(epochs: Vec<EpochSurface>) -> (Vec<SurfaceHeight>, Vec<SurfaceFit>) {
+        epochs
+            .into_iter()
+            .fold((Vec::new(), Vec::new()), |(mut h, mut f), e| {
+                h.extend(e.held);
+                f.push(e.fit);
+                (h, f)
+            })
+    }
 
     /// The comparison of the two epochs, at a ground pixel of 0.2 m.
     fn compare_with(stable: Option<&StableGround>) -> SurfaceComparison<'_> {
@@ -657,7 +662,7 @@ mod tests {
     #[test]
     fn a_planted_offset_and_tilt_is_recovered_exactly_without_noise() {
         let rec = scene(0.0, planted, |_, _| false);
-        let (heights, fits) = compare_with(None).heights(&rec);
+        let (heights, fits) = split(compare_with(None).heights(&rec));
         assert_eq!(fits.len(), 1);
         let f = &fits[0];
         assert_eq!(f.epoch, 1);
@@ -691,7 +696,7 @@ mod tests {
     fn changed_ground_is_left_out_and_the_tilt_found_within_its_sigma_under_noise() {
         let changed = |x: f64, y: f64| x > 120.0 && y < 50.0;
         let rec = scene(0.1, planted, changed);
-        let (heights, fits) = compare_with(None).heights(&rec);
+        let (heights, fits) = split(compare_with(None).heights(&rec));
         let f = &fits[0];
         let (tilt, sigma) = f.tilt_mm_per_m();
         let truth = 0.003f64.hypot(0.001) * 1e3;
@@ -739,7 +744,7 @@ mod tests {
         let rec = scene(0.0, planted, |_, _| false);
         let stable =
             StableGround::rasterise([0.0, 0.0], 1.0, 200, 130, |x, _| x < 60.0).expect("grid");
-        let (heights, fits) = compare_with(Some(&stable)).heights(&rec);
+        let (heights, fits) = split(compare_with(Some(&stable)).heights(&rec));
         assert!(!heights.is_empty());
         assert!(
             heights
@@ -759,13 +764,13 @@ mod tests {
             later += usize::from(p.observations[0].image.index() >= 3);
             keep
         });
-        let (heights, fits) = compare_with(None).heights(&rec);
+        let (heights, fits) = split(compare_with(None).heights(&rec));
         assert!(heights.is_empty() && fits.is_empty());
         // Reference points along one line: no local plane anywhere.
         let mut rec = scene(0.0, planted, |_, _| false);
         rec.points
             .retain(|p| p.observations[0].image.index() >= 3 || p.position.y == 0.0);
-        let (heights, fits) = compare_with(None).heights(&rec);
+        let (heights, fits) = split(compare_with(None).heights(&rec));
         assert!(heights.is_empty() && fits.is_empty());
         // Reference points scattered by 3 m RMS about the ground (15 ground pixels of 0.2 m):
         // vegetation, not a surface.
@@ -778,12 +783,12 @@ mod tests {
         {
             p.position.z += 3.0 * rng.uniform_range(-1.0, 1.0) * 3f64.sqrt();
         }
-        let (heights, fits) = compare_with(None).heights(&rec);
+        let (heights, fits) = split(compare_with(None).heights(&rec));
         assert!(heights.is_empty() && fits.is_empty(), "{}", heights.len());
         // Non-finite positions are skipped, never propagated.
         let mut rec = scene(0.0, planted, |_, _| false);
         rec.points[1].position.z = f64::NAN;
-        let (heights, fits) = compare_with(None).heights(&rec);
+        let (heights, fits) = split(compare_with(None).heights(&rec));
         assert!(heights.iter().all(|h| h.height.is_finite() && h.track != 1));
         assert!(fits[0].plane.iter().all(|v| v.is_finite()));
     }

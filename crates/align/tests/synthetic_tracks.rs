@@ -1179,6 +1179,46 @@ fn regional_change_detection_finds_nothing_where_nothing_changed() {
     assert_eq!(detected.diagnostics.unstable_ties_split, 0);
 }
 
+/// Where the second epoch of [`slide_scene`] moved: a disc 4 m in radius around (4, 0).
+fn on_slide(x: &Vector3<f64>) -> bool {
+    (x.xy() - Vector2::new(4.0, 0.0)).norm() < 4.0
+}
+
+/// Two epochs whose second sees the slide ([`on_slide`]) moved 0.5 m east, with biased
+/// priors, and whose tracks tie one stable point in twenty across them
+/// ([`one_tie_in_twenty`]); and a matcher by the scene's own tracks, one per point: matching
+/// by them is matching by the truth.
+fn slide_scene() -> (Scene, Block, SameTrack) {
+    let s = scene_with_motion(17, 0.3, 1500, &|i, x| {
+        if i >= 10 && on_slide(x) {
+            Vector3::new(0.5, 0.0, 0.0)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let mut block = two_epoch_block(&s, Vector3::new(1.0, -0.5, 0.8));
+    let matcher = SameTrack::new(&s.input);
+    block.sfm.tracks = one_tie_in_twenty(&s, &block, &on_slide);
+    (s, block, matcher)
+}
+
+/// Inter-epoch ties of `g` off the slide and on it, by the scene point they measure (the
+/// block's frame is the biased priors', not the truth's).
+fn slide_ties(g: &Georeferenced, s: &Scene, block: &Block, matcher: &SameTrack) -> (usize, usize) {
+    let (mut stable, mut slide) = (0, 0);
+    for p in &g.reconstruction.points {
+        if epoch_count(block, p) < 2 {
+            continue;
+        }
+        if on_slide(&s.points[matcher.track_of[&p.observations[0]]]) {
+            slide += 1;
+        } else {
+            stable += 1;
+        }
+    }
+    (stable, slide)
+}
+
 /// The scene's tracks as a feature matching that tied only one stable point in twenty across
 /// the two epochs would give: the others a track per epoch.
 fn one_tie_in_twenty(
@@ -1214,34 +1254,8 @@ fn one_tie_in_twenty(
 /// better than on the few ties the matching found.
 #[test]
 fn a_second_look_joins_the_epochs_tie_points_of_one_stable_ground_point() {
-    let on_slide = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm() < 4.0;
-    let s = scene_with_motion(17, 0.3, 1500, &|i, x| {
-        if i >= 10 && on_slide(x) {
-            Vector3::new(0.5, 0.0, 0.0)
-        } else {
-            Vector3::zeros()
-        }
-    });
-    let mut block = two_epoch_block(&s, Vector3::new(1.0, -0.5, 0.8));
-    // The scene's own tracks are one per point: matching by them is matching by the truth.
-    let matcher = SameTrack::new(&s.input);
-    block.sfm.tracks = one_tie_in_twenty(&s, &block, &on_slide);
-    // Inter-epoch ties off the slide and on it (by the scene point they measure: the block's
-    // frame is the biased priors', not the truth's).
-    let ties = |g: &Georeferenced| {
-        let (mut stable, mut slide) = (0, 0);
-        for p in &g.reconstruction.points {
-            if epoch_count(&block, p) < 2 {
-                continue;
-            }
-            if on_slide(&s.points[matcher.track_of[&p.observations[0]]]) {
-                slide += 1;
-            } else {
-                stable += 1;
-            }
-        }
-        (stable, slide)
-    };
+    let (s, block, matcher) = slide_scene();
+    let ties = |g: &Georeferenced| slide_ties(g, &s, &block, &matcher);
     let options = SfmOptions::default();
     let few = SingleBlock::default().orient(&block, &options).unwrap();
     let off = SingleBlock {
@@ -1381,31 +1395,8 @@ fn a_ground_point_s_markers_sigma_is_the_scatter_of_its_clicks() {
 /// not by the slide, which moved beyond the search radius.
 #[test]
 fn a_guided_look_finds_each_point_near_its_projection_in_the_other_epoch() {
-    let on_slide = |x: &Vector3<f64>| (x.xy() - Vector2::new(4.0, 0.0)).norm() < 4.0;
-    let s = scene_with_motion(17, 0.3, 1500, &|i, x| {
-        if i >= 10 && on_slide(x) {
-            Vector3::new(0.5, 0.0, 0.0)
-        } else {
-            Vector3::zeros()
-        }
-    });
-    let mut block = two_epoch_block(&s, Vector3::new(1.0, -0.5, 0.8));
-    let matcher = SameTrack::new(&s.input);
-    block.sfm.tracks = one_tie_in_twenty(&s, &block, &on_slide);
-    let ties = |g: &Georeferenced| {
-        let (mut stable, mut slide) = (0, 0);
-        for p in &g.reconstruction.points {
-            if epoch_count(&block, p) < 2 {
-                continue;
-            }
-            if on_slide(&s.points[matcher.track_of[&p.observations[0]]]) {
-                slide += 1;
-            } else {
-                stable += 1;
-            }
-        }
-        (stable, slide)
-    };
+    let (s, block, matcher) = slide_scene();
+    let ties = |g: &Georeferenced| slide_ties(g, &s, &block, &matcher);
     let options = SfmOptions::default();
     let few = SingleBlock::default().orient(&block, &options).unwrap();
     let guided = SingleBlock {

@@ -72,27 +72,29 @@ fn write_stable_found(
     tiepoints: &[timesift_io::ply::TiePoint],
 ) -> Result<(), ProjectError> {
     let path = project.layout().stable_found();
-    let given = !project.stable_areas.is_empty() || crate::stages::stable_file(project).is_some();
-    // Everything in the block's frame.
-    let ties: Vec<[f64; 2]> = tiepoints
+    let given = crate::stages::stable_file(project).is_some();
+    // Everything in the world frame.
+    let world = |p: &[f64; 2]| [p[0] + origin.x, p[1] + origin.y];
+    let fits = &block.surface_fits;
+    let unchanged: Vec<[f64; 2]> = fits
         .iter()
-        .filter(|p| p.epochs.len() >= 2)
-        .map(|p| [p.position.x - origin.x, p.position.y - origin.y])
+        .flat_map(|f| f.unchanged.iter().map(world))
+        .chain(
+            tiepoints
+                .iter()
+                .filter(|p| p.epochs.len() >= 2)
+                .map(|p| [p.position.x, p.position.y]),
+        )
         .collect();
-    let unchanged = || {
-        block
-            .surface_fits
-            .iter()
-            .flat_map(|f| &f.unchanged)
-            .chain(&ties)
-    };
-    let changed = || block.surface_fits.iter().flat_map(|f| &f.changed);
-    let points = || unchanged().chain(changed());
+    let changed: Vec<[f64; 2]> = fits
+        .iter()
+        .flat_map(|f| f.changed.iter().map(world))
+        .collect();
     let single_block = matches!(
         project.config.align.method,
         timesift_align::Method::Timesift | timesift_align::Method::Msfm
     );
-    if given || !single_block || block.datum == Datum::Local || unchanged().next().is_none() {
+    if given || !single_block || block.datum == Datum::Local || unchanged.is_empty() {
         if path.is_file() {
             std::fs::remove_file(&path).map_err(|e| timesift_io::IoError::io(&path, e))?;
         }
@@ -107,27 +109,27 @@ fn write_stable_found(
     })?;
     let cell = STABLE_FOUND_CELL_M;
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in points() {
+    for p in unchanged.iter().chain(&changed) {
         for k in 0..2 {
-            lo[k] = lo[k].min(p[k] + origin[k]);
-            hi[k] = hi[k].max(p[k] + origin[k]);
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
         }
     }
     let (left, top) = ((lo[0] / cell).floor() * cell, (hi[1] / cell).ceil() * cell);
     let width = (((hi[0] - left) / cell).floor() as usize) + 1;
     let height = (((top - lo[1]) / cell).floor() as usize) + 1;
     let index = |p: &[f64; 2]| {
-        let col = ((p[0] + origin[0] - left) / cell).floor() as usize;
-        let row = ((top - (p[1] + origin[1])) / cell).floor() as usize;
+        let col = ((p[0] - left) / cell).floor() as usize;
+        let row = ((top - p[1]) / cell).floor() as usize;
         (row.min(height - 1)) * width + col.min(width - 1)
     };
     // 0 unknown, 1 agreed, 2 missed (wins).
     let mut cells = vec![0u8; width * height];
-    for p in unchanged() {
+    for p in &unchanged {
         let c = &mut cells[index(p)];
         *c = (*c).max(1);
     }
-    for p in changed() {
+    for p in &changed {
         cells[index(p)] = 2;
     }
     let raster = timesift_io::geotiff::GeoRaster {
@@ -491,6 +493,7 @@ fn report(
     let rec = &block.reconstruction;
     let mut epochs = BTreeMap::new();
     let residuals: Vec<(timesift_core::TrackElement, f64)> = rec.residuals(input).collect();
+    let motions = EpochMotions::of(block, project.reference_epoch.index(), project.epochs.len());
     let of_block = OrientedBlock {
         project,
         input,
@@ -499,16 +502,13 @@ fn report(
         control: strategy.datum_control(),
         residuals: &residuals,
         tiepoints,
+        motions: motions.as_ref(),
     };
     for (e, epoch) in project.epochs.iter().enumerate() {
         epochs.insert(epoch.name.clone(), epoch_orientation(&of_block, e));
     }
     AlignReport {
-        epoch_pairs: epoch_pair_ties(
-            project,
-            tiepoints,
-            EpochMotions::of(block, project.reference_epoch.index(), project.epochs.len()).as_ref(),
-        ),
+        epoch_pairs: epoch_pair_ties(project, tiepoints, motions.as_ref()),
         method: strategy.method(),
         datum: format!("{:?}", block.datum),
         images_given: project.images.len(),
@@ -559,6 +559,8 @@ struct OrientedBlock<'a> {
     /// Every observation's reprojection error.
     residuals: &'a [(timesift_core::TrackElement, f64)],
     tiepoints: &'a [timesift_io::ply::TiePoint],
+    /// The epochs' rigid motions as the block holds them, when it has their covariance.
+    motions: Option<&'a EpochMotions<'a>>,
 }
 
 /// Epoch `e`'s orientation: its images, reprojection errors, tie points, control and check
@@ -572,6 +574,7 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
         control,
         residuals,
         tiepoints,
+        motions,
     } = *of;
     let rec = &block.reconstruction;
     let epoch = &project.epochs[e];
@@ -608,8 +611,7 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
         control_points: residuals_of(&per_epoch, false),
         check_points: residuals_of(&per_epoch, true),
         datum_tilt: datum_tilt_of_epoch(project, geo, block, control, e),
-        block_tilt: EpochMotions::of(block, project.reference_epoch.index(), project.epochs.len())
-            .and_then(|m| m.epoch(e)),
+        block_tilt: motions.and_then(|m| m.epoch(e)),
         surface_fit: block
             .surface_fits
             .iter()

@@ -144,33 +144,29 @@ fn tie_by_surface(
         ground_px,
     };
     if options.surface_ties {
-        // Which epochs may be held: decided on the first comparison, before any is.
-        let mut allowed: Option<Vec<bool>> = None;
+        // Which epochs are held: decided on the first comparison, before any is.
+        let mut held_epochs: Option<Vec<usize>> = None;
         for round in 0..SURFACE_ROUNDS {
-            let (heights, before) = comparison.heights(&placed.reconstruction);
-            let allowed = allowed.get_or_insert_with(|| {
-                (0..epochs)
-                    .map(|e| {
-                        let fit = before.iter().find(|f| f.epoch == e);
-                        fit.is_some_and(|f| {
-                            let covariance = placed.set_motion_covariance.as_ref();
-                            significant(f, ground_px)
-                                && (stable.is_some()
-                                    || plausible(covariance, &block.epoch_names[e], f))
-                        })
+            let compared = comparison.heights(&placed.reconstruction);
+            let held_epochs = held_epochs.get_or_insert_with(|| {
+                let covariance = placed.set_motion_covariance.as_ref();
+                compared
+                    .iter()
+                    .map(|c| &c.fit)
+                    .filter(|f| {
+                        significant(f, ground_px)
+                            && (stable.is_some()
+                                || plausible(covariance, &block.epoch_names[f.epoch], f))
                     })
+                    .map(|f| f.epoch)
                     .collect()
             });
-            // A held point is seen in one epoch only: its track's first image names it.
-            let epoch_of_track = |track: usize| {
-                let first = separated.input.tracks.get(track)?.elements.first()?;
-                block.epoch_of.get(first.image.index()).copied()
-            };
-            let mut heights: Vec<_> = heights
-                .into_iter()
-                .filter(|h| epoch_of_track(h.track).is_some_and(|e| allowed.get(e) == Some(&true)))
+            let mut heights: Vec<_> = compared
+                .iter()
+                .filter(|c| held_epochs.contains(&c.fit.epoch))
+                .flat_map(|c| c.held.iter().copied())
                 .collect();
-            for fit in &before {
+            for fit in compared.iter().map(|c| &c.fit) {
                 let (tilt, sigma) = fit.tilt_mm_per_m();
                 tracing::info!(
                     round,
