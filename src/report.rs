@@ -68,6 +68,11 @@ pub struct AlignReport {
     pub seconds: f64,
     /// Per epoch, by name.
     pub epochs: BTreeMap<String, EpochOrientation>,
+    /// Camera terms `out/colmap/` could not hold and left out (COLMAP has no skew `b2` nor
+    /// radial `k4`: a film camera's `b2` freed by `[align] self_calibration`); `cameras.json`
+    /// holds them. Empty: the COLMAP copy is exact.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub colmap_terms_dropped: Vec<String>,
     /// Per pair of epochs, the tie points observed in both and how they spread.
     #[serde(default)]
     pub epoch_pairs: Vec<EpochPairTies>,

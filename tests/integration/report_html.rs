@@ -101,6 +101,7 @@ fn project(dir: &Path) {
         focal_length_held: vec![false],
         cameras: Vec::new(),
         seconds: 1.0,
+        colmap_terms_dropped: Vec::new(),
         epochs: BTreeMap::from([
             ("2018".into(), epoch(2, check, None)),
             (

@@ -73,6 +73,14 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         "pooled" => project.config.align.outlier_bound = OutlierBoundConfig::Pooled,
         "joined" => project.config.align.join_epoch_ties = true,
         "nosurface" => project.config.align.surface_ties = false,
+        cal if cal.starts_with("cal:") => {
+            // `cal:k1+b1+b2`: the intrinsics the final adjustments estimate; `cal:none` fixes all.
+            let names = &cal["cal:".len()..];
+            project.config.align.self_calibration = Some(match names {
+                "none" => Vec::new(),
+                _ => names.split('+').map(str::to_string).collect(),
+            });
+        }
         "scatter-all" => {
             project.config.gnss.weigh_by_scatter = timesift::config::WeighByScatter::All
         }
@@ -94,7 +102,7 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         other => {
             anyhow::bail!(
-                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, auto-blind-nosurface, joined, nosurface, refgnss, scatter-all)"
+                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, auto-blind-nosurface, joined, nosurface, refgnss, scatter-all, cal:NAME+NAME…, cal:none)"
             )
         }
     }

@@ -110,7 +110,8 @@ enum Task {
         /// descriptor after the first block), nosurface (no surface ties: the later epochs' tie
         /// points not held to the reference epoch's surface), auto-blind-nosurface (auto-blind without
         /// them), refgnss (only the reference epoch's GNSS priors),
-        /// scatter-all (every flight's GNSS priors weighed by their scatter).
+        /// scatter-all (every flight's GNSS priors weighed by their scatter), cal:k1+b1+b2 (the
+        /// intrinsics the final adjustments estimate, `[align] self_calibration`; cal:none: none).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
     },

@@ -12,8 +12,10 @@
 //! the tilt. GNSS heights of one flight share an offset that the adjustment estimates with a
 //! zero-mean prior ([`crate::OffsetPrior`]), so within a flight only their differences fix the
 //! tilt. Least squares over (a, b, c, offsets) gives the covariance of (b, c); its larger
-//! eigenvalue is the loosest tilt. The figure ignores what the tie points themselves may bend
-//! and the markers' own intersection error, so it is a lower bound on the real tilt's σ.
+//! eigenvalue is the loosest tilt. A control point's σ should hold its markers' intersection
+//! error as well as its survey's (the caller combines them): clicked on coarse pixels, that is
+//! the larger. The figure ignores what the tie points themselves may bend, so it is a lower
+//! bound on the real tilt's σ.
 
 use nalgebra::{DMatrix, DVector, Matrix2, Vector2};
 

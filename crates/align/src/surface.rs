@@ -21,7 +21,7 @@
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
-use crate::model::Reconstruction;
+use crate::model::{Reconstruction, SparsePoint};
 use crate::stable_ground::StableGround;
 
 /// A height observation of a tie point (by its track): from a reference surface, with its σ.
@@ -81,15 +81,25 @@ impl SurfaceFit {
     }
 }
 
-/// Fewest observations of a later epoch's point before it is compared: two-view points are
-/// too loose in height to say anything of the surface.
+/// Fewest observations of a later epoch's point before it is compared: two-view points of a
+/// drone block, at its narrow baselines, are too loose in height to say anything of the
+/// surface; unless their rays meet at [`MIN_TWO_VIEW_ANGLE_DEG`] or more.
 const MIN_OBSERVATIONS: usize = 3;
+/// Smallest angle between the rays of a two-view point that is compared: a film block flown
+/// at 60 % forward overlap sees most of its ground in two scans only, at a base-to-height
+/// ratio near 0.6 (over 30°), which fixes a height as well as three drone images do
+/// (`synth archival`: 49 of 470 points of the oldest epoch seen three times).
+const MIN_TWO_VIEW_ANGLE_DEG: f64 = 20.0;
 /// Reference points fitted by a local plane around each compared point.
 const NEIGHBOURS: usize = 8;
 /// Fewest of them within [`RADIUS_GROUND_PX`] for the plane.
 const MIN_NEIGHBOURS: usize = 5;
 /// How far a neighbour may lie, in ground pixels: the reference surface is sampled by its tie
 /// points a few metres apart, and the plane through them must not bridge a break of slope.
+/// Not widened where the reference epoch's points lie sparser: on `synth archival` a
+/// neighbourhood of 1.5 times their spacing (155 m) held every film epoch, but a plane that
+/// wide cuts across the valleys and hills it spans, and the stable-area DoD means grew from
+/// 0.04–0.20 to 0.21–0.37 m.
 const RADIUS_GROUND_PX: f64 = 40.0;
 /// σ of the reference surface at a point, ground pixels: a smooth surface (see
 /// [`MAX_ROUGHNESS_GROUND_PX`]) sampled by tie points every few metres is known to about half
@@ -234,7 +244,7 @@ fn compare(
         return out;
     };
     for p in &rec.points {
-        if p.observations.len() < MIN_OBSERVATIONS
+        if !seen_well(rec, p)
             || !p.position.iter().all(|v| v.is_finite())
             || stable.is_some_and(|s| !s.contains(&p.position))
         {
@@ -264,6 +274,22 @@ fn compare(
         }
     }
     out
+}
+
+/// Whether a point's height is fixed well enough to be compared: [`MIN_OBSERVATIONS`] images,
+/// or two whose rays meet at [`MIN_TWO_VIEW_ANGLE_DEG`] at least.
+fn seen_well(rec: &Reconstruction, p: &SparsePoint) -> bool {
+    match p.observations.as_slice() {
+        [a, b] => {
+            let centre = |i: usize| rec.poses.get(i).copied().flatten().map(|q| q.center());
+            let (Some(ca), Some(cb)) = (centre(a.image.index()), centre(b.image.index())) else {
+                return false;
+            };
+            let (ra, rb) = (ca - p.position, cb - p.position);
+            ra.angle(&rb).to_degrees() >= MIN_TWO_VIEW_ANGLE_DEG
+        }
+        o => o.len() >= MIN_OBSERVATIONS,
+    }
 }
 
 /// Least squares of each point's miss (its height minus the surface's) on the columns
@@ -571,7 +597,7 @@ fn fit_epoch(epoch: usize, points: &[Compared]) -> Option<(Vec<bool>, f64, Surfa
 
 #[cfg(test)]
 mod tests {
-    use timesift_core::{FeatureIndex, ImageId, SeededRng, TrackElement};
+    use timesift_core::{FeatureIndex, ImageId, Pose, SeededRng, TrackElement};
 
     use super::*;
     use crate::model::SparsePoint;
@@ -791,6 +817,63 @@ mod tests {
         let (heights, fits) = split(compare_with(None).heights(&rec));
         assert!(heights.iter().all(|h| h.height.is_finite() && h.track != 1));
         assert!(fits[0].plane.iter().all(|v| v.is_finite()));
+    }
+
+    /// Reference points every 3 m over 180 × 120 m seen by images 0–2, later points between
+    /// them with the planted miss, seen by the `later` images; no image oriented.
+    fn scene_seen_by(later: &[usize]) -> Reconstruction {
+        let mut points = Vec::new();
+        for i in 0..=60 {
+            for j in 0..=40 {
+                let (x, y) = (3.0 * i as f64, 3.0 * j as f64);
+                let track = points.len();
+                points.push(point(track, Vector3::new(x, y, ground(x, y)), &[0, 1, 2]));
+            }
+        }
+        for i in 0..60 {
+            for j in 0..40 {
+                let (x, y) = (3.0 * i as f64 + 1.3, 3.0 * j as f64 + 1.7);
+                let z = ground(x, y) + planted(x, y);
+                let track = points.len();
+                points.push(point(track, Vector3::new(x, y, z), later));
+            }
+        }
+        Reconstruction {
+            cameras: Vec::new(),
+            poses: vec![None; 6],
+            points,
+        }
+    }
+
+    #[test]
+    fn two_view_points_are_compared_only_where_their_rays_meet_wide() {
+        // Images 3 and 4 at 100 m above the block's centre, `base` apart.
+        let with_base = |base: f64| {
+            let mut rec = scene_seen_by(&[3, 4]);
+            for (image, dx) in [(3, -0.5 * base), (4, 0.5 * base)] {
+                let centre = Vector3::new(90.0 + dx, 60.0, 110.0);
+                rec.poses[image] = Some(Pose::new(nalgebra::UnitQuaternion::identity(), -centre));
+            }
+            rec
+        };
+        // A base of 60 m at 100 m: rays about 33° apart, as a film block's at 60 % overlap.
+        let (heights, fits) = split(compare_with(None).heights(&with_base(60.0)));
+        assert!(
+            fits[0].compared > 2000 && heights.len() > 1000,
+            "{}",
+            fits[0].compared
+        );
+        assert!(
+            (fits[0].plane[1] - 0.003).abs() < 1e-9,
+            "{:?}",
+            fits[0].plane
+        );
+        // 10 m: about 6°, a drone block's neighbours; not compared.
+        let (heights, fits) = split(compare_with(None).heights(&with_base(10.0)));
+        assert!(heights.is_empty() && fits.is_empty(), "{}", heights.len());
+        // Without orientations no angle is known: not compared.
+        let (heights, _) = split(compare_with(None).heights(&scene_seen_by(&[3, 4])));
+        assert!(heights.is_empty());
     }
 
     #[test]

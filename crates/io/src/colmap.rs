@@ -208,6 +208,41 @@ pub fn camera_from_colmap(
         .map_err(|e| e.to_string())
 }
 
+/// The camera without the terms COLMAP has no model for (the skew `b2`, the radial `k4`), and
+/// what was dropped (`"camera \"name\": skew b2 = …"`, one entry per term; empty: exact).
+pub fn nearest_colmap_camera(name: &str, camera: &Camera) -> (Camera, Vec<String>) {
+    let mut dropped = Vec::new();
+    let mut nearest = camera.clone();
+    if let Camera::Brown(c) = &mut nearest {
+        if c.b2 != 0.0 {
+            dropped.push(format!("camera \"{name}\": skew b2 = {} dropped", c.b2));
+            c.b2 = 0.0;
+        }
+        if c.k4 != 0.0 {
+            dropped.push(format!("camera \"{name}\": radial k4 = {} dropped", c.k4));
+            c.k4 = 0.0;
+        }
+    }
+    (nearest, dropped)
+}
+
+/// [`from_reconstruction`] with every camera COLMAP cannot hold exactly replaced by its
+/// [`nearest_colmap_camera`]; the terms dropped. For outputs whose images and points matter
+/// more than a copy of a camera that `cameras.json` holds exactly. Err: an image names an
+/// unknown camera.
+pub fn from_reconstruction_nearest(
+    reconstruction: &Reconstruction,
+) -> Result<(ColmapModel, Vec<String>), String> {
+    let mut nearest = reconstruction.clone();
+    let mut dropped = Vec::new();
+    for (name, camera) in nearest.cameras.iter_mut() {
+        let (c, d) = nearest_colmap_camera(name, camera);
+        *camera = c;
+        dropped.extend(d);
+    }
+    Ok((from_reconstruction(&nearest)?, dropped))
+}
+
 /// Builds the COLMAP model of a reconstruction: camera ids follow the camera names' order, image ids
 /// the images' order; unoriented images are left out (COLMAP has no such state).
 pub fn from_reconstruction(reconstruction: &Reconstruction) -> Result<ColmapModel, String> {

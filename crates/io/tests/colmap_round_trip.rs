@@ -169,6 +169,24 @@ fn unrepresentable_brown_terms_are_refused() {
 }
 
 #[test]
+fn the_nearest_colmap_camera_drops_only_the_terms_colmap_lacks_and_says_which() {
+    let mut c = BrownCamera::new(100, 100, 90.0).unwrap();
+    (c.b1, c.b2, c.k1, c.k4, c.cx) = (0.2, 0.5, -0.01, 0.003, 1.5);
+    let (nearest, dropped) = timesift_io::colmap::nearest_colmap_camera("film", &Camera::Brown(c));
+    assert_eq!(dropped.len(), 2, "{dropped:?}");
+    assert!(dropped[0].contains("\"film\"") && dropped[0].contains("b2 = 0.5"));
+    assert!(dropped[1].contains("k4 = 0.003"));
+    let Camera::Brown(n) = nearest else {
+        panic!("{nearest:?}")
+    };
+    assert_eq!((n.b1, n.b2, n.k1, n.k4, n.cx), (0.2, 0.0, -0.01, 0.0, 1.5));
+    // An exact camera loses nothing.
+    let (same, dropped) = timesift_io::colmap::nearest_colmap_camera("drone", &Camera::Brown(n));
+    assert!(dropped.is_empty());
+    assert_eq!(same, Camera::Brown(n));
+}
+
+#[test]
 fn opencv_tangential_terms_are_swapped() {
     let mut c = BrownCamera::new(1000, 800, 900.0).unwrap();
     c.p1 = 0.001;

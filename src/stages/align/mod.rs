@@ -129,8 +129,10 @@ const INTRINSIC_NAMES: [&str; 11] = [
     "f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2",
 ];
 
-/// `[align] self_calibration`: the final adjustments' list as given; the growing block's the
-/// part of it among f, k1, k2 (the principal point and decentring need the whole block).
+/// `[align] self_calibration`: the final adjustments' list as given, for every camera group
+/// with 3 oriented images or more (the user asked for it: no larger group size is waited for);
+/// the growing block's the part of it among f, k1, k2 (the principal point and decentring need
+/// the whole block).
 fn self_calibration(
     project: &Project,
     names: &[String],
@@ -145,7 +147,6 @@ fn self_calibration(
             INTRINSIC_NAMES.join(", ")
         )));
     }
-    let defaults = timesift_align::SelfCalibration::default();
     Ok(timesift_align::SelfCalibration {
         parameters: names
             .iter()
@@ -154,7 +155,7 @@ fn self_calibration(
             .collect(),
         final_parameters: names.to_vec(),
         min_images: 3,
-        ..defaults
+        final_min_images: 3,
     })
 }
 
