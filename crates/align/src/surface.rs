@@ -83,13 +83,19 @@ impl SurfaceFit {
 
 /// Fewest observations of a later epoch's point before it is compared: two-view points of a
 /// drone block, at its narrow baselines, are too loose in height to say anything of the
-/// surface; unless their rays meet at [`MIN_TWO_VIEW_ANGLE_DEG`] or more.
+/// surface; unless the epoch has too few others ([`TWO_VIEW_BELOW`]) and their rays meet at
+/// [`MIN_TWO_VIEW_ANGLE_DEG`] or more.
 const MIN_OBSERVATIONS: usize = 3;
 /// Smallest angle between the rays of a two-view point that is compared: a film block flown
 /// at 60 % forward overlap sees most of its ground in two scans only, at a base-to-height
 /// ratio near 0.6 (over 30°), which fixes a height as well as three drone images do
 /// (`synth archival`: 49 of 470 points of the oldest epoch seen three times).
 const MIN_TWO_VIEW_ANGLE_DEG: f64 = 20.0;
+/// An epoch's two-view points are compared only while it has fewer compared points seen
+/// [`MIN_OBSERVATIONS`] times than this (twice [`MIN_HELD`]: every other one is held): on a
+/// drone block, which has thousands, they only added cross-strip points that tilted
+/// `synth corridor`'s stable-area DoD (plane gain 0.048 → 0.077 m).
+const TWO_VIEW_BELOW: usize = 2 * MIN_HELD;
 /// Reference points fitted by a local plane around each compared point.
 const NEIGHBOURS: usize = 8;
 /// Fewest of them within [`RADIUS_GROUND_PX`] for the plane.
@@ -243,8 +249,12 @@ fn compare(
     let Some(surface) = ReferenceSurface::of(rec, epoch_of, reference) else {
         return out;
     };
+    // Per epoch, the two-view points compared, kept apart until the epoch's count of the
+    // others is known.
+    let mut two_view: Vec<Vec<Compared>> = (0..epochs).map(|_| Vec::new()).collect();
     for p in &rec.points {
-        if !seen_well(rec, p)
+        let wide_pair = p.observations.len() == 2 && rays_meet_wide(rec, p);
+        if (p.observations.len() < MIN_OBSERVATIONS && !wide_pair)
             || !p.position.iter().all(|v| v.is_finite())
             || stable.is_some_and(|s| !s.contains(&p.position))
         {
@@ -266,30 +276,36 @@ fn compare(
         }
         if let Some(surface) = surface.height_at(p.position.x, p.position.y, radius, max_roughness)
         {
-            out[epoch].push(Compared {
+            let compared = Compared {
                 track: p.track,
                 position: p.position,
                 surface,
-            });
+            };
+            match wide_pair {
+                true => two_view[epoch].push(compared),
+                false => out[epoch].push(compared),
+            }
+        }
+    }
+    for (points, pairs) in out.iter_mut().zip(two_view) {
+        if points.len() < TWO_VIEW_BELOW {
+            points.extend(pairs);
         }
     }
     out
 }
 
-/// Whether a point's height is fixed well enough to be compared: [`MIN_OBSERVATIONS`] images,
-/// or two whose rays meet at [`MIN_TWO_VIEW_ANGLE_DEG`] at least.
-fn seen_well(rec: &Reconstruction, p: &SparsePoint) -> bool {
-    match p.observations.as_slice() {
-        [a, b] => {
-            let centre = |i: usize| rec.poses.get(i).copied().flatten().map(|q| q.center());
-            let (Some(ca), Some(cb)) = (centre(a.image.index()), centre(b.image.index())) else {
-                return false;
-            };
-            let (ra, rb) = (ca - p.position, cb - p.position);
-            ra.angle(&rb).to_degrees() >= MIN_TWO_VIEW_ANGLE_DEG
-        }
-        o => o.len() >= MIN_OBSERVATIONS,
-    }
+/// Whether the two rays of a two-view point meet at [`MIN_TWO_VIEW_ANGLE_DEG`] at least (both
+/// images oriented).
+fn rays_meet_wide(rec: &Reconstruction, p: &SparsePoint) -> bool {
+    let [a, b] = p.observations.as_slice() else {
+        return false;
+    };
+    let centre = |i: usize| rec.poses.get(i).copied().flatten().map(|q| q.center());
+    let (Some(ca), Some(cb)) = (centre(a.image.index()), centre(b.image.index())) else {
+        return false;
+    };
+    (ca - p.position).angle(&(cb - p.position)).to_degrees() >= MIN_TWO_VIEW_ANGLE_DEG
 }
 
 /// Least squares of each point's miss (its height minus the surface's) on the columns
@@ -871,6 +887,21 @@ mod tests {
         // 10 m: about 6°, a drone block's neighbours; not compared.
         let (heights, fits) = split(compare_with(None).heights(&with_base(10.0)));
         assert!(heights.is_empty() && fits.is_empty(), "{}", heights.len());
+        // Beside plenty of points seen three times, two-view points are left out.
+        let mut rec = with_base(60.0);
+        let first_pair = rec.points.len();
+        let more = scene_seen_by(&[3, 4, 5]).points;
+        for (k, mut p) in more.into_iter().enumerate() {
+            p.track = first_pair + k;
+            rec.points.push(p);
+        }
+        let (heights, _) = split(compare_with(None).heights(&rec));
+        assert!(heights.len() > 1000, "{}", heights.len());
+        assert!(
+            heights
+                .iter()
+                .all(|h| rec.points[h.track].observations.len() == 3)
+        );
         // Without orientations no angle is known: not compared.
         let (heights, _) = split(compare_with(None).heights(&scene_seen_by(&[3, 4])));
         assert!(heights.is_empty());

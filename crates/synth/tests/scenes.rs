@@ -327,3 +327,27 @@ fn unknown_scene_and_scale_are_clear_errors() {
     let e = "huge".parse::<Scale>().expect_err("error");
     assert!(e.contains("small") && e.contains("huge"), "{e}");
 }
+
+#[test]
+fn the_corridor_with_tracks_has_control_across_its_width_and_the_plain_one_along_its_band() {
+    // Across the corridor (y): the dune band ends at 74 m, the corridor at 110 m.
+    let spread = |name: &str| {
+        let spec = build(name, Scale::Small, 1).expect("scene");
+        let ys: Vec<f64> = spec.gcps.iter().map(|p| p.at.1).collect();
+        let names: std::collections::BTreeSet<&str> =
+            spec.gcps.iter().map(|p| p.name.as_str()).collect();
+        assert_eq!(names.len(), spec.gcps.len(), "{name}: GCP names repeat");
+        (
+            spec.gcps.len(),
+            ys.iter().copied().fold(f64::INFINITY, f64::min),
+            ys.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        )
+    };
+    let (n, _, top) = spread("corridor");
+    assert!(n >= 4 && top < 74.0, "corridor: {n} GCPs up to y = {top}");
+    let (n, _, top) = spread("corridor-tracks");
+    assert!(
+        n >= 6 && top > 90.0,
+        "corridor-tracks: {n} GCPs up to y = {top}"
+    );
+}

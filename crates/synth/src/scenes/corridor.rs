@@ -7,6 +7,12 @@
 //! across the corridor; every epoch's GNSS carries a bias of its own. A roll of an epoch about
 //! the corridor's axis shows in the stable-area DoD (over the band and the farmland) as a tilt
 //! across it, not at the check points.
+//!
+//! `corridor-tracks` ([`Layout::Tracks`]) is the same corridor with stable ground that looks
+//! alike across its width: two gravel farm tracks run from the dunes to the far edge between
+//! the fields, and two more control points stand on them, off the dune band. There the
+//! inter-epoch ties and the control spread across the corridor, so the tie points' tilt and
+//! the ties' spread are judged on their merits.
 
 use std::sync::Arc;
 
@@ -29,7 +35,21 @@ const BEACH_FOOT: f64 = 22.0;
 const BEACH_TOP: f64 = 52.0;
 const BAND_TOP: f64 = 74.0;
 
-pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
+/// Farm tracks between the fields (x of their centre lines), behind the dunes.
+const TRACKS: [f64; 2] = [95.0, 180.0];
+/// Half the width of a track, metres.
+const TRACK_HALF_WIDTH: f64 = 2.0;
+
+/// What ground ties the corridor's epochs across its width.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Layout {
+    /// Only the dune band looks alike in every epoch (`corridor`).
+    Band,
+    /// Gravel tracks across the farmland too, with a control point on each (`corridor-tracks`).
+    Tracks,
+}
+
+pub(super) fn build(scale: Scale, seed: u64, layout: Layout) -> Result<SceneSpec, SynthError> {
     let mut rng = SeededRng::new(seed);
     let base = beach_and_dunes(seed);
     let (features, regions) = accretion();
@@ -39,10 +59,13 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
     let altitude = 60.0;
     let fin = finest(f, altitude);
     let materials = land_covers(seed, fin);
-    let cover_fn = cover_by_epoch(seed);
+    let cover_fn = cover_by_epoch(seed, layout);
     let epochs = monthly_epochs(scale, (w, h), altitude, &mut rng);
     let mut spec = new_scene(
-        "corridor",
+        match layout {
+            Layout::Band => "corridor",
+            Layout::Tracks => "corridor-tracks",
+        },
         "EPSG:32630",
         Vector3::new(612_300.0, 5_364_900.0, 0.0),
         Frame::Ground,
@@ -74,7 +97,29 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         45.0,
         &[],
     );
+    if layout == Layout::Tracks {
+        track_control(&mut spec, &mut rng);
+    }
     Ok(spec)
+}
+
+/// One more control point on each track, well behind the dunes, numbered after the others.
+fn track_control(spec: &mut SceneSpec, rng: &mut SeededRng) {
+    let taken: Vec<(f64, f64)> = spec
+        .gcps
+        .iter()
+        .chain(&spec.checkpoints)
+        .map(|p| p.at)
+        .collect();
+    for x in TRACKS {
+        let near = (x - 0.5, BAND_TOP + 18.0);
+        let far = (x + 0.5, WIDTH - 8.0);
+        let mut point = place_points(spec, rng, 1, "GCP", near, far, 1.5, 10.0, &taken);
+        for p in &mut point {
+            p.name = format!("GCP{}", spec.gcps.len() + 1);
+        }
+        spec.gcps.extend(point);
+    }
 }
 
 /// The stable surface: the beach rises 2 m from the water line to the dunes, which undulate
@@ -148,13 +193,18 @@ fn land_covers(seed: u64, fin: f64) -> Vec<Material> {
         cover(seed ^ 4, [0.30, 0.22, 0.14], [0.50, 0.40, 0.28], 2.0, fin),
         cover(seed ^ 5, [0.20, 0.32, 0.10], [0.40, 0.52, 0.22], 1.5, fin),
         cover(seed ^ 6, [0.40, 0.44, 0.12], [0.64, 0.62, 0.26], 2.5, fin),
+        // 6: gravel track
+        cover(seed ^ 7, [0.42, 0.40, 0.36], [0.70, 0.68, 0.62], 1.0, fin),
     ]
 }
 
 /// The land cover of an epoch at a grid position, across the corridor: water up to the day's
 /// water line, sand, the band of dune grass, then fields behind the dunes, each with its own
-/// crop calendar.
-fn cover_by_epoch(seed: u64) -> impl Fn(usize, f64, f64) -> usize + Send + Sync + 'static {
+/// crop calendar; with [`Layout::Tracks`], gravel tracks between the fields.
+fn cover_by_epoch(
+    seed: u64,
+    layout: Layout,
+) -> impl Fn(usize, f64, f64) -> usize + Send + Sync + 'static {
     let fields = [(0.0, 95.0), (95.0, 180.0), (180.0, LENGTH + 1.0)];
     let edge = Noise::new(seed ^ 82);
     move |e: usize, x: f64, y: f64| -> usize {
@@ -168,6 +218,9 @@ fn cover_by_epoch(seed: u64) -> impl Fn(usize, f64, f64) -> usize + Send + Sync 
         }
         if y < BAND_TOP + 2.0 * edge.fbm2(x, 5.0, 15.0, 3, 0.5) {
             return 0;
+        }
+        if layout == Layout::Tracks && TRACKS.iter().any(|t| (x - t).abs() < TRACK_HALF_WIDTH) {
+            return 6;
         }
         let field = fields
             .iter()

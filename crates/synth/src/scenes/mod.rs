@@ -59,9 +59,10 @@ pub const SCENES: [&str; 7] = [
 
 /// Scenes beyond the table, built on request only (the tests and benches that walk
 /// [`SCENES`] leave them out): `corridor`, a coastal corridor flown along its axis, where a roll
-/// about the axis shows only in the DEMs; `archival-mixed`, `archival` with its later three
+/// about the axis shows only in the DEMs; `corridor-tracks`, the same with stable ground that
+/// looks alike across its width (farm tracks) and control off the dune band; `archival-mixed`, `archival` with its later three
 /// epochs taken by a digital frame camera, so one noisy film epoch sits among clean digital ones.
-pub const EXTRA_SCENES: [&str; 2] = ["corridor", "archival-mixed"];
+pub const EXTRA_SCENES: [&str; 3] = ["corridor", "corridor-tracks", "archival-mixed"];
 
 /// The scene called `name`.
 pub fn build(name: &str, scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
@@ -74,7 +75,8 @@ pub fn build(name: &str, scale: Scale, seed: u64) -> Result<SceneSpec, SynthErro
         "shore" => shore::build(scale, seed),
         "campus" => campus::build(scale, seed),
         "landslide" => landslide::build(scale, seed),
-        "corridor" => corridor::build(scale, seed),
+        "corridor" => corridor::build(scale, seed, corridor::Layout::Band),
+        "corridor-tracks" => corridor::build(scale, seed, corridor::Layout::Tracks),
         _ => Err(SynthError::InvalidScene(format!(
             "unknown scene \"{name}\"; expected one of {}, or {}",
             SCENES.join(", "),
