@@ -253,9 +253,7 @@ fn compare(
     // others is known.
     let mut two_view: Vec<Vec<Compared>> = (0..epochs).map(|_| Vec::new()).collect();
     for p in &rec.points {
-        let wide_pair = p.observations.len() == 2 && rays_meet_wide(rec, p);
-        if (p.observations.len() < MIN_OBSERVATIONS && !wide_pair)
-            || !p.position.iter().all(|v| v.is_finite())
+        if !p.position.iter().all(|v| v.is_finite())
             || stable.is_some_and(|s| !s.contains(&p.position))
         {
             continue;
@@ -272,6 +270,11 @@ fn compare(
             .iter()
             .all(|e| epoch_of.get(e.image.index()) == Some(&epoch));
         if epoch == reference || !one_epoch || epoch >= epochs {
+            continue;
+        }
+        // Their rays' angle only for the points the cheaper tests kept.
+        let wide_pair = p.observations.len() < MIN_OBSERVATIONS;
+        if wide_pair && !rays_meet_wide(rec, p) {
             continue;
         }
         if let Some(surface) = surface.height_at(p.position.x, p.position.y, radius, max_roughness)
@@ -835,30 +838,16 @@ mod tests {
         assert!(fits[0].plane.iter().all(|v| v.is_finite()));
     }
 
-    /// Reference points every 3 m over 180 × 120 m seen by images 0–2, later points between
-    /// them with the planted miss, seen by the `later` images; no image oriented.
+    /// [`scene`] without noise or change, its later points seen by the `later` images; no
+    /// image oriented.
     fn scene_seen_by(later: &[usize]) -> Reconstruction {
-        let mut points = Vec::new();
-        for i in 0..=60 {
-            for j in 0..=40 {
-                let (x, y) = (3.0 * i as f64, 3.0 * j as f64);
-                let track = points.len();
-                points.push(point(track, Vector3::new(x, y, ground(x, y)), &[0, 1, 2]));
+        let mut rec = scene(0.0, planted, |_, _| false);
+        for p in &mut rec.points {
+            if p.observations[0].image.index() >= 3 {
+                *p = point(p.track, p.position, later);
             }
         }
-        for i in 0..60 {
-            for j in 0..40 {
-                let (x, y) = (3.0 * i as f64 + 1.3, 3.0 * j as f64 + 1.7);
-                let z = ground(x, y) + planted(x, y);
-                let track = points.len();
-                points.push(point(track, Vector3::new(x, y, z), later));
-            }
-        }
-        Reconstruction {
-            cameras: Vec::new(),
-            poses: vec![None; 6],
-            points,
-        }
+        rec
     }
 
     #[test]

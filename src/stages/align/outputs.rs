@@ -197,8 +197,8 @@ fn cameras_file(
 }
 
 /// The COLMAP text model of `file` with the block's tie points (shifted by `origin` into the
-/// world frame), each with its mean reprojection error.
-/// With the camera terms COLMAP could not hold ([`timesift_io::colmap::nearest_colmap_camera`]).
+/// world frame), each with its mean reprojection error, and the camera terms it could not hold
+/// ([`timesift_io::colmap::nearest_colmap_camera`]).
 fn colmap_model(
     file: &CamerasFile,
     input: &SfmInput,
@@ -439,14 +439,16 @@ fn tilt_report(cov: nalgebra::Matrix2<f64>) -> Option<DatumTiltReport> {
 /// through the adjusted cameras, combined: a point clicked on 2.7 m film pixels is known to
 /// metres in height however well it was surveyed, and the datum rests on it only as far as
 /// that (on `synth archival` the survey σ alone predicted 0.16 mm/m where the block's
-/// covariance gives 1.6).
+/// covariance gives 1.6). `intersected`: the control points intersected through the images
+/// whose control counts (every image in a single block, else the epoch's), as
+/// [`ground_point_residuals`] gives them.
 fn datum_tilt_of_epoch(
     project: &Project,
-    input: &SfmInput,
     geo: &GeoreferenceInput,
     block: &Georeferenced,
     control: DatumControl,
     epoch: usize,
+    intersected: &[PointResidual],
 ) -> Option<DatumTiltReport> {
     let single_block = control == DatumControl::WholeBlock;
     let own_only = control == DatumControl::OwnEpoch || epoch == project.reference_epoch.index();
@@ -456,8 +458,7 @@ fn datum_tilt_of_epoch(
     let counts = |image: usize| single_block || project.images[image].epoch.index() == epoch;
     let oriented = |image: usize| block.reconstruction.poses[image].is_some();
     let mut heights = Vec::new();
-    let intersected = ground_point_residuals(input, &block.reconstruction, geo, &|i| counts(i));
-    for (point, residual) in geo.points.iter().zip(&intersected) {
+    for (point, residual) in geo.points.iter().zip(intersected) {
         if point.check || residual.images < 2 {
             continue;
         }
@@ -507,15 +508,22 @@ fn report(
     let mut epochs = BTreeMap::new();
     let residuals: Vec<(timesift_core::TrackElement, f64)> = rec.residuals(input).collect();
     let motions = EpochMotions::of(block, project.reference_epoch.index(), project.epochs.len());
+    // A single block's datum rests on every epoch's control: intersected once, through all.
+    let control = strategy.datum_control();
+    let whole_block = match control == DatumControl::WholeBlock && block.datum != Datum::Local {
+        true => ground_point_residuals(input, rec, geo, &|_| true),
+        false => Vec::new(),
+    };
     let of_block = OrientedBlock {
         project,
         input,
         geo,
         block,
-        control: strategy.datum_control(),
+        control,
         residuals: &residuals,
         tiepoints,
         motions: motions.as_ref(),
+        whole_block: &whole_block,
     };
     for (e, epoch) in project.epochs.iter().enumerate() {
         epochs.insert(epoch.name.clone(), epoch_orientation(&of_block, e));
@@ -575,6 +583,8 @@ struct OrientedBlock<'a> {
     tiepoints: &'a [timesift_io::ply::TiePoint],
     /// The epochs' rigid motions as the block holds them, when it has their covariance.
     motions: Option<&'a EpochMotions<'a>>,
+    /// A single block's control points intersected through every image (empty otherwise).
+    whole_block: &'a [PointResidual],
 }
 
 /// Epoch `e`'s orientation: its images, reprojection errors, tie points, control and check
@@ -589,6 +599,7 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
         residuals,
         tiepoints,
         motions,
+        whole_block,
     } = *of;
     let rec = &block.reconstruction;
     let epoch = &project.epochs[e];
@@ -624,7 +635,17 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
         inter_epoch_tie_points: inter,
         control_points: residuals_of(&per_epoch, false),
         check_points: residuals_of(&per_epoch, true),
-        datum_tilt: datum_tilt_of_epoch(project, input, geo, block, control, e),
+        datum_tilt: datum_tilt_of_epoch(
+            project,
+            geo,
+            block,
+            control,
+            e,
+            match control {
+                DatumControl::WholeBlock => whole_block,
+                _ => &per_epoch,
+            },
+        ),
         block_tilt: motions.and_then(|m| m.epoch(e)),
         surface_fit: block
             .surface_fits

@@ -35,8 +35,9 @@ const BEACH_FOOT: f64 = 22.0;
 const BEACH_TOP: f64 = 52.0;
 const BAND_TOP: f64 = 74.0;
 
-/// Farm tracks between the fields (x of their centre lines), behind the dunes.
-const TRACKS: [f64; 2] = [95.0, 180.0];
+/// Where one field behind the dunes ends and the next begins (x); the farm tracks of
+/// [`Layout::Tracks`] run along these edges.
+const FIELD_EDGES: [f64; 2] = [95.0, 180.0];
 /// Half the width of a track, metres.
 const TRACK_HALF_WIDTH: f64 = 2.0;
 
@@ -111,7 +112,7 @@ fn track_control(spec: &mut SceneSpec, rng: &mut SeededRng) {
         .chain(&spec.checkpoints)
         .map(|p| p.at)
         .collect();
-    for x in TRACKS {
+    for x in FIELD_EDGES {
         let near = (x - 0.5, BAND_TOP + 18.0);
         let far = (x + 0.5, WIDTH - 8.0);
         let mut point = place_points(spec, rng, 1, "GCP", near, far, 1.5, 10.0, &taken);
@@ -205,7 +206,8 @@ fn cover_by_epoch(
     seed: u64,
     layout: Layout,
 ) -> impl Fn(usize, f64, f64) -> usize + Send + Sync + 'static {
-    let fields = [(0.0, 95.0), (95.0, 180.0), (180.0, LENGTH + 1.0)];
+    let [a, b] = FIELD_EDGES;
+    let fields = [(0.0, a), (a, b), (b, LENGTH + 1.0)];
     let edge = Noise::new(seed ^ 82);
     move |e: usize, x: f64, y: f64| -> usize {
         let water_line =
@@ -219,7 +221,8 @@ fn cover_by_epoch(
         if y < BAND_TOP + 2.0 * edge.fbm2(x, 5.0, 15.0, 3, 0.5) {
             return 0;
         }
-        if layout == Layout::Tracks && TRACKS.iter().any(|t| (x - t).abs() < TRACK_HALF_WIDTH) {
+        if layout == Layout::Tracks && FIELD_EDGES.iter().any(|t| (x - t).abs() < TRACK_HALF_WIDTH)
+        {
             return 6;
         }
         let field = fields
