@@ -4,7 +4,7 @@
 //! Long module: it is the reference of the file format, every section's keys with their
 //! documented defaults and checks in one place, read top to bottom as the file is.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use timesift_align::Method;
@@ -344,6 +344,21 @@ pub struct AlignConfig {
     /// p1, p2. A calibrated focal length (`[[camera]]`) stays held whatever the list says.
     #[serde(default)]
     pub self_calibration: Option<Vec<String>>,
+    /// `timesift`, `msfm`: a reference DEM (a single-band GeoTIFF, relative to the project
+    /// folder, in the project's CRS or any EPSG CRS it can be transformed from; heights in the
+    /// project's vertical datum). Every epoch's tie points on stable ground (stable.csv, or
+    /// where they meet it) get height observations from it on its tangent plane, so that a
+    /// block without control lands on it, given a datum to start from (camera-centre priors to
+    /// some metres). Default: none.
+    #[serde(default)]
+    pub reference_dem: Option<PathBuf>,
+    /// Standard deviation of one height of `reference_dem`, metres. Default 0.5.
+    #[serde(default = "default_reference_dem_sigma")]
+    pub reference_dem_sigma: f64,
+}
+
+fn default_reference_dem_sigma() -> f64 {
+    0.5
 }
 
 /// `[align] outlier_bound`: whose noise the observation outlier bound (4 σ) follows.
@@ -404,6 +419,8 @@ impl Default for AlignConfig {
             guided_epoch_ties: false,
             surface_ties: true,
             self_calibration: None,
+            reference_dem: None,
+            reference_dem_sigma: default_reference_dem_sigma(),
         }
     }
 }
@@ -959,6 +976,10 @@ impl ProjectConfig {
                 config.align.tie_point_accuracy_px,
             ),
             ("align.marker_accuracy_px", config.align.marker_accuracy_px),
+            (
+                "align.reference_dem_sigma",
+                config.align.reference_dem_sigma,
+            ),
             ("change.normal_radius", config.change.normal_radius),
             ("change.cylinder_radius", config.change.cylinder_radius),
             ("change.max_depth", config.change.max_depth),

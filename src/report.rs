@@ -46,9 +46,13 @@ pub struct AlignReport {
     #[serde(default)]
     pub changed_regions: usize,
     /// Height observations from the reference epoch's surface on the later epochs' tie points
-    /// (`[align] surface_ties`); 0 without them.
+    /// (`[align] surface_ties`), or from the reference DEM on every epoch's; 0 without them.
     #[serde(default)]
     pub surface_heights: usize,
+    /// `[align] reference_dem` as given, when the epochs were held to it: each epoch's
+    /// `surface_fit` is then against it (the reference epoch's too).
+    #[serde(default)]
+    pub reference_dem: Option<String>,
     /// Observations beyond this reprojection error were outliers, pixels (pooled over the
     /// block; each camera group's own bound is in `group_noise`).
     pub observation_bound_px: Option<f64>,
@@ -132,8 +136,8 @@ pub struct EpochOrientation {
     #[serde(default)]
     pub block_tilt: Option<DatumTiltReport>,
     /// The epoch's own tie points on stable ground against the reference epoch's surface in
-    /// the final block (not for the reference epoch): what separates their surfaces, term by
-    /// term, each with its σ.
+    /// the final block (not for the reference epoch), or against the reference DEM when
+    /// `reference_dem` is set: what separates their surfaces, term by term, each with its σ.
     #[serde(default)]
     pub surface_fit: Option<SurfaceFitReport>,
 }

@@ -289,8 +289,12 @@ fn surface_fit_table(
                 if name.starts_with("slope") {
                     continue;
                 }
+                let against = match a.reference_dem {
+                    Some(_) => "the reference DEM",
+                    None => "the reference epoch's surface",
+                };
                 warnings.push(format!(
-                    "epoch {}: its tie points miss the reference epoch's surface by a {name} of \
+                    "epoch {}: its tie points miss {against} by a {name} of \
                      {:.*} {unit} (σ {:.*}, {:.1} σ) over stable ground: its DEM and the DoDs \
                      with it carry that difference",
                     e.name,
@@ -309,13 +313,23 @@ fn surface_fit_table(
     if rows.is_empty() {
         return String::new();
     }
-    let mut s = format!(
-        "<p>Each later epoch's own tie points on stable ground against the reference epoch's \
-         surface (a local plane through its tie points), their height misses decomposed term by \
-         term with σ; {} of them held to it by height observations (surface ties). Bold: beyond \
-         3 σ.</p>",
-        a.surface_heights
-    );
+    let mut s = match &a.reference_dem {
+        Some(dem) => format!(
+            "<p>Each epoch's own tie points on stable ground against the reference DEM \
+             (<code>{}</code>), their height misses decomposed term by term with σ, from the \
+             points never held to it; {} others held to it by height observations on its \
+             tangent plane. Bold: beyond 3 σ.</p>",
+            esc(dem),
+            a.surface_heights
+        ),
+        None => format!(
+            "<p>Each later epoch's own tie points on stable ground against the reference \
+             epoch's surface (a local plane through its tie points), their height misses \
+             decomposed term by term with σ; {} of them held to it by height observations \
+             (surface ties). Bold: beyond 3 σ.</p>",
+            a.surface_heights
+        ),
+    };
     s.push_str(&table(
         &[
             "epoch",

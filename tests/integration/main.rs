@@ -11,6 +11,7 @@ mod downstream;
 mod features;
 mod film;
 mod raster_stacking;
+mod reference_dem;
 mod report_html;
 mod run_align;
 mod run_all;

@@ -94,6 +94,7 @@ fn project(dir: &Path) {
         inter_epoch_ties_guided: 0,
         changed_regions: 0,
         surface_heights: 400,
+        reference_dem: None,
         observation_bound_px: Some(2.0),
         group_noise: Vec::new(),
         components_dropped: 0,

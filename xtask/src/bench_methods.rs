@@ -53,7 +53,9 @@ pub struct MethodsBench {
     /// `[align] surface_ties = false`: as before they existed), or `refgnss` (the GNSS priors of the reference epoch
     /// only: whether the other epochs' priors move the reference epoch's datum), or
     /// `scatter-all` (every flight's GNSS priors weighed by their scatter about their offset,
-    /// `[gnss] weigh_by_scatter = "all"`, as before the default became the controlled flights).
+    /// `[gnss] weigh_by_scatter = "all"`, as before the default became the controlled flights),
+    /// or `refdem` (no control, a photo index and a reference DEM:
+    /// [`without_control_on_a_reference_dem`]).
     pub ties: Vec<String>,
 }
 
@@ -95,6 +97,7 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
                 .collect();
             project.gnss.retain(|g| keep.contains(&g.image));
         }
+        "refdem" => without_control_on_a_reference_dem(&mut project)?,
         "auto-blind" | "auto-blind-nosurface" => {
             project.config.align.inter_epoch_ties = InterEpochTies::Auto;
             project.stable_areas.clear();
@@ -102,11 +105,111 @@ fn with_ties(mut project: Project, ties: &str) -> anyhow::Result<Project> {
         }
         other => {
             anyhow::bail!(
-                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, auto-blind-nosurface, joined, nosurface, refgnss, scatter-all, cal:NAME+NAME…, cal:none)"
+                "--ties: unknown \"{other}\" (default, all, plain, before, pooled, auto-blind, auto-blind-nosurface, joined, nosurface, refgnss, scatter-all, cal:NAME+NAME…, cal:none, refdem)"
             )
         }
     }
     Ok(project)
+}
+
+/// σ of the camera centres a photo index gives (each coordinate), metres: `refdem`'s datum to
+/// start from.
+const PHOTO_INDEX_SIGMA: f64 = 20.0;
+/// The noise of `refdem`'s reference DEM, ground sampling distances, and its vertical shift,
+/// metres (issue 48: a modern DEM that is neither exact nor in the scene's datum).
+const REFERENCE_DEM_NOISE_GSD: f64 = 0.3;
+const REFERENCE_DEM_SHIFT_M: f64 = 0.5;
+/// Where `refdem` writes its reference DEM, in the scene's folder.
+const REFERENCE_DEM_FILE: &str = "reference_dem.tif";
+
+/// `--ties refdem`: no control point; camera centres from a photo index (the true ones with
+/// [`PHOTO_INDEX_SIGMA`] of noise, stated so); and a reference DEM: the last epoch's true
+/// surface with [`REFERENCE_DEM_NOISE_GSD`] of noise and [`REFERENCE_DEM_SHIFT_M`] added,
+/// `[align] reference_dem`, its σ the noise's.
+fn without_control_on_a_reference_dem(project: &mut Project) -> anyhow::Result<()> {
+    let gsd = ground_sampling_distance(&project_truth(project)?)?;
+    let truth_dir = project.layout().truth_dir();
+    let truth = timesift_io::cameras_json::read_cameras_json(&truth_dir.join("cameras.json"))?;
+    let mut rng = timesift_core::SeededRng::new(48);
+    let control: std::collections::HashSet<String> =
+        project.gcps.drain(..).map(|g| g.name).collect();
+    project.markers.retain(|m| !control.contains(&m.name));
+    project.gnss = truth
+        .images
+        .iter()
+        .filter_map(|im| {
+            let centre = im.pose?.center();
+            let mut noise = || PHOTO_INDEX_SIGMA * rng.normal();
+            let position = centre + nalgebra::Vector3::new(noise(), noise(), noise());
+            Some(timesift_io::csv_inputs::GnssPrior {
+                image: im.name.clone(),
+                position,
+                sigma: Some((PHOTO_INDEX_SIGMA, PHOTO_INDEX_SIGMA)),
+                line: 0,
+            })
+        })
+        .collect();
+    let last = project
+        .epochs
+        .last()
+        .map(|e| e.name.clone())
+        .context("a scene without epochs")?;
+    let mut dem = timesift_io::geotiff::read_f32(&truth_dir.join(format!("dem_{last}.tif")))?;
+    let nodata = dem.georef.nodata;
+    for h in dem.data.iter_mut() {
+        if h.is_finite() && nodata != Some(f64::from(*h)) {
+            *h += (REFERENCE_DEM_SHIFT_M + REFERENCE_DEM_NOISE_GSD * gsd * rng.normal()) as f32;
+        }
+    }
+    timesift_io::geotiff::write_f32(&project.dir.join(REFERENCE_DEM_FILE), &dem)?;
+    project.config.align.reference_dem = Some(REFERENCE_DEM_FILE.into());
+    project.config.align.reference_dem_sigma = REFERENCE_DEM_NOISE_GSD * gsd;
+    Ok(())
+}
+
+/// One epoch's DEM against the reference DEM over the true stable ground (`--ties refdem`).
+#[derive(Debug, Clone, serde::Serialize)]
+struct AgainstReference {
+    epoch: String,
+    cells: usize,
+    median_m: f64,
+    median_gsd: f64,
+    tilt_mm_per_m: f64,
+}
+
+/// Every epoch's DEM against `reference` over `truth/stable.tif`: median and the tilt of the
+/// plane through the differences.
+fn against_reference(
+    project: &Project,
+    reference: &Path,
+    gsd: f64,
+) -> anyhow::Result<Vec<AgainstReference>> {
+    use timesift_change::grid::Dem;
+    let layout = project.layout();
+    let reference = Dem::from_raster(timesift_io::geotiff::read_f32(reference)?, None)?;
+    let stable = Dem::from_raster(
+        timesift_io::geotiff::read_f32(&layout.truth_dir().join("stable.tif"))?,
+        None,
+    )?;
+    let mut rows = Vec::new();
+    for epoch in &project.epochs {
+        let dem = timesift_io::geotiff::read_f32(&layout.dem(&epoch.name))?;
+        let count = timesift_io::geotiff::read_f32(&layout.dem_count(&epoch.name))?;
+        let points =
+            timesift_eval::products::dem_height_error_points(&dem, &count, &reference, |x, y| {
+                stable.bilinear(x, y) > 0.5
+            });
+        if let Some(plane) = timesift_change::trend::residual_plane(&points) {
+            rows.push(AgainstReference {
+                epoch: epoch.name.clone(),
+                cells: plane.count,
+                median_m: plane.median_m,
+                median_gsd: plane.median_m / gsd,
+                tilt_mm_per_m: plane.tilt_mm_per_m,
+            });
+        }
+    }
+    Ok(rows)
 }
 
 /// The stable-area DoD of one pair of consecutive epochs, metres.
@@ -133,6 +236,8 @@ struct ProductRow {
     /// Regions × pairs measured (some cell with a difference) and in `truth/change.json`: the
     /// errors above are over the measured ones.
     regions_measured: (usize, usize),
+    /// With `--ties refdem`: every epoch's DEM against the reference DEM over stable ground.
+    against_reference: Vec<AgainstReference>,
     seconds: f64,
     error: Option<String>,
 }
@@ -211,7 +316,9 @@ pub fn run_bench(bench: &MethodsBench) -> anyhow::Result<()> {
             match result {
                 Ok(_) => {
                     if bench.products {
-                        product_rows.push(products(scene, name, &project));
+                        let reference =
+                            (ties == "refdem").then(|| (dir.join(REFERENCE_DEM_FILE), gsd));
+                        product_rows.push(products(scene, name, &project, reference));
                     }
                     let kept = dir.join(format!("out-{name}"));
                     let _ = std::fs::remove_dir_all(&kept);
@@ -625,7 +732,12 @@ fn findings(rows: &[Row]) -> String {
 }
 
 /// The dense, dem and change stages on the current orientation, scored against the truth.
-fn products(scene: &str, method: &str, project: &Project) -> ProductRow {
+fn products(
+    scene: &str,
+    method: &str,
+    project: &Project,
+    reference: Option<(PathBuf, f64)>,
+) -> ProductRow {
     let start = Instant::now();
     let mut row = ProductRow {
         scene: scene.to_string(),
@@ -634,6 +746,7 @@ fn products(scene: &str, method: &str, project: &Project) -> ProductRow {
         volume_relative_error: None,
         volume_abs_error_m3: None,
         regions_measured: (0, 0),
+        against_reference: Vec::new(),
         seconds: 0.0,
         error: None,
     };
@@ -653,6 +766,9 @@ fn products(scene: &str, method: &str, project: &Project) -> ProductRow {
                     lod95: stats.lod95,
                 });
             }
+        }
+        if let Some((path, gsd)) = &reference {
+            row.against_reference = against_reference(project, path, *gsd)?;
         }
         if layout.truth_dir().join("change.json").is_file() {
             let all = region_volumes(&project_truth(project)?)?;
@@ -730,6 +846,25 @@ fn product_table(rows: &[ProductRow]) -> String {
             r.regions_measured.1,
             r.seconds
         ));
+    }
+    let against: Vec<String> = rows
+        .iter()
+        .flat_map(|r| {
+            r.against_reference.iter().map(move |a| {
+                format!(
+                    "| {} | {} | {} | {} | {:.3} | {:.2} | {:.2} |\n",
+                    r.scene, r.method, a.epoch, a.cells, a.median_m, a.median_gsd, a.tilt_mm_per_m
+                )
+            })
+        })
+        .collect();
+    if !against.is_empty() {
+        s.push_str(
+            "\n## Each epoch's DEM against the reference DEM over the true stable ground (`--ties refdem`)\n\n\
+             | scene | method | epoch | cells | median m | median GSD | plane tilt mm/m |\n\
+             |---|---|---|---|---|---|---|\n",
+        );
+        s.push_str(&against.concat());
     }
     // The papers' ordering on the products: the single block and msfm co-register the epochs
     // better than independent blocks on biased GNSS.

@@ -111,7 +111,10 @@ enum Task {
         /// points not held to the reference epoch's surface), auto-blind-nosurface (auto-blind without
         /// them), refgnss (only the reference epoch's GNSS priors),
         /// scatter-all (every flight's GNSS priors weighed by their scatter), cal:k1+b1+b2 (the
-        /// intrinsics the final adjustments estimate, `[align] self_calibration`; cal:none: none).
+        /// intrinsics the final adjustments estimate, `[align] self_calibration`; cal:none: none),
+        /// refdem (no control point, camera centres from a 20 m photo index, and the last
+        /// epoch's true surface with 0.3 GSD of noise and 0.5 m added as `[align]
+        /// reference_dem`; each epoch's DEM is then scored against it over stable ground).
         #[arg(long, value_delimiter = ',', default_value = "default")]
         ties: Vec<String>,
     },

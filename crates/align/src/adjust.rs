@@ -253,12 +253,14 @@ impl State<'_> {
             }
             if let Ok(h) = a.heights.binary_search_by_key(&point.track, |h| h.track) {
                 let h = a.heights[h];
-                // A height alone: no horizontal weight.
+                // A height alone: no horizontal weight; on a sloped reference, the height of its
+                // tangent plane where the point was sampled.
                 problem.point_priors.push(PointPrior {
                     point: k,
-                    position: Vector3::new(point.position.x, point.position.y, h.height),
+                    position: Vector3::new(h.at[0], h.at[1], h.height),
                     sigma_xy: f64::INFINITY,
                     sigma_z: h.sigma,
+                    slope: h.slope,
                 });
             }
         }
@@ -328,6 +330,7 @@ fn add_marked_points(
                 position,
                 sigma_xy,
                 sigma_z,
+                slope: [0.0; 2],
             });
         }
     }

@@ -74,6 +74,10 @@ pub struct GeoreferenceInput {
     /// The single-block strategies add those of the reference epoch's own surface
     /// ([`crate::SfmOptions::surface_ties`]).
     pub surface_heights: Vec<crate::SurfaceHeight>,
+    /// A reference DEM in the block's frame: the single-block strategies hold every epoch's
+    /// tie points on stable ground to it instead of the later epochs' to the reference
+    /// epoch's surface. It needs a datum to start from (control points or centre priors).
+    pub reference_dem: Option<std::sync::Arc<crate::ReferenceDem>>,
 }
 
 /// What fixed the datum.
@@ -182,6 +186,10 @@ pub struct Georeferenced {
     /// block ([`crate::SurfaceFit`]: offset, tilt, dome, height scale, with σ); empty where
     /// the strategy does not compare them or too few points could be compared.
     pub surface_fits: Vec<crate::SurfaceFit>,
+    /// Whether [`Self::surface_fits`] are every epoch's against the reference DEM
+    /// ([`GeoreferenceInput::reference_dem`]) rather than the later epochs' against the
+    /// reference epoch's surface.
+    pub fits_against_dem: bool,
 }
 
 /// What a georeferencing and the strategy around it left out, rejected, split or joined: for
@@ -234,6 +242,7 @@ impl Georeferenced {
             diagnostics: Diagnostics::default(),
             set_motion_covariance: None,
             surface_fits: Vec::new(),
+            fits_against_dem: false,
         }
     }
 }
@@ -413,6 +422,7 @@ pub fn georeference(
         diagnostics,
         set_motion_covariance,
         surface_fits: Vec::new(),
+        fits_against_dem: false,
     })
 }
 
@@ -1019,6 +1029,7 @@ mod tests {
             marker_sigma_px: 0.5,
             rigid_sets: Vec::new(),
             surface_heights: Vec::new(),
+            reference_dem: None,
         };
         assert_eq!(
             scatter_weighed_flights(&geo, ScatterWeighing::Controlled),

@@ -104,6 +104,7 @@ mod init;
 mod model;
 mod moved;
 mod options;
+mod reference_dem;
 mod register;
 mod robust;
 mod stable_ground;
@@ -121,6 +122,7 @@ pub use georef::{
 pub use incremental::reconstruct;
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
 pub use options::{ChangeDetection, OutlierBound, ScatterWeighing, SelfCalibration, SfmOptions};
+pub use reference_dem::ReferenceDem;
 pub use stable_ground::StableGround;
 pub use strategy::{
     Block, ChunkAlignment, DatumControl, GuidedMatch, GuidedQuery, Independent,

@@ -22,6 +22,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 use crate::model::{Reconstruction, SparsePoint};
+use crate::reference_dem::ReferenceDem;
 use crate::stable_ground::StableGround;
 
 /// A height observation of a tie point (by its track): from a reference surface, with its σ.
@@ -29,10 +30,16 @@ use crate::stable_ground::StableGround;
 pub struct SurfaceHeight {
     /// Index of the point's track in the input's tracks.
     pub track: usize,
-    /// Height of the reference surface at the point, metres.
+    /// Height of the reference surface at `at`, metres.
     pub height: f64,
     /// Standard deviation of the observation, metres.
     pub sigma: f64,
+    /// Where the surface was sampled (x, y): the point's position then.
+    pub at: [f64; 2],
+    /// The surface's slope there (dz/dx, dz/dy): the observation is the point's height above
+    /// the tangent plane, so that the surface holds the block sideways too where it slopes.
+    /// Zero for the reference epoch's own surface, whose local planes are too short to say it.
+    pub slope: [f64; 2],
 }
 
 /// How an epoch's tie points sit on the reference surface: the misses (point height minus the
@@ -227,28 +234,70 @@ impl ReferenceSurface {
 }
 
 /// One later epoch's point compared with the surface.
+#[derive(Clone, Copy)]
 struct Compared {
     track: usize,
     position: Vector3<f64>,
     surface: f64,
+    /// The surface's slope there, when it says one.
+    slope: [f64; 2],
 }
 
-/// The later epochs' points compared with the reference epoch's surface, per epoch: those
-/// seen in one epoch only (not the reference), by [`MIN_OBSERVATIONS`] images at least, on
-/// `stable` ground where given, where the surface is known.
+/// What an epoch's points are compared with.
+enum Surface<'a> {
+    /// The reference epoch's tie points: the later epochs' points against them.
+    Epoch {
+        points: Box<ReferenceSurface>,
+        reference: usize,
+        radius: f64,
+        max_roughness: f64,
+    },
+    /// A reference DEM: every epoch's points against it.
+    Dem(&'a ReferenceDem),
+}
+
+impl Surface<'_> {
+    /// The surface's height and slope at (x, y), where it is known.
+    fn at(&self, x: f64, y: f64) -> Option<(f64, [f64; 2])> {
+        match self {
+            Surface::Epoch {
+                points,
+                radius,
+                max_roughness,
+                ..
+            } => points
+                .height_at(x, y, *radius, *max_roughness)
+                .map(|h| (h, [0.0; 2])),
+            Surface::Dem(dem) => dem.sample(x, y),
+        }
+    }
+
+    /// Whether points seen in several epochs are compared (in each): against a reference
+    /// DEM, yes; against the reference epoch's surface, made of them too, no.
+    fn takes_ties(&self) -> bool {
+        matches!(self, Surface::Dem(_))
+    }
+
+    /// Whether an epoch's points are compared: all but the reference epoch's against its own.
+    fn compares(&self, epoch: usize) -> bool {
+        match self {
+            Surface::Epoch { reference, .. } => epoch != *reference,
+            Surface::Dem(_) => true,
+        }
+    }
+}
+
+/// The epochs' points compared with the surface, per epoch: those seen in one epoch only, by
+/// [`MIN_OBSERVATIONS`] images at least, on `stable` ground where given, where the surface is
+/// known.
 fn compare(
     rec: &Reconstruction,
     epoch_of: &[usize],
-    reference: usize,
     epochs: usize,
     stable: Option<&StableGround>,
-    radius: f64,
-    max_roughness: f64,
+    surface: &Surface<'_>,
 ) -> Vec<Vec<Compared>> {
     let mut out: Vec<Vec<Compared>> = (0..epochs).map(|_| Vec::new()).collect();
-    let Some(surface) = ReferenceSurface::of(rec, epoch_of, reference) else {
-        return out;
-    };
     // Per epoch, the two-view points compared, kept apart until the epoch's count of the
     // others is known.
     let mut two_view: Vec<Vec<Compared>> = (0..epochs).map(|_| Vec::new()).collect();
@@ -258,18 +307,17 @@ fn compare(
         {
             continue;
         }
-        let Some(&epoch) = p
-            .observations
-            .first()
-            .and_then(|e| epoch_of.get(e.image.index()))
-        else {
+        let Some(seen) = seen_in(p, epoch_of, epochs) else {
             continue;
         };
-        let one_epoch = p
-            .observations
-            .iter()
-            .all(|e| epoch_of.get(e.image.index()) == Some(&epoch));
-        if epoch == reference || !one_epoch || epoch >= epochs {
+        let one_epoch = seen.count_ones() == 1;
+        if !(one_epoch || surface.takes_ties()) {
+            continue;
+        }
+        let seen: Vec<usize> = (0..epochs)
+            .filter(|&e| seen.get(e) && surface.compares(e))
+            .collect();
+        if seen.is_empty() {
             continue;
         }
         // Their rays' angle only for the points the cheaper tests kept.
@@ -277,16 +325,18 @@ fn compare(
         if wide_pair && !rays_meet_wide(rec, p) {
             continue;
         }
-        if let Some(surface) = surface.height_at(p.position.x, p.position.y, radius, max_roughness)
-        {
+        if let Some((height, slope)) = surface.at(p.position.x, p.position.y) {
             let compared = Compared {
                 track: p.track,
                 position: p.position,
-                surface,
+                surface: height,
+                slope,
             };
-            match wide_pair {
-                true => two_view[epoch].push(compared),
-                false => out[epoch].push(compared),
+            for &epoch in &seen {
+                match wide_pair {
+                    true => two_view[epoch].push(compared),
+                    false => out[epoch].push(compared),
+                }
             }
         }
     }
@@ -296,6 +346,39 @@ fn compare(
         }
     }
     out
+}
+
+/// The epochs a point is seen in (a bit each), when every observation's image has an epoch
+/// below `epochs`.
+fn seen_in(p: &SparsePoint, epoch_of: &[usize], epochs: usize) -> Option<EpochBits> {
+    let mut seen = EpochBits::default();
+    for e in &p.observations {
+        let epoch = *epoch_of.get(e.image.index())?;
+        if epoch >= epochs || epoch >= EpochBits::CAPACITY {
+            return None;
+        }
+        seen.set(epoch);
+    }
+    (seen.count_ones() > 0).then_some(seen)
+}
+
+/// A set of epochs (the project holds at most 256).
+#[derive(Default, Clone, Copy)]
+struct EpochBits([u64; 4]);
+
+impl EpochBits {
+    const CAPACITY: usize = 256;
+
+    /// Adds epoch `e` (below [`Self::CAPACITY`]).
+    fn set(&mut self, e: usize) {
+        self.0[e / 64] |= 1 << (e % 64);
+    }
+    fn get(&self, e: usize) -> bool {
+        e < Self::CAPACITY && self.0[e / 64] & (1 << (e % 64)) != 0
+    }
+    fn count_ones(&self) -> u32 {
+        self.0.iter().map(|w| w.count_ones()).sum()
+    }
 }
 
 /// Whether the two rays of a two-view point meet at [`MIN_TWO_VIEW_ANGLE_DEG`] at least (both
@@ -383,7 +466,16 @@ fn robust_sigma(values: &[f64]) -> f64 {
 /// scatter before any point was held, 0.3 m on `rendered-mar`) let through. Measured there
 /// (`cargo xtask bench coreg`): with the scatter of the never-held points alone in the second
 /// round, the later epoch's DEM tilted 1.21 mm/m against its true surface rather than 0.89.
-fn robust_plane(points: &[Compared], centre: [f64; 2]) -> Option<(Vec<bool>, f64)> {
+///
+/// Against a reference DEM the scatter is that of the never-held points ([`holds`]) alone: the
+/// DEM is its own noise, and the held points, pulled onto it closer than their own height noise,
+/// would shrink the bound until it trimmed every other point (on a small `synth archival`, the
+/// kept points of an epoch fell 622, 346, 274, 257 of about 690 over four rounds).
+fn robust_plane(
+    points: &[Compared],
+    centre: [f64; 2],
+    scatter_of_unheld: bool,
+) -> Option<(Vec<bool>, f64)> {
     let design = |p: &Compared, row: &mut [f64]| {
         row[0] = 1.0;
         row[1] = p.position.x - centre[0];
@@ -409,9 +501,10 @@ fn robust_plane(points: &[Compared], centre: [f64; 2]) -> Option<(Vec<bool>, f64
             .collect();
         let kept_misses: Vec<f64> = misses
             .iter()
+            .zip(points)
             .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(m, _)| *m)
+            .filter(|((_, p), k)| **k && !(scatter_of_unheld && holds(p.track)))
+            .map(|((m, _), _)| *m)
             .collect();
         if kept_misses.is_empty() {
             return None;
@@ -532,20 +625,29 @@ pub(crate) struct SurfaceComparison<'a> {
     pub stable: Option<&'a StableGround>,
     /// The block's median ground pixel, metres: the scale of the neighbourhoods and bounds.
     pub ground_px: f64,
+    /// A reference DEM: every epoch is compared with it instead of the later epochs with the
+    /// reference epoch's surface.
+    pub dem: Option<&'a ReferenceDem>,
 }
 
 impl SurfaceComparison<'_> {
-    /// Every later epoch's points compared with the surface.
+    /// The epochs' points compared with the surface.
     fn compared(&self, rec: &Reconstruction) -> Vec<Vec<Compared>> {
-        compare(
-            rec,
-            self.epoch_of,
-            self.reference,
-            self.epochs,
-            self.stable,
-            RADIUS_GROUND_PX * self.ground_px,
-            MAX_ROUGHNESS_GROUND_PX * self.ground_px,
-        )
+        let surface = match self.dem {
+            Some(dem) => Surface::Dem(dem),
+            None => {
+                let Some(points) = ReferenceSurface::of(rec, self.epoch_of, self.reference) else {
+                    return (0..self.epochs).map(|_| Vec::new()).collect();
+                };
+                Surface::Epoch {
+                    points: Box::new(points),
+                    reference: self.reference,
+                    radius: RADIUS_GROUND_PX * self.ground_px,
+                    max_roughness: MAX_ROUGHNESS_GROUND_PX * self.ground_px,
+                }
+            }
+        };
+        compare(rec, self.epoch_of, self.epochs, self.stable, &surface)
     }
 
     /// Per later epoch compared, its fit against the reference epoch's surface (before the
@@ -554,12 +656,14 @@ impl SurfaceComparison<'_> {
     pub fn heights(&self, rec: &Reconstruction) -> Vec<EpochSurface> {
         let mut epochs = Vec::new();
         for (epoch, points) in self.compared(rec).iter().enumerate() {
-            let Some((keep, _, fit)) = fit_epoch(epoch, points) else {
+            let Some((keep, _, fit)) = fit_epoch(epoch, points, self.dem.is_some()) else {
                 continue;
             };
             // The observation's σ is the surface's, not the misses' scatter: that holds the
             // point's own height noise too, which its rays already carry in the adjustment.
-            let sigma = SURFACE_SIGMA_GROUND_PX * self.ground_px;
+            let sigma = self
+                .dem
+                .map_or(SURFACE_SIGMA_GROUND_PX * self.ground_px, |d| d.sigma());
             let mut held: Vec<SurfaceHeight> = points
                 .iter()
                 .zip(&keep)
@@ -568,6 +672,8 @@ impl SurfaceComparison<'_> {
                     track: p.track,
                     height: p.surface,
                     sigma,
+                    at: [p.position.x, p.position.y],
+                    slope: p.slope,
                 })
                 .collect();
             if held.len() < MIN_HELD {
@@ -586,7 +692,7 @@ impl SurfaceComparison<'_> {
             .enumerate()
             .filter_map(|(epoch, mut points)| {
                 points.retain(|p| !holds(p.track));
-                fit_epoch(epoch, &points).map(|(_, _, fit)| fit)
+                fit_epoch(epoch, &points, self.dem.is_some()).map(|(_, _, fit)| fit)
             })
             .collect()
     }
@@ -601,7 +707,11 @@ fn holds(track: usize) -> bool {
 
 /// The robust plane of one epoch's compared points, the points kept and their scatter, and
 /// the decomposition; `None` with too few points or a fit that fails.
-fn fit_epoch(epoch: usize, points: &[Compared]) -> Option<(Vec<bool>, f64, SurfaceFit)> {
+fn fit_epoch(
+    epoch: usize,
+    points: &[Compared],
+    scatter_of_unheld: bool,
+) -> Option<(Vec<bool>, f64, SurfaceFit)> {
     if points.len() < MIN_COMPARED {
         return None;
     }
@@ -609,7 +719,7 @@ fn fit_epoch(epoch: usize, points: &[Compared]) -> Option<(Vec<bool>, f64, Surfa
     let centre = points.iter().fold([0.0; 2], |c, p| {
         [c[0] + p.position.x / n, c[1] + p.position.y / n]
     });
-    let (keep, sigma) = robust_plane(points, centre)?;
+    let (keep, sigma) = robust_plane(points, centre, scatter_of_unheld)?;
     let fit = decompose(epoch, points, &keep)?;
     Some((keep, sigma, fit))
 }
@@ -643,6 +753,7 @@ mod tests {
             epochs: 2,
             stable,
             ground_px: 0.2,
+            dem: None,
         }
     }
 
@@ -734,6 +845,47 @@ mod tests {
         for h in &heights {
             let p = &rec.points[h.track];
             assert!((h.height - ground(p.position.x, p.position.y)).abs() < 1e-9);
+        }
+    }
+
+    /// The true ground (a plane: [`ground`]) as a 1 m reference DEM over the scene, σ 0.3 m.
+    fn ground_dem() -> ReferenceDem {
+        let (width, height) = (200, 140);
+        let heights = (0..height)
+            .flat_map(|r| (0..width).map(move |c| (r, c)))
+            .map(|(r, c)| ground(-10.0 + 0.5 + c as f64, 130.0 - 0.5 - r as f64) as f32)
+            .collect();
+        ReferenceDem::new([-10.0, 130.0], 1.0, [width, height], heights, 0.3).expect("dem")
+    }
+
+    #[test]
+    fn against_a_reference_dem_every_epoch_is_compared_and_held_on_its_tangent_plane() {
+        let rec = scene(0.0, planted, |_, _| false);
+        let dem = ground_dem();
+        let comparison = SurfaceComparison {
+            dem: Some(&dem),
+            ..compare_with(None)
+        };
+        let (heights, fits) = split(comparison.heights(&rec));
+        // The reference epoch too: it sits on the DEM; the later one misses it by the plant.
+        assert_eq!(fits.iter().map(|f| f.epoch).collect::<Vec<_>>(), [0, 1]);
+        assert!(
+            fits[0].plane.iter().all(|v| v.abs() < 1e-5),
+            "{:?}",
+            fits[0].plane
+        );
+        let f = &fits[1];
+        let expected = planted(f.centroid[0], f.centroid[1]);
+        assert!((f.plane[0] - expected).abs() < 1e-5, "{:?}", f.plane);
+        assert!((f.plane[1] - 0.003).abs() < 1e-6 && (f.plane[2] + 0.001).abs() < 1e-6);
+        // Every held height is the DEM's at its point, with the DEM's σ and slope.
+        assert!(heights.len() > 2000, "{}", heights.len());
+        for h in &heights {
+            let p = &rec.points[h.track].position;
+            assert_eq!(h.at, [p.x, p.y]);
+            assert!((h.height - ground(p.x, p.y)).abs() < 1e-4);
+            assert!((h.slope[0] - 0.05).abs() < 1e-4 && (h.slope[1] - 0.02).abs() < 1e-4);
+            assert_eq!(h.sigma, 0.3);
         }
     }
 
@@ -908,6 +1060,7 @@ mod tests {
                     track,
                     position: Vector3::new(x, y, surface),
                     surface,
+                    slope: [0.0; 2],
                 }
             })
             .collect();

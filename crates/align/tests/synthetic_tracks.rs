@@ -230,6 +230,7 @@ fn gnss_priors_place_the_block_in_the_world() {
         marker_sigma_px: 0.5,
         rigid_sets: Vec::new(),
         surface_heights: Vec::new(),
+        reference_dem: None,
     };
     let placed = georeference(&s.input, components, &geo, &SfmOptions::default()).unwrap();
     assert_eq!(placed.datum, Datum::Gnss);
@@ -408,6 +409,7 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
             marker_sigma_px: 0.5,
             rigid_sets,
             surface_heights: Vec::new(),
+            reference_dem: None,
         },
         epoch_of,
         epoch_names: vec!["first".into(), "second".into()],
@@ -1361,6 +1363,7 @@ fn a_ground_point_s_markers_sigma_is_the_scatter_of_its_clicks() {
                 marker_sigma_px: sigma_px,
                 rigid_sets: Vec::new(),
                 surface_heights: Vec::new(),
+                reference_dem: None,
             };
             let residual = &ground_point_residuals(&s.input, &rec, &geo, &|_| true)[0];
             assert_eq!(residual.images, images);

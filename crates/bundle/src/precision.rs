@@ -89,9 +89,8 @@ pub fn residual_statistics(p: &BundleProblem, outlier_threshold: f64) -> Residua
         p.point_priors
             .iter()
             .map(|c| {
-                let d = p.points[c.point].position - c.position;
                 (
-                    d,
+                    c.miss(&p.points[c.point].position),
                     nalgebra::Vector3::new(1.0 / c.sigma_xy, 1.0 / c.sigma_xy, 1.0 / c.sigma_z),
                 )
             })
@@ -160,9 +159,12 @@ impl Chi2 {
         for (d, inv_sigma) in &residuals {
             for c in 0..3 {
                 sq[c] += d[c] * d[c];
-                self.normalised_sq += (d[c] * inv_sigma[c]).powi(2);
+                // A component of infinite σ (a height alone) is no observation.
+                if inv_sigma[c] > 0.0 {
+                    self.normalised_sq += (d[c] * inv_sigma[c]).powi(2);
+                    self.components += 1;
+                }
             }
-            self.components += 3;
         }
         let n = residuals.len() as f64;
         Some((sq.map(|s| (s / n).sqrt()), residuals.len()))

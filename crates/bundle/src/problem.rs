@@ -126,6 +126,30 @@ pub struct PointPrior {
     pub sigma_xy: f64,
     /// Vertical standard deviation, metres.
     pub sigma_z: f64,
+    /// Slope (dz/dx, dz/dy) of the surface the height lies on: the vertical residual is the
+    /// point's height above the surface's tangent plane through `position`, so that a point
+    /// moved sideways on a slope is not pulled up or down (a height from a reference DEM). Zero
+    /// for a surveyed point.
+    pub slope: [f64; 2],
+}
+
+impl PointPrior {
+    /// The residual of a point at `at`, scaled by the σs, and its Jacobian with respect to the
+    /// point (constant: the residual is linear in it).
+    pub fn residual(&self, at: &Vector3<f64>) -> (Vector3<f64>, nalgebra::Matrix3<f64>) {
+        let d = at - self.position;
+        let (sx, sz) = (1.0 / self.sigma_xy, 1.0 / self.sigma_z);
+        let [gx, gy] = self.slope;
+        let r = Vector3::new(sx * d.x, sx * d.y, sz * (d.z - gx * d.x - gy * d.y));
+        let j = nalgebra::Matrix3::new(sx, 0.0, 0.0, 0.0, sx, 0.0, -gx * sz, -gy * sz, sz);
+        (r, j)
+    }
+
+    /// The residual unscaled (metres): east, north, and the height above the tangent plane.
+    pub fn miss(&self, at: &Vector3<f64>) -> Vector3<f64> {
+        let d = at - self.position;
+        Vector3::new(d.x, d.y, d.z - self.slope[0] * d.x - self.slope[1] * d.y)
+    }
 }
 
 /// A scale bar: the measured distance between two points (markers), with its accuracy.
@@ -265,12 +289,13 @@ impl BundleProblem {
             }
         }
         for (k, c) in self.point_priors.iter().enumerate() {
-            if c.point >= self.points.len()
-                || !(c.sigma_xy > 0.0 && c.sigma_z > 0.0)
-                || !c.position.iter().all(|v| v.is_finite())
-            {
+            let valid = c.point < self.points.len()
+                && c.sigma_xy > 0.0
+                && c.sigma_z > 0.0
+                && c.position.iter().chain(&c.slope).all(|v| v.is_finite());
+            if !valid {
                 return Err(BundleError::InvalidProblem(format!(
-                    "point prior {k}: point {} out of range, non-positive sigma or non-finite position",
+                    "point prior {k}: point {} out of range, non-positive sigma or non-finite position or slope",
                     c.point
                 )));
             }

@@ -14,7 +14,7 @@ use timesift_core::{
     CameraModel, ProjectionJacobians, project_world, project_world_with_jacobians,
 };
 
-use crate::problem::{BundleProblem, CenterPrior, Observation, PointPrior, PriorOffset, ScaleBar};
+use crate::problem::{BundleProblem, CenterPrior, Observation, PriorOffset, ScaleBar};
 use crate::reduced::{Reduced, SparsePattern};
 use crate::schur::{self, BlockRows, Coupling, damped_inverses};
 use crate::{BundleError, Loss};
@@ -438,14 +438,6 @@ pub(crate) fn offset_prior_scale(offset: &PriorOffset) -> Vector3<f64> {
     )
 }
 
-fn point_prior_scale(prior: &PointPrior) -> Vector3<f64> {
-    Vector3::new(
-        1.0 / prior.sigma_xy,
-        1.0 / prior.sigma_xy,
-        1.0 / prior.sigma_z,
-    )
-}
-
 fn prior_cost(p: &BundleProblem) -> f64 {
     let centres: f64 = p
         .center_priors
@@ -461,11 +453,7 @@ fn prior_cost(p: &BundleProblem) -> f64 {
     let points: f64 = p
         .point_priors
         .iter()
-        .map(|c| {
-            0.5 * (p.points[c.point].position - c.position)
-                .component_mul(&point_prior_scale(c))
-                .norm_squared()
-        })
+        .map(|c| 0.5 * c.residual(&p.points[c.point].position).0.norm_squared())
         .sum();
     let bars: f64 = p
         .scale_bars
@@ -752,18 +740,24 @@ impl<const D: usize> Normal<D> {
     /// Adds the control-point priors, on the eliminated point block or the reduced-side point.
     fn add_point_priors(&mut self, p: &BundleProblem, layout: &Layout) {
         for c in &p.point_priors {
-            let scale = point_prior_scale(c);
-            let r = (p.points[c.point].position - c.position).component_mul(&scale);
+            let (r, j) = c.residual(&p.points[c.point].position);
             self.cost += 0.5 * r.norm_squared();
+            let (jtj, jtr) = (j.transpose() * j, j.transpose() * r);
             if let Some(pi) = layout.point_index[c.point] {
                 for k in 0..3 {
-                    self.v[pi][(k, k)] += scale[k] * scale[k];
-                    self.g_p[pi][k] += scale[k] * r[k];
+                    for l in 0..3 {
+                        self.v[pi][(k, l)] += jtj[(k, l)];
+                    }
+                    self.g_p[pi][k] += jtr[k];
                 }
             } else if let Some(off) = layout.point_offset[c.point] {
                 for k in 0..3 {
-                    self.u.add(off + k, off + k, scale[k] * scale[k]);
-                    self.g_c[off + k] += scale[k] * r[k];
+                    for l in 0..3 {
+                        if jtj[(k, l)] != 0.0 {
+                            self.u.add(off + k, off + l, jtj[(k, l)]);
+                        }
+                    }
+                    self.g_c[off + k] += jtr[k];
                 }
             }
         }

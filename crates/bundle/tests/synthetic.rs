@@ -243,8 +243,11 @@ fn analytic_gradient_matches_finite_differences_for_every_residual_type() {
         .map(|j| timesift_bundle::PointPrior {
             point: j,
             position: p.points[j].position + Vector3::new(0.01, -0.02, 0.03),
-            sigma_xy: 0.01,
+            // Half of them heights on a sloped surface (a reference DEM's), without horizontal
+            // weight.
+            sigma_xy: if j < 5 { 0.01 } else { f64::INFINITY },
             sigma_z: 0.02,
+            slope: if j < 5 { [0.0; 2] } else { [0.3, -0.2] },
         })
         .collect();
     // Two scale bars (one sharing an end with a control point), slightly off the current lengths.
@@ -337,6 +340,73 @@ fn gnss_priors_georeference_the_block() {
     }
 }
 
+/// The block of `georeferenced_block` with its camera centres known only to metres and shifted
+/// by `bias` (a photo index), and every point given a height on a surface through it (a
+/// reference DEM) sampled 1.8 m away from the truth (where a shifted block would ask), σ 1 mm;
+/// with its tangent plane's slope (points facing every way) or without.
+fn held_to_a_surface(
+    seed: u64,
+    bias: Vector3<f64>,
+    sloped: bool,
+) -> (BundleProblem, Vec<Vector3<f64>>) {
+    let (mut p, truth) = georeferenced_block(seed);
+    for (c, t) in p.center_priors.iter_mut().zip(&truth) {
+        c.position = t + bias;
+        c.sigma_xy = 10.0;
+        c.sigma_z = 10.0;
+    }
+    let sampled_at = Vector3::new(1.5, -1.0, 0.0);
+    p.point_priors = block_points(seed)
+        .iter()
+        .enumerate()
+        .map(|(j, t)| {
+            let angle = 2.4 * j as f64;
+            let slope = [0.5 * angle.cos(), 0.5 * angle.sin()];
+            let at = t + sampled_at;
+            // The surface's height there: on the plane through the true point.
+            let height = t.z + slope[0] * sampled_at.x + slope[1] * sampled_at.y;
+            timesift_bundle::PointPrior {
+                point: j,
+                position: Vector3::new(at.x, at.y, if sloped { height } else { t.z }),
+                sigma_xy: f64::INFINITY,
+                sigma_z: 0.001,
+                slope: if sloped { slope } else { [0.0; 2] },
+            }
+        })
+        .collect();
+    (p, truth)
+}
+
+#[test]
+fn heights_on_a_sloped_surface_fix_a_blocks_horizontal_shift_and_flat_heights_cannot() {
+    let bias = Vector3::new(3.0, -2.0, 1.0);
+    let options = BundleOptions {
+        function_tolerance: 1e-14,
+        ..BundleOptions::default()
+    };
+    let worst = |p: &BundleProblem, truth: &[Vector3<f64>]| {
+        p.images
+            .iter()
+            .zip(truth)
+            .map(|(im, c)| (im.pose.center() - c).norm())
+            .fold(0.0f64, f64::max)
+    };
+    let (mut sloped, truth) = held_to_a_surface(41, bias, true);
+    solve(&mut sloped, &options).unwrap();
+    let (mut flat, _) = held_to_a_surface(41, bias, false);
+    solve(&mut flat, &options).unwrap();
+    // The tangent planes put the block back to what its pixel noise allows (the 20 m block's
+    // centres from 0.5 px of noise: centimetres); heights alone fix its height and tilt but
+    // leave it where the biased centres put it sideways.
+    let (sloped, flat) = (worst(&sloped, &truth), worst(&flat, &truth));
+    assert!(sloped < 0.05, "sloped: centres off by {sloped} m");
+    assert!(
+        (flat - bias.xy().norm()).abs() < 0.05,
+        "flat: centres off by {flat} m, the bias's horizontal part is {} m",
+        bias.xy().norm()
+    );
+}
+
 /// The block of `georeferenced_block` with control points on ten points, where the last four
 /// images' GNSS carries a common bias `bias`.
 fn biased_flight(seed: u64, bias: Vector3<f64>) -> (BundleProblem, Vec<Vector3<f64>>) {
@@ -348,6 +418,7 @@ fn biased_flight(seed: u64, bias: Vector3<f64>) -> (BundleProblem, Vec<Vector3<f
             position: truth_points[j * 15],
             sigma_xy: 0.005,
             sigma_z: 0.005,
+            slope: [0.0; 2],
         })
         .collect();
     for c in p.center_priors.iter_mut().skip(4) {

@@ -61,6 +61,19 @@ pub fn dem_height_errors(
     truth: &timesift_change::grid::Dem,
     keep: impl Fn(f64, f64) -> bool,
 ) -> Vec<f64> {
+    dem_height_error_points(dem, count, truth, keep)
+        .into_iter()
+        .map(|(_, _, e)| e)
+        .collect()
+}
+
+/// [`dem_height_errors`] with each error's cell centre: (x, y, error), for a plane through them.
+pub fn dem_height_error_points(
+    dem: &timesift_io::geotiff::GeoRaster<f32>,
+    count: &timesift_io::geotiff::GeoRaster<f32>,
+    truth: &timesift_change::grid::Dem,
+    keep: impl Fn(f64, f64) -> bool,
+) -> Vec<(f64, f64, f64)> {
     let t = dem.georef.transform;
     let nodata = dem.georef.nodata.map(|v| v as f32);
     let mut err = Vec::new();
@@ -76,7 +89,7 @@ pub fn dem_height_errors(
             }
             let z = truth.bilinear(x, y);
             if z.is_finite() {
-                err.push(h as f64 - z);
+                err.push((x, y, h as f64 - z));
             }
         }
     }

@@ -325,6 +325,7 @@ pub(super) fn ground_input(
                 })
                 .collect(),
             surface_heights: Vec::new(),
+            reference_dem: None,
         },
         natural_points,
     ))

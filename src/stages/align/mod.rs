@@ -8,6 +8,7 @@
 
 mod input;
 mod outputs;
+mod reference_dem;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -107,6 +108,7 @@ fn align_settings(project: &Project) -> serde_json::Value {
         "config": format!("{:?}", (&c.crs, &c.epochs, &c.inputs, &c.gnss, &c.align, &c.cameras)),
         "ground": format!("{:?}", (&project.gcps, &project.checkpoints, &project.markers, &project.stable_points,
             &project.gnss, &project.stable_areas, &project.scale_bars, &project.calibrations)),
+        "reference_dem": c.align.reference_dem.as_ref().map(|p| super::cache::file_stamp(&project.dir.join(p))),
     })
 }
 
@@ -165,7 +167,19 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     let source = ImageSource::of(project)?;
     let input = load_input(project, &source)?;
     let frame = LocalFrame::of(project)?;
-    let (geo, natural_points) = ground_input(project, &frame, &source)?;
+    let (mut geo, natural_points) = ground_input(project, &frame, &source)?;
+    geo.reference_dem = reference_dem::reference_dem(project, &frame)?;
+    let single_block = matches!(
+        project.config.align.method,
+        timesift_align::Method::Timesift | timesift_align::Method::Msfm
+    );
+    if geo.reference_dem.is_some() && !single_block {
+        return Err(stage_error(format!(
+            "[align] reference_dem is used by the single-block methods (timesift, msfm), not by \
+             method = \"{}\"",
+            project.config.align.method
+        )));
+    }
     let mut options = SfmOptions {
         tie_point_sigma_px: project.config.align.tie_point_accuracy_px,
         change_detection: match project.config.align.inter_epoch_ties {

@@ -354,7 +354,9 @@ impl EpochMotions<'_> {
         epochs: usize,
     ) -> Option<EpochMotions<'a>> {
         let covariance = block.set_motion_covariance.as_ref()?;
-        let tied = block.diagnostics.surface_heights > 0;
+        // Held to a reference DEM, the epochs are held to a fixed surface: their covariance is
+        // their own motion.
+        let tied = block.diagnostics.surface_heights > 0 && !block.fits_against_dem;
         let on_surface = (0..epochs)
             .map(|e| tied && e != reference && block.surface_fits.iter().any(|f| f.epoch == e))
             .collect();
@@ -542,6 +544,11 @@ fn report(
         inter_epoch_ties_guided: block.diagnostics.guided_ties,
         changed_regions: block.diagnostics.changed_regions,
         surface_heights: block.diagnostics.surface_heights,
+        reference_dem: block
+            .fits_against_dem
+            .then_some(project.config.align.reference_dem.as_ref())
+            .flatten()
+            .map(|p| p.display().to_string()),
         observation_bound_px: block.observation_bound_px,
         group_noise: (0..rec.cameras.len())
             .map(|g| GroupNoise {

@@ -155,6 +155,7 @@ impl Block {
             // Parts adjusted apart: no covariance joins them.
             set_motion_covariance: None,
             surface_fits: Vec::new(),
+            fits_against_dem: false,
         }
     }
 }
@@ -220,6 +221,7 @@ fn restrict_ground(geo: &GeoreferenceInput, keep: &dyn Fn(usize) -> bool) -> Geo
         rigid_sets: Vec::new(),
         // Tracks of the whole block; a part's heights are its strategy's own.
         surface_heights: Vec::new(),
+        reference_dem: None,
     }
 }
 

@@ -180,6 +180,7 @@ fn control_epoch(
         marker_sigma_px: ground.marker_sigma_px,
         rigid_sets: Vec::new(),
         surface_heights: Vec::new(),
+        reference_dem: None,
     };
     let mut used = 0;
     for point in intersected {

@@ -9,7 +9,7 @@ use crate::georef::{Datum, Diagnostics, Georeferenced, georeference};
 use crate::model::Reconstruction;
 use crate::moved::{Separated, separate_moved_points};
 use crate::options::{ChangeDetection, SfmOptions};
-use crate::surface::SurfaceComparison;
+use crate::surface::{EpochSurface, SurfaceComparison};
 
 use super::block::Block;
 use super::similarity::median_ground_pixel;
@@ -20,6 +20,9 @@ const CHANGE_DETECTION_ROUNDS: usize = 6;
 /// Rounds of surface ties: the second compares the points once the first has removed most of
 /// the epoch's offset and tilt, so that fewer points on changed ground pass.
 const SURFACE_ROUNDS: usize = 2;
+/// Rounds against a reference DEM: each samples it again where the points moved to, and a
+/// film block without control may start metres off it.
+const DEM_ROUNDS: usize = 4;
 
 /// The components of the whole block (largest first) adjusted and georeferenced as one.
 pub(crate) fn adjust_as_one_block(
@@ -121,8 +124,9 @@ fn tie_on_stable_ground(
 /// With [`SfmOptions::surface_ties`], the later epochs' own tie points get height observations
 /// from the reference epoch's surface (module `surface`) and the block is adjusted again with
 /// them; either way, each later epoch's fit against that surface in the final block
-/// ([`Georeferenced::surface_fits`]). A block without a datum has no "up" to compare heights
-/// along, and is returned as it is.
+/// ([`Georeferenced::surface_fits`]). With a reference DEM, every epoch's points are held to
+/// it instead, whatever `surface_ties` says. A block without a datum has no "up" to compare
+/// heights along, and is returned as it is (with a reference DEM, that is an error).
 fn tie_by_surface(
     block: &Block,
     separated: &Separated,
@@ -130,6 +134,17 @@ fn tie_by_surface(
     options: &SfmOptions,
 ) -> Result<Georeferenced, AlignError> {
     let epochs = block.epoch_names.len();
+    let dem = block.ground.reference_dem.as_deref();
+    if dem.is_some() && placed.datum == Datum::Local {
+        return Err(AlignError::Georeferencing(
+            "a reference DEM needs a datum to start from: control points (gcps.csv) or camera \
+             centre priors (gnss.csv, or EXIF GPS) to within some metres; the block has neither"
+                .into(),
+        ));
+    }
+    if let Some(dem) = dem {
+        return tie_to_dem(block, separated, placed, options, dem);
+    }
     if placed.datum == Datum::Local || epochs < 2 {
         return Ok(placed);
     }
@@ -142,6 +157,7 @@ fn tie_by_surface(
         epochs,
         stable,
         ground_px,
+        dem: None,
     };
     if options.surface_ties {
         // Which epochs are held: decided on the first comparison, before any is.
@@ -166,43 +182,98 @@ fn tie_by_surface(
                 .filter(|c| held_epochs.contains(&c.fit.epoch))
                 .flat_map(|c| c.held.iter().copied())
                 .collect();
-            for fit in compared.iter().map(|c| &c.fit) {
-                let (tilt, sigma) = fit.tilt_mm_per_m();
-                tracing::info!(
-                    round,
-                    epoch = %block.epoch_names[fit.epoch],
-                    kept = fit.kept,
-                    compared = fit.compared,
-                    sigma = fit.sigma,
-                    offset = fit.plane[0],
-                    tilt_mm_per_m = tilt,
-                    tilt_sigma = sigma,
-                    "an epoch's tie points against the reference epoch's surface"
-                );
-            }
+            log_fits(block, round, &compared, "the reference epoch's surface");
             if heights.is_empty() {
                 break;
             }
             heights.sort_by_key(|h| h.track);
-            let geo = crate::georef::GeoreferenceInput {
-                surface_heights: heights,
-                ..block.ground.clone()
-            };
-            let count = geo.surface_heights.len();
-            let mut again =
-                georeference(&separated.input, vec![placed.reconstruction], &geo, options)?;
-            let diagnostics = placed.diagnostics;
-            again.diagnostics = Diagnostics {
-                surface_heights: count,
-                dropped_components: diagnostics.dropped_components
-                    + again.diagnostics.dropped_components,
-                ..diagnostics
-            };
-            placed = again;
+            placed = adjust_with_heights(block, separated, placed, heights, options)?;
         }
     }
     placed.surface_fits = comparison.fits(&placed.reconstruction);
     Ok(placed)
+}
+
+/// Every epoch's tie points on stable ground (given, or where they meet the DEM) held to the
+/// reference DEM ([`DEM_ROUNDS`] adjustments, each sampling it again), and each epoch's fit
+/// against it in the final block. No epoch is left out for a small or a large miss: the DEM
+/// was given to be the datum.
+fn tie_to_dem(
+    block: &Block,
+    separated: &Separated,
+    mut placed: Georeferenced,
+    options: &SfmOptions,
+    dem: &crate::ReferenceDem,
+) -> Result<Georeferenced, AlignError> {
+    let comparison = SurfaceComparison {
+        epoch_of: &block.epoch_of,
+        reference: block.reference,
+        epochs: block.epoch_names.len(),
+        stable: block.stable_ground_for(&placed),
+        ground_px: median_ground_pixel(&placed.reconstruction),
+        dem: Some(dem),
+    };
+    for round in 0..DEM_ROUNDS {
+        let compared = comparison.heights(&placed.reconstruction);
+        log_fits(block, round, &compared, "the reference DEM");
+        let mut heights: Vec<_> = compared.into_iter().flat_map(|c| c.held).collect();
+        // A point seen in several epochs is compared in each, and held once.
+        heights.sort_by_key(|h| h.track);
+        heights.dedup_by_key(|h| h.track);
+        if heights.is_empty() {
+            tracing::warn!(
+                "no epoch has enough tie points on stable ground where the reference DEM has \
+                 heights: the block is not held to it"
+            );
+            break;
+        }
+        placed = adjust_with_heights(block, separated, placed, heights, options)?;
+    }
+    placed.surface_fits = comparison.fits(&placed.reconstruction);
+    placed.fits_against_dem = true;
+    Ok(placed)
+}
+
+/// Each epoch's fit of one round, logged.
+fn log_fits(block: &Block, round: usize, compared: &[EpochSurface], against: &str) {
+    for fit in compared.iter().map(|c| &c.fit) {
+        let (tilt, sigma) = fit.tilt_mm_per_m();
+        tracing::info!(
+            round,
+            epoch = %block.epoch_names[fit.epoch],
+            kept = fit.kept,
+            compared = fit.compared,
+            sigma = fit.sigma,
+            offset = fit.plane[0],
+            tilt_mm_per_m = tilt,
+            tilt_sigma = sigma,
+            against,
+            "an epoch's tie points against a reference surface"
+        );
+    }
+}
+
+/// The block georeferenced again with `heights` (sorted by track) on its tie points.
+fn adjust_with_heights(
+    block: &Block,
+    separated: &Separated,
+    placed: Georeferenced,
+    heights: Vec<crate::SurfaceHeight>,
+    options: &SfmOptions,
+) -> Result<Georeferenced, AlignError> {
+    let geo = crate::georef::GeoreferenceInput {
+        surface_heights: heights,
+        ..block.ground.clone()
+    };
+    let count = geo.surface_heights.len();
+    let mut again = georeference(&separated.input, vec![placed.reconstruction], &geo, options)?;
+    let diagnostics = placed.diagnostics;
+    again.diagnostics = Diagnostics {
+        surface_heights: count,
+        dropped_components: diagnostics.dropped_components + again.diagnostics.dropped_components,
+        ..diagnostics
+    };
+    Ok(again)
 }
 
 /// How many σ of the fit's own an epoch's offset or tilt against the reference surface must

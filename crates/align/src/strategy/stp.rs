@@ -191,6 +191,7 @@ impl StableTiePoints<'_> {
             marker_sigma_px: ground.marker_sigma_px,
             rigid_sets: Vec::new(),
             surface_heights: Vec::new(),
+            reference_dem: None,
         };
         // The stable points' observations are tie points of this epoch: weighted by the
         // epoch's own measured reprojection noise (σ per axis from the RMS), not as hand-placed
@@ -243,6 +244,7 @@ fn place_roughly(
         marker_sigma_px: ground.marker_sigma_px,
         rigid_sets: Vec::new(),
         surface_heights: Vec::new(),
+        reference_dem: None,
     };
     // Placed by the priors when they place it (three or more, not all rejected).
     let by_priors = if ground.centre_priors.len() >= 3 {

@@ -22,6 +22,7 @@ pub fn surveyed(
             ),
         sigma_xy,
         sigma_z,
+        slope: [0.0; 2],
     }
 }
 
