@@ -33,6 +33,20 @@ fn centre_error(dir: &Path) -> Vector3<f64> {
     errors.iter().sum::<Vector3<f64>>() / errors.len() as f64
 }
 
+/// The loosest datum-tilt σ of the first epoch in out/report.json, mm/m.
+fn datum_tilt_sigma(report: &serde_json::Value) -> f64 {
+    let epochs = report["epochs"].as_object().expect("epochs");
+    let first = epochs.values().next().expect("an epoch");
+    first["datum_tilt"]["sigma_max_mm_per_m"]
+        .as_f64()
+        .expect("datum_tilt")
+}
+
+fn read_report(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("out/report.json")).expect("report"))
+        .expect("json")
+}
+
 /// Median height of the tie points above the true surface of the reference DEM's epoch.
 fn tie_points_above_truth(dir: &Path, epoch: &str) -> f64 {
     let truth = timesift_io::geotiff::read_f32(&dir.join(format!("truth/dem_{epoch}.tif")))
@@ -100,7 +114,8 @@ fn a_film_block_without_control_lands_on_a_reference_dem() {
     let (ok, _, err) = timesift(&["run", path, "--to", "align"]);
     assert!(ok, "{err}");
     let without = centre_error(dir);
-    println!("without the DEM: centres off by {without:?}");
+    let loose = datum_tilt_sigma(&read_report(dir));
+    println!("without the DEM: centres off by {without:?}, datum tilt σ {loose:.2} mm/m");
     assert!(
         without.xy().norm() > 5.0 && without.z > 5.0,
         "the photo index's bias is not in the block: {without:?}"
@@ -112,11 +127,12 @@ fn a_film_block_without_control_lands_on_a_reference_dem() {
     let with = centre_error(dir);
     let above = tie_points_above_truth(dir, &last);
     println!("with the DEM: centres off by {with:?}, tie points {above:.3} m above the truth");
-    let report: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("out/report.json")).expect("report.json"),
-    )
-    .expect("json");
+    let report = read_report(dir);
     assert_eq!(report["reference_dem"], "modern_dem.tif");
+    // The DEM's heights, not the photo index, now hold the datum's tilt.
+    let held = datum_tilt_sigma(&report);
+    println!("datum tilt σ with the DEM {held:.3} mm/m");
+    assert!(held < 0.1 * loose, "{held} against {loose} mm/m");
     assert!(
         report["surface_heights"].as_u64().unwrap() > 100,
         "{report:#}"

@@ -190,6 +190,9 @@ pub struct Georeferenced {
     /// ([`GeoreferenceInput::reference_dem`]) rather than the later epochs' against the
     /// reference epoch's surface.
     pub fits_against_dem: bool,
+    /// The height observations from the reference DEM in the final adjustment (by track): with
+    /// the control and priors, what fixes the datum's tilt.
+    pub dem_heights: Vec<crate::SurfaceHeight>,
 }
 
 /// What a georeferencing and the strategy around it left out, rejected, split or joined: for
@@ -243,6 +246,7 @@ impl Georeferenced {
             set_motion_covariance: None,
             surface_fits: Vec::new(),
             fits_against_dem: false,
+            dem_heights: Vec::new(),
         }
     }
 }
@@ -423,6 +427,7 @@ pub fn georeference(
         set_motion_covariance,
         surface_fits: Vec::new(),
         fits_against_dem: false,
+        dem_heights: Vec::new(),
     })
 }
 

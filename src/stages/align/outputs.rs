@@ -489,6 +489,12 @@ fn datum_tilt_of_epoch(
             offset: prior.offset,
         });
     }
+    // A reference DEM holds the whole block's tilt through its heights.
+    heights.extend(block.dem_heights.iter().map(|h| HeightObservation {
+        xy: nalgebra::Vector2::from(h.at),
+        sigma_z: h.sigma,
+        offset: None,
+    }));
     let offsets: Vec<f64> = geo.prior_offsets.iter().map(|o| o.sigma_z).collect();
     datum_tilt(&heights, &offsets).map(|t| DatumTiltReport {
         sigma_max_mm_per_m: t.sigma_max_mm_per_m,

@@ -156,6 +156,7 @@ impl Block {
             set_motion_covariance: None,
             surface_fits: Vec::new(),
             fits_against_dem: false,
+            dem_heights: Vec::new(),
         }
     }
 }

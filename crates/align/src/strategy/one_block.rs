@@ -227,7 +227,9 @@ fn tie_to_dem(
             );
             break;
         }
+        let held = heights.clone();
         placed = adjust_with_heights(block, separated, placed, heights, options)?;
+        placed.dem_heights = held;
     }
     placed.surface_fits = comparison.fits(&placed.reconstruction);
     placed.fits_against_dem = true;
