@@ -69,6 +69,13 @@ pub struct CameraConfig {
     /// cannot tell it from the flying height.
     #[serde(default)]
     pub adjust_focal: bool,
+    /// The certificate's radial distortion curve: `[[r_mm, dr_um], ...]`, the displacement
+    /// (µm, positive outwards) at each radial distance (mm) from the principal point. Fitted by
+    /// the `brown` model's k1, k2, k3 (as many as the curve has points off the centre) and held
+    /// throughout, whatever `[align] self_calibration` says. Needs `focal_mm` and `pixel_mm`.
+    /// Default: none (radial terms from self-calibration).
+    #[serde(default)]
+    pub distortion_um: Option<Vec<[f64; 2]>>,
     /// Scanned film: the certificate's principal point, mm, in the frame of `fiducials`.
     /// Default: the centre of the marks' bounding box.
     #[serde(default)]

@@ -113,6 +113,8 @@ pub struct GivenFocal {
     /// The principal point's offset from the image centre (`cx`, `cy`, pixels) from a film
     /// camera's certificate; the starting value of self-calibration.
     pub principal_point: Option<(f64, f64)>,
+    /// k1, k2, k3 from the certificate's distortion curve (`distortion_um`), held.
+    pub radial: Option<[f64; 3]>,
 }
 
 fn is_image_file(path: &Path) -> bool {
@@ -201,10 +203,31 @@ fn camera_calibrations(
                 ));
             }
         };
+        let radial = match (&c.distortion_um, c.focal_mm) {
+            (None, _) => None,
+            (Some(_), None) => {
+                return Err(error(
+                    "distortion_um",
+                    "needs focal_mm and pixel_mm: the curve is in millimetres".into(),
+                ));
+            }
+            (Some(curve), Some(focal_mm)) => {
+                let fit = timesift_film::radial_from_certificate(curve, focal_mm)
+                    .map_err(|e| error("distortion_um", e.to_string()))?;
+                tracing::info!(
+                    camera = %c.name,
+                    k = ?fit.k,
+                    rms_um = fit.rms_um,
+                    "radial distortion from the certificate's curve"
+                );
+                Some(fit.k)
+            }
+        };
         let given = GivenFocal {
             focal_px,
             adjust: c.adjust_focal,
             principal_point: None,
+            radial,
         };
         if out.insert(c.name.clone(), given).is_some() {
             return Err(error(

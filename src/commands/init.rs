@@ -338,6 +338,7 @@ fn camera_example(text: &mut String, reference: &str) {
          # adjust_focal = false  # true: nominal, refined where the georeferenced block determines it\n\
          # Scanned film (see `timesift fiducials`): the certificate's marks make the images scans.\n\
          # principal_point_mm = [0.004, -0.011]  # default: the centre of the marks\n\
+         # distortion_um = [[0, 0], [40, 2], [80, -1], [120, -2]]  # certificate: r mm, Δr µm; held\n\
          # fiducial_template = \"calibration/mark.png\"  # one mark cut from a scan, centred\n\
          # interior_orientation = \"affine\"  # or \"projective\" (eight marks or more)\n\
          # mask = \"calibration/mask.png\"  # zero where no keypoint or depth may come from\n\

@@ -251,3 +251,75 @@ fn a_hidden_mark_a_large_template_and_wrong_coordinates_are_named_and_the_others
         "{err}"
     );
 }
+
+/// `[[camera]] distortion_um`: each film camera's certificate curve, made from its true radial
+/// distortion, is fitted and held: the align stage's cameras carry the true k1, k2, k3 to the
+/// fit's rounding, whatever self-calibration would have made of them. A curve without
+/// `focal_mm` is refused with its key named.
+#[test]
+fn a_certificates_distortion_curve_is_held_as_the_cameras_radial_terms() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    let mut spec = build("archival", Scale::Small, 5).expect("scene");
+    spec.epochs.drain(..2);
+    write_scene(&spec, dir, &WriteOptions::default()).expect("write");
+    let truth = timesift_io::cameras_json::read_cameras_json(&dir.join("truth/cameras.json"))
+        .expect("truth");
+    let radial = |name: &str| -> [f64; 3] {
+        let mut p = vec![0.0; 11];
+        timesift_core::CameraModel::params(&truth.cameras[name], &mut p);
+        [p[5], p[6], p[7]]
+    };
+    let config = dir.join("project.toml");
+    let text = std::fs::read_to_string(&config).expect("project.toml");
+    // After each camera's focal length, the curve every 10 mm out to 160 mm, in µm.
+    let mut with_curves = String::new();
+    let mut camera = String::new();
+    for line in text.lines() {
+        with_curves += line;
+        with_curves += "\n";
+        if let Some(name) = line.strip_prefix("name = ") {
+            camera = name.trim_matches('"').to_string();
+        }
+        if let Some(focal) = line.strip_prefix("focal_mm = ") {
+            let f: f64 = focal.trim().parse().expect("focal_mm");
+            let k = radial(&camera);
+            let curve: Vec<String> = (0..=16)
+                .map(|i| {
+                    let r = 10.0 * i as f64;
+                    let rho2 = (r / f).powi(2);
+                    let dr = 1e3 * r * rho2 * (k[0] + rho2 * (k[1] + rho2 * k[2]));
+                    format!("[{r:.1}, {dr:.9}]")
+                })
+                .collect();
+            with_curves += &format!("distortion_um = [{}]\n", curve.join(", "));
+        }
+    }
+    std::fs::write(&config, &with_curves).expect("project.toml");
+    let path = dir.to_str().expect("utf-8 path");
+    let (ok, _, err) = timesift(&["run", path, "--to", "align"]);
+    assert!(ok, "{err}");
+    let ours = timesift_io::cameras_json::read_cameras_json(&dir.join("out/cameras.json"))
+        .expect("cameras.json");
+    for (name, camera) in &ours.cameras {
+        let mut p = vec![0.0; 11];
+        timesift_core::CameraModel::params(camera, &mut p);
+        let expected = radial(name);
+        for t in 0..3 {
+            assert!(
+                (p[5 + t] - expected[t]).abs() < 1e-9,
+                "{name}: k{} {} against the certificate's {}",
+                t + 1,
+                p[5 + t],
+                expected[t]
+            );
+        }
+    }
+    // A curve in millimetres needs the focal length in millimetres.
+    let broken = with_curves
+        .replacen("focal_mm = ", "focal_px = ", 1)
+        .replacen("pixel_mm = ", "# pixel_mm = ", 1);
+    std::fs::write(&config, broken).expect("project.toml");
+    let (ok, _, err) = timesift(&["run", path, "--from", "align", "--to", "align"]);
+    assert!(!ok && err.contains("distortion_um"), "{err}");
+}

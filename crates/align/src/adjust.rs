@@ -193,10 +193,12 @@ impl State<'_> {
             };
             let model_names = camera.param_names();
             let focal_fixed = a.focal_fixed.get(g).copied().unwrap_or(false);
+            let held = calibration.held.get(g).map_or(&[][..], Vec::as_slice);
             let names: Vec<&str> = names
                 .iter()
                 .map(String::as_str)
                 .filter(|n| model_names.contains(n) && !(focal_fixed && *n == "f"))
+                .filter(|n| !held.iter().any(|h| h == n))
                 .collect();
             groups.push(CameraGroup::with_free(camera.clone(), &names)?);
         }

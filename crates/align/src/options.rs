@@ -17,6 +17,9 @@ pub struct SelfCalibration {
     /// Oriented images a group needs before the final parameter set is used (fewer: the
     /// `parameters` set).
     pub final_min_images: usize,
+    /// Per camera group (as the input's cameras): parameters held whatever the lists say (a
+    /// film camera's radial terms from its certificate). Empty: none.
+    pub held: Vec<Vec<String>>,
 }
 
 impl Default for SelfCalibration {
@@ -27,6 +30,7 @@ impl Default for SelfCalibration {
             final_parameters: names(&["f", "cx", "cy", "k1", "k2", "k3", "p1", "p2"]),
             min_images: 3,
             final_min_images: 10,
+            held: Vec::new(),
         }
     }
 }

@@ -74,6 +74,7 @@
 //! ```
 #![warn(missing_docs, unnameable_types)]
 
+mod distortion;
 mod error;
 mod frame;
 mod measure;
@@ -83,6 +84,7 @@ mod target;
 mod template;
 mod transform;
 
+pub use distortion::{RadialFit, radial_from_certificate};
 pub use error::FilmError;
 pub use frame::{FiducialMark, FilmFrame, FrameMargins};
 pub use measure::{MarkMeasurement, MarkStatus, MeasureOptions, ScanOrientation, orient_scan};

@@ -136,6 +136,17 @@ pub(super) fn load_input(
     })
 }
 
+/// The camera groups in the order of the input's cameras: as their first epochs come.
+pub(super) fn group_names(project: &Project) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    for epoch in &project.epochs {
+        if !names.contains(&epoch.camera_group) {
+            names.push(epoch.camera_group.clone());
+        }
+    }
+    names
+}
+
 /// `work/matches/<a>_<b>.match` files, sorted.
 fn match_files(dir: &Path) -> Result<Vec<(usize, usize, PathBuf)>, ProjectError> {
     let entries = std::fs::read_dir(dir).map_err(|e| {
@@ -179,6 +190,9 @@ pub(super) fn initial_camera(
     if let Some((cx, cy)) = given.and_then(|g| g.principal_point) {
         camera.cx = cx;
         camera.cy = cy;
+    }
+    if let Some([k1, k2, k3]) = given.and_then(|g| g.radial) {
+        (camera.k1, camera.k2, camera.k3) = (k1, k2, k3);
     }
     Ok((Camera::Brown(camera), source))
 }

@@ -158,6 +158,7 @@ fn self_calibration(
         final_parameters: names.to_vec(),
         min_images: 3,
         final_min_images: 3,
+        held: Vec::new(),
     })
 }
 
@@ -204,6 +205,15 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     if let Some(names) = &project.config.align.self_calibration {
         options.self_calibration = self_calibration(project, names)?;
     }
+    options.self_calibration.held = input::group_names(project)
+        .iter()
+        .map(
+            |g| match project.calibrations.get(g).and_then(|c| c.radial) {
+                Some(_) => vec!["k1".into(), "k2".into(), "k3".into()],
+                None => Vec::new(),
+            },
+        )
+        .collect();
     tracing::debug!(cameras = ?input.cameras, "initial cameras");
     let matcher = FeatureFileMatcher {
         features_dir: project.layout().features_dir(),
