@@ -128,6 +128,25 @@ pub(crate) fn film_cameras(
     Ok(out)
 }
 
+/// A camera's radial terms (k1, k2, k3) from its certificate's curve (`distortion_um`), when
+/// given; the message of what is wrong with it otherwise.
+pub(crate) fn certificate_radial(
+    c: &crate::config::CameraConfig,
+) -> Result<Option<[f64; 3]>, String> {
+    let (Some(curve), focal_mm) = (&c.distortion_um, c.focal_mm) else {
+        return Ok(None);
+    };
+    let focal_mm = focal_mm.ok_or("needs focal_mm and pixel_mm: the curve is in millimetres")?;
+    let fit = timesift_film::radial_from_certificate(curve, focal_mm).map_err(|e| e.to_string())?;
+    tracing::info!(
+        camera = %c.name,
+        k = ?fit.k,
+        rms_um = fit.rms_um,
+        "radial distortion from the certificate's curve"
+    );
+    Ok(Some(fit.k))
+}
+
 /// A `[[camera]] mask`: which pixels of a camera group's images (as the stages see them) may
 /// give keypoints and depths.
 #[derive(Debug, Clone, PartialEq)]

@@ -203,31 +203,12 @@ fn camera_calibrations(
                 ));
             }
         };
-        let radial = match (&c.distortion_um, c.focal_mm) {
-            (None, _) => None,
-            (Some(_), None) => {
-                return Err(error(
-                    "distortion_um",
-                    "needs focal_mm and pixel_mm: the curve is in millimetres".into(),
-                ));
-            }
-            (Some(curve), Some(focal_mm)) => {
-                let fit = timesift_film::radial_from_certificate(curve, focal_mm)
-                    .map_err(|e| error("distortion_um", e.to_string()))?;
-                tracing::info!(
-                    camera = %c.name,
-                    k = ?fit.k,
-                    rms_um = fit.rms_um,
-                    "radial distortion from the certificate's curve"
-                );
-                Some(fit.k)
-            }
-        };
         let given = GivenFocal {
             focal_px,
             adjust: c.adjust_focal,
             principal_point: None,
-            radial,
+            radial: crate::film::certificate_radial(c)
+                .map_err(|message| error("distortion_um", message))?,
         };
         if out.insert(c.name.clone(), given).is_some() {
             return Err(error(
