@@ -102,7 +102,7 @@ impl ReferenceDem {
     }
 
     /// The height at (x, y) and the surface's slope there (dz/dx, dz/dy), when known: the slope
-    /// of the plane fitted to the cells within [`SLOPE_RADIUS_CELLS`] of the nearest (at least
+    /// of the plane fitted to the cells within 4 cells of the nearest (9 × 9; at least
     /// half of them with a height).
     pub fn sample(&self, x: f64, y: f64) -> Option<(f64, [f64; 2])> {
         let h = self.height_at(x, y)?;
