@@ -314,10 +314,8 @@ fn compare(
         if !(one_epoch || surface.takes_ties()) {
             continue;
         }
-        let seen: Vec<usize> = (0..epochs)
-            .filter(|&e| seen.get(e) && surface.compares(e))
-            .collect();
-        if seen.is_empty() {
+        let compared_in = |e: &usize| seen.get(*e) && surface.compares(*e);
+        if !(0..epochs).any(|e| compared_in(&e)) {
             continue;
         }
         // Their rays' angle only for the points the cheaper tests kept.
@@ -332,7 +330,7 @@ fn compare(
                 surface: height,
                 slope,
             };
-            for &epoch in &seen {
+            for epoch in (0..epochs).filter(compared_in) {
                 match wide_pair {
                     true => two_view[epoch].push(compared),
                     false => out[epoch].push(compared),

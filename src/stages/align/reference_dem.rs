@@ -5,8 +5,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 use timesift_align::ReferenceDem;
+use timesift_change::grid::{Dem, Grid};
 use timesift_io::coords::{Crs, Projector};
-use timesift_io::geotiff::{GeoRaster, read_f32};
+use timesift_io::geotiff::{GeoTransform, read_f32};
 
 use super::input::LocalFrame;
 use super::stage_error;
@@ -27,49 +28,50 @@ pub(super) fn reference_dem(
         return Ok(None);
     };
     let path = project.dir.join(name);
-    let raster = read_f32(&path).map_err(|e| {
-        stage_error(format!(
-            "[align] reference_dem: {e} (a single-band GeoTIFF of heights was expected)"
-        ))
-    })?;
+    let expected = "a single-band north-up GeoTIFF of heights was expected";
+    let raster = read_f32(&path)
+        .map_err(|e| stage_error(format!("[align] reference_dem: {e} ({expected})")))?;
+    let dem = Dem::from_raster(raster, None)
+        .map_err(|e| stage_error(format!("{}: {e} ({expected})", path.display())))?;
     let crs: Crs = project
         .config
         .crs
         .parse()
         .map_err(|e: String| stage_error(format!("crs: {e}")))?;
-    let grid = match (raster.georef.crs, crs) {
-        (dem, project_crs) if dem == project_crs => same_crs(&path, &raster)?,
+    let dem = match (dem.grid.crs, crs) {
+        (dem_crs, project_crs) if dem_crs == project_crs => square(&path, dem)?,
         (Crs::Local, _) => {
             tracing::warn!(
                 "{}: the reference DEM declares no CRS; taken to be the project's ({crs})",
                 path.display()
             );
-            same_crs(&path, &raster)?
+            square(&path, dem)?
         }
-        (dem, Crs::Local) => {
+        (dem_crs, Crs::Local) => {
             return Err(stage_error(format!(
-                "{}: the reference DEM is in {dem} but the project's crs is local: give the \
+                "{}: the reference DEM is in {dem_crs} but the project's crs is local: give the \
                  project its CRS, or the DEM in the project's frame",
                 path.display()
             )));
         }
-        (dem, project_crs) => reprojected(&path, &raster, dem, project_crs)?,
+        (_, project_crs) => reprojected(&path, &dem, project_crs)?,
     };
     let origin = frame.origin;
-    let heights = grid
-        .heights
-        .into_iter()
-        .map(|h| (f64::from(h) - origin.z) as f32)
+    let t = dem.grid.transform;
+    let heights = dem
+        .values
+        .iter()
+        .map(|&h| (f64::from(h) - origin.z) as f32)
         .collect();
-    let dem = ReferenceDem::new(
-        [grid.west - origin.x, grid.north - origin.y],
-        grid.cell,
-        [grid.width, grid.height],
+    let reference = ReferenceDem::new(
+        [t.origin_x - origin.x, t.origin_y - origin.y],
+        t.pixel_width,
+        [dem.grid.width, dem.grid.height],
         heights,
         project.config.align.reference_dem_sigma,
     )
     .map_err(|e| stage_error(format!("{}: {e}", path.display())))?;
-    if dem.valid_cells() == 0 {
+    if reference.valid_cells() == 0 {
         return Err(stage_error(format!(
             "{}: the reference DEM has no height (every cell nodata)",
             path.display()
@@ -77,40 +79,17 @@ pub(super) fn reference_dem(
     }
     tracing::info!(
         path = %path.display(),
-        cell = grid.cell,
-        cells = dem.valid_cells(),
-        sigma = dem.sigma(),
+        cell = t.pixel_width,
+        cells = reference.valid_cells(),
+        sigma = reference.sigma(),
         "reference DEM"
     );
-    Ok(Some(Arc::new(dem)))
+    Ok(Some(Arc::new(reference)))
 }
 
-/// A north-up grid of heights in the project's CRS (NaN: none).
-struct Grid {
-    west: f64,
-    north: f64,
-    cell: f64,
-    width: usize,
-    height: usize,
-    heights: Vec<f32>,
-}
-
-/// The raster's heights with its nodata as NaN.
-fn heights_of(raster: &GeoRaster<f32>) -> Vec<f32> {
-    let nodata = raster.georef.nodata;
-    raster
-        .data
-        .iter()
-        .map(|&h| match nodata {
-            Some(n) if f64::from(h) == n => f32::NAN,
-            _ => h,
-        })
-        .collect()
-}
-
-/// The raster as it is: already in the project's CRS, square cells.
-fn same_crs(path: &Path, raster: &GeoRaster<f32>) -> Result<Grid, ProjectError> {
-    let t = raster.georef.transform;
+/// The DEM as it is, already in the project's CRS, when its cells are square.
+fn square(path: &Path, dem: Dem) -> Result<Dem, ProjectError> {
+    let t = dem.grid.transform;
     if (t.pixel_width + t.pixel_height).abs() > 1e-9 * t.pixel_width.abs() {
         return Err(stage_error(format!(
             "{}: the reference DEM's cells are {} × {}; square north-up cells were expected",
@@ -119,25 +98,14 @@ fn same_crs(path: &Path, raster: &GeoRaster<f32>) -> Result<Grid, ProjectError> 
             -t.pixel_height
         )));
     }
-    Ok(Grid {
-        west: t.origin_x,
-        north: t.origin_y,
-        cell: t.pixel_width,
-        width: raster.width,
-        height: raster.height,
-        heights: heights_of(raster),
-    })
+    Ok(dem)
 }
 
-/// The raster resampled (bilinear) onto a grid of the project's CRS covering it, at its own
-/// cell size in metres.
-fn reprojected(
-    path: &Path,
-    raster: &GeoRaster<f32>,
-    dem_crs: Crs,
-    project_crs: Crs,
-) -> Result<Grid, ProjectError> {
+/// The DEM resampled (bilinear) onto a grid of the project's CRS covering it, at its own cell
+/// size in metres.
+fn reprojected(path: &Path, dem: &Dem, project_crs: Crs) -> Result<Dem, ProjectError> {
     let err = |e: timesift_io::IoError| stage_error(format!("{}: {e}", path.display()));
+    let dem_crs = dem.grid.crs;
     let to_project = Projector::new(project_crs).map_err(err)?;
     let geographic = dem_crs.is_geographic();
     let from_dem = match geographic {
@@ -153,8 +121,8 @@ fn reprojected(
         Some(p) => p.project(lat, lon),
         None => Ok((lon, lat)),
     };
-    let t = raster.georef.transform;
-    let (w, h) = (raster.width as f64, raster.height as f64);
+    let t = dem.grid.transform;
+    let (w, h) = (dem.grid.width as f64, dem.grid.height as f64);
     // The DEM's outline (edges sampled every tenth) in the project's CRS.
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for k in 0..=10 {
@@ -184,22 +152,7 @@ fn reprojected(
             path.display()
         )));
     }
-    let source = heights_of(raster);
-    let sample = |col: f64, row: f64| -> f32 {
-        let (col, row) = (col - 0.5, row - 0.5);
-        if !(col >= 0.0 && row >= 0.0) {
-            return f32::NAN;
-        }
-        let (c, r) = (col.floor() as usize, row.floor() as usize);
-        if c + 1 >= raster.width || r + 1 >= raster.height {
-            return f32::NAN;
-        }
-        let (fc, fr) = ((col - c as f64) as f32, (row - r as f64) as f32);
-        let at = |c: usize, r: usize| source[r * raster.width + c];
-        (1.0 - fr) * ((1.0 - fc) * at(c, r) + fc * at(c + 1, r))
-            + fr * ((1.0 - fc) * at(c, r + 1) + fc * at(c + 1, r + 1))
-    };
-    let heights = (0..height)
+    let values = (0..height)
         .flat_map(|r| (0..width).map(move |c| (r, c)))
         .map(|(r, c)| {
             let e = lo[0] + (c as f64 + 0.5) * cell;
@@ -207,13 +160,7 @@ fn reprojected(
             let at = to_project
                 .unproject(e, n)
                 .and_then(|(lat, lon)| from_latlon(lat, lon));
-            match at {
-                Ok((x, y)) => {
-                    let (col, row) = t.world_to_pixel(x, y);
-                    sample(col, row)
-                }
-                Err(_) => f32::NAN,
-            }
+            at.map_or(f32::NAN, |(x, y)| dem.bilinear(x, y) as f32)
         })
         .collect();
     tracing::info!(
@@ -224,24 +171,30 @@ fn reprojected(
         cell,
         "reference DEM put in the project's CRS"
     );
-    Ok(Grid {
-        west: lo[0],
-        north: hi[1],
-        cell,
-        width,
-        height,
-        heights,
+    Ok(Dem {
+        grid: Grid {
+            transform: GeoTransform {
+                origin_x: lo[0],
+                origin_y: hi[1],
+                pixel_width: cell,
+                pixel_height: -cell,
+            },
+            width,
+            height,
+            crs: project_crs,
+        },
+        values,
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use timesift_io::geotiff::{GeoReference, GeoTransform};
+    use timesift_io::geotiff::{GeoRaster, GeoReference};
 
     /// A 100 × 80 grid of 10 m cells in UTM 31N near Paris, heights a plane of the UTM
     /// coordinates; `holes` cells nodata (-9999).
-    fn utm_plane(pixel_height: f64) -> GeoRaster<f32> {
+    fn utm_plane(pixel_height: f64) -> Dem {
         let (width, height) = (100, 80);
         let t = GeoTransform {
             origin_x: 450_000.0,
@@ -260,7 +213,7 @@ mod tests {
                 }
             })
             .collect();
-        GeoRaster {
+        let raster = GeoRaster {
             width,
             height,
             bands: 1,
@@ -271,7 +224,8 @@ mod tests {
                 nodata: Some(-9999.0),
                 pixel_is_point: false,
             },
-        }
+        };
+        Dem::from_raster(raster, None).unwrap()
     }
 
     fn plane(e: f64, n: f64) -> f64 {
@@ -280,17 +234,16 @@ mod tests {
 
     #[test]
     fn a_dem_in_another_crs_is_put_in_the_projects_with_its_heights_where_they_belong() {
-        let raster = utm_plane(-10.0);
         let path = Path::new("dem.tif");
-        let grid = reprojected(path, &raster, Crs::Epsg(32631), Crs::Epsg(2154)).unwrap();
+        let dem = reprojected(path, &utm_plane(-10.0), Crs::Epsg(2154)).unwrap();
+        let (grid, t) = (&dem.grid, dem.grid.transform);
         let lambert = Projector::new(Crs::Epsg(2154)).unwrap();
         let utm = Projector::new(Crs::Epsg(32631)).unwrap();
         let (mut checked, mut holes) = (0, 0);
         for r in (0..grid.height).step_by(7) {
             for c in (0..grid.width).step_by(7) {
-                let h = grid.heights[r * grid.width + c];
-                let x = grid.west + (c as f64 + 0.5) * grid.cell;
-                let y = grid.north - (r as f64 + 0.5) * grid.cell;
+                let h = dem.values[r * grid.width + c];
+                let (x, y) = t.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
                 let (lat, lon) = lambert.unproject(x, y).unwrap();
                 let (e, n) = utm.project(lat, lon).unwrap();
                 let inside =
@@ -310,19 +263,17 @@ mod tests {
         }
         assert!(checked > 100, "{checked}");
         // The nodata cell is no height in the grid either.
-        assert!(grid.heights.iter().any(|h| h.is_nan()), "{holes}");
-        assert!((grid.cell - 10.0).abs() < 1e-9);
+        assert!(dem.values.iter().any(|h| h.is_nan()), "{holes}");
+        assert!((t.pixel_width - 10.0).abs() < 1e-9);
     }
 
     #[test]
     fn cells_that_are_not_square_are_refused_with_the_file_named() {
-        let e = same_crs(Path::new("dem.tif"), &utm_plane(-5.0))
-            .err()
-            .expect("non-square cells");
+        let e = square(Path::new("dem.tif"), utm_plane(-5.0)).expect_err("non-square cells");
         assert!(
             e.to_string().contains("dem.tif") && e.to_string().contains("square"),
             "{e}"
         );
-        assert!(same_crs(Path::new("dem.tif"), &utm_plane(-10.0)).is_ok());
+        assert!(square(Path::new("dem.tif"), utm_plane(-10.0)).is_ok());
     }
 }

@@ -187,7 +187,7 @@ fn tie_by_surface(
                 break;
             }
             heights.sort_by_key(|h| h.track);
-            placed = adjust_with_heights(block, separated, placed, heights, options)?;
+            placed = adjust_with_heights(block, separated, placed, heights, options)?.0;
         }
     }
     placed.surface_fits = comparison.fits(&placed.reconstruction);
@@ -227,9 +227,11 @@ fn tie_to_dem(
             );
             break;
         }
-        let held = heights.clone();
-        placed = adjust_with_heights(block, separated, placed, heights, options)?;
-        placed.dem_heights = held;
+        let (adjusted, held) = adjust_with_heights(block, separated, placed, heights, options)?;
+        placed = Georeferenced {
+            dem_heights: held,
+            ..adjusted
+        };
     }
     placed.surface_fits = comparison.fits(&placed.reconstruction);
     placed.fits_against_dem = true;
@@ -255,14 +257,15 @@ fn log_fits(block: &Block, round: usize, compared: &[EpochSurface], against: &st
     }
 }
 
-/// The block georeferenced again with `heights` (sorted by track) on its tie points.
+/// The block georeferenced again with `heights` (sorted by track) on its tie points; and the
+/// heights back.
 fn adjust_with_heights(
     block: &Block,
     separated: &Separated,
     placed: Georeferenced,
     heights: Vec<crate::SurfaceHeight>,
     options: &SfmOptions,
-) -> Result<Georeferenced, AlignError> {
+) -> Result<(Georeferenced, Vec<crate::SurfaceHeight>), AlignError> {
     let geo = crate::georef::GeoreferenceInput {
         surface_heights: heights,
         ..block.ground.clone()
@@ -275,7 +278,7 @@ fn adjust_with_heights(
         dropped_components: diagnostics.dropped_components + again.diagnostics.dropped_components,
         ..diagnostics
     };
-    Ok(again)
+    Ok((again, geo.surface_heights))
 }
 
 /// How many σ of the fit's own an epoch's offset or tilt against the reference surface must
