@@ -456,7 +456,8 @@ pub struct DenseConfig {
     /// Least images a fused point is made from. Default 3.
     #[serde(default = "default_min_images")]
     pub min_images: usize,
-    /// Half-size of the matching window, pixels. Default 5 (11 × 11, sampled every other pixel).
+    /// Half-size of the matching window, pixels. Default 5 (11 × 11, sampled every other pixel,
+    /// its four corners left out: 32 samples).
     #[serde(default = "default_window_radius")]
     pub window_radius: usize,
     /// Intensity σ (0–1) of the matching window's bilateral weights: how much a window sample

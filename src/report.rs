@@ -358,6 +358,34 @@ pub struct EpochDense {
     pub mean_images_per_point: f64,
     /// Wall time of the epoch in this run, seconds.
     pub seconds: f64,
+    /// Where that time went (wall seconds per phase of this run; maps taken from the cache
+    /// cost nothing).
+    #[serde(default)]
+    pub phase_seconds: DensePhaseSeconds,
+}
+
+/// Wall seconds of the phases of one epoch's dense matching: what to look at first when the
+/// stage is slow.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DensePhaseSeconds {
+    /// Decoding and undistorting images to the working resolution.
+    pub images: f64,
+    /// PatchMatch passes from random planes at the coarsest scale.
+    pub photometric: f64,
+    /// PatchMatch passes from the coarser scale's planes (ACMM's detail restorer).
+    pub hierarchy: f64,
+    /// PatchMatch passes with the geometric-consistency term.
+    pub geometric: f64,
+    /// Refinement passes at twice the level's resolution.
+    pub refine: f64,
+    /// Reading and writing depth maps (`work/dense/`).
+    pub map_files: f64,
+    /// Filtering each final map against its neighbours.
+    pub filter: f64,
+    /// Fusing the filtered maps into points.
+    pub fusion: f64,
+    /// Writing the LAZ cloud.
+    pub cloud_file: f64,
 }
 
 /// `out/fiducials.json`: the fiducial marks and interior orientation of every scan.

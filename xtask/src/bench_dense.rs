@@ -13,15 +13,23 @@
 //!   nothing), the fraction holding a fused point. Fusion makes one point per working pixel
 //!   of one image (each pixel joins one point), so a cell is 2 × 2 working pixels where the
 //!   images see the ground coarsest (2 × level × the 90th percentile of the local GSD).
+//!
+//! Cost, per scene (true cameras), the dense stage run as a process of its own (`xtask
+//! run-dense`) on 1 and 2 threads: wall and CPU seconds, peak resident memory, and
+//! core-seconds per depth-map megapixel (CPU seconds over the megapixels of the depth maps at
+//! the level, every image with sources); where the time went (`dense.json` phase_seconds). With
+//! `--baseline <timesift>`, another build's dense stage runs on the same projects first, timed
+//! and scored the same way: the before and after of one run.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::bench_dense_time::{DenseBinary, DenseRun, time_dense};
 use anyhow::Context;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use timesift::Project;
-use timesift::stages::{Stage, run, run_stage};
+use timesift::stages::{Stage, run};
 use timesift_eval::true_scene::{TrueEpoch, focal, write_true_orientation};
 use timesift_io::cameras_json::{Reconstruction, read_cameras_json};
 use timesift_synth::render::Material;
@@ -38,6 +46,10 @@ pub struct DenseBench {
     /// Reuse a scene already rendered and oriented in the output folder, and skip the
     /// one-thread timing (for iterating on the dense stage).
     pub reuse: bool,
+    /// Another build's `timesift`, run on the same projects (the before of the tables).
+    pub baseline: Option<PathBuf>,
+    /// Only the true cameras (no align-stage cameras).
+    pub truth_only: bool,
 }
 
 /// Scores of one cloud of one epoch.
@@ -58,17 +70,27 @@ struct Row {
     epoch: String,
     gsd_m: f64,
     truth: Score,
-    align: Score,
+    align: Option<Score>,
     peer: Option<Score>,
+    /// The baseline build's clouds (true, align-stage cameras).
+    truth_before: Option<Score>,
+    align_before: Option<Score>,
 }
 
-/// Seconds per image of the timesift pipeline and of the peer.
+/// The dense stage's cost on a scene (true cameras), this build's and the baseline's, and the
+/// peer's seconds per image.
 #[derive(Debug, Clone, Default, serde::Serialize)]
 struct Timing {
     scene: String,
     images: usize,
-    timesift_1: f64,
-    timesift_2: f64,
+    /// Megapixels of the depth maps at the level (every image with sources, all epochs).
+    megapixels: f64,
+    /// This build, 1 and 2 threads (1 thread skipped when reusing).
+    runs: Vec<DenseRun>,
+    /// The baseline build, the same runs.
+    baseline_runs: Vec<DenseRun>,
+    /// This build's phases on 2 threads, summed over the epochs (`out/dense.json`).
+    phases: Option<timesift::report::DensePhaseSeconds>,
     peer_1: Option<f64>,
     peer_2: Option<f64>,
 }
@@ -125,8 +147,6 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
             start.elapsed().as_secs_f64()
         );
     }
-    // The align stage's cameras.
-    pool(2)?.install(|| run_stage(&project, Stage::Dense))?;
     // The true cameras, with sparse points on the true surface.
     let truth_dir = bench.out.join(format!("{scene}-truth"));
     let truth_project = if reused && truth_dir.join("out/cameras.json").is_file() {
@@ -134,27 +154,42 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
     } else {
         truth_copy(&spec, &dir, &truth_dir)?
     };
-    let start = Instant::now();
-    pool(2)?.install(|| run_stage(&truth_project, Stage::Dense))?;
-    let two = start.elapsed().as_secs_f64();
-    let one = if bench.reuse {
-        f64::NAN
-    } else {
-        // One thread, on the same work (maps removed).
-        let _ = std::fs::remove_dir_all(truth_dir.join("work/dense"));
-        let _ = std::fs::remove_dir_all(truth_dir.join("out/epochs"));
-        let start = Instant::now();
-        pool(1)?.install(|| run_stage(&truth_project, Stage::Dense))?;
-        start.elapsed().as_secs_f64()
-    };
+    let baseline = bench.baseline.clone().map(DenseBinary::Timesift);
+    let threads: &[usize] = if bench.reuse { &[2] } else { &[1, 2] };
     let images = project.images.len();
     let mut timing = Timing {
         scene: scene.to_string(),
         images,
-        timesift_1: one / images as f64,
-        timesift_2: two / images as f64,
         ..Timing::default()
     };
+    // Each build's last run (2 threads) leaves its clouds to score; the baseline's first.
+    let mut before = Vec::new();
+    if let Some(baseline) = &baseline {
+        for &n in threads {
+            let run = time_dense(baseline, &truth_dir, n)?;
+            println!("{scene}: baseline, {n} thread(s): {run:?}");
+            timing.baseline_runs.push(run);
+        }
+        before = epoch_clouds(&truth_project)?;
+    }
+    for &n in threads {
+        let run = time_dense(&DenseBinary::This, &truth_dir, n)?;
+        println!("{scene}: this build, {n} thread(s): {run:?}");
+        timing.runs.push(run);
+    }
+    let report: timesift::report::DenseReport =
+        timesift::report::read_json(&truth_project.layout().dense_report())?;
+    timing.megapixels = depth_map_megapixels(&truth_project, &report, bench.level)?;
+    timing.phases = Some(summed_phases(&report));
+    // The align stage's cameras.
+    let mut align_before = Vec::new();
+    if !bench.truth_only {
+        if let Some(baseline) = &baseline {
+            time_dense(baseline, &dir, 2)?;
+            align_before = epoch_clouds(&project)?;
+        }
+        time_dense(&DenseBinary::This, &dir, 2)?;
+    }
     let truth_cameras = read_cameras_json(&truth_project.layout().truth_cameras())?;
     let mut peer_points: Vec<Option<Vec<Vector3<f64>>>> = vec![None; project.epochs.len()];
     if bench.peer {
@@ -172,22 +207,22 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
         }
     }
     let mut rows = Vec::new();
+    let truth_clouds = epoch_clouds(&truth_project)?;
+    let align_clouds = if bench.truth_only {
+        Vec::new()
+    } else {
+        epoch_clouds(&project)?
+    };
     for (e, epoch) in project.epochs.iter().enumerate() {
         let truth = Truth::new(&spec, e, &truth_cameras, &epoch.name)?;
-        let cloud = |p: &Project| -> anyhow::Result<Vec<Vector3<f64>>> {
-            let las = timesift_io::pointcloud::read_las(&p.layout().dense_cloud(&epoch.name))?;
-            Ok(las
-                .positions
-                .iter()
-                .map(|q| Vector3::new(q[0], q[1], q[2]))
-                .collect())
-        };
+        let score_of =
+            |clouds: &[Vec<Vector3<f64>>]| clouds.get(e).map(|c| truth.score(c, bench.level));
         let row = Row {
             scene: scene.to_string(),
             epoch: epoch.name.clone(),
             gsd_m: truth.gsd,
             truth: truth.score_with_map(
-                &cloud(&truth_project)?,
+                &truth_clouds[e],
                 bench.level,
                 Some(
                     &bench
@@ -195,34 +230,101 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
                         .join(format!("{scene}-{}-completeness-truth.png", epoch.name)),
                 ),
             ),
-            align: truth.score_with_map(
-                &cloud(&project)?,
-                bench.level,
-                Some(
-                    &bench
-                        .out
-                        .join(format!("{scene}-{}-completeness.png", epoch.name)),
-                ),
-            ),
+            align: align_clouds.get(e).map(|c| {
+                truth.score_with_map(
+                    c,
+                    bench.level,
+                    Some(
+                        &bench
+                            .out
+                            .join(format!("{scene}-{}-completeness.png", epoch.name)),
+                    ),
+                )
+            }),
             peer: peer_points[e].as_ref().map(|p| truth.score(p, bench.level)),
+            truth_before: score_of(&before),
+            align_before: score_of(&align_before),
+        };
+        let line = |what: &str, s: &Option<Score>| {
+            s.as_ref().map_or(String::new(), |s| {
+                format!(
+                    "; {what} median {:.2} p90 {:.2}, complete {:.3}",
+                    s.median_gsd, s.p90_gsd, s.completeness
+                )
+            })
         };
         println!(
-            "{scene} {}: truth cams median {:.2} p90 {:.2} GSD, complete {:.3}; align cams median {:.2} p90 {:.2}, complete {:.3}{}",
+            "{scene} {}: truth cams median {:.2} p90 {:.2} GSD, complete {:.3}{}{}{}{}",
             row.epoch,
             row.truth.median_gsd,
             row.truth.p90_gsd,
             row.truth.completeness,
-            row.align.median_gsd,
-            row.align.p90_gsd,
-            row.align.completeness,
-            row.peer.as_ref().map_or(String::new(), |p| format!(
-                "; SGBM median {:.2} p90 {:.2}, complete {:.3}",
-                p.median_gsd, p.p90_gsd, p.completeness
-            ))
+            line("align cams", &row.align),
+            line("baseline truth cams", &row.truth_before),
+            line("baseline align cams", &row.align_before),
+            line("SGBM", &row.peer),
         );
         rows.push(row);
     }
     Ok((rows, timing))
+}
+
+/// Each epoch's dense cloud of a project, in epoch order.
+fn epoch_clouds(project: &Project) -> anyhow::Result<Vec<Vec<Vector3<f64>>>> {
+    project
+        .epochs
+        .iter()
+        .map(|epoch| {
+            let las =
+                timesift_io::pointcloud::read_las(&project.layout().dense_cloud(&epoch.name))?;
+            Ok(las
+                .positions
+                .iter()
+                .map(|q| Vector3::new(q[0], q[1], q[2]))
+                .collect())
+        })
+        .collect()
+}
+
+/// Megapixels of the depth maps at the level: each epoch's images with sources, at its first
+/// image's size divided by the level (a scene's epochs each have one camera).
+fn depth_map_megapixels(
+    project: &Project,
+    report: &timesift::report::DenseReport,
+    level: u32,
+) -> anyhow::Result<f64> {
+    let mut megapixels = 0.0;
+    for (e, epoch) in project.epochs.iter().enumerate() {
+        let Some(first) = project.images.iter().position(|i| i.epoch.0 as usize == e) else {
+            continue;
+        };
+        let path = project.dir.join(&project.images[first].name);
+        let (w, h) = image::image_dimensions(&path).with_context(|| path.display().to_string())?;
+        let with_sources = report
+            .epochs
+            .get(&epoch.name)
+            .map_or(0, |d| d.images_with_sources);
+        megapixels += with_sources as f64 * (w / level) as f64 * (h / level) as f64 / 1e6;
+    }
+    Ok(megapixels)
+}
+
+/// The phases of every epoch added up.
+fn summed_phases(report: &timesift::report::DenseReport) -> timesift::report::DensePhaseSeconds {
+    let mut sum = timesift::report::DensePhaseSeconds::default();
+    for e in report.epochs.values() {
+        let p = &e.phase_seconds;
+        sum.images += p.images;
+        sum.photometric += p.photometric;
+        sum.hierarchy += p.hierarchy;
+        sum.geometric += p.geometric;
+        sum.refine += p.refine;
+        sum.map_files += p.map_files;
+        sum.filter += p.filter;
+        sum.fusion += p.fusion;
+        sum.cloud_file += p.cloud_file;
+    }
+    sum
 }
 
 /// Sets `[dense] level` in a project's `project.toml`.
@@ -445,8 +547,8 @@ fn meets(s: &Score) -> bool {
 fn table(rows: &[Row], timings: &[Timing], level: u32) -> String {
     let mut t = format!(
         "\n## Dense clouds against the truth (level {level}; textured land; |error| in GSD)\n\n\
-         | scene | epoch | GSD m | true cams median / p90 / complete | align cams median / p90 / complete | OpenCV SGBM median / p90 / complete | bar met (true, align) | better than SGBM |\n\
-         |---|---|---|---|---|---|---|---|\n"
+         | scene | epoch | GSD m | true cams median / p90 / complete | baseline, true cams | align cams median / p90 / complete | baseline, align cams | OpenCV SGBM median / p90 / complete | bar met (true, align) | better than SGBM |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n"
     );
     let s = |x: &Score| {
         format!(
@@ -455,6 +557,12 @@ fn table(rows: &[Row], timings: &[Timing], level: u32) -> String {
             x.p90_gsd,
             100.0 * x.completeness
         )
+    };
+    let opt = |x: &Option<Score>| x.as_ref().map_or("–".to_string(), s);
+    let met = |x: Option<&Score>| match x {
+        Some(x) if meets(x) => "yes",
+        Some(_) => "NO",
+        None => "–",
     };
     for r in rows {
         let better = r.peer.as_ref().map_or("–".to_string(), |p| {
@@ -467,36 +575,85 @@ fn table(rows: &[Row], timings: &[Timing], level: u32) -> String {
             )
         });
         t.push_str(&format!(
-            "| {} | {} | {:.3} | {} | {} | {} | {}, {} | {} |\n",
+            "| {} | {} | {:.3} | {} | {} | {} | {} | {} | {}, {} | {} |\n",
             r.scene,
             r.epoch,
             r.gsd_m,
             s(&r.truth),
-            s(&r.align),
-            r.peer.as_ref().map_or("–".to_string(), s),
-            if meets(&r.truth) { "yes" } else { "NO" },
-            if meets(&r.align) { "yes" } else { "NO" },
+            opt(&r.truth_before),
+            opt(&r.align),
+            opt(&r.align_before),
+            opt(&r.peer),
+            met(Some(&r.truth)),
+            met(r.align.as_ref()),
             better
         ));
     }
     t.push_str(
-        "\n## Seconds per image (true cameras; timesift: PatchMatch passes, filtering, fusion, LAZ; SGBM: rectification, matching, triangulation)\n\n\
-         | scene | images | timesift 1 thread | timesift 2 threads | SGBM 1 thread | SGBM 2 threads | ratio 1 thread | ratio 2 threads |\n|---|---|---|---|---|---|---|---|\n",
+        "\n## Cost of the dense stage (true cameras; a process of its own: wall and CPU seconds, peak resident memory; core-seconds per depth-map megapixel = CPU seconds / MP)\n\n\
+         | scene | images | depth-map MP | build | threads | wall s | CPU s | core-s / MP | peak MiB |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for m in timings {
-        let ratio =
-            |a: f64, b: Option<f64>| b.map_or("–".to_string(), |b| format!("{:.1}×", a / b));
-        t.push_str(&format!(
-            "| {} | {} | {:.3} | {:.3} | {} | {} | {} | {} |\n",
-            m.scene,
-            m.images,
-            m.timesift_1,
-            m.timesift_2,
-            m.peer_1.map_or("–".into(), |v| format!("{v:.3}")),
-            m.peer_2.map_or("–".into(), |v| format!("{v:.3}")),
-            ratio(m.timesift_1, m.peer_1),
-            ratio(m.timesift_2, m.peer_2),
-        ));
+        let runs = m
+            .baseline_runs
+            .iter()
+            .map(|r| ("baseline", r))
+            .chain(m.runs.iter().map(|r| ("this", r)));
+        for (build, r) in runs {
+            t.push_str(&format!(
+                "| {} | {} | {:.2} | {build} | {} | {:.1} | {:.1} | {:.1} | {:.0} |\n",
+                m.scene,
+                m.images,
+                m.megapixels,
+                r.threads,
+                r.wall,
+                r.cpu,
+                r.cpu / m.megapixels,
+                r.peak_mib
+            ));
+        }
+        for (before, after) in m.baseline_runs.iter().zip(&m.runs) {
+            t.push_str(&format!(
+                "| {} | | | speed-up | {} | {:.2}× | {:.2}× | | |\n",
+                m.scene,
+                after.threads,
+                before.wall / after.wall,
+                before.cpu / after.cpu
+            ));
+        }
+    }
+    t.push_str(
+        "\n## Where this build's time went (2 threads, wall seconds, all epochs; out/dense.json phase_seconds)\n\n\
+         | scene | images | photometric | hierarchy | geometric | refine | map files | filter | fusion | cloud file |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for m in timings {
+        if let Some(p) = &m.phases {
+            t.push_str(&format!(
+                "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                m.scene,
+                p.images,
+                p.photometric,
+                p.hierarchy,
+                p.geometric,
+                p.refine,
+                p.map_files,
+                p.filter,
+                p.fusion,
+                p.cloud_file
+            ));
+        }
+    }
+    t.push_str(
+        "\n## OpenCV SGBM, seconds per image (rectification, matching, triangulation)\n\n\
+         | scene | images | 1 thread | 2 threads |\n|---|---|---|---|\n",
+    );
+    for m in timings {
+        if let (Some(a), Some(b)) = (m.peer_1, m.peer_2) {
+            t.push_str(&format!(
+                "| {} | {} | {a:.3} | {b:.3} |\n",
+                m.scene, m.images
+            ));
+        }
     }
     t
 }

@@ -32,6 +32,7 @@ mod bench_coreg;
 mod bench_dense;
 mod bench_dense_lund;
 mod bench_dense_peer;
+mod bench_dense_time;
 mod bench_features;
 mod bench_film;
 mod bench_geometry;
@@ -142,6 +143,12 @@ enum Task {
         #[command(subcommand)]
         stage: BenchStage,
     },
+    /// The dense stage of a project, alone in this process (the dense bench times it so).
+    #[command(hide = true)]
+    RunDense {
+        /// Project directory.
+        dir: PathBuf,
+    },
 }
 
 #[derive(Subcommand)]
@@ -227,6 +234,14 @@ enum BenchStage {
         /// one-thread timing.
         #[arg(long)]
         reuse: bool,
+        /// A `timesift` executable of another build (e.g. the last release): its dense stage
+        /// runs on the same projects, timed and scored beside this build's (before / after).
+        #[arg(long)]
+        baseline: Option<PathBuf>,
+        /// Skip the align-stage cameras (true cameras only: the timing and accuracy of the
+        /// dense stage alone).
+        #[arg(long)]
+        truth_only: bool,
     },
     /// DEMs and orthos of the synth ground scenes against the truth (sampled clouds, and the
     /// dense bench's clouds when present), gridding against GDAL's gdal_grid, gdalinfo on the
@@ -483,6 +498,8 @@ fn main() -> anyhow::Result<()> {
                     no_peer,
                     no_lund,
                     reuse,
+                    baseline,
+                    truth_only,
                 },
         } => bench_dense::run_bench(&bench_dense::DenseBench {
             scenes: scenes.unwrap_or_else(|| {
@@ -505,6 +522,8 @@ fn main() -> anyhow::Result<()> {
             peer: !no_peer,
             lund: !no_lund,
             reuse,
+            baseline,
+            truth_only,
         })?,
         Task::BenchMethods {
             scenes,
@@ -568,6 +587,10 @@ fn main() -> anyhow::Result<()> {
                     String::new()
                 }
             );
+        }
+        Task::RunDense { dir } => {
+            let project = timesift::Project::load(&dir)?;
+            timesift::stages::run_stage(&project, timesift::stages::Stage::Dense)?;
         }
         Task::Data => {
             let root = shared_data();

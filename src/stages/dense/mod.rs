@@ -13,6 +13,7 @@
 //! their maps at a time.
 
 mod input;
+mod maps;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::{Path, PathBuf};
@@ -37,7 +38,7 @@ use super::cache::stage_error;
 use super::{PipelineStage, Stage};
 use crate::film::ImageSource;
 use crate::layout::Layout;
-use crate::report::{DenseReport, EpochDense, read_json, write_json};
+use crate::report::{DensePhaseSeconds, DenseReport, EpochDense, read_json, write_json};
 use crate::{Project, ProjectError};
 pub use input::{dense_input, dense_inputs};
 
@@ -51,10 +52,11 @@ pub fn dense_view(decoded: &timesift_io::image::ImageF32) -> ImageView<'_> {
     }
 }
 use input::{epoch_input, match_orientation, orientation_fingerprint};
+use maps::{MapCache, read_map, write_map};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
-const DENSE_ALGORITHM: u32 = 7;
+const DENSE_ALGORITHM: u32 = 8;
 
 /// Version of filtering and fusion, part of the cloud's settings.
 const FUSION_ALGORITHM: u32 = 7;
@@ -187,6 +189,8 @@ struct ImageCache<'a> {
     black_is_nodata: bool,
     capacity: usize,
     entries: VecDeque<(usize, Arc<WorkingImage>)>,
+    /// Wall seconds spent decoding and undistorting.
+    seconds: f64,
 }
 
 impl ImageCache<'_> {
@@ -197,6 +201,7 @@ impl ImageCache<'_> {
             self.entries.push_back(entry);
             return Ok(image);
         }
+        let start = Instant::now();
         let image_index = self.images[view];
         // A scan is seen in its camera's frame, its film mask kept out of matching.
         let (decoded, mask) = self
@@ -217,6 +222,7 @@ impl ImageCache<'_> {
                 )
             })?;
         let working = Arc::new(working);
+        self.seconds += start.elapsed().as_secs_f64();
         if self.entries.len() >= self.capacity {
             self.entries.pop_front();
         }
@@ -239,53 +245,6 @@ fn camera_key(camera: &Camera) -> String {
         key.push_str(&format!(":{:x}", v.to_bits()));
     }
     key
-}
-
-fn write_map(path: &Path, map: &DepthMap) -> Result<(), ProjectError> {
-    if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).map_err(|e| timesift_io::IoError::io(parent, e))?;
-    }
-    let channel = |k: usize| map.normal.iter().map(|n| n[k]).collect::<Vec<f32>>();
-    let (nx, ny, nz) = (channel(0), channel(1), channel(2));
-    let upsampled: Vec<f32> = map.upsampled.iter().map(|&u| f32::from(u)).collect();
-    timesift_io::exr::write_f32_channels(
-        path,
-        map.width,
-        map.height,
-        &[
-            ("depth", &map.depth),
-            ("nx", &nx),
-            ("ny", &ny),
-            ("nz", &nz),
-            ("cost", &map.cost),
-            ("upsampled", &upsampled),
-        ],
-    )?;
-    Ok(())
-}
-
-/// A map written by [`write_map`]; `None` when the file is missing or not such a map (it is then
-/// recomputed).
-fn read_map(path: &Path) -> Option<DepthMap> {
-    let read = timesift_io::exr::read_f32_channels(path).ok()?;
-    let (depth, nx, ny, nz, cost, upsampled) = (
-        read.channel("depth")?,
-        read.channel("nx")?,
-        read.channel("ny")?,
-        read.channel("nz")?,
-        read.channel("cost")?,
-        read.channel("upsampled")?,
-    );
-    Some(DepthMap {
-        width: read.width,
-        height: read.height,
-        depth: depth.to_vec(),
-        normal: (0..read.width * read.height)
-            .map(|k| [nx[k], ny[k], nz[k]])
-            .collect(),
-        cost: cost.to_vec(),
-        upsampled: upsampled.iter().map(|&u| u > 0.5).collect(),
-    })
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -326,6 +285,7 @@ fn dense_epoch(
         return Ok(EpochDense {
             depth_maps_computed: 0,
             seconds: start.elapsed().as_secs_f64(),
+            phase_seconds: DensePhaseSeconds::default(),
             ..summary.clone()
         });
     }
@@ -348,20 +308,43 @@ fn dense_epoch(
                 .unwrap_or(0)
                 + 1),
         entries: VecDeque::new(),
+        seconds: 0.0,
     };
+    let mut phases = DensePhaseSeconds::default();
     let map_file = |pass: usize, view: usize| layout.depth_map_file(name, pass, images[view]);
-    let computed = compute_maps(&plan, &passes, &mut cache, &map_file, name, options)?;
+    let mut maps = MapCache::new(MAP_CACHE_BYTES);
+    let computed = compute_maps(
+        &plan,
+        &passes,
+        &mut cache,
+        &map_file,
+        name,
+        options,
+        &mut maps,
+        &mut phases,
+    )?;
     // Filtering, then fusion.
     let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
     let (with_depth, upsampled) = filter_maps(
         &plan,
+        last,
         &|view| map_file(last, view),
         &filtered_file,
         name,
         options,
+        &mut maps,
+        &mut phases,
     )?;
+    drop(maps);
+    let fusion_start = Instant::now();
+    let images_before = cache.seconds;
     let cloud = fuse_filtered(&plan, &mut cache, &filtered_file, name, options)?;
+    // Fusion reads the filtered maps and the images' colours: counted there, not here.
+    phases.fusion = fusion_start.elapsed().as_secs_f64() - (cache.seconds - images_before);
+    let cloud_start = Instant::now();
     write_cloud(&cloud_path, &cloud, crs)?;
+    phases.cloud_file = cloud_start.elapsed().as_secs_f64();
+    phases.images = cache.seconds;
     write_settings(&cloud_record, &wanted)?;
     let mean_images = mean_images_per_point(&cloud);
     Ok(EpochDense {
@@ -375,6 +358,7 @@ fn dense_epoch(
         points: cloud.len(),
         mean_images_per_point: mean_images,
         seconds: start.elapsed().as_secs_f64(),
+        phase_seconds: phases,
     })
 }
 
@@ -465,8 +449,13 @@ fn start_over_if_changed(
     Ok(())
 }
 
+/// Bytes of depth maps kept in memory between passes: 384 MiB, all the maps of a pass of 50
+/// views of 0.5 MP, or a geometric pass's sources of 4 MP working images.
+const MAP_CACHE_BYTES: usize = 384 << 20;
+
 /// Every pass's depth map of every view that is not on disk yet, pass after pass; how many
 /// were computed.
+#[allow(clippy::too_many_arguments)]
 fn compute_maps(
     plan: &EpochPlan,
     passes: &[Pass],
@@ -474,6 +463,8 @@ fn compute_maps(
     map_file: &dyn Fn(usize, usize) -> PathBuf,
     name: &str,
     options: &DenseOptions,
+    maps: &mut MapCache,
+    phases: &mut DensePhaseSeconds,
 ) -> Result<usize, ProjectError> {
     let views = plan.views.len();
     let bar = crate::progress::progress_bar(
@@ -486,12 +477,19 @@ fn compute_maps(
     let mut computed = 0;
     for (k, pass) in passes.iter().enumerate() {
         for view in 0..views {
-            if read_map(&map_file(k, view)).is_some() {
+            let files = Instant::now();
+            let on_disk = read_map(&map_file(k, view));
+            phases.map_files += files.elapsed().as_secs_f64();
+            if let Some(map) = on_disk {
+                maps.put(k, view, Arc::new(map));
                 bar.inc(1);
                 continue;
             }
-            let map = compute_map(plan, cache, map_file, view, k, pass, options)?;
+            let map = compute_map(plan, cache, maps, map_file, view, k, pass, options, phases)?;
+            let files = Instant::now();
             write_map(&map_file(k, view), &map)?;
+            maps.put(k, view, Arc::new(map));
+            phases.map_files += files.elapsed().as_secs_f64();
             computed += 1;
             bar.inc(1);
         }
@@ -502,15 +500,22 @@ fn compute_maps(
 
 /// Each view's final map filtered against its neighbours' and written; the pixels with a
 /// depth and those of them still on an upsampled plane, over the epoch.
+#[allow(clippy::too_many_arguments)]
 fn filter_maps(
     plan: &EpochPlan,
+    last: usize,
     final_file: &dyn Fn(usize) -> PathBuf,
     filtered_file: &dyn Fn(usize) -> PathBuf,
     name: &str,
     options: &DenseOptions,
+    maps: &mut MapCache,
+    phases: &mut DensePhaseSeconds,
 ) -> Result<(usize, usize), ProjectError> {
-    let final_map = |view: usize| {
-        read_map(&final_file(view)).ok_or_else(|| {
+    let mut final_map = |view: usize| {
+        if let Some(map) = maps.get(last, view) {
+            return Ok(map);
+        }
+        read_map(&final_file(view)).map(Arc::new).ok_or_else(|| {
             stage_error(
                 "dense",
                 format!("{}: unreadable depth map", final_file(view).display()),
@@ -519,6 +524,7 @@ fn filter_maps(
     };
     let (mut with_depth, mut upsampled) = (0usize, 0usize);
     for (view, vp) in plan.views.iter().enumerate() {
+        let files = Instant::now();
         let own = final_map(view)?;
         with_depth += own.valid_count();
         upsampled += own.upsampled.iter().filter(|&&u| u).count();
@@ -527,23 +533,31 @@ fn filter_maps(
             .iter()
             .map(|&s| final_map(s))
             .collect::<Result<Vec<_>, _>>()?;
-        let refs: Vec<Option<&DepthMap>> = neighbours.iter().map(Some).collect();
+        phases.map_files += files.elapsed().as_secs_f64();
+        let refs: Vec<Option<&DepthMap>> = neighbours.iter().map(|m| Some(m.as_ref())).collect();
+        let filtering = Instant::now();
         let filtered = filter_depth_map(plan, view, &own, &refs, &options.filter)
             .map_err(|e| dense_error(name, e))?;
+        phases.filter += filtering.elapsed().as_secs_f64();
+        let files = Instant::now();
         write_map(&filtered_file(view), &filtered)?;
+        phases.map_files += files.elapsed().as_secs_f64();
     }
     Ok((with_depth, upsampled))
 }
 
 /// One view's map of pass `k`, reading the maps of pass `k − 1` it needs.
+#[allow(clippy::too_many_arguments)]
 fn compute_map(
     plan: &EpochPlan,
     cache: &mut ImageCache<'_>,
+    maps: &mut MapCache,
     map_file: &dyn Fn(usize, usize) -> PathBuf,
     view: usize,
     k: usize,
     pass: &Pass,
     options: &DenseOptions,
+    phases: &mut DensePhaseSeconds,
 ) -> Result<DepthMap, ProjectError> {
     let vp = &plan.views[view];
     let reference = cache.get(view)?;
@@ -552,20 +566,27 @@ fn compute_map(
         .iter()
         .map(|s| cache.get(s.view))
         .collect::<Result<Vec<_>, _>>()?;
-    let previous_map = |v: usize| -> Result<Option<DepthMap>, ProjectError> {
+    let mut previous_map = |v: usize| -> Result<Option<Arc<DepthMap>>, ProjectError> {
         if k == 0 {
             return Ok(None);
         }
-        read_map(&map_file(k - 1, v)).map(Some).ok_or_else(|| {
+        if let Some(map) = maps.get(k - 1, v) {
+            return Ok(Some(map));
+        }
+        let map = read_map(&map_file(k - 1, v)).ok_or_else(|| {
             stage_error(
                 "dense",
                 format!("{}: unreadable depth map", map_file(k - 1, v).display()),
             )
-        })
+        })?;
+        let map = Arc::new(map);
+        maps.put(k - 1, v, map.clone());
+        Ok(Some(map))
     };
+    let files = Instant::now();
     let previous = previous_map(view)?;
     let geometric = pass.kind == timesift_dense::PassKind::Geometric;
-    let source_maps: Vec<Option<DepthMap>> = if geometric {
+    let source_maps: Vec<Option<Arc<DepthMap>>> = if geometric {
         vp.sources
             .iter()
             .map(|s| previous_map(s.view))
@@ -573,17 +594,28 @@ fn compute_map(
     } else {
         Vec::new()
     };
+    phases.map_files += files.elapsed().as_secs_f64();
     let source_refs: Vec<&WorkingImage> = sources.iter().map(|s| s.as_ref()).collect();
-    let map_refs: Vec<Option<&DepthMap>> = source_maps.iter().map(Option::as_ref).collect();
+    let map_refs: Vec<Option<&DepthMap>> = source_maps.iter().map(|m| m.as_deref()).collect();
     let input = PassInput {
         reference: &reference,
         sources: &source_refs,
-        previous: previous.as_ref(),
+        previous: previous.as_deref(),
         source_maps: &map_refs,
     };
     let name = cache.project.images[cache.images[view]].name.clone();
-    run_pass(plan, view, k, pass, &input, &options.patchmatch)
-        .map_err(|e| stage_error("dense", format!("{name}: {e}")))
+    let matching = Instant::now();
+    let map = run_pass(plan, view, k, pass, &input, &options.patchmatch)
+        .map_err(|e| stage_error("dense", format!("{name}: {e}")))?;
+    let seconds = matching.elapsed().as_secs_f64();
+    use timesift_dense::PassKind;
+    *match pass.kind {
+        PassKind::Photometric => &mut phases.photometric,
+        PassKind::Hierarchy => &mut phases.hierarchy,
+        PassKind::Geometric => &mut phases.geometric,
+        PassKind::Refine => &mut phases.refine,
+    } += seconds;
+    Ok(map)
 }
 
 /// Writes the fused cloud as LAS 1.4/LAZ: RGB; the normal, the largest reprojection error of

@@ -34,11 +34,16 @@ pub struct WindowShape {
     pub samples: usize,
     /// 1 / (2 σ_color²).
     pub inv_two_sigma_color2: f32,
+    /// The first and last offset along either axis (the window's bounding square).
+    pub extent: (f32, f32),
 }
 
 impl WindowShape {
     /// Samples at `-radius..=radius` by `step` in both directions (the sparse window of ACMH and
-    /// COLMAP), spatial weight `exp(-r² / 2σs²)`. Fails beyond [`MAX_WINDOW`] samples.
+    /// COLMAP) but for the grid's four corners, spatial weight `exp(-r² / 2σs²)`. Fails beyond
+    /// [`MAX_WINDOW`] samples. The corners are the samples farthest from the centre and least
+    /// weighted (0.37 of the centre's with the default σs = radius); without them the default
+    /// window's 36 samples are 32, four full lanes of eight where 36 took five.
     pub fn new(
         radius: usize,
         step: usize,
@@ -47,7 +52,11 @@ impl WindowShape {
     ) -> Option<WindowShape> {
         let r = radius as i64;
         let ticks: Vec<f32> = (-r..=r).step_by(step.max(1)).map(|d| d as f32).collect();
-        let samples = ticks.len() * ticks.len();
+        let (first, last) = (ticks[0], ticks[ticks.len() - 1]);
+        let corner = |x: f32, y: f32| {
+            ticks.len() >= 3 && (x == first || x == last) && (y == first || y == last)
+        };
+        let samples = ticks.len() * ticks.len() - if ticks.len() >= 3 { 4 } else { 0 };
         let padded = samples.div_ceil(LANES) * LANES;
         if padded > MAX_WINDOW {
             return None;
@@ -59,6 +68,9 @@ impl WindowShape {
         );
         for &y in &ticks {
             for &x in &ticks {
+                if corner(x, y) {
+                    continue;
+                }
                 dx.push(x);
                 dy.push(y);
                 spatial.push((-(x * x + y * y) / (2.0 * sigma_spatial * sigma_spatial)).exp());
@@ -72,6 +84,7 @@ impl WindowShape {
             dy,
             spatial,
             samples,
+            extent: (first, last),
             inv_two_sigma_color2: 1.0 / (2.0 * sigma_color * sigma_color),
         })
     }
@@ -191,42 +204,79 @@ fn dot(a: &[f32; 3], b: &[f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+/// The plane-independent part of the homographies from reference pixels to one source's
+/// pixels: `H = K_s (R − t nᵀ / w) K_r⁻¹ = A − b cᵀ` with `A = K_s R K_r⁻¹` and `b = K_s t`
+/// fixed for a pass, and `cᵀ = nᵀ K_r⁻¹ / w` ([`PlaneRow`]) fixed for a plane. A pixel scores
+/// each of its candidate planes against every source: the split turns each homography into
+/// nine multiply–adds.
+#[derive(Debug, Clone, Copy)]
+pub struct PlaneWarp {
+    /// `K_s R K_r⁻¹`, row-major.
+    a: [f32; 9],
+    /// `K_s t`.
+    b: [f32; 3],
+}
+
+/// The plane's part of its homographies, `cᵀ = nᵀ K_r⁻¹ / w`, shared by every source.
+#[derive(Debug, Clone, Copy)]
+pub struct PlaneRow([f32; 3]);
+
+impl PlaneRow {
+    /// Of the plane `n·X + w = 0` (reference camera frame).
+    #[inline]
+    pub fn new(k_ref: &RefCamera, n: &[f32; 3], w: f32) -> PlaneRow {
+        // nᵀ K_r⁻¹, with K_r⁻¹ = [[1/f, 0, -cx/f], [0, 1/f, -cy/f], [0, 0, 1]].
+        let (fi, inv_w) = (1.0 / k_ref.f, 1.0 / w);
+        PlaneRow([
+            n[0] * fi * inv_w,
+            n[1] * fi * inv_w,
+            (n[2] - (n[0] * k_ref.cx + n[1] * k_ref.cy) * fi) * inv_w,
+        ])
+    }
+}
+
+impl PlaneWarp {
+    /// Of a source view seen from the reference camera `k_ref`.
+    pub fn new(src: &SourceView<'_>, k_ref: &RefCamera) -> PlaneWarp {
+        let (r, t) = (&src.r, &src.t);
+        // R K_r⁻¹.
+        let (fi, cx, cy) = (1.0 / k_ref.f, k_ref.cx, k_ref.cy);
+        let mut m = [0.0f32; 9];
+        for row in 0..3 {
+            let (r0, r1, r2) = (r[row * 3], r[row * 3 + 1], r[row * 3 + 2]);
+            m[row * 3] = r0 * fi;
+            m[row * 3 + 1] = r1 * fi;
+            m[row * 3 + 2] = r2 - (r0 * cx + r1 * cy) * fi;
+        }
+        // K_s (·), with K_s = [[f, 0, cx], [0, f, cy], [0, 0, 1]].
+        let (fs, sx, sy) = (
+            src.camera.f as f32,
+            src.camera.cx as f32,
+            src.camera.cy as f32,
+        );
+        let mut a = [0.0f32; 9];
+        for col in 0..3 {
+            a[col] = fs * m[col] + sx * m[6 + col];
+            a[3 + col] = fs * m[3 + col] + sy * m[6 + col];
+            a[6 + col] = m[6 + col];
+        }
+        let b = [fs * t[0] + sx * t[2], fs * t[1] + sy * t[2], t[2]];
+        PlaneWarp { a, b }
+    }
+
+    /// The homography of the plane whose row is `c`, row-major.
+    #[inline]
+    pub fn homography(&self, c: &PlaneRow) -> [f32; 9] {
+        let (a, b, c) = (&self.a, &self.b, &c.0);
+        std::array::from_fn(|k| a[k] - b[k / 3] * c[k % 3])
+    }
+}
+
 /// The homography from reference pixels to source pixels induced by the plane `n·X + w = 0`
 /// (reference camera frame): `H = K_s (R − t nᵀ / w) K_r⁻¹`, row-major.
 #[inline]
 pub fn homography(src: &SourceView<'_>, k_ref: &RefCamera, n: &[f32; 3], w: f32) -> [f32; 9] {
-    let r = &src.r;
-    let t = &src.t;
-    let inv_w = 1.0 / w;
-    // M = R − t nᵀ / w
-    let mut m = [0.0f32; 9];
-    for row in 0..3 {
-        for col in 0..3 {
-            m[row * 3 + col] = r[row * 3 + col] - t[row] * n[col] * inv_w;
-        }
-    }
-    // M K_r⁻¹, with K_r⁻¹ = [[1/f, 0, -cx/f], [0, 1/f, -cy/f], [0, 0, 1]].
-    let (fi, cx, cy) = (1.0 / k_ref.f, k_ref.cx, k_ref.cy);
-    let mut a = [0.0f32; 9];
-    for row in 0..3 {
-        let (m0, m1, m2) = (m[row * 3], m[row * 3 + 1], m[row * 3 + 2]);
-        a[row * 3] = m0 * fi;
-        a[row * 3 + 1] = m1 * fi;
-        a[row * 3 + 2] = m2 - (m0 * cx + m1 * cy) * fi;
-    }
-    // K_s A, with K_s = [[f, 0, cx], [0, f, cy], [0, 0, 1]].
-    let (fs, sx, sy) = (
-        src.camera.f as f32,
-        src.camera.cx as f32,
-        src.camera.cy as f32,
-    );
-    let mut h = [0.0f32; 9];
-    for col in 0..3 {
-        h[col] = fs * a[col] + sx * a[6 + col];
-        h[3 + col] = fs * a[3 + col] + sy * a[6 + col];
-        h[6 + col] = a[6 + col];
-    }
-    h
+    PlaneWarp::new(src, k_ref).homography(&PlaneRow::new(k_ref, n, w))
 }
 
 /// 1 − NCC of the reference window at (u, v) (pixel centre) against the source through `h`,
@@ -253,7 +303,7 @@ pub fn ncc_cost(
         return WORST;
     }
     // The window's corners in front of the source (a plane seen edge-on folds the window).
-    let (lo, hi) = (shape.dx[0], shape.dx[shape.samples - 1]);
+    let (lo, hi) = shape.extent;
     if [(lo, lo), (hi, lo), (lo, hi), (hi, hi)]
         .iter()
         .any(|&(dx, dy)| !(h[6] * (u + dx) + h[7] * (v + dy) + h[8] > 1e-6))
@@ -295,8 +345,8 @@ struct Moments {
     rs: f32,
 }
 
-/// Window capacity of the default options' windows (radius 5, step 2: 36 samples, 40 padded).
-const SMALL_WINDOW: usize = 40;
+/// Window capacity of the default options' windows (radius 5, step 2: 32 samples).
+const SMALL_WINDOW: usize = 32;
 
 /// The weighted sums of the reference and source samples, over the samples inside the source,
 /// with scratch arrays of `CAP` samples (at least the window's padded length).
@@ -354,7 +404,10 @@ unsafe fn window_moments_avx2<const CAP: usize>(
         return window_moments_portable::<CAP>(shape, window, grey, h, u, v);
     }
     let splat = |x: f32| _mm256_set1_ps(x);
-    let [h0, h1, h2, h3, h4, h5, h6, h7, h8] = h.map(splat);
+    // Each splat by hand: `h.map(splat)` compiled to a call outside this function's features.
+    let (h0, h1, h2) = (splat(h[0]), splat(h[1]), splat(h[2]));
+    let (h3, h4, h5) = (splat(h[3]), splat(h[4]), splat(h[5]));
+    let (h6, h7, h8) = (splat(h[6]), splat(h[7]), splat(h[8]));
     let (uu, vv) = (splat(u), splat(v));
     let (zero, one, half) = (splat(0.0), splat(1.0), splat(0.5));
     let xmax = splat((width - 1) as f32 - 1e-3);
@@ -471,8 +524,10 @@ unsafe fn window_moments_avx2<const CAP: usize>(
 /// The kernel, written in stages the compiler vectorises (positions, bilinear weights,
 /// accumulation in [`LANES`] independent lanes) around the scalar gather of the four corners.
 /// Floating-point operations are never contracted or reordered, so every instruction set gives
-/// the same result.
-#[inline(always)]
+/// the same result. Never inlined: its scratch arrays (5 KB at the largest window) would give
+/// every caller a stack frame that is probed page by page on each call, and on x86-64 it is
+/// only the fallback of the AVX2 kernel.
+#[inline(never)]
 fn window_moments_portable<const CAP: usize>(
     shape: &WindowShape,
     window: &RefWindow,

@@ -37,7 +37,7 @@ use crate::filter::camera_of_map;
 use crate::image::{Mask, Plane, WorkingImage};
 use crate::plan::{EpochPlan, ViewPlan};
 use board::{Board, Colour, PixelState};
-use cost::{RefCamera, SourceView, WindowShape};
+use cost::{PlaneWarp, RefCamera, SourceView, WindowShape};
 use refine::{RefineOptions, refine_selection};
 use update::{MAX_SOURCES, PassContext, Scratch, random_normal};
 
@@ -267,12 +267,16 @@ pub fn run_pass(
         .map(|image| image_at_scale(image, pass.scale))
         .collect();
     let shape = window_shape(options)?;
+    let k_ref = RefCamera::of(&camera);
+    let sources = source_views(plan, view, pass, input, &source_images);
+    let warps = sources.iter().map(|s| PlaneWarp::new(s, &k_ref)).collect();
     let ctx = PassContext {
         shape: &shape,
         grey: &grey,
         mask: &mask,
-        k_ref: RefCamera::of(&camera),
-        sources: source_views(plan, view, pass, input, &source_images),
+        k_ref,
+        sources,
+        warps,
         depth_range: (vp.depth_range.0 as f32, vp.depth_range.1 as f32),
         geometric_weight: if geometric {
             options.geometric_weight

@@ -30,8 +30,8 @@ use timesift_core::SeededRng;
 
 use super::board::{OtherHalf, PixelState};
 use super::cost::{
-    RefCamera, RefWindow, SourceView, WORST, WindowShape, geometric_cost, homography, ncc_cost,
-    plane_depth, plane_offset,
+    PlaneRow, PlaneWarp, RefCamera, RefWindow, SourceView, WORST, WindowShape, geometric_cost,
+    ncc_cost, plane_depth, plane_offset,
 };
 use crate::image::{Mask, Plane};
 
@@ -102,6 +102,8 @@ pub struct PassContext<'a> {
     pub k_ref: RefCamera,
     /// Source views.
     pub sources: Vec<SourceView<'a>>,
+    /// Each source's part of the plane homographies ([`PlaneWarp::new`] of the source).
+    pub warps: Vec<PlaneWarp>,
     /// Depth range.
     pub depth_range: (f32, f32),
     /// Weight of the geometric term (0 in photometric passes).
@@ -213,12 +215,17 @@ impl PassContext<'_> {
         depth >= self.depth_range.0 && depth <= self.depth_range.1
     }
 
-    /// Photometric cost of a plane against source `j` at (u, v).
+    /// Photometric cost against source `j` at (u, v) of the plane whose row is `row`.
     #[inline]
-    fn photometric(&self, window: &RefWindow, j: usize, p: &Plane3, u: f32, v: f32) -> f32 {
-        let src = &self.sources[j];
-        let h = homography(src, &self.k_ref, &p.n, p.w);
-        ncc_cost(self.shape, window, src, &h, u, v)
+    fn photometric(&self, window: &RefWindow, j: usize, row: &PlaneRow, u: f32, v: f32) -> f32 {
+        let h = self.warps[j].homography(row);
+        ncc_cost(self.shape, window, &self.sources[j], &h, u, v)
+    }
+
+    /// The plane's row of its homographies.
+    #[inline]
+    fn row(&self, p: &Plane3) -> PlaneRow {
+        PlaneRow::new(&self.k_ref, &p.n, p.w)
     }
 
     /// Geometric term of a plane against source `j` (0 in photometric passes).
@@ -237,14 +244,28 @@ impl PassContext<'_> {
         )
     }
 
-    /// The weighted cost of a plane over the views with a weight.
-    fn weighted(&self, window: &RefWindow, views: &ViewWeights, p: &Plane3, u: f32, v: f32) -> f32 {
+    /// The weighted cost of a plane over the views with a weight; once the views summed so
+    /// far reach `bound`, that partial cost (at least `bound`). Every view's cost is ≥ 0, so
+    /// the full cost could only be higher: a caller that keeps a plane only below `bound`
+    /// decides as it would on the full cost, without the remaining views' windows.
+    fn weighted(
+        &self,
+        window: &RefWindow,
+        views: &ViewWeights,
+        p: &Plane3,
+        at: &PixelAt,
+        bound: f32,
+    ) -> f32 {
+        let row = self.row(p);
         let mut sum = 0.0;
         for (j, &w) in views.weights.iter().enumerate().take(self.sources.len()) {
             if w > 0.0 {
-                let c = self.photometric(window, j, p, u, v)
-                    + self.geometric_weight * self.geometric(j, p, u, v);
+                let c = self.photometric(window, j, &row, at.u, at.v)
+                    + self.geometric_weight * self.geometric(j, p, at.u, at.v);
                 sum += w * c;
+                if sum / views.total >= bound {
+                    break;
+                }
             }
         }
         sum / views.total
@@ -279,9 +300,10 @@ impl PassContext<'_> {
             return state;
         }
         let ns = self.sources.len();
+        let row = self.row(&plane);
         let mut costs = [WORST; MAX_SOURCES];
         for (j, c) in costs.iter_mut().enumerate().take(ns) {
-            let photo = self.photometric(&scratch.window, j, &plane, u, v);
+            let photo = self.photometric(&scratch.window, j, &row, u, v);
             *c = if photo < WORST {
                 photo + self.geometric_weight * self.geometric(j, &plane, u, v)
             } else {
@@ -366,8 +388,9 @@ impl PassContext<'_> {
     fn score_candidates(&self, scratch: &mut Scratch, candidates: &Candidates, at: &PixelAt) {
         for (r, cand) in candidates.iter().enumerate() {
             let Some(p) = cand else { continue };
+            let row = self.row(p);
             for j in 0..self.sources.len() {
-                scratch.costs[r][j] = self.photometric(&scratch.window, j, p, at.u, at.v);
+                scratch.costs[r][j] = self.photometric(&scratch.window, j, &row, at.u, at.v);
                 scratch.geometric[r][j] = self.geometric(j, p, at.u, at.v);
             }
         }
@@ -447,14 +470,7 @@ impl PassContext<'_> {
             },
             cost: f32::INFINITY,
         };
-        if state.depth > 0.0 {
-            current.cost = self.weighted(&scratch.window, views, &current.plane, at.u, at.v);
-        }
-        let mut best: Option<(usize, f32)> = None;
-        for (r, cand) in candidates.iter().enumerate() {
-            if cand.is_none() {
-                continue;
-            }
+        let weighted_candidate = |r: usize| {
             let mut sum = 0.0;
             for (j, &w) in views.weights.iter().enumerate().take(self.sources.len()) {
                 if w > 0.0 {
@@ -462,7 +478,17 @@ impl PassContext<'_> {
                         w * (scratch.costs[r][j] + self.geometric_weight * scratch.geometric[r][j]);
                 }
             }
-            let f = sum / views.total;
+            sum / views.total
+        };
+        if state.depth > 0.0 {
+            current.cost = self.weighted(&scratch.window, views, &current.plane, at, f32::INFINITY);
+        }
+        let mut best: Option<(usize, f32)> = None;
+        for (r, cand) in candidates.iter().enumerate() {
+            if cand.is_none() {
+                continue;
+            }
+            let f = weighted_candidate(r);
             if best.is_none_or(|(_, b)| f < b) {
                 best = Some((r, f));
             }
@@ -515,7 +541,7 @@ impl PassContext<'_> {
                 w: plane_offset(&n, depth, ray),
                 depth,
             };
-            let f = self.weighted(&scratch.window, views, &p, at.u, at.v);
+            let f = self.weighted(&scratch.window, views, &p, at, current.cost);
             if f < current.cost {
                 *current = Scored { plane: p, cost: f };
             }
