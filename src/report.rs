@@ -388,6 +388,21 @@ pub struct DensePhaseSeconds {
     pub cloud_file: f64,
 }
 
+impl std::ops::AddAssign<&DensePhaseSeconds> for DensePhaseSeconds {
+    /// Phase by phase (several epochs' times together).
+    fn add_assign(&mut self, other: &DensePhaseSeconds) {
+        self.images += other.images;
+        self.photometric += other.photometric;
+        self.hierarchy += other.hierarchy;
+        self.geometric += other.geometric;
+        self.refine += other.refine;
+        self.map_files += other.map_files;
+        self.filter += other.filter;
+        self.fusion += other.fusion;
+        self.cloud_file += other.cloud_file;
+    }
+}
+
 /// `out/fiducials.json`: the fiducial marks and interior orientation of every scan.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FiducialsReport {

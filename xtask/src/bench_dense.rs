@@ -90,7 +90,7 @@ struct Timing {
     /// The baseline build, the same runs.
     baseline_runs: Vec<DenseRun>,
     /// This build's phases on 2 threads, summed over the epochs (`out/dense.json`).
-    phases: Option<timesift::report::DensePhaseSeconds>,
+    phases: timesift::report::DensePhaseSeconds,
     peer_1: Option<f64>,
     peer_2: Option<f64>,
 }
@@ -180,7 +180,9 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
     let report: timesift::report::DenseReport =
         timesift::report::read_json(&truth_project.layout().dense_report())?;
     timing.megapixels = depth_map_megapixels(&truth_project, &report, bench.level)?;
-    timing.phases = Some(summed_phases(&report));
+    for epoch in report.epochs.values() {
+        timing.phases += &epoch.phase_seconds;
+    }
     // The align stage's cameras.
     let mut align_before = Vec::new();
     if !bench.truth_only {
@@ -307,24 +309,6 @@ fn depth_map_megapixels(
         megapixels += with_sources as f64 * (w / level) as f64 * (h / level) as f64 / 1e6;
     }
     Ok(megapixels)
-}
-
-/// The phases of every epoch added up.
-fn summed_phases(report: &timesift::report::DenseReport) -> timesift::report::DensePhaseSeconds {
-    let mut sum = timesift::report::DensePhaseSeconds::default();
-    for e in report.epochs.values() {
-        let p = &e.phase_seconds;
-        sum.images += p.images;
-        sum.photometric += p.photometric;
-        sum.hierarchy += p.hierarchy;
-        sum.geometric += p.geometric;
-        sum.refine += p.refine;
-        sum.map_files += p.map_files;
-        sum.filter += p.filter;
-        sum.fusion += p.fusion;
-        sum.cloud_file += p.cloud_file;
-    }
-    sum
 }
 
 /// Sets `[dense] level` in a project's `project.toml`.
@@ -627,21 +611,20 @@ fn table(rows: &[Row], timings: &[Timing], level: u32) -> String {
          | scene | images | photometric | hierarchy | geometric | refine | map files | filter | fusion | cloud file |\n|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for m in timings {
-        if let Some(p) = &m.phases {
-            t.push_str(&format!(
-                "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
-                m.scene,
-                p.images,
-                p.photometric,
-                p.hierarchy,
-                p.geometric,
-                p.refine,
-                p.map_files,
-                p.filter,
-                p.fusion,
-                p.cloud_file
-            ));
-        }
+        let p = &m.phases;
+        t.push_str(&format!(
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+            m.scene,
+            p.images,
+            p.photometric,
+            p.hierarchy,
+            p.geometric,
+            p.refine,
+            p.map_files,
+            p.filter,
+            p.fusion,
+            p.cloud_file
+        ));
     }
     t.push_str(
         "\n## OpenCV SGBM, seconds per image (rectification, matching, triangulation)\n\n\
