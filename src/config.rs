@@ -473,6 +473,12 @@ pub struct DenseConfig {
     /// PatchMatch iterations of the geometric-consistency passes. Default 2.
     #[serde(default = "default_geometric_iterations")]
     pub geometric_iterations: usize,
+    /// PatchMatch iterations of the match at twice the resolution (`refine`), and at most as
+    /// many of its geometric pass. Default 3. One takes 1.3–1.7 times less CPU for the whole
+    /// stage where much is refined (`orchard`, `archival`) at the same accuracy on open
+    /// ground, but measures narrow tree crowns less well.
+    #[serde(default = "default_refine_iterations")]
+    pub refine_iterations: usize,
     /// Largest matching cost (1 − NCC) of a kept depth. Default 0.6.
     #[serde(default = "default_max_cost")]
     pub max_cost: f32,
@@ -514,6 +520,9 @@ fn default_photometric_iterations() -> usize {
 fn default_geometric_iterations() -> usize {
     2
 }
+fn default_refine_iterations() -> usize {
+    3
+}
 fn default_max_cost() -> f32 {
     0.6
 }
@@ -530,6 +539,7 @@ impl Default for DenseConfig {
             sigma_color: None,
             iterations: default_photometric_iterations(),
             geometric_iterations: default_geometric_iterations(),
+            refine_iterations: default_refine_iterations(),
             max_cost: default_max_cost(),
             black_is_nodata: true,
         }
@@ -583,6 +593,12 @@ impl DenseConfig {
                 self.geometric_iterations, default.geometric_iterations
             ));
         }
+        if self.refine_iterations != default.refine_iterations {
+            parts.push(format!(
+                "refine_iterations {} (default {})",
+                self.refine_iterations, default.refine_iterations
+            ));
+        }
         if let Some(sigma) = self.sigma_color {
             parts.push(format!(
                 "sigma_color {sigma} (default {SIGMA_COLOR_DIGITAL} digital, {SIGMA_COLOR_FILM} film)"
@@ -614,6 +630,7 @@ impl DenseConfig {
         o.patchmatch.sigma_color = self.sigma_color(images);
         o.patchmatch.photometric_iterations = self.iterations;
         o.patchmatch.geometric_iterations = self.geometric_iterations;
+        o.patchmatch.refine_iterations = self.refine_iterations;
         o.filter.min_views = self.min_views;
         o.filter.max_cost = self.max_cost;
         o.fusion.min_images = self.min_images;

@@ -146,7 +146,7 @@ pub fn run_bench(bench: &CoregBench) -> anyhow::Result<()> {
 }
 
 /// The project files of rendered-mar copied, its images linked.
-fn copy_project(source: &Path, dir: &Path) -> anyhow::Result<()> {
+pub(crate) fn copy_project(source: &Path, dir: &Path) -> anyhow::Result<()> {
     for name in [
         "project.toml",
         "gcps.csv",
@@ -286,7 +286,7 @@ fn loosest(tilt: &Option<timesift::report::DatumTiltReport>) -> Option<f64> {
     tilt.as_ref().map(|t| t.sigma_max_mm_per_m)
 }
 
-fn gsd_of(epoch: &str) -> f64 {
+pub(crate) fn gsd_of(epoch: &str) -> f64 {
     GSD.iter()
         .find(|(e, _)| *e == epoch)
         .map_or(f64::NAN, |(_, g)| *g)

@@ -50,6 +50,9 @@ pub struct DenseBench {
     pub baseline: Option<PathBuf>,
     /// Only the true cameras (no align-stage cameras).
     pub truth_only: bool,
+    /// A folder with OpenMVS's `InterfaceCOLMAP` and `DensifyPointCloud`: the multi-view peer,
+    /// run on the true cameras.
+    pub openmvs: Option<PathBuf>,
 }
 
 /// Scores of one cloud of one epoch.
@@ -75,6 +78,8 @@ struct Row {
     /// The baseline build's clouds (true, align-stage cameras).
     truth_before: Option<Score>,
     align_before: Option<Score>,
+    /// OpenMVS on the true cameras.
+    openmvs: Option<Score>,
 }
 
 /// The dense stage's cost on a scene (true cameras), this build's and the baseline's, and the
@@ -93,13 +98,29 @@ struct Timing {
     phases: timesift::report::DensePhaseSeconds,
     peer_1: Option<f64>,
     peer_2: Option<f64>,
+    /// OpenMVS's DensifyPointCloud, 2 threads, every epoch.
+    openmvs: Option<DenseRun>,
 }
 
 pub fn run_bench(bench: &DenseBench) -> anyhow::Result<()> {
     std::fs::create_dir_all(&bench.out).with_context(|| bench.out.display().to_string())?;
     let mut rows = Vec::new();
     let mut timings = Vec::new();
+    let mut mar = None;
     for scene in &bench.scenes {
+        if scene == "rendered-mar" {
+            mar = Some(crate::bench_dense_mar::run_bench(
+                &crate::bench_dense_mar::MarBench {
+                    out: &bench.out,
+                    level: bench.level,
+                    peer: bench.peer,
+                    reuse: bench.reuse,
+                    baseline: bench.baseline.as_deref(),
+                    openmvs: bench.openmvs.as_deref(),
+                },
+            )?);
+            continue;
+        }
         let (r, t) = bench_scene(bench, scene)?;
         rows.extend(r);
         timings.push(t);
@@ -107,6 +128,9 @@ pub fn run_bench(bench: &DenseBench) -> anyhow::Result<()> {
         std::fs::write(bench.out.join("dense.md"), &text)?;
     }
     let mut text = table(&rows, &timings, bench.level);
+    if let Some((mar_text, _)) = &mar {
+        text.push_str(mar_text);
+    }
     if bench.lund {
         text.push_str(&crate::bench_dense_lund::run(&bench.out, bench.level)?);
     }
@@ -114,7 +138,11 @@ pub fn run_bench(bench: &DenseBench) -> anyhow::Result<()> {
         &bench.out,
         "dense",
         &text,
-        &serde_json::json!({ "rows": rows, "timings": timings }),
+        &serde_json::json!({
+            "rows": rows,
+            "timings": timings,
+            "rendered_mar": mar.map(|(_, json)| json),
+        }),
     )
 }
 
@@ -128,7 +156,12 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
     let spec =
         timesift_synth::scenes::build(scene, timesift_synth::scenes::Scale::Small, bench.seed)?;
     let dir = bench.out.join(scene);
-    let reused = bench.reuse && dir.join("out/cameras.json").is_file();
+    // Without align-stage rows the scene is only rendered: the true cameras need no orientation.
+    let prepared = match bench.truth_only {
+        true => dir.join("project.toml"),
+        false => dir.join("out/cameras.json"),
+    };
+    let reused = bench.reuse && prepared.is_file();
     if !reused {
         let _ = std::fs::remove_dir_all(&dir);
         timesift_synth::writer::write_scene(
@@ -139,7 +172,7 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
         set_level(&dir, bench.level)?;
     }
     let project = Project::load(&dir)?;
-    if !reused {
+    if !reused && !bench.truth_only {
         let start = Instant::now();
         run(&project, Some(Stage::Features), Some(Stage::Align))?;
         println!(
@@ -208,6 +241,18 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
             Err(e) => println!("{scene}: OpenCV SGBM not run: {e:#}"),
         }
     }
+    let mut openmvs_points: Vec<Option<Vec<Vector3<f64>>>> = vec![None; project.epochs.len()];
+    if let Some(bin) = &bench.openmvs {
+        let work = bench.out.join(format!("{scene}-openmvs"));
+        match crate::bench_dense_openmvs::run_openmvs(&truth_project, bench.level, bin, &work, 2) {
+            Ok(result) => {
+                println!("{scene}: OpenMVS, 2 threads: {:?}", result.run);
+                timing.openmvs = Some(result.run);
+                openmvs_points = result.points.into_iter().map(Some).collect();
+            }
+            Err(e) => println!("{scene}: OpenMVS not run: {e:#}"),
+        }
+    }
     let mut rows = Vec::new();
     let truth_clouds = epoch_clouds(&truth_project)?;
     let align_clouds = if bench.truth_only {
@@ -246,6 +291,9 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
             peer: peer_points[e].as_ref().map(|p| truth.score(p, bench.level)),
             truth_before: score_of(&before),
             align_before: score_of(&align_before),
+            openmvs: openmvs_points[e]
+                .as_ref()
+                .map(|p| truth.score(p, bench.level)),
         };
         let line = |what: &str, s: &Option<Score>| {
             s.as_ref().map_or(String::new(), |s| {
@@ -266,13 +314,16 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
             line("baseline align cams", &row.align_before),
             line("SGBM", &row.peer),
         );
+        if let Some(s) = &row.openmvs {
+            println!("{scene} {}{}", row.epoch, line("OpenMVS", &Some(s.clone())));
+        }
         rows.push(row);
     }
     Ok((rows, timing))
 }
 
 /// Each epoch's dense cloud of a project, in epoch order.
-fn epoch_clouds(project: &Project) -> anyhow::Result<Vec<Vec<Vector3<f64>>>> {
+pub(crate) fn epoch_clouds(project: &Project) -> anyhow::Result<Vec<Vec<Vector3<f64>>>> {
     project
         .epochs
         .iter()
@@ -290,7 +341,7 @@ fn epoch_clouds(project: &Project) -> anyhow::Result<Vec<Vec<Vector3<f64>>>> {
 
 /// Megapixels of the depth maps at the level: each epoch's images with sources, at its first
 /// image's size divided by the level (a scene's epochs each have one camera).
-fn depth_map_megapixels(
+pub(crate) fn depth_map_megapixels(
     project: &Project,
     report: &timesift::report::DenseReport,
     level: u32,
@@ -312,7 +363,7 @@ fn depth_map_megapixels(
 }
 
 /// Sets `[dense] level` in a project's `project.toml`.
-fn set_level(dir: &Path, level: u32) -> anyhow::Result<()> {
+pub(crate) fn set_level(dir: &Path, level: u32) -> anyhow::Result<()> {
     let path = dir.join("project.toml");
     let mut text = std::fs::read_to_string(&path)?;
     text.push_str(&format!("\n[dense]\nlevel = {level}\n"));
@@ -625,6 +676,39 @@ fn table(rows: &[Row], timings: &[Timing], level: u32) -> String {
             p.fusion,
             p.cloud_file
         ));
+    }
+    if timings.iter().any(|m| m.openmvs.is_some()) {
+        t.push_str(
+            "\n## OpenMVS DensifyPointCloud (CPU) on the same images and true cameras, 2 threads, depth maps of the same size\n\n\
+             | scene | epoch | OpenMVS median / p90 / complete | this build |\n|---|---|---|---|\n",
+        );
+        for r in rows.iter().filter(|r| r.openmvs.is_some()) {
+            t.push_str(&format!(
+                "| {} | {} | {} | {} |\n",
+                r.scene,
+                r.epoch,
+                opt(&r.openmvs),
+                s(&r.truth)
+            ));
+        }
+        t.push_str(
+            "\n| scene | depth-map MP | OpenMVS CPU s | core-s / MP | peak MiB | this build's core-s / MP | OpenMVS ÷ this |\n|---|---|---|---|---|---|---|\n",
+        );
+        for m in timings {
+            let (Some(o), Some(this)) = (m.openmvs, m.runs.iter().find(|r| r.threads == 2)) else {
+                continue;
+            };
+            t.push_str(&format!(
+                "| {} | {:.2} | {:.1} | {:.1} | {:.0} | {:.1} | {:.2}× |\n",
+                m.scene,
+                m.megapixels,
+                o.cpu,
+                o.cpu / m.megapixels,
+                o.peak_mib,
+                this.cpu / m.megapixels,
+                o.cpu / this.cpu
+            ));
+        }
     }
     t.push_str(
         "\n## OpenCV SGBM, seconds per image (rectification, matching, triangulation)\n\n\

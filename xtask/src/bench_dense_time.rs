@@ -50,6 +50,12 @@ pub fn time_dense(binary: &DenseBinary, dir: &Path, threads: usize) -> anyhow::R
         }
     };
     command.env("RAYON_NUM_THREADS", threads.to_string());
+    time_command(&mut command, threads)
+}
+
+/// Runs a command to its end: its wall and CPU seconds and peak resident memory (`threads` as
+/// the caller asked it to use).
+pub fn time_command(command: &mut Command, threads: usize) -> anyhow::Result<DenseRun> {
     let start = Instant::now();
     let child = command
         .spawn()

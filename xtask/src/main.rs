@@ -31,6 +31,8 @@ mod bench_change;
 mod bench_coreg;
 mod bench_dense;
 mod bench_dense_lund;
+mod bench_dense_mar;
+mod bench_dense_openmvs;
 mod bench_dense_peer;
 mod bench_dense_time;
 mod bench_features;
@@ -149,6 +151,16 @@ enum Task {
         /// Project directory.
         dir: PathBuf,
     },
+    /// The DEM scores of a rendered-mar project's dense clouds as they are (the dense bench's
+    /// scoring, for trying `[dense]` settings by hand).
+    #[command(hide = true)]
+    ScoreMar {
+        /// Project directory (a copy of rendered-mar with its dense clouds).
+        dir: PathBuf,
+        /// Score OpenCV's SGBM on the project's cameras instead (run in `<dir>-sgbm`).
+        #[arg(long)]
+        sgbm: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -212,7 +224,8 @@ enum BenchStage {
     /// OpenCV's StereoSGBM on the same images; lund's fused points (pip install
     /// opencv-python-headless).
     Dense {
-        /// Scenes (default: the seven).
+        /// Scenes (default: the seven synthetic ones, `landslide-12mp` (nine 4000 × 3000
+        /// images) and `rendered-mar`, real beach texture with exact truth).
         #[arg(long, value_delimiter = ',')]
         scenes: Option<Vec<String>>,
         /// `[dense] level`.
@@ -238,8 +251,12 @@ enum BenchStage {
         /// runs on the same projects, timed and scored beside this build's (before / after).
         #[arg(long)]
         baseline: Option<PathBuf>,
+        /// A folder with OpenMVS's `InterfaceCOLMAP` and `DensifyPointCloud` (CPU build, e.g.
+        /// from `xtask/scripts/build_openmvs.sh`): the multi-view peer, on the true cameras.
+        #[arg(long, env = "OPENMVS_BIN")]
+        openmvs: Option<PathBuf>,
         /// Skip the align-stage cameras (true cameras only: the timing and accuracy of the
-        /// dense stage alone).
+        /// dense stage alone; the synthetic scenes are not oriented).
         #[arg(long)]
         truth_only: bool,
     },
@@ -478,6 +495,8 @@ fn main() -> anyhow::Result<()> {
                     "glacier",
                     "archival",
                     "campus",
+                    "landslide-12mp",
+                    "rendered-mar",
                 ]
                 .iter()
                 .map(|s| s.to_string())
@@ -500,6 +519,7 @@ fn main() -> anyhow::Result<()> {
                     reuse,
                     baseline,
                     truth_only,
+                    openmvs,
                 },
         } => bench_dense::run_bench(&bench_dense::DenseBench {
             scenes: scenes.unwrap_or_else(|| {
@@ -511,6 +531,8 @@ fn main() -> anyhow::Result<()> {
                     "landslide",
                     "soil-pit",
                     "campus",
+                    "landslide-12mp",
+                    "rendered-mar",
                 ]
                 .iter()
                 .map(|s| s.to_string())
@@ -524,6 +546,7 @@ fn main() -> anyhow::Result<()> {
             reuse,
             baseline,
             truth_only,
+            openmvs,
         })?,
         Task::BenchMethods {
             scenes,
@@ -587,6 +610,9 @@ fn main() -> anyhow::Result<()> {
                     String::new()
                 }
             );
+        }
+        Task::ScoreMar { dir, sgbm } => {
+            print!("{}", bench_dense_mar::score_project(&dir, sgbm)?);
         }
         Task::RunDense { dir } => {
             let project = timesift::Project::load(&dir)?;

@@ -351,3 +351,37 @@ fn the_corridor_with_tracks_has_control_across_its_width_and_the_plain_one_along
         "corridor-tracks: {n} GCPs up to y = {top}"
     );
 }
+
+#[test]
+fn the_12_megapixel_bench_scene_is_one_epoch_of_nine_overlapping_4000_by_3000_images() {
+    use timesift_core::CameraModel;
+    let spec = build("landslide-12mp", Scale::Small, 1).expect("scene");
+    assert_eq!(spec.epochs.len(), 1);
+    let epoch = &spec.epochs[0];
+    assert_eq!((epoch.camera.width, epoch.camera.height), (4000, 3000));
+    assert_eq!(epoch.images.len(), 9);
+    // Each image's centre, on the ground plane the flight was planned for (45 m), lies inside
+    // at least four of the other images: every view has sources on every side.
+    let ground = 45.0;
+    for (a, image) in epoch.images.iter().enumerate() {
+        let centre = image.pose.inverse().translation;
+        let ray = image.pose.rotation.inverse() * Vector3::new(0.0, 0.0, 1.0);
+        let point = centre + ray * ((ground - centre.z) / ray.z);
+        let seen_by = epoch
+            .images
+            .iter()
+            .enumerate()
+            .filter(|(b, other)| {
+                *b != a
+                    && epoch
+                        .camera
+                        .project(&other.pose.transform_point(&point))
+                        .is_ok_and(|p| p.x >= 0.0 && p.y >= 0.0 && p.x < 4000.0 && p.y < 3000.0)
+            })
+            .count();
+        assert!(
+            seen_by >= 4,
+            "image {a}: its centre seen by {seen_by} others"
+        );
+    }
+}

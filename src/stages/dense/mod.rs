@@ -151,6 +151,7 @@ fn map_settings(options: &DenseOptions, fingerprint: &str, images: &[usize]) -> 
         "sigma_color": pm.sigma_color,
         "iterations": pm.photometric_iterations,
         "geometric_iterations": pm.geometric_iterations,
+        "refine_iterations": pm.refine_iterations,
         "black_is_nodata": options.black_is_nodata,
         "orientation": fingerprint,
         "images": images,

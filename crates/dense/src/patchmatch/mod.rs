@@ -57,6 +57,12 @@ pub struct PatchMatchOptions {
     pub photometric_iterations: usize,
     /// Iterations of geometric passes.
     pub geometric_iterations: usize,
+    /// Iterations of a refinement pass, and at most as many of the geometric pass after it
+    /// (3, as the photometric passes). Fewer is cheaper: one took 1.3–1.7 times less CPU on
+    /// the synthetic scenes at the same median, 90th percentile and completeness, but left
+    /// narrow tree crowns biased (a test's crowns: −0.21 m at one, −0.14 m at two, against
+    /// −0.27 m unrefined) — the refinement exists for them.
+    pub refine_iterations: usize,
     /// Weight λ of the geometric term in geometric passes (ACMM: 0.2).
     pub geometric_weight: f32,
     /// Truncation of the geometric term, pixels (ACMM: 3).
@@ -83,6 +89,7 @@ impl Default for PatchMatchOptions {
             sigma_color: 0.1,
             photometric_iterations: 3,
             geometric_iterations: 2,
+            refine_iterations: 3,
             geometric_weight: 0.2,
             geometric_max_px: 3.0,
             coarsest_size: 400,
@@ -108,8 +115,8 @@ impl PatchMatchOptions {
         if !(self.sigma_color > 0.0) {
             return bad("sigma_color: expected a positive number");
         }
-        if self.photometric_iterations == 0 {
-            return bad("photometric_iterations: expected at least 1");
+        if self.photometric_iterations == 0 || self.refine_iterations == 0 {
+            return bad("photometric_iterations and refine_iterations: expected at least 1");
         }
         if !(self.geometric_weight >= 0.0) || !(self.geometric_max_px > 0.0) {
             return bad("geometric_weight ≥ 0 and geometric_max_px > 0 expected");
@@ -176,16 +183,23 @@ pub fn schedule(max_side: usize, refined_scales: usize, options: &PatchMatchOpti
         .chain((0..refined_scales).rev().map(|s| (PassKind::Refine, s)));
     let mut passes = Vec::new();
     for (kind, scale) in kinds {
+        let (p, g) = match kind {
+            PassKind::Refine => (
+                options.refine_iterations,
+                options.geometric_iterations.min(options.refine_iterations),
+            ),
+            _ => (options.photometric_iterations, options.geometric_iterations),
+        };
         passes.push(Pass {
             kind,
             scale,
-            iterations: options.photometric_iterations,
+            iterations: p,
         });
-        if options.geometric_iterations > 0 {
+        if g > 0 {
             passes.push(Pass {
                 kind: PassKind::Geometric,
                 scale,
-                iterations: options.geometric_iterations,
+                iterations: g,
             });
         }
     }
@@ -707,6 +721,31 @@ mod tests {
                 (PassKind::Refine, 0),
                 (PassKind::Geometric, 0),
             ]
+        );
+        // The refinement and its geometric pass run `refine_iterations` (the geometric one at
+        // most `geometric_iterations`); the other passes their own counts.
+        let options = PatchMatchOptions {
+            photometric_iterations: 3,
+            geometric_iterations: 2,
+            refine_iterations: 1,
+            ..PatchMatchOptions::default()
+        };
+        let iterations: Vec<usize> = schedule(600, 1, &options)
+            .iter()
+            .map(|p| p.iterations)
+            .collect();
+        assert_eq!(iterations, vec![3, 2, 1, 1]);
+        let options = PatchMatchOptions {
+            geometric_iterations: 0,
+            refine_iterations: 2,
+            ..options
+        };
+        let passes = schedule(600, 1, &options);
+        let iterations: Vec<(PassKind, usize)> =
+            passes.iter().map(|p| (p.kind, p.iterations)).collect();
+        assert_eq!(
+            iterations,
+            vec![(PassKind::Photometric, 3), (PassKind::Refine, 2)]
         );
     }
 }

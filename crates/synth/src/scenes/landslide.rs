@@ -29,13 +29,36 @@ const BLOCK: Bump = Bump {
 const FOREST_Y: f64 = 200.0;
 
 pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
+    let size = image_size(scale, (512, 384), (3000, 2000));
+    let flight = match scale {
+        Scale::Small => nadir((60.0, 40.0), (240.0, 200.0), 150.0, 45.0, (0.6, 0.55), 1.0),
+        Scale::Full => nadir((20.0, 20.0), (280.0, 220.0), 150.0, 45.0, (0.8, 0.7), 1.0),
+    };
+    build_block(seed, size, &flight)
+}
+
+/// The dense bench's realistic image size: the first epoch of `landslide` flown with a 12 MP
+/// camera (4000 × 3000, the textures as fine as its pixels) over the middle of the slope, 3 × 3
+/// images at 80 % forward and 70 % side overlap. Whatever the scale.
+pub(super) fn build_12mp(seed: u64) -> Result<SceneSpec, SynthError> {
+    let flight = nadir((130.0, 100.0), (170.0, 135.0), 150.0, 45.0, (0.8, 0.7), 1.0);
+    let mut spec = build_block(seed, (4000, 3000), &flight)?;
+    spec.epochs.truncate(1);
+    spec.name = "landslide-12mp".to_string();
+    Ok(spec)
+}
+
+fn build_block(
+    seed: u64,
+    (w, h): (u32, u32),
+    flight: &NadirBlock,
+) -> Result<SceneSpec, SynthError> {
     let mut rng = SeededRng::new(seed);
     let base = hillside(seed);
     let mut features = Vec::new();
     let (scarp, toe) = slide(&mut features);
     let boulders = boulders(&mut features, &mut rng);
     let regions = change_regions(scarp, toe, boulders);
-    let (w, h) = image_size(scale, (512, 384), (3000, 2000));
     let f = 0.72 * w as f64;
     let fin = finest(f, 80.0);
     let materials = land_covers(seed, fin);
@@ -44,7 +67,7 @@ pub(super) fn build(scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
         let w = BLOCK.value(p.x, p.y).min(0.6) / 0.6;
         Vector3::new(p.x, p.y + DISPLACEMENT[e] * w, p.z)
     };
-    let epochs = bimonthly_epochs(scale, (w, h), &mut rng);
+    let epochs = bimonthly_epochs(flight, (w, h), &mut rng);
     let mut spec = new_scene(
         "landslide",
         "EPSG:32632",
@@ -222,12 +245,12 @@ fn cover_by_epoch(
 }
 
 /// The epochs: the same drone camera (of `w` × `h` pixels) and block flown every two months.
-fn bimonthly_epochs(scale: Scale, (w, h): (u32, u32), rng: &mut SeededRng) -> Vec<EpochSpec> {
+fn bimonthly_epochs(
+    flight: &NadirBlock,
+    (w, h): (u32, u32),
+    rng: &mut SeededRng,
+) -> Vec<EpochSpec> {
     let camera_seed = rng.next_u64();
-    let flight = match scale {
-        Scale::Small => nadir((60.0, 40.0), (240.0, 200.0), 150.0, 45.0, (0.6, 0.55), 1.0),
-        Scale::Full => nadir((20.0, 20.0), (280.0, 220.0), 150.0, 45.0, (0.8, 0.7), 1.0),
-    };
     let names = ["2023-06-15", "2023-08-16", "2023-10-17"];
     (0..EPOCHS)
         .map(|e| {

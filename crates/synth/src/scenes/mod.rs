@@ -63,6 +63,9 @@ pub const SCENES: [&str; 7] = [
 /// looks alike across its width (farm tracks) and control off the dune band; `archival-mixed`, `archival` with its later three
 /// epochs taken by a digital frame camera, so one noisy film epoch sits among clean digital ones.
 pub const EXTRA_SCENES: [&str; 3] = ["corridor", "corridor-tracks", "archival-mixed"];
+/// Scenes for benchmarks only, whatever the scale: `landslide-12mp` (one epoch of nine
+/// 4000 × 3000 images, for the dense stage at a realistic image size).
+pub const BENCH_SCENES: [&str; 1] = ["landslide-12mp"];
 
 /// The scene called `name`.
 pub fn build(name: &str, scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
@@ -75,12 +78,14 @@ pub fn build(name: &str, scale: Scale, seed: u64) -> Result<SceneSpec, SynthErro
         "shore" => shore::build(scale, seed),
         "campus" => campus::build(scale, seed),
         "landslide" => landslide::build(scale, seed),
+        "landslide-12mp" => landslide::build_12mp(seed),
         "corridor" => corridor::build(scale, seed, corridor::Layout::Band),
         "corridor-tracks" => corridor::build(scale, seed, corridor::Layout::Tracks),
         _ => Err(SynthError::InvalidScene(format!(
-            "unknown scene \"{name}\"; expected one of {}, or {}",
+            "unknown scene \"{name}\"; expected one of {}, or {}, or {}",
             SCENES.join(", "),
-            EXTRA_SCENES.join(", ")
+            EXTRA_SCENES.join(", "),
+            BENCH_SCENES.join(", ")
         ))),
     }
 }
