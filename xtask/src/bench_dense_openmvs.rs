@@ -17,8 +17,10 @@ use anyhow::{Context, bail};
 use nalgebra::Vector3;
 use timesift::Project;
 use timesift::film::ImageSource;
-use timesift::stages::{dense_input, dense_view};
-use timesift_dense::{PlanOptions, UndistortMap, plan_epoch};
+use timesift::stages::dense_input;
+use timesift_dense::{PlanOptions, plan_epoch};
+
+use crate::bench_dense_peer::save_working_grey;
 
 use crate::bench_dense_time::{DenseRun, time_command};
 
@@ -73,18 +75,8 @@ pub fn run_openmvs(
         // cameras.txt and the images, one PINHOLE camera per view.
         let mut cameras = String::new();
         for (v, vp) in plan.views.iter().enumerate() {
-            let (decoded, mask) = source.read(project, images[v], false)?.into_dense_parts();
-            let map = UndistortMap::new(&input.views[v].camera, vp.camera, plan.level);
-            let working = map.apply(&dense_view(&decoded), mask.as_ref(), true)?;
-            let grey: Vec<u8> = working
-                .grey
-                .data
-                .iter()
-                .map(|g| (g.clamp(0.0, 1.0) * 255.0).round() as u8)
-                .collect();
-            image::GrayImage::from_raw(vp.camera.width as u32, vp.camera.height as u32, grey)
-                .context("image size")?
-                .save(image_dir.join(format!("{v}.png")))?;
+            let png = image_dir.join(format!("{v}.png"));
+            save_working_grey(project, &source, images[v], &input, &plan, v, &png)?;
             // COLMAP's pixel convention is the project's: the top-left pixel's centre at (0.5, 0.5).
             writeln!(
                 cameras,

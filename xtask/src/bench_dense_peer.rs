@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use timesift::Project;
 use timesift::film::ImageSource;
 use timesift::stages::{dense_input, dense_view};
-use timesift_dense::{PlanOptions, UndistortMap, plan_epoch};
+use timesift_dense::{EpochInput, EpochPlan, PlanOptions, UndistortMap, plan_epoch};
 
 /// SGBM's clouds per epoch (world coordinates) and its wall times over every image.
 pub struct PeerResult {
@@ -45,19 +45,8 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
         std::fs::create_dir_all(&dir)?;
         let mut views = Vec::new();
         for (v, vp) in plan.views.iter().enumerate() {
-            let (decoded, mask) = source.read(project, images[v], false)?.into_dense_parts();
-            let map = UndistortMap::new(&input.views[v].camera, vp.camera, plan.level);
-            let working = map.apply(&dense_view(&decoded), mask.as_ref(), true)?;
             let png = dir.join(format!("{v}.png"));
-            let grey: Vec<u8> = working
-                .grey
-                .data
-                .iter()
-                .map(|g| (g.clamp(0.0, 1.0) * 255.0).round() as u8)
-                .collect();
-            image::GrayImage::from_raw(vp.camera.width as u32, vp.camera.height as u32, grey)
-                .context("image size")?
-                .save(&png)?;
+            save_working_grey(project, &source, images[v], &input, &plan, v, &png)?;
             let r = vp.cam_from_local.rotation_matrix();
             let t = vp.cam_from_local.translation;
             views.push(serde_json::json!({
@@ -117,4 +106,31 @@ pub fn run_sgbm(project: &Project, level: u32, work: &Path) -> anyhow::Result<Pe
         );
     }
     Ok(result)
+}
+
+/// View `v` of an epoch's plan as the dense stage matches it (read, masked, undistorted to its
+/// working pinhole), saved as an 8-bit grey PNG: the image the peers are fed.
+pub(crate) fn save_working_grey(
+    project: &Project,
+    source: &ImageSource,
+    image: usize,
+    input: &EpochInput,
+    plan: &EpochPlan,
+    v: usize,
+    png: &Path,
+) -> anyhow::Result<()> {
+    let vp = &plan.views[v];
+    let (decoded, mask) = source.read(project, image, false)?.into_dense_parts();
+    let map = UndistortMap::new(&input.views[v].camera, vp.camera, plan.level);
+    let working = map.apply(&dense_view(&decoded), mask.as_ref(), true)?;
+    let grey: Vec<u8> = working
+        .grey
+        .data
+        .iter()
+        .map(|g| (g.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    image::GrayImage::from_raw(vp.camera.width as u32, vp.camera.height as u32, grey)
+        .context("image size")?
+        .save(png)?;
+    Ok(())
 }
