@@ -56,22 +56,37 @@ pub fn time_dense(binary: &DenseBinary, dir: &Path, threads: usize) -> anyhow::R
 /// Runs a command to its end: its wall and CPU seconds and peak resident memory (`threads` as
 /// the caller asked it to use).
 pub fn time_command(command: &mut Command, threads: usize) -> anyhow::Result<DenseRun> {
+    match time_command_within(command, threads, None)? {
+        (run, false) => Ok(run),
+        (_, true) => bail!("{command:?} was killed"),
+    }
+}
+
+/// [`time_command`], the command killed (SIGKILL) once it has run `limit`: what it cost up to
+/// then and whether it was killed.
+pub fn time_command_within(
+    command: &mut Command,
+    threads: usize,
+    limit: Option<std::time::Duration>,
+) -> anyhow::Result<(DenseRun, bool)> {
     let start = Instant::now();
     let child = command
         .spawn()
-        .with_context(|| format!("starting the dense stage: {command:?}"))?;
-    let (status, usage, peak_kib) = wait_with_usage(child.id())?;
+        .with_context(|| format!("starting {command:?}"))?;
+    let deadline = limit.map(|l| start + l);
+    let (status, usage, peak_kib, killed) = wait_with_usage(child.id(), deadline)?;
     let wall = start.elapsed().as_secs_f64();
-    if status != 0 {
+    if status != 0 && !killed {
         bail!("{command:?} failed (wait status {status})");
     }
     let seconds = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-    Ok(DenseRun {
+    let run = DenseRun {
         threads,
         wall,
         cpu: seconds(usage.ru_utime) + seconds(usage.ru_stime),
         peak_mib: peak_kib as f64 / 1024.0,
-    })
+    };
+    Ok((run, killed))
 }
 
 /// Waits for the child `pid`; its wait status, resource usage and peak resident memory (KiB).
@@ -79,10 +94,21 @@ pub fn time_command(command: &mut Command, threads: usize) -> anyhow::Result<Den
 /// The peak is the child's `VmHWM`, read every 50 ms while it runs: `ru_maxrss` will not do, as
 /// a child's starts from its parent's peak when forked and exec keeps it (this bench's process
 /// holds scenes and clouds of hundreds of MiB).
-fn wait_with_usage(pid: u32) -> anyhow::Result<(i32, libc::rusage, u64)> {
+///
+/// Past `deadline` the child is killed (SIGKILL); the last value says so.
+fn wait_with_usage(
+    pid: u32,
+    deadline: Option<Instant>,
+) -> anyhow::Result<(i32, libc::rusage, u64, bool)> {
     let status_file = format!("/proc/{pid}/status");
     let mut peak_kib = 0;
+    let mut killed = false;
     loop {
+        if !killed && deadline.is_some_and(|d| Instant::now() > d) {
+            // SAFETY: pid is our own child, not reaped yet, so the id names it.
+            unsafe { libc::kill(pid as libc::pid_t, libc::SIGKILL) };
+            killed = true;
+        }
         if let Some(kib) = std::fs::read_to_string(&status_file)
             .ok()
             .and_then(|s| vm_hwm_kib(&s))
@@ -96,11 +122,11 @@ fn wait_with_usage(pid: u32) -> anyhow::Result<(i32, libc::rusage, u64)> {
         let reaped =
             unsafe { libc::wait4(pid as libc::pid_t, &mut status, libc::WNOHANG, &mut usage) };
         if reaped == pid as libc::pid_t {
-            return Ok((status, usage, peak_kib));
+            return Ok((status, usage, peak_kib, killed));
         }
         if reaped != 0 {
             bail!(
-                "wait4 for the dense stage: {}",
+                "wait4 for a timed command: {}",
                 std::io::Error::last_os_error()
             );
         }

@@ -10,6 +10,8 @@
 //! - `bench align`: images to oriented block on `lund` against COLMAP's CPU pipeline (time, RMS
 //!   reprojection error).
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
+//! - `bench scale [--max-images N]`: every stage's time, memory and files on `synth scale-N`
+//!   blocks of 100 to 1,600 images, growth exponents, accuracy per N, a log-log plot.
 //!
 //! - `fn-lengths [--max-lines N] [--check COUNT]`: the functions over N lines in the shipped
 //!   code, and whether each says why it stays long.
@@ -41,6 +43,8 @@ mod bench_geometry;
 mod bench_matching;
 mod bench_methods;
 mod bench_raster;
+mod bench_scale;
+mod bench_scale_colmap;
 mod fn_lengths;
 
 use std::path::PathBuf;
@@ -151,6 +155,25 @@ enum Task {
         /// Project directory.
         dir: PathBuf,
     },
+    /// One stage of a project, alone in this process (the scale bench times each so).
+    #[command(hide = true)]
+    RunStage {
+        /// Project directory.
+        dir: PathBuf,
+        /// The stage.
+        #[arg(value_enum)]
+        stage: timesift::stages::Stage,
+    },
+    /// COLMAP 4's mappers on an oriented scale-bench block's matches, scored beside its own
+    /// orientation (the scale bench's peer rows, for one block by hand).
+    #[command(hide = true)]
+    ScalePeers {
+        /// Project directory (a `synth scale-N` block after its align stage).
+        dir: PathBuf,
+        /// A Python with pycolmap 4.
+        #[arg(long, env = "PYCOLMAP_PYTHON")]
+        python: PathBuf,
+    },
     /// The DEM scores of a rendered-mar project's dense clouds as they are (the dense bench's
     /// scoring, for trying `[dense]` settings by hand).
     #[command(hide = true)]
@@ -206,6 +229,37 @@ enum BenchStage {
     Matching,
     /// Images to oriented block on `lund` against COLMAP's CPU pipeline (2 threads).
     Align,
+    /// Every stage's wall and CPU time, peak memory and files written on `synth scale-N` blocks
+    /// (N = 100, 200, 400, 800, 1,600 images), growth exponents, check points and the DoDs'
+    /// tilt on stable ground per N, a log-log plot (scale.png).
+    Scale {
+        /// The largest block, images (the sizes double from 100 up to it).
+        #[arg(long, default_value_t = 1600)]
+        max_images: usize,
+        /// Scene seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder.
+        #[arg(long, default_value = "target/bench-scale")]
+        out: PathBuf,
+        /// Threads of every stage.
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// A stage still running after this many seconds is killed (the size's later stages
+        /// are skipped).
+        #[arg(long, default_value_t = 3600)]
+        stage_limit: u64,
+        /// Reuse the scenes already rendered in the output folder.
+        #[arg(long)]
+        reuse: bool,
+        /// Dense clouds with the default `[dense]` settings rather than the lighter ones.
+        #[arg(long)]
+        full_dense: bool,
+        /// A Python with pycolmap 4 (`pip install pycolmap`): COLMAP's incremental and global
+        /// mappers on the same verified matches, timed and scored alike.
+        #[arg(long, env = "PYCOLMAP_PYTHON")]
+        colmap: Option<PathBuf>,
+    },
     /// DoD-level co-registration on rendered-mar (two real beach surveys rendered with exact
     /// truth): each epoch's DEM and the DoD against the truth over stable ground (median, tilt
     /// of a plane), check points and the report's predicted tilt σ, per variant.
@@ -312,6 +366,22 @@ const DATA_SETS: [(&str, &str); 5] = [
     ("bal", "lund-29-1863-pre.txt"),
     ("libmv-ba", "problem_01.bin"),
 ];
+
+/// Registers DejaVu Sans (Debian's `fonts-dejavu-core`) as plotters' "sans-serif": without
+/// fontconfig, plotters draws text only with a font handed to it.
+fn register_plot_font() -> anyhow::Result<()> {
+    static FONT: std::sync::OnceLock<&'static [u8]> = std::sync::OnceLock::new();
+    const PATH: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+    if FONT.get().is_none() {
+        let bytes = std::fs::read(PATH)
+            .with_context(|| format!("{PATH} (apt-get install fonts-dejavu-core)"))?;
+        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+        plotters::style::register_font("sans-serif", plotters::style::FontStyle::Normal, bytes)
+            .map_err(|_| anyhow::anyhow!("{PATH}: not a font plotters can read"))?;
+        let _ = FONT.set(bytes);
+    }
+    Ok(())
+}
 
 fn shared_data() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
@@ -450,6 +520,30 @@ fn main() -> anyhow::Result<()> {
         Task::Bench {
             stage: BenchStage::Align,
         } => bench_align::run()?,
+        Task::Bench {
+            stage:
+                BenchStage::Scale {
+                    max_images,
+                    seed,
+                    out,
+                    threads,
+                    stage_limit,
+                    reuse,
+                    full_dense,
+                    colmap,
+                },
+        } => bench_scale::run(&bench_scale::ScaleBench {
+            sizes: std::iter::successors(Some(100usize), |n| Some(n * 2))
+                .take_while(|n| *n <= max_images)
+                .collect(),
+            out,
+            seed,
+            threads,
+            stage_limit: std::time::Duration::from_secs(stage_limit),
+            reuse,
+            full_dense,
+            colmap,
+        })?,
         Task::Bench {
             stage:
                 BenchStage::Coreg {
@@ -613,6 +707,15 @@ fn main() -> anyhow::Result<()> {
         }
         Task::ScoreMar { dir, sgbm } => {
             print!("{}", bench_dense_mar::score_project(&dir, sgbm)?);
+        }
+        Task::RunStage { dir, stage } => {
+            let project = timesift::Project::load(&dir)?;
+            timesift::stages::run(&project, Some(stage), Some(stage))?;
+        }
+        Task::ScalePeers { dir, python } => {
+            for row in bench_scale_colmap::run_peers(&dir, &python, 2)? {
+                println!("{}", serde_json::to_string(&row)?);
+            }
         }
         Task::RunDense { dir } => {
             let project = timesift::Project::load(&dir)?;

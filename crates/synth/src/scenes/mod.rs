@@ -8,6 +8,7 @@ mod corridor;
 mod glacier;
 mod landslide;
 mod orchard;
+mod scale;
 mod shore;
 mod soil_pit;
 
@@ -64,8 +65,11 @@ pub const SCENES: [&str; 7] = [
 /// epochs taken by a digital frame camera, so one noisy film epoch sits among clean digital ones.
 pub const EXTRA_SCENES: [&str; 3] = ["corridor", "corridor-tracks", "archival-mixed"];
 /// Scenes for benchmarks only, whatever the scale: `landslide-12mp` (one epoch of nine
-/// 4000 × 3000 images, for the dense stage at a realistic image size).
-pub const BENCH_SCENES: [&str; 1] = ["landslide-12mp"];
+/// 4000 × 3000 images, for the dense stage at a realistic image size) and `scale-<N>` (a block
+/// of N images over farmland, [`ScaleLayout`] saying how they are flown, for the scale bench).
+pub const BENCH_SCENES: [&str; 2] = ["landslide-12mp", "scale-<N>"];
+
+pub use scale::ScaleLayout;
 
 /// The scene called `name`.
 pub fn build(name: &str, scale: Scale, seed: u64) -> Result<SceneSpec, SynthError> {
@@ -79,6 +83,12 @@ pub fn build(name: &str, scale: Scale, seed: u64) -> Result<SceneSpec, SynthErro
         "campus" => campus::build(scale, seed),
         "landslide" => landslide::build(scale, seed),
         "landslide-12mp" => landslide::build_12mp(seed),
+        _ if name.starts_with("scale-") => match name["scale-".len()..].parse::<usize>() {
+            Ok(n) => scale::build(n, seed),
+            Err(_) => Err(SynthError::InvalidScene(format!(
+                "\"{name}\": expected scale-<N>, N a number of images"
+            ))),
+        },
         "corridor" => corridor::build(scale, seed, corridor::Layout::Band),
         "corridor-tracks" => corridor::build(scale, seed, corridor::Layout::Tracks),
         _ => Err(SynthError::InvalidScene(format!(

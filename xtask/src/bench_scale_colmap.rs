@@ -1,0 +1,122 @@
+//! The scale bench's peers: COLMAP 4's incremental and global mappers (pycolmap, `pip install
+//! pycolmap`) on timesift's own verified matches of the same block, scored like timesift's
+//! orientation by `xtask/scripts/colmap_scale.py` (similarity to the GNSS priors, and to the
+//! GCPs; check points intersected per epoch from their markers).
+
+use std::io::Write;
+use std::path::Path;
+use std::process::Command;
+
+use anyhow::Context;
+use timesift::Project;
+use timesift_io::layout::Layout;
+
+/// One mapper's orientation of the block, scored.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct PeerRow {
+    pub mapper: String,
+    /// Wall seconds (none for timesift's own block: the align stage's time is in the table).
+    pub seconds: Option<f64>,
+    pub registered: Option<usize>,
+    /// Check-point RMSE (dE, dN, dH), m, after a similarity to the GNSS priors.
+    pub check_rmse_gnss_m: Option<[f64; 3]>,
+    /// The same after a similarity to the GCPs intersected from their markers.
+    pub check_rmse_gcps_m: Option<[f64; 3]>,
+    pub error: Option<String>,
+}
+
+/// Least verified matches for a pair to be handed to COLMAP (its own `min_num_matches`).
+const MIN_MATCHES: usize = 15;
+
+/// Writes the block's keypoints and verified matches for COLMAP, runs both mappers with
+/// `threads` threads, and returns their rows and timesift's own, scored alike.
+pub fn run_peers(dir: &Path, python: &Path, threads: usize) -> anyhow::Result<Vec<PeerRow>> {
+    let project = Project::load(dir)?;
+    let layout = project.layout();
+    let input = dir.join("work/colmap-peer");
+    let _ = std::fs::remove_dir_all(&input);
+    std::fs::create_dir_all(input.join("kp"))?;
+    export_block(&project, &layout, &input)?;
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/colmap_scale.py");
+    let out_json = input.join("rows.json");
+    let status = Command::new(python)
+        .arg(&script)
+        .arg(&input)
+        .arg(dir)
+        .arg(&out_json)
+        .arg("--threads")
+        .arg(threads.to_string())
+        .env("OMP_NUM_THREADS", threads.to_string())
+        .status()
+        .with_context(|| format!("{} {}", python.display(), script.display()))?;
+    anyhow::ensure!(status.success(), "{} failed: {status}", script.display());
+    let text = std::fs::read_to_string(&out_json)?;
+    let rows: Vec<serde_json::Value> = serde_json::from_str(&text)?;
+    Ok(rows
+        .iter()
+        .filter(|r| r["mapper"] != "database")
+        .map(|r| {
+            let triple = |key: &str| {
+                r[key].as_array().and_then(|a| {
+                    let v: Vec<f64> = a.iter().filter_map(|x| x.as_f64()).collect();
+                    (v.len() == 3).then(|| [v[0], v[1], v[2]])
+                })
+            };
+            PeerRow {
+                mapper: r["mapper"].as_str().unwrap_or("?").to_string(),
+                seconds: r["seconds"].as_f64(),
+                registered: r["registered"].as_u64().map(|n| n as usize),
+                check_rmse_gnss_m: triple("check_rmse_gnss_m"),
+                check_rmse_gcps_m: triple("check_rmse_gcps_m"),
+                error: r["error"].as_str().map(str::to_string),
+            }
+        })
+        .collect())
+}
+
+/// `images.csv`, `kp/<i>.f32` and `matches.bin` (see the script's doc).
+fn export_block(project: &Project, layout: &Layout, input: &Path) -> anyhow::Result<()> {
+    let mut images = String::from("id,name,epoch,width,height,focal_px\n");
+    for (i, image) in project.images.iter().enumerate() {
+        let path = project.dir.join(&image.name);
+        let (w, h) = image::image_dimensions(&path).with_context(|| path.display().to_string())?;
+        let f = timesift_io::exif::read_exif(&path)
+            .ok()
+            .and_then(|e| e.focal_length_px(w, h))
+            .unwrap_or(1.2 * w.max(h) as f64);
+        images.push_str(&format!(
+            "{i},{},{},{w},{h},{f}\n",
+            image.name,
+            project.epochs[image.epoch.index()].name
+        ));
+        let (keypoints, _) = timesift_matching::storage::read_features(&layout.feature_file(i))?;
+        let bytes: Vec<u8> = keypoints
+            .iter()
+            .flat_map(|k| [k.x as f32, k.y as f32])
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        std::fs::write(input.join(format!("kp/{i}.f32")), bytes)?;
+    }
+    std::fs::write(input.join("images.csv"), images)?;
+    let mut out = std::io::BufWriter::new(std::fs::File::create(input.join("matches.bin"))?);
+    let mut files: Vec<_> = std::fs::read_dir(layout.matches_dir())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter_map(|p| Layout::match_file_pair(&p).map(|pair| (pair, p)))
+        .collect();
+    files.sort();
+    for ((a, b), path) in files {
+        let matches = timesift_matching::storage::read_matches(&path)?;
+        if matches.len() < MIN_MATCHES {
+            continue;
+        }
+        for v in [a as u32, b as u32, matches.len() as u32] {
+            out.write_all(&v.to_le_bytes())?;
+        }
+        for m in &matches {
+            out.write_all(&m.query.to_le_bytes())?;
+            out.write_all(&m.train.to_le_bytes())?;
+        }
+    }
+    out.flush()?;
+    Ok(())
+}
