@@ -310,6 +310,12 @@ pub struct AlignConfig {
     /// Which pairs are matched. Default `auto`.
     #[serde(default)]
     pub pair_selection: PairSelection,
+    /// Between epochs, each epoch is matched with the reference epoch and with this many
+    /// epochs before and after it in `[[epoch]]` order (time order). Default: every other
+    /// epoch up to 8 epochs, then 2 either side, so that the pairs per image stay bounded as the
+    /// archive grows (a block of 16 epochs would otherwise match every image with 15 others).
+    #[serde(default)]
+    pub epoch_partners: Option<usize>,
     /// Keypoint limit per image. Default 40000.
     #[serde(default = "default_max_keypoints")]
     pub max_keypoints: usize,
@@ -409,6 +415,22 @@ fn default_marker_px() -> f64 {
     0.5
 }
 
+/// Epochs up to which every pair of epochs is matched when `epoch_partners` is not given.
+pub const ALL_EPOCH_PAIRS_UP_TO: usize = 8;
+/// Epochs matched either side of each beyond [`ALL_EPOCH_PAIRS_UP_TO`] epochs.
+pub const DEFAULT_EPOCH_PARTNERS: usize = 2;
+
+impl AlignConfig {
+    /// The epochs either side of each that it is matched with, in a block of `epochs` epochs.
+    pub fn epoch_partners(&self, epochs: usize) -> usize {
+        match self.epoch_partners {
+            Some(n) => n,
+            None if epochs <= ALL_EPOCH_PAIRS_UP_TO => epochs,
+            None => DEFAULT_EPOCH_PARTNERS,
+        }
+    }
+}
+
 impl Default for AlignConfig {
     fn default() -> Self {
         AlignConfig {
@@ -416,6 +438,7 @@ impl Default for AlignConfig {
             reference_epoch: None,
             features: FeatureMethod::default(),
             pair_selection: PairSelection::default(),
+            epoch_partners: None,
             max_keypoints: default_max_keypoints(),
             tie_point_accuracy_px: default_tie_px(),
             marker_accuracy_px: default_marker_px(),

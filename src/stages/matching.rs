@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use rayon::prelude::*;
 use timesift_core::{EpochId, ImageId};
 use timesift_matching::guided::{GuidedOptions, grow_verified};
-use timesift_matching::pairs::{PairPolicy, epoch_aware};
+use timesift_matching::pairs::{EpochPartners, PairPolicy, epoch_aware};
 use timesift_matching::preselect::{PreselectOptions, coarse_matches, preselect};
 use timesift_matching::storage::{read_features, read_matches, write_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
@@ -144,7 +144,8 @@ pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
 }
 
 /// The pairs to match: within an epoch the spatial neighbours (every pair where an image has no
-/// position prior, or with `pair_selection = "exhaustive"`), across epochs the nearest.
+/// position prior, or with `pair_selection = "exhaustive"`), across epochs the nearest, with the
+/// reference epoch and the `epoch_partners` epochs either side.
 fn candidate_pairs(
     project: &Project,
     epoch_of: &[EpochId],
@@ -170,11 +171,16 @@ fn candidate_pairs(
     } else {
         PairPolicy::Exhaustive
     };
+    let partners = EpochPartners::Nearest {
+        neighbours: project.config.align.epoch_partners(project.epochs.len()),
+        reference: project.reference_epoch,
+    };
     Ok(epoch_aware(
         epoch_of,
         &positions,
         within,
         ACROSS_EPOCH_NEIGHBOURS,
+        partners,
     ))
 }
 

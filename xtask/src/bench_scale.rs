@@ -39,16 +39,10 @@ pub struct ScaleBench {
     pub colmap: Option<PathBuf>,
 }
 
-/// The stages timed, in order (the report is not: it only gathers).
-const STAGES: [Stage; 7] = [
-    Stage::Features,
-    Stage::Match,
-    Stage::Align,
-    Stage::Dense,
-    Stage::Dem,
-    Stage::Ortho,
-    Stage::Change,
-];
+/// The stages timed, in order: all but the report, which only gathers.
+fn timed_stages() -> impl Iterator<Item = Stage> {
+    Stage::ALL.into_iter().filter(|s| *s != Stage::Report)
+}
 
 /// One stage at one N.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -151,7 +145,7 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
         let _ = std::fs::remove_dir_all(dir.join(sub));
     }
     let mut stages = Vec::new();
-    for stage in STAGES {
+    for stage in timed_stages() {
         let cost = run_stage(bench, &dir, stage)?;
         println!(
             "  {:<8} {:>8.1} s wall {:>8.1} s CPU {:>7.0} MiB {:>6} files  {}",
@@ -433,7 +427,7 @@ fn markdown(bench: &ScaleBench, rows: &[SizeRow]) -> String {
         }
     }
     s.push_str("\n## Growth exponents (slope of log wall time against log N, N ≥ 200)\n\n| stage | exponent | sizes |\n|---|---|---|\n");
-    for stage in STAGES {
+    for stage in timed_stages() {
         let walls = stage_walls(rows, stage.name());
         let used = walls.iter().filter(|(n, _)| *n >= 200).count();
         s.push_str(&format!(
@@ -531,8 +525,7 @@ fn peer_table(rows: &[SizeRow]) -> String {
 fn plot(rows: &[SizeRow], path: &Path) -> anyhow::Result<()> {
     use plotters::prelude::*;
     crate::register_plot_font()?;
-    let series: Vec<(&str, Vec<(f64, f64)>)> = STAGES
-        .iter()
+    let series: Vec<(&str, Vec<(f64, f64)>)> = timed_stages()
         .map(|s| {
             (
                 s.name(),

@@ -14,7 +14,7 @@ use timesift_core::{CameraModel, EpochId, project_world};
 use timesift_features::FeatureExtractor;
 use timesift_geometry::triangulation::triangulate_two_view_midpoint;
 use timesift_matching::guided::{GuidedOptions, grow_verified};
-use timesift_matching::pairs::{PairPolicy, epoch_aware};
+use timesift_matching::pairs::{EpochPartners, PairPolicy, epoch_aware};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
 use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
 
@@ -63,6 +63,7 @@ fn inter_epoch_matches_exist_and_are_right() {
             max_distance: None,
         },
         3,
+        EpochPartners::All,
     );
     let options = MatchOptions {
         ratio_on: FloatDistance::Angle,
