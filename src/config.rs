@@ -421,12 +421,13 @@ pub const ALL_EPOCH_PAIRS_UP_TO: usize = 8;
 pub const DEFAULT_EPOCH_PARTNERS: usize = 2;
 
 impl AlignConfig {
-    /// The epochs either side of each that it is matched with, in a block of `epochs` epochs.
-    pub fn epoch_partners(&self, epochs: usize) -> usize {
+    /// The epochs either side of each that it is matched with, in a block of `epochs` epochs;
+    /// `None`: every other epoch.
+    pub fn epoch_partners(&self, epochs: usize) -> Option<usize> {
         match self.epoch_partners {
-            Some(n) => n,
-            None if epochs <= ALL_EPOCH_PAIRS_UP_TO => epochs,
-            None => DEFAULT_EPOCH_PARTNERS,
+            Some(n) => Some(n),
+            None if epochs <= ALL_EPOCH_PAIRS_UP_TO => None,
+            None => Some(DEFAULT_EPOCH_PARTNERS),
         }
     }
 }

@@ -171,9 +171,12 @@ fn candidate_pairs(
     } else {
         PairPolicy::Exhaustive
     };
-    let partners = EpochPartners::Nearest {
-        neighbours: project.config.align.epoch_partners(project.epochs.len()),
-        reference: project.reference_epoch,
+    let partners = match project.config.align.epoch_partners(project.epochs.len()) {
+        Some(neighbours) => EpochPartners::Nearest {
+            neighbours,
+            reference: project.reference_epoch,
+        },
+        None => EpochPartners::All,
     };
     Ok(epoch_aware(
         epoch_of,

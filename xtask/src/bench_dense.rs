@@ -314,8 +314,8 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
             line("baseline align cams", &row.align_before),
             line("SGBM", &row.peer),
         );
-        if let Some(s) = &row.openmvs {
-            println!("{scene} {}{}", row.epoch, line("OpenMVS", &Some(s.clone())));
+        if row.openmvs.is_some() {
+            println!("{scene} {}{}", row.epoch, line("OpenMVS", &row.openmvs));
         }
         rows.push(row);
     }

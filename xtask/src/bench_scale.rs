@@ -14,6 +14,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::Context;
 use timesift::Project;
+use timesift::config::DenseConfig;
 use timesift::stages::Stage;
 use timesift_change::grid::Dem;
 use timesift_change::trend::{SurfaceAgreement, residual_plane};
@@ -55,8 +56,17 @@ struct StageCost {
     files: usize,
     /// Killed at the stage limit.
     killed: bool,
+    /// Ended with an error (the summary says which).
+    failed: bool,
     /// The stage's summary line (`work/run.json`), or its error.
     summary: String,
+}
+
+impl StageCost {
+    /// Ran to its end: its figures are the stage's whole cost.
+    fn completed(&self) -> bool {
+        !self.killed && !self.failed
+    }
 }
 
 /// One DoD (an epoch against the reference epoch) against the true DoD over the true stable
@@ -129,11 +139,9 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
             &timesift_synth::writer::WriteOptions { images: true },
         )?;
         if !bench.full_dense {
-            let mut toml = std::fs::read_to_string(dir.join("project.toml"))?;
-            toml.push_str(
-                "\n[dense]\nrefine = false\nmax_sources = 5\niterations = 2\ngeometric_iterations = 1\n",
-            );
-            std::fs::write(dir.join("project.toml"), toml)?;
+            let mut text = std::fs::read_to_string(dir.join("project.toml"))?;
+            text.push_str(&quick_dense_table()?);
+            std::fs::write(dir.join("project.toml"), text)?;
         }
     }
     let render_s = start.elapsed().as_secs_f64();
@@ -151,18 +159,14 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
             "  {:<8} {:>8.1} s wall {:>8.1} s CPU {:>7.0} MiB {:>6} files  {}",
             cost.stage, cost.wall_s, cost.cpu_s, cost.peak_mib, cost.files, cost.summary
         );
-        let stop = cost.killed || cost.summary.starts_with("failed");
+        let stop = !cost.completed();
         stages.push(cost);
         if stop {
             break;
         }
     }
     let project = Project::load(&dir)?;
-    let done = |s: Stage| {
-        stages
-            .iter()
-            .any(|c| c.stage == s.name() && !c.killed && !c.summary.starts_with("failed"))
-    };
+    let done = |s: Stage| stages.iter().any(|c| c.stage == s.name() && c.completed());
     let truth = timesift::eval::project_truth(&project)?;
     let gsd_m = nadir_gsd(&project)?;
     let check_rmse_gsd = if done(Stage::Align) {
@@ -203,6 +207,14 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
     })
 }
 
+/// `[dense]` with [`DenseConfig::quick`]'s settings, to append to a project file.
+fn quick_dense_table() -> anyhow::Result<String> {
+    Ok(format!(
+        "\n[dense]\n{}",
+        toml::to_string(&DenseConfig::quick())?
+    ))
+}
+
 /// The mean ground sampling distance of the true cameras: each one's height above the true
 /// surface under it over its focal length (the check points' distance would grow with the
 /// block's area).
@@ -241,14 +253,15 @@ fn run_stage(bench: &ScaleBench, dir: &Path, stage: Stage) -> anyhow::Result<Sta
         .iter()
         .filter(|(path, stamp)| before.get(*path) != Some(stamp))
         .count();
-    let (run, killed, summary) = match timed {
+    let (run, killed, failed, summary) = match timed {
         Ok((run, true)) => (
             run,
             true,
+            false,
             format!("killed after {:.0} s", bench.stage_limit.as_secs_f64()),
         ),
-        Ok((run, false)) => (run, false, stage_summary(dir, stage)),
-        Err(e) => (Default::default(), false, format!("failed: {e:#}")),
+        Ok((run, false)) => (run, false, false, stage_summary(dir, stage)),
+        Err(e) => (Default::default(), false, true, format!("failed: {e:#}")),
     };
     Ok(StageCost {
         stage: stage.name().to_string(),
@@ -257,6 +270,7 @@ fn run_stage(bench: &ScaleBench, dir: &Path, stage: Stage) -> anyhow::Result<Sta
         peak_mib: run.peak_mib,
         files,
         killed,
+        failed,
         summary,
     })
 }
@@ -378,7 +392,7 @@ fn stage_walls(rows: &[SizeRow], stage: &str) -> Vec<(usize, f64)> {
     rows.iter()
         .filter_map(|r| {
             let c = r.stages.iter().find(|c| c.stage == stage)?;
-            (!c.killed && !c.summary.starts_with("failed")).then_some((r.images, c.wall_s))
+            c.completed().then_some((r.images, c.wall_s))
         })
         .collect()
 }
@@ -405,9 +419,9 @@ fn markdown(bench: &ScaleBench, rows: &[SizeRow]) -> String {
         bench.threads,
         bench.stage_limit.as_secs_f64(),
         if bench.full_dense {
-            "defaults"
+            "defaults".to_string()
         } else {
-            "quick (refine false, max_sources 5, iterations 2, geometric_iterations 1)"
+            format!("quick: {}", DenseConfig::quick().differences())
         }
     );
     s.push_str(&table(rows));
@@ -418,7 +432,7 @@ fn markdown(bench: &ScaleBench, rows: &[SizeRow]) -> String {
             .iter()
             .filter(|c| ["features", "match", "align"].contains(&c.stage.as_str()))
             .collect();
-        if walls.len() == 3 && walls.iter().all(|c| !c.killed) {
+        if walls.len() == 3 && walls.iter().all(|c| c.completed()) {
             s.push_str(&format!(
                 "| {} | {:.0} |\n",
                 r.images,
@@ -484,7 +498,7 @@ fn peer_table(rows: &[SizeRow]) -> String {
         let align = r
             .stages
             .iter()
-            .find(|c| c.stage == "align" && !c.killed)
+            .find(|c| c.stage == "align" && c.completed())
             .map(|c| c.wall_s);
         let gsd = |v: Option<[f64; 3]>| {
             v.map_or("—".to_string(), |v| {
@@ -595,6 +609,16 @@ fn plot(rows: &[SizeRow], path: &Path) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_quick_dense_table_reads_back_as_the_quick_settings() {
+        #[derive(serde::Deserialize)]
+        struct File {
+            dense: DenseConfig,
+        }
+        let file: File = toml::from_str(&quick_dense_table().unwrap()).unwrap();
+        assert_eq!(file.dense, DenseConfig::quick());
+    }
 
     #[test]
     fn the_growth_exponent_of_a_power_law_is_its_power() {

@@ -51,26 +51,12 @@ pub fn run_peers(dir: &Path, python: &Path, threads: usize) -> anyhow::Result<Ve
         .with_context(|| format!("{} {}", python.display(), script.display()))?;
     anyhow::ensure!(status.success(), "{} failed: {status}", script.display());
     let text = std::fs::read_to_string(&out_json)?;
-    let rows: Vec<serde_json::Value> = serde_json::from_str(&text)?;
+    let rows: Vec<PeerRow> =
+        serde_json::from_str(&text).with_context(|| out_json.display().to_string())?;
+    // The first row times the database's writing, not a mapper.
     Ok(rows
-        .iter()
-        .filter(|r| r["mapper"] != "database")
-        .map(|r| {
-            let triple = |key: &str| {
-                r[key].as_array().and_then(|a| {
-                    let v: Vec<f64> = a.iter().filter_map(|x| x.as_f64()).collect();
-                    (v.len() == 3).then(|| [v[0], v[1], v[2]])
-                })
-            };
-            PeerRow {
-                mapper: r["mapper"].as_str().unwrap_or("?").to_string(),
-                seconds: r["seconds"].as_f64(),
-                registered: r["registered"].as_u64().map(|n| n as usize),
-                check_rmse_gnss_m: triple("check_rmse_gnss_m"),
-                check_rmse_gcps_m: triple("check_rmse_gcps_m"),
-                error: r["error"].as_str().map(str::to_string),
-            }
-        })
+        .into_iter()
+        .filter(|r| r.mapper != "database")
         .collect())
 }
 
@@ -119,4 +105,28 @@ fn export_block(project: &Project, layout: &Layout, input: &Path) -> anyhow::Res
     }
     out.flush()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::PeerRow;
+
+    #[test]
+    fn the_script_s_rows_read_as_peer_rows() {
+        // As colmap_scale.py writes them: the database row, a block without seconds, a failure.
+        let text = r#"[
+ {"mapper": "database", "seconds": 1.5, "images": 200, "pairs": 4206},
+ {"mapper": "timesift", "seconds": null, "registered": 200,
+  "check_rmse_gnss_m": [0.5, 0.8, 0.57], "checks_gnss": 40,
+  "check_rmse_gcps_m": [0.04, 0.03, 0.09], "checks_gcps": 40},
+ {"mapper": "colmap-global", "seconds": 12.0, "error": "no model"}
+]"#;
+        let rows: Vec<PeerRow> = serde_json::from_str(text).unwrap();
+        assert_eq!(rows.len(), 3);
+        assert_eq!(rows[1].seconds, None);
+        assert_eq!(rows[1].registered, Some(200));
+        assert_eq!(rows[1].check_rmse_gcps_m, Some([0.04, 0.03, 0.09]));
+        assert_eq!(rows[2].error.as_deref(), Some("no model"));
+        assert_eq!(rows[2].check_rmse_gnss_m, None);
+    }
 }

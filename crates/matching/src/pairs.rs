@@ -68,11 +68,7 @@ pub fn select(
                     .filter(|&&b| b != a)
                     .filter_map(|&b| {
                         let pb = positions.get(b).copied().flatten()?;
-                        let d = ((pa[0] - pb[0]).powi(2)
-                            + (pa[1] - pb[1]).powi(2)
-                            + (pa[2] - pb[2]).powi(2))
-                        .sqrt();
-                        Some((d, b))
+                        Some((distance(pa, pb), b))
                     })
                     .filter(|(d, _)| max_distance.is_none_or(|m| *d <= m))
                     .collect();
