@@ -316,6 +316,12 @@ pub struct AlignConfig {
     /// archive grows (a block of 16 epochs would otherwise match every image with 15 others).
     #[serde(default)]
     pub epoch_partners: Option<usize>,
+    /// Which structure from motion orients the `timesift` block: `incremental` (one image at a
+    /// time), `global` (rotations averaged over every pair, centres from the GNSS priors and
+    /// the pairs' directions, a few adjustments of the whole block; falls back to incremental
+    /// without priors), `auto` (global from 200 images). Default `auto`.
+    #[serde(default)]
+    pub mapper: MapperConfig,
     /// Keypoint limit per image. Default 40000.
     #[serde(default = "default_max_keypoints")]
     pub max_keypoints: usize,
@@ -372,6 +378,21 @@ pub struct AlignConfig {
 
 fn default_reference_dem_sigma() -> f64 {
     0.5
+}
+
+/// `[align] mapper`: which structure from motion orients the block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MapperConfig {
+    /// `global` for blocks of 200 images and more, `incremental` below
+    /// (`timesift_align::Mapper::Auto`).
+    #[default]
+    Auto,
+    /// One image at a time from an initial pair (`timesift_align::Mapper::Incremental`).
+    Incremental,
+    /// Rotation averaging and GNSS-seeded centres, then a few adjustments of the whole block
+    /// (`timesift_align::Mapper::Global`).
+    Global,
 }
 
 /// `[align] outlier_bound`: whose noise the observation outlier bound (4 σ) follows.
@@ -440,6 +461,7 @@ impl Default for AlignConfig {
             features: FeatureMethod::default(),
             pair_selection: PairSelection::default(),
             epoch_partners: None,
+            mapper: MapperConfig::default(),
             max_keypoints: default_max_keypoints(),
             tie_point_accuracy_px: default_tie_px(),
             marker_accuracy_px: default_marker_px(),

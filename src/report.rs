@@ -26,6 +26,10 @@ pub struct AlignReport {
     pub rms_reprojection_px: Option<f64>,
     /// Tie points.
     pub tie_points: usize,
+    /// The structure from motion that oriented the images: `incremental` or `global`
+    /// (`[align] mapper`; `global` falls back to `incremental` without GNSS priors).
+    #[serde(default)]
+    pub mapper: Option<String>,
     /// Inter-epoch tie points split by epoch because their surface moved.
     pub inter_epoch_ties_split_as_moved: usize,
     /// Inter-epoch tie points split by epoch because they lie off the stable areas, or (without

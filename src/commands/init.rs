@@ -197,6 +197,10 @@ fn align_section(text: &mut String, reference: &str) {
         text,
         "# epoch_partners = 2  # epochs matched either side of each, and the reference (default: all up to 8 epochs, then 2)"
     );
+    let _ = writeln!(
+        text,
+        "# mapper = \"auto\"  # auto (global from 200 images) | incremental | global (rotation averaging and GNSS-seeded centres: faster on large blocks; needs priors)"
+    );
     let _ = writeln!(text, "# max_keypoints = 40000");
     let _ = writeln!(text, "# tie_point_accuracy_px = 1.0");
     let _ = writeln!(text, "# marker_accuracy_px = 0.5");

@@ -88,6 +88,7 @@ fn project(dir: &Path) {
         images_oriented: 3,
         rms_reprojection_px: Some(0.4),
         tie_points: 90,
+        mapper: Some("incremental".into()),
         inter_epoch_ties_split_as_moved: 0,
         inter_epoch_ties_split_off_stable: 0,
         inter_epoch_ties_joined: 0,

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::Context;
 use timesift::Project;
-use timesift::config::DenseConfig;
+use timesift::config::{DenseConfig, MapperConfig};
 use timesift::stages::Stage;
 use timesift_change::grid::Dem;
 use timesift_change::trend::{SurfaceAgreement, residual_plane};
@@ -38,6 +38,11 @@ pub struct ScaleBench {
     pub full_dense: bool,
     /// A Python with pycolmap: COLMAP 4's mappers on the same matches after the align stage.
     pub colmap: Option<PathBuf>,
+    /// `[align] mapper` of every block.
+    pub mapper: MapperConfig,
+    /// Up to this N, the align stage also runs with the other mapper on the same matches (in a
+    /// sibling project), timed and scored alike.
+    pub compare_mappers_up_to: usize,
 }
 
 /// The stages timed, in order: all but the report, which only gathers.
@@ -69,6 +74,15 @@ impl StageCost {
     }
 }
 
+/// The align stage with one mapper on a block's matches.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct MapperRow {
+    mapper: String,
+    align: StageCost,
+    /// Per epoch: check-point RMSE (dE, dN, dH), GSD.
+    check_rmse_gsd: Vec<(String, Option<[f64; 3]>)>,
+}
+
 /// One DoD (an epoch against the reference epoch) against the true DoD over the true stable
 /// ground.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -92,15 +106,31 @@ struct SizeRow {
     dods: Vec<DodError>,
     /// timesift's block and COLMAP's on the same matches, scored alike.
     peers: Vec<PeerRow>,
+    /// The align stage with each mapper on the same matches (up to
+    /// [`ScaleBench::compare_mappers_up_to`]).
+    #[serde(default)]
+    mappers: Vec<MapperRow>,
 }
 
 pub fn run(bench: &ScaleBench) -> anyhow::Result<()> {
     std::fs::create_dir_all(&bench.out).with_context(|| bench.out.display().to_string())?;
-    let mut rows = Vec::new();
+    // With --reuse, the sizes an earlier run measured and this one does not stay in the tables.
+    let mut rows: Vec<SizeRow> = if bench.reuse {
+        std::fs::read_to_string(bench.out.join("scale.json"))
+            .ok()
+            .and_then(|text| serde_json::from_str::<Vec<SizeRow>>(&text).ok())
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|r| !bench.sizes.contains(&r.images))
+            .collect()
+    } else {
+        Vec::new()
+    };
     for &n in &bench.sizes {
         let row = run_size(bench, n)?;
         println!("{}", table(std::slice::from_ref(&row)));
         rows.push(row);
+        rows.sort_by_key(|r| r.images);
         // Written after every size, so that a long run shows what it has.
         write_outputs(bench, &rows)?;
     }
@@ -144,6 +174,7 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
             std::fs::write(dir.join("project.toml"), text)?;
         }
     }
+    set_mapper(&dir, bench.mapper)?;
     let render_s = start.elapsed().as_secs_f64();
     println!(
         "{name}: {} epochs, rendered in {render_s:.0} s",
@@ -170,15 +201,20 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
     let truth = timesift::eval::project_truth(&project)?;
     let gsd_m = nadir_gsd(&project)?;
     let check_rmse_gsd = if done(Stage::Align) {
-        let layout_out = project.layout().out_dir();
-        let epochs = timesift::eval::oriented_epochs(&layout_out)?;
-        timesift_eval::accuracy::epoch_accuracy(&truth, &epochs, &layout_out, gsd_m)?
-            .into_iter()
-            .map(|a| (a.epoch, a.check_rmse_gsd))
-            .collect()
+        check_errors(&project, &truth, gsd_m)?
     } else {
         Vec::new()
     };
+    let mut mappers = Vec::new();
+    if done(Stage::Align) && n <= bench.compare_mappers_up_to {
+        let align = stages.iter().find(|c| c.stage == Stage::Align.name());
+        mappers.push(MapperRow {
+            mapper: mapper_name(bench.mapper).into(),
+            align: align.cloned().context("the align stage's cost")?,
+            check_rmse_gsd: check_rmse_gsd.clone(),
+        });
+        mappers.push(other_mapper(bench, &dir, &truth, gsd_m)?);
+    }
     let peers = match (&bench.colmap, done(Stage::Align)) {
         (Some(python), true) => crate::bench_scale_colmap::run_peers(&dir, python, bench.threads)
             .unwrap_or_else(|e| {
@@ -204,7 +240,122 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
         check_rmse_gsd,
         dods,
         peers,
+        mappers,
     })
+}
+
+/// Per epoch of an oriented project: check-point RMSE (dE, dN, dH) in GSD.
+fn check_errors(
+    project: &Project,
+    truth: &timesift_eval::ProjectTruth<'_>,
+    gsd_m: f64,
+) -> anyhow::Result<Vec<(String, Option<[f64; 3]>)>> {
+    let layout_out = project.layout().out_dir();
+    let epochs = timesift::eval::oriented_epochs(&layout_out)?;
+    Ok(
+        timesift_eval::accuracy::epoch_accuracy(truth, &epochs, &layout_out, gsd_m)?
+            .into_iter()
+            .map(|a| (a.epoch, a.check_rmse_gsd))
+            .collect(),
+    )
+}
+
+fn mapper_name(mapper: MapperConfig) -> &'static str {
+    match mapper {
+        MapperConfig::Incremental => "incremental",
+        MapperConfig::Global => "global",
+        MapperConfig::Auto => "auto",
+    }
+}
+
+/// Writes `[align] mapper` into a project file (replacing any given).
+fn set_mapper(dir: &Path, mapper: MapperConfig) -> anyhow::Result<()> {
+    let path = dir.join("project.toml");
+    let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+    let mut lines: Vec<String> = text
+        .lines()
+        .filter(|l| !l.trim_start().starts_with("mapper ="))
+        .map(str::to_string)
+        .collect();
+    let align = lines
+        .iter()
+        .position(|l| l.trim() == "[align]")
+        .with_context(|| format!("{}: no [align] table", path.display()))?;
+    lines.insert(align + 1, format!("mapper = \"{}\"", mapper_name(mapper)));
+    std::fs::write(&path, lines.join("\n") + "\n")?;
+    Ok(())
+}
+
+/// The align stage with the other mapper in a sibling project on the same images, features and
+/// matches (linked, not copied), scored like the block's own.
+fn other_mapper(
+    bench: &ScaleBench,
+    dir: &Path,
+    truth: &timesift_eval::ProjectTruth<'_>,
+    gsd_m: f64,
+) -> anyhow::Result<MapperRow> {
+    let other = match bench.mapper {
+        MapperConfig::Incremental => MapperConfig::Global,
+        MapperConfig::Global | MapperConfig::Auto => MapperConfig::Incremental,
+    };
+    let name = dir.file_name().context("block folder")?.to_string_lossy();
+    let sibling = dir.with_file_name(format!("{name}-{}", mapper_name(other)));
+    let _ = std::fs::remove_dir_all(&sibling);
+    std::fs::create_dir_all(sibling.join("work"))?;
+    for entry in std::fs::read_dir(dir)?.flatten() {
+        let file = entry.file_name();
+        let target = sibling.join(&file);
+        match file.to_str() {
+            Some("work" | "out") => {}
+            Some("images" | "truth") => std::os::unix::fs::symlink(entry.path(), target)?,
+            _ if entry.path().is_file() => {
+                std::fs::copy(entry.path(), target)?;
+            }
+            _ => std::os::unix::fs::symlink(entry.path(), target)?,
+        }
+    }
+    for sub in ["features", "matches"] {
+        link_tree(&dir.join("work").join(sub), &sibling.join("work").join(sub))?;
+    }
+    std::fs::copy(dir.join("work/run.json"), sibling.join("work/run.json"))?;
+    set_mapper(&sibling, other)?;
+    let align = run_stage(bench, &sibling, Stage::Align)?;
+    println!(
+        "  align ({}) {:>8.1} s wall {:>8.1} s CPU {:>7.0} MiB  {}",
+        mapper_name(other),
+        align.wall_s,
+        align.cpu_s,
+        align.peak_mib,
+        align.summary
+    );
+    let check_rmse_gsd = if align.completed() {
+        check_errors(&Project::load(&sibling)?, truth, gsd_m)?
+    } else {
+        Vec::new()
+    };
+    Ok(MapperRow {
+        mapper: mapper_name(other).into(),
+        align,
+        check_rmse_gsd,
+    })
+}
+
+/// Hard links of every file under `from` at the same place under `to`.
+fn link_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(to)?;
+    for entry in std::fs::read_dir(from)
+        .with_context(|| from.display().to_string())?
+        .flatten()
+    {
+        let target = to.join(entry.file_name());
+        if entry.file_type()?.is_dir() {
+            link_tree(&entry.path(), &target)?;
+        } else {
+            std::fs::hard_link(entry.path(), &target)
+                .with_context(|| target.display().to_string())?;
+        }
+    }
+    Ok(())
 }
 
 /// `[dense]` with [`DenseConfig::quick`]'s settings, to append to a project file.
@@ -480,8 +631,42 @@ fn markdown(bench: &ScaleBench, rows: &[SizeRow]) -> String {
             cell(dod_tilt, 2)
         ));
     }
+    if rows.iter().any(|r| !r.mappers.is_empty()) {
+        s.push_str(&mapper_table(rows));
+    }
     if rows.iter().any(|r| !r.peers.is_empty()) {
         s.push_str(&peer_table(rows));
+    }
+    s
+}
+
+/// The align stage with each mapper on the same matches.
+fn mapper_table(rows: &[SizeRow]) -> String {
+    let mut s = String::from(
+        "\n## The align stage with each mapper on the same matches\n\n\
+         | N | mapper | wall s | CPU s | peak MiB | checks dE / dN / dH per epoch (GSD) |\n|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        for m in &r.mappers {
+            let checks: Vec<String> = m
+                .check_rmse_gsd
+                .iter()
+                .map(|(_, c)| {
+                    c.map_or("—".into(), |c| {
+                        format!("{:.2}/{:.2}/{:.2}", c[0], c[1], c[2])
+                    })
+                })
+                .collect();
+            s.push_str(&format!(
+                "| {} | {} | {:.1} | {:.1} | {:.0} | {} |\n",
+                r.images,
+                m.mapper,
+                m.align.wall_s,
+                m.align.cpu_s,
+                m.align.peak_mib,
+                checks.join(", ")
+            ));
+        }
     }
     s
 }

@@ -236,6 +236,10 @@ enum BenchStage {
         /// The largest block, images (the sizes double from 100 up to it).
         #[arg(long, default_value_t = 1600)]
         max_images: usize,
+        /// The smallest block run, images (a size of the doubling from 100: to add a size to an
+        /// earlier run's folder, with `--reuse`).
+        #[arg(long, default_value_t = 100)]
+        min_images: usize,
         /// Scene seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -259,6 +263,12 @@ enum BenchStage {
         /// mappers on the same verified matches, timed and scored alike.
         #[arg(long, env = "PYCOLMAP_PYTHON")]
         colmap: Option<PathBuf>,
+        /// `[align] mapper` of every block: global, incremental or auto.
+        #[arg(long, default_value = "global")]
+        mapper: String,
+        /// Up to this N, the align stage also runs with the other mapper on the same matches.
+        #[arg(long, default_value_t = 100)]
+        compare_mappers_up_to: usize,
     },
     /// DoD-level co-registration on rendered-mar (two real beach surveys rendered with exact
     /// truth): each epoch's DEM and the DoD against the truth over stable ground (median, tilt
@@ -524,6 +534,7 @@ fn main() -> anyhow::Result<()> {
             stage:
                 BenchStage::Scale {
                     max_images,
+                    min_images,
                     seed,
                     out,
                     threads,
@@ -531,10 +542,13 @@ fn main() -> anyhow::Result<()> {
                     reuse,
                     full_dense,
                     colmap,
+                    mapper,
+                    compare_mappers_up_to,
                 },
         } => bench_scale::run(&bench_scale::ScaleBench {
             sizes: std::iter::successors(Some(100usize), |n| Some(n * 2))
                 .take_while(|n| *n <= max_images)
+                .filter(|n| *n >= min_images)
                 .collect(),
             out,
             seed,
@@ -543,6 +557,13 @@ fn main() -> anyhow::Result<()> {
             reuse,
             full_dense,
             colmap,
+            mapper: match mapper.as_str() {
+                "incremental" => timesift::config::MapperConfig::Incremental,
+                "global" => timesift::config::MapperConfig::Global,
+                "auto" => timesift::config::MapperConfig::Auto,
+                other => anyhow::bail!("--mapper {other}: expected global, incremental or auto"),
+            },
+            compare_mappers_up_to,
         })?,
         Task::Bench {
             stage:

@@ -222,6 +222,10 @@ pub struct Diagnostics {
     /// Height observations from the reference epoch's surface on the later epochs' tie points
     /// ([`crate::SfmOptions::surface_ties`]); 0 without them.
     pub surface_heights: usize,
+    /// The mapper that oriented the images (never [`crate::Mapper::Auto`]):
+    /// [`crate::Mapper::Global`] only where it was chosen and did not fall back to the
+    /// incremental one.
+    pub mapper: crate::Mapper,
 }
 
 impl Georeferenced {

@@ -57,7 +57,7 @@ pub fn reconstruct(
 }
 
 /// Registers images until none can be.
-fn grow(state: &mut State<'_>) -> Result<(), AlignError> {
+pub(crate) fn grow(state: &mut State<'_>) -> Result<(), AlignError> {
     global(state, Intrinsics::Fixed)?;
     let mut last_global = state.oriented().len();
     let mut retried = false;
@@ -143,25 +143,8 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
 /// Adjusts every oriented image and point, filters, re-triangulates and compacts.
 pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<(), AlignError> {
     let points = state.live_points();
-    let focal_fixed = state.input.focal_held_during_sfm();
-    let report = state
-        .adjust(&Adjustment {
-            free_images: state.oriented(),
-            points: points.clone(),
-            intrinsics,
-            priors: &[],
-            offsets: &[],
-            marked: &[],
-            loss: TIE_POINT_LOSS,
-            iterations: state.options.global_iterations,
-            // A focal length from EXIF stays until georeferencing can tell whether the block
-            // determines it (a nadir block over flat ground does not: f trades with height).
-            focal_fixed: &focal_fixed,
-            precision: false,
-            rigid_sets: &[],
-            heights: &[],
-        })?
-        .report;
+    let iterations = state.options.global_iterations;
+    let report = adjust_tie_points(state, points.clone(), intrinsics, iterations)?;
     let dropped = state.filter_points(&points);
     let added = state.complete_all_tracks();
     state.compact();
@@ -169,6 +152,9 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
         images = state.oriented().len(),
         points = state.rec.points.len(),
         rms_px = report.rms_px,
+        iterations = report.iterations,
+        initial_cost = report.initial_cost,
+        termination = ?report.termination,
         dropped,
         added,
         "global adjustment"
@@ -176,8 +162,37 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
     Ok(())
 }
 
+/// Adjusts every oriented image with `points`, by their tie points alone (no prior, marker or
+/// height: the frame stays the block's own).
+pub(crate) fn adjust_tie_points(
+    state: &mut State<'_>,
+    points: Vec<usize>,
+    intrinsics: Intrinsics,
+    iterations: usize,
+) -> Result<timesift_bundle::BundleReport, AlignError> {
+    let focal_fixed = state.input.focal_held_during_sfm();
+    Ok(state
+        .adjust(&Adjustment {
+            free_images: state.oriented(),
+            points,
+            intrinsics,
+            priors: &[],
+            offsets: &[],
+            marked: &[],
+            loss: TIE_POINT_LOSS,
+            iterations,
+            // A focal length from EXIF stays until georeferencing can tell whether the block
+            // determines it (a nadir block over flat ground does not: f trades with height).
+            focal_fixed: &focal_fixed,
+            precision: false,
+            rigid_sets: &[],
+            heights: &[],
+        })?
+        .report)
+}
+
 /// The final adjustments with the full self-calibration.
-fn finish(state: &mut State<'_>) -> Result<(), AlignError> {
+pub(crate) fn finish(state: &mut State<'_>) -> Result<(), AlignError> {
     global(state, Intrinsics::Final)?;
     global(state, Intrinsics::Final)?;
     Ok(())

@@ -120,7 +120,7 @@ fn evaluate(
 
 /// A camera's focal length in pixels, for expressing ray residuals in pixels: the mean of the
 /// unprojection's scales at the image centre.
-fn focal_px(camera: &dyn CameraModel) -> f64 {
+pub(crate) fn focal_px(camera: &dyn CameraModel) -> f64 {
     let c = nalgebra::Vector2::new(camera.width() as f64 / 2.0, camera.height() as f64 / 2.0);
     let d = nalgebra::Vector2::new(1.0, 0.0);
     match (camera.unproject(&c), camera.unproject(&(c + d))) {

@@ -99,6 +99,7 @@ mod changed;
 mod datum_tilt;
 mod error;
 mod georef;
+mod global;
 mod incremental;
 mod init;
 mod model;
@@ -121,7 +122,10 @@ pub use georef::{
 };
 pub use incremental::reconstruct;
 pub use model::{FocalSource, Reconstruction, SfmImage, SfmInput, SparsePoint};
-pub use options::{ChangeDetection, OutlierBound, ScatterWeighing, SelfCalibration, SfmOptions};
+pub use options::{
+    ChangeDetection, GLOBAL_MAPPER_FROM_IMAGES, Mapper, OutlierBound, ScatterWeighing,
+    SelfCalibration, SfmOptions,
+};
 pub use reference_dem::ReferenceDem;
 pub use stable_ground::StableGround;
 pub use strategy::{

@@ -107,8 +107,35 @@ pub struct SfmOptions {
     /// the epochs are tied across their whole common ground, not only where their features
     /// matched.
     pub surface_ties: bool,
+    /// Which structure from motion orients the images before georeferencing (the strategies
+    /// that orient every epoch in one block: `timesift`).
+    pub mapper: Mapper,
     /// Seed of every RANSAC.
     pub seed: u64,
+}
+
+/// Blocks of at least this many images are oriented by the global mapper under
+/// [`Mapper::Auto`]: from here on it was the faster on the scale bench (`synth scale-N`: align
+/// 85 s against 99 s at 200 images, the check points equal to the millimetre), while the
+/// smaller blocks every other bench and test measures keep the incremental mapper they were
+/// measured with.
+pub const GLOBAL_MAPPER_FROM_IMAGES: usize = 200;
+
+/// Which structure from motion orients a block ([`SfmOptions::mapper`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Mapper {
+    /// [`Mapper::Global`] for blocks of at least [`GLOBAL_MAPPER_FROM_IMAGES`] images,
+    /// [`Mapper::Incremental`] below.
+    #[default]
+    Auto,
+    /// One image at a time from an initial pair, the block adjusted whenever it grew by
+    /// [`SfmOptions::global_adjustment_growth`]: needs nothing but tracks.
+    Incremental,
+    /// Rotations averaged over every pair at once, centres from the pairs' directions and the
+    /// GNSS priors, then a few adjustments of the whole block (module `global`): a handful of
+    /// adjustments where the incremental mapper runs tens. Falls back to the incremental
+    /// mapper where the priors or the pairs do not suffice.
+    Global,
 }
 
 /// How a single block finds ground that changed between epochs without stable areas given.
@@ -182,6 +209,7 @@ impl Default for SfmOptions {
             join_epoch_ties: false,
             guided_epoch_ties: false,
             surface_ties: true,
+            mapper: Mapper::default(),
             seed: 0xa1_16e,
         }
     }

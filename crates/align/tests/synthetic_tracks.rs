@@ -7,10 +7,10 @@ use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use timesift_align::{
     AlignError, Block, CentrePrior, ChunkAlignment, Datum, GeoreferenceInput, Georeferenced,
-    GroundPoint, GuidedMatch, GuidedQuery, Independent, ManualStablePoints, Marker, NaturalPoint,
-    OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing, SfmImage,
-    SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch, StableTiePoints,
-    Strategy, georeference, ground_point_residuals, reconstruct,
+    GroundPoint, GuidedMatch, GuidedQuery, Independent, ManualStablePoints, Mapper, Marker,
+    NaturalPoint, OfferedTiePoint, OffsetPrior, ProgressiveMerge, Reconstruction, ScatterWeighing,
+    SfmImage, SfmInput, SfmOptions, SingleBlock, StableMatch, StableMatcher, StableSearch,
+    StableTiePoints, Strategy, georeference, ground_point_residuals, reconstruct,
 };
 use timesift_core::{
     BrownCamera, Camera, CameraModel, FeatureIndex, ImageId, Pose, SeededRng, Track, TrackElement,
@@ -419,6 +419,24 @@ fn two_epoch_block(s: &Scene, bias: Vector3<f64>) -> Block {
     }
 }
 
+/// [`two_epoch_block`] with `bias` on the second epoch's priors, which carry a GNSS offset
+/// (σ 3 m), and the first epoch's priors at 5 cm (RTK).
+fn block_with_an_offset_for_the_second_epoch(s: &Scene, bias: Vector3<f64>) -> Block {
+    let mut block = two_epoch_block(s, bias);
+    block.ground.prior_offsets = vec![OffsetPrior {
+        name: "second".into(),
+        sigma_xy: 3.0,
+        sigma_z: 3.0,
+    }];
+    for p in &mut block.ground.centre_priors {
+        p.offset = (block.epoch_of[p.image] == 1).then_some(0);
+        if p.offset.is_none() {
+            (p.sigma_xy, p.sigma_z) = (0.05, 0.05);
+        }
+    }
+    block
+}
+
 /// Mean camera-centre error (estimated − true) of the images of one epoch.
 fn mean_offset(g: &Georeferenced, s: &Scene, block: &Block, epoch: usize) -> Vector3<f64> {
     let images: Vec<usize> = (0..s.poses.len())
@@ -633,18 +651,7 @@ fn natural_points_measured_by_hand_control_the_later_epochs() {
 fn a_gnss_offset_per_epoch_takes_the_bias_in_one_block() {
     let s = scene(7, 0.3, 1500);
     let bias = Vector3::new(2.0, -1.0, 1.5);
-    let mut block = two_epoch_block(&s, bias);
-    block.ground.prior_offsets = vec![OffsetPrior {
-        name: "second".into(),
-        sigma_xy: 3.0,
-        sigma_z: 3.0,
-    }];
-    for p in &mut block.ground.centre_priors {
-        p.offset = (block.epoch_of[p.image] == 1).then_some(0);
-        if p.offset.is_none() {
-            (p.sigma_xy, p.sigma_z) = (0.05, 0.05);
-        }
-    }
+    let block = block_with_an_offset_for_the_second_epoch(&s, bias);
     let single = SingleBlock::default()
         .orient(&block, &SfmOptions::default())
         .unwrap();
@@ -673,6 +680,83 @@ fn a_gnss_offset_per_epoch_takes_the_bias_in_one_block() {
     println!("epochs off by {a:?} and {b:?}");
     assert!(a.norm() < 0.03 && (a - b).norm() < 0.03, "{a:?} {b:?}");
     assert!(rigid_misfit(&single, &s) < 0.05);
+}
+
+/// The options with the global mapper.
+fn global_mapper() -> SfmOptions {
+    SfmOptions {
+        mapper: Mapper::Global,
+        ..SfmOptions::default()
+    }
+}
+
+/// Noise-free tracks and exact priors: the global mapper orients every image, exactly where it
+/// was, and says it did (no fall-back).
+#[test]
+fn the_global_mapper_recovers_noise_free_tracks_exactly() {
+    let s = scene(11, 0.0, 1500);
+    let block = two_epoch_block(&s, Vector3::zeros());
+    let g = SingleBlock::default()
+        .orient(&block, &global_mapper())
+        .unwrap();
+    assert_eq!(g.diagnostics.mapper, Mapper::Global);
+    assert_eq!(g.reconstruction.num_oriented(), 20);
+    for (ours, truth) in g.reconstruction.poses.iter().zip(&s.poses) {
+        let ours = ours.unwrap();
+        assert!((ours.center() - truth.center()).norm() < 1e-4);
+        assert!((ours.rotation.inverse() * truth.rotation).angle() < 1e-6);
+    }
+}
+
+/// The per-epoch GNSS bias of `a_gnss_offset_per_epoch_takes_the_bias_in_one_block`, oriented
+/// by the global and by the incremental mapper: the same block within the noise (centres within
+/// a centimetre of each other, the offsets within their σ).
+#[test]
+fn the_global_and_the_incremental_mapper_agree_within_the_noise() {
+    let s = scene(7, 0.3, 1500);
+    let bias = Vector3::new(2.0, -1.0, 1.5);
+    let block = block_with_an_offset_for_the_second_epoch(&s, bias);
+    let global = SingleBlock::default()
+        .orient(&block, &global_mapper())
+        .unwrap();
+    let incremental = SingleBlock::default()
+        .orient(&block, &SfmOptions::default())
+        .unwrap();
+    assert_eq!(global.diagnostics.mapper, Mapper::Global);
+    assert_eq!(incremental.diagnostics.mapper, Mapper::Incremental);
+    assert_eq!(global.reconstruction.num_oriented(), 20);
+    let largest = global
+        .reconstruction
+        .poses
+        .iter()
+        .zip(&incremental.reconstruction.poses)
+        .map(|(a, b)| (a.unwrap().center() - b.unwrap().center()).norm())
+        .fold(0.0, f64::max);
+    println!("centres differ by at most {largest} m");
+    assert!(largest < 0.01);
+    let (a, b) = (&global.gnss_offsets[0], &incremental.gnss_offsets[0]);
+    let std = b.std.expect("offset precision");
+    for k in 0..3 {
+        assert!(
+            (a.value[k] - b.value[k]).abs() < std[k],
+            "axis {k}: {a:?} {b:?}"
+        );
+    }
+    assert!(rigid_misfit(&global, &s) < 0.05);
+}
+
+/// Without priors the global mapper cannot place the centres: it falls back to the incremental
+/// mapper, says so, and orients the block all the same.
+#[test]
+fn without_priors_the_global_mapper_falls_back_to_the_incremental_one() {
+    let s = scene(7, 0.3, 1500);
+    let mut block = two_epoch_block(&s, Vector3::zeros());
+    block.ground.centre_priors.clear();
+    let g = SingleBlock::default()
+        .orient(&block, &global_mapper())
+        .unwrap();
+    assert_eq!(g.diagnostics.mapper, Mapper::Incremental);
+    assert_eq!(g.reconstruction.num_oriented(), 20);
 }
 
 /// Two flights with GNSS scattered by 0.2 m within each, stated at 3 m, control points marked

@@ -18,9 +18,9 @@ use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use timesift_align::{
     Block, CentrePrior, ChangeDetection, Datum, DatumControl, FocalSource, GeoreferenceInput,
-    Georeferenced, GroundPoint, HeightObservation, Marker, NaturalPoint, OffsetPrior, OutlierBound,
-    PointResidual, ScatterWeighing, SfmImage, SfmInput, SfmOptions, StableGround, Strategy,
-    datum_tilt, ground_point_residuals,
+    Georeferenced, GroundPoint, HeightObservation, Mapper, Marker, NaturalPoint, OffsetPrior,
+    OutlierBound, PointResidual, ScatterWeighing, SfmImage, SfmInput, SfmOptions, StableGround,
+    Strategy, datum_tilt, ground_point_residuals,
 };
 use timesift_core::{BrownCamera, Camera, CameraModel, ImageId, Pose};
 use timesift_io::cameras_json::{OrientedImage, Reconstruction as CamerasFile};
@@ -28,7 +28,9 @@ use timesift_matching::storage::{read_features, read_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
 
 use super::{PipelineStage, Stage};
-use crate::config::{GnssOffsets, InterEpochTies, OutlierBoundConfig, WeighByScatter};
+use crate::config::{
+    GnssOffsets, InterEpochTies, MapperConfig, OutlierBoundConfig, WeighByScatter,
+};
 use crate::film::ImageSource;
 use crate::layout::Layout;
 use crate::project::GivenFocal;
@@ -199,6 +201,11 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         join_epoch_ties: project.config.align.join_epoch_ties,
         guided_epoch_ties: project.config.align.guided_epoch_ties,
         surface_ties: project.config.align.surface_ties,
+        mapper: match project.config.align.mapper {
+            MapperConfig::Auto => Mapper::Auto,
+            MapperConfig::Incremental => Mapper::Incremental,
+            MapperConfig::Global => Mapper::Global,
+        },
         ..SfmOptions::default()
     };
     options.self_calibration.min_images = 3;

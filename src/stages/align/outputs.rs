@@ -544,6 +544,13 @@ fn report(
         images_oriented: rec.num_oriented(),
         rms_reprojection_px: block.rms_px.is_finite().then_some(block.rms_px),
         tie_points: rec.points.len(),
+        mapper: Some(
+            match block.diagnostics.mapper {
+                Mapper::Incremental | Mapper::Auto => "incremental",
+                Mapper::Global => "global",
+            }
+            .to_string(),
+        ),
         inter_epoch_ties_split_as_moved: block.diagnostics.moved_ties_split,
         inter_epoch_ties_split_off_stable: block.diagnostics.unstable_ties_split,
         inter_epoch_ties_joined: block.diagnostics.joined_ties,

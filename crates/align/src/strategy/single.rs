@@ -4,7 +4,7 @@
 
 use crate::AlignError;
 use crate::georef::Georeferenced;
-use crate::incremental::reconstruct;
+use crate::global::orient_images;
 use crate::options::SfmOptions;
 
 use super::block::Block;
@@ -32,8 +32,15 @@ impl Strategy for SingleBlock<'_> {
     }
 
     fn orient(&self, block: &Block, options: &SfmOptions) -> Result<Georeferenced, AlignError> {
-        let components = reconstruct(&block.sfm, options)?;
-        let first = adjust_as_one_block(block, components, options)?;
+        let ground = &block.ground;
+        let (components, mapper) = orient_images(
+            &block.sfm,
+            &ground.centre_priors,
+            &ground.prior_offsets,
+            options,
+        )?;
+        let mut first = adjust_as_one_block(block, components, options)?;
+        first.diagnostics.mapper = mapper;
         let second_look_asked = options.join_epoch_ties || options.guided_epoch_ties;
         if !second_look_asked || block.epoch_names.len() < 2 {
             return Ok(first);
