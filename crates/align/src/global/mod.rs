@@ -47,15 +47,15 @@ const SUBSET_GRID: usize = 4;
 fn adjust_on_a_subset(state: &mut State<'_>) -> Result<(Vec<usize>, f64), AlignError> {
     // Per image and cell of a SUBSET_GRID × SUBSET_GRID grid: (observations, point).
     let cells = SUBSET_GRID * SUBSET_GRID;
+    let cell_of = |v: f64, size: u32| {
+        ((v / size as f64 * SUBSET_GRID as f64).max(0.0) as usize).min(SUBSET_GRID - 1)
+    };
     let mut by_cell: Vec<Vec<(usize, usize)>> = vec![Vec::new(); state.input.images.len() * cells];
     for (p, point) in state.rec.points.iter().enumerate() {
         for e in &point.observations {
             let image = e.image.index();
             let camera = state.rec.camera_of(state.input, image);
             let pixel = state.input.pixel(e);
-            let cell_of = |v: f64, size: u32| {
-                ((v / size as f64 * SUBSET_GRID as f64).max(0.0) as usize).min(SUBSET_GRID - 1)
-            };
             let cell =
                 cell_of(pixel.y, camera.height()) * SUBSET_GRID + cell_of(pixel.x, camera.width());
             by_cell[image * cells + cell].push((point.observations.len(), p));
@@ -129,10 +129,12 @@ fn drop_poorly_seen_images(state: &mut State<'_>) -> usize {
         state.rec.poses[i] = None;
     }
     if !dropped.is_empty() {
+        // The dropped images have no pose now: their observations go.
+        let poses = &state.rec.poses;
         for point in &mut state.rec.points {
             point
                 .observations
-                .retain(|e| !dropped.contains(&e.image.index()));
+                .retain(|e| poses[e.image.index()].is_some());
         }
         let all = state.live_points();
         state.filter_points(&all);
