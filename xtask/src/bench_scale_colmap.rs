@@ -28,8 +28,14 @@ pub struct PeerRow {
 /// Least verified matches for a pair to be handed to COLMAP (its own `min_num_matches`).
 const MIN_MATCHES: usize = 15;
 
-/// Writes the block's keypoints and verified matches for COLMAP, runs both mappers with
-/// `threads` threads, and returns their rows and timesift's own, scored alike.
+/// Blocks larger than this run COLMAP's global mapper only: its incremental mapper re-adjusts
+/// the growing block and would take most of a bench run's time on 2 cores, and the issue's
+/// anchor at these sizes is the global mapper.
+pub const COLMAP_INCREMENTAL_UP_TO: usize = 400;
+
+/// Writes the block's keypoints and verified matches for COLMAP, runs its mappers with
+/// `threads` threads (the incremental one only up to [`COLMAP_INCREMENTAL_UP_TO`] images), and
+/// returns their rows and timesift's own, scored alike.
 pub fn run_peers(dir: &Path, python: &Path, threads: usize) -> anyhow::Result<Vec<PeerRow>> {
     let project = Project::load(dir)?;
     let layout = project.layout();
@@ -39,13 +45,18 @@ pub fn run_peers(dir: &Path, python: &Path, threads: usize) -> anyhow::Result<Ve
     export_block(&project, &layout, &input)?;
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/colmap_scale.py");
     let out_json = input.join("rows.json");
-    let status = Command::new(python)
+    let mut command = Command::new(python);
+    command
         .arg(&script)
         .arg(&input)
         .arg(dir)
         .arg(&out_json)
         .arg("--threads")
-        .arg(threads.to_string())
+        .arg(threads.to_string());
+    if project.images.len() > COLMAP_INCREMENTAL_UP_TO {
+        command.arg("--skip-incremental");
+    }
+    let status = command
         .env("OMP_NUM_THREADS", threads.to_string())
         .status()
         .with_context(|| format!("{} {}", python.display(), script.display()))?;

@@ -375,6 +375,20 @@ pub fn georeference(
     geo: &GeoreferenceInput,
     options: &SfmOptions,
 ) -> Result<Georeferenced, AlignError> {
+    georeference_settled(input, components, geo, options, None)
+}
+
+/// [`georeference`], with the focal lengths held where `focal_held` (per camera group) says,
+/// as an earlier georeferencing of the same images and observations settled them: the round
+/// that settles them (an adjustment with the intrinsics' precision, a third of the cost on a
+/// block of hundreds of images) is not run again. `None`: settled here.
+pub(crate) fn georeference_settled(
+    input: &SfmInput,
+    components: Vec<Reconstruction>,
+    geo: &GeoreferenceInput,
+    options: &SfmOptions,
+    focal_held: Option<&[bool]>,
+) -> Result<Georeferenced, AlignError> {
     if components.is_empty() {
         return Err(AlignError::Georeferencing("no oriented component".into()));
     }
@@ -405,7 +419,12 @@ pub fn georeference(
     let track_of = track_table(input);
     let mut state = State::with_reconstruction(input, options, &track_of, placement.merged);
     let mut rounds = PriorAdjustment::new(input, geo, options, priors);
-    rounds.settle_focal_lengths(&mut state)?;
+    match focal_held {
+        Some(held) if held.len() == rounds.focal_fixed.len() => {
+            rounds.focal_fixed.copy_from_slice(held);
+        }
+        _ => rounds.settle_focal_lengths(&mut state)?,
+    }
     rounds.measure_noise(&mut state)?;
     let (gnss_offsets, set_motion_covariance) = rounds.final_adjustment(&mut state)?;
     let group_sigma_px = state

@@ -164,7 +164,7 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
 
 /// Adjusts every oriented image with `points`, by their tie points alone (no prior, marker or
 /// height: the frame stays the block's own).
-pub(crate) fn adjust_tie_points(
+fn adjust_tie_points(
     state: &mut State<'_>,
     points: Vec<usize>,
     intrinsics: Intrinsics,

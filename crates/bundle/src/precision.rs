@@ -268,6 +268,26 @@ pub struct OffsetCorrelation {
 }
 
 impl Precision {
+    /// The same covariances scaled by `scale` instead of [`Precision::scale`]: the a-priori and
+    /// the a-posteriori precision of one adjustment differ by the variance factor alone, so one
+    /// factorisation gives both.
+    pub fn rescaled(&self, scale: f64) -> Precision {
+        let ratio = scale / self.scale;
+        let sd = ratio.sqrt();
+        Precision {
+            scale,
+            centers: self.centers.iter().map(|c| c.map(|c| c * ratio)).collect(),
+            poses: self.poses.iter().map(|c| c.map(|c| c * ratio)).collect(),
+            intrinsics: self
+                .intrinsics
+                .iter()
+                .map(|g| g.iter().map(|&(k, s)| (k, s * sd)).collect())
+                .collect(),
+            offsets: self.offsets.iter().map(|c| c.map(|c| c * ratio)).collect(),
+            offset_intrinsic_correlations: self.offset_intrinsic_correlations.clone(),
+        }
+    }
+
     /// Standard deviations (east, north, up) of an image's camera centre.
     pub fn center_std(&self, image: usize) -> Option<[f64; 3]> {
         self.centers[image].map(|c| [c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()])
@@ -296,8 +316,40 @@ pub enum CovarianceScale {
     Prior,
 }
 
+impl CovarianceScale {
+    /// What covariances are multiplied by: σ0² of `p` (1 where it is not finite), or 1.
+    pub fn factor(self, p: &BundleProblem) -> f64 {
+        match self {
+            CovarianceScale::Prior => 1.0,
+            CovarianceScale::Posterior => {
+                let v = residual_statistics(p, f64::INFINITY).variance_factor;
+                if v.is_finite() { v } else { 1.0 }
+            }
+        }
+    }
+}
+
 /// Covariances of camera centres, poses and free intrinsics at the current (adjusted) parameters.
 pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision, BundleError> {
+    precision_of(p, scale, true)
+}
+
+/// [`precision`] without the poses' and centres' covariances (every entry `None`): the
+/// intrinsics', the offsets' and their correlations only. A pose block of `S⁻¹` is six solves
+/// against the factorisation, so on a block of hundreds of images the poses are most of the
+/// cost of [`precision`].
+pub fn intrinsic_and_offset_precision(
+    p: &BundleProblem,
+    scale: CovarianceScale,
+) -> Result<Precision, BundleError> {
+    precision_of(p, scale, false)
+}
+
+fn precision_of(
+    p: &BundleProblem,
+    scale: CovarianceScale,
+    with_poses: bool,
+) -> Result<Precision, BundleError> {
     p.validate()?;
     let layout = Layout::new(p);
     if layout.num_camera_params == 0 {
@@ -312,9 +364,12 @@ pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision,
         )
     };
     let s = reduced_system(p, &layout)?.ok_or_else(singular)?;
+    let s = s.factor().ok_or_else(singular)?;
     let mut blocks = Vec::new();
-    for off in layout.pose_offset.iter().flatten() {
-        blocks.push((*off, 6));
+    if with_poses {
+        for off in layout.pose_offset.iter().flatten() {
+            blocks.push((*off, 6));
+        }
     }
     for (g, off) in layout.group_offset.iter().enumerate() {
         if let Some(off) = off {
@@ -325,18 +380,12 @@ pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision,
         blocks.push((*off, 3));
     }
     let inverse = s.inverse_diagonal_blocks(&blocks).ok_or_else(singular)?;
-    let factor = match scale {
-        CovarianceScale::Prior => 1.0,
-        CovarianceScale::Posterior => {
-            let v = residual_statistics(p, f64::INFINITY).variance_factor;
-            if v.is_finite() { v } else { 1.0 }
-        }
-    };
+    let factor = scale.factor(p);
     let mut k = 0;
     let mut poses = vec![None; p.images.len()];
     let mut centers = vec![None; p.images.len()];
     for (i, off) in layout.pose_offset.iter().enumerate() {
-        if off.is_none() {
+        if off.is_none() || !with_poses {
             continue;
         }
         let cov = Matrix6::from_fn(|r, c| inverse[k][(r, c)] * factor);
@@ -380,7 +429,7 @@ pub fn precision(p: &BundleProblem, scale: CovarianceScale) -> Result<Precision,
 /// of the covariance cancels): three columns of the inverse per offset, read at the rows of
 /// the intrinsics.
 fn offset_correlations(
-    s: &crate::reduced::Reduced,
+    s: &crate::reduced::Factor,
     layout: &Layout,
 ) -> Result<Vec<Vec<OffsetCorrelation>>, BundleError> {
     let mut out = vec![Vec::new(); layout.bias_offset.len()];

@@ -205,15 +205,14 @@ impl Reduced {
         }
     }
 
-    /// Factors `S` by Cholesky and solves `S X = B` in place for the columns of `rhs`; `None` when
-    /// `S` is not positive definite.
-    fn solve_in_place(&self, rhs: &mut faer::Mat<f64>) -> Option<()> {
-        use faer::prelude::Solve;
+    /// The Cholesky factorisation of `S`, to solve against as many right-hand sides as needed
+    /// ([`Factor`]); `None` when `S` is not positive definite.
+    pub(crate) fn factor(&self) -> Option<Factor> {
         match self {
             Reduced::Dense(m) => {
                 let n = m.nrows();
                 let fm = faer::Mat::<f64>::from_fn(n, n, |i, j| m[(i, j)]);
-                fm.llt(Side::Lower).ok()?.solve_in_place(rhs.as_mut());
+                Some(Factor::Dense(fm.llt(Side::Lower).ok()?))
             }
             Reduced::Sparse { pattern, values } => {
                 let sym = SymbolicSparseColMatRef::new_checked(
@@ -224,50 +223,74 @@ impl Reduced {
                     &pattern.row_idx,
                 );
                 let mat = SparseColMatRef::new(sym, values);
-                Llt::try_new_with_symbolic(pattern.symbolic.clone()?, mat, Side::Lower)
-                    .ok()?
-                    .solve_in_place(rhs.as_mut());
+                let llt =
+                    Llt::try_new_with_symbolic(pattern.symbolic.clone()?, mat, Side::Lower).ok()?;
+                Some(Factor::Sparse(llt, pattern.n))
             }
         }
-        Some(())
     }
 
     /// Solves `S x = b` by Cholesky; `None` when `S` is not positive definite.
     pub(crate) fn solve(&self, b: &DVector<f64>) -> Option<DVector<f64>> {
+        self.factor()?.solve(b)
+    }
+}
+
+/// A Cholesky factorisation of `S`. Covariances need many columns of `S⁻¹` (every pose's block,
+/// the offsets', the rigid motions'): each is a solve against one factorisation, never a new
+/// factorisation, which on a block of hundreds of images costs as much as an iteration.
+pub(crate) enum Factor {
+    Dense(faer::linalg::solvers::Llt<f64>),
+    /// The factorisation and the order of `S`.
+    Sparse(Llt<usize, f64>, usize),
+}
+
+impl Factor {
+    /// Order of `S`.
+    pub(crate) fn n(&self) -> usize {
+        match self {
+            Factor::Dense(llt) => llt.L().nrows(),
+            Factor::Sparse(_, n) => *n,
+        }
+    }
+
+    /// Solves `S X = B` in place for the columns of `rhs`; `None` when a result is not finite.
+    pub(crate) fn solve_in_place(&self, rhs: &mut faer::Mat<f64>) -> Option<()> {
+        use faer::prelude::Solve;
+        match self {
+            Factor::Dense(llt) => llt.solve_in_place(rhs.as_mut()),
+            Factor::Sparse(llt, _) => llt.solve_in_place(rhs.as_mut()),
+        }
+        (0..rhs.ncols())
+            .all(|k| (0..rhs.nrows()).all(|i| rhs[(i, k)].is_finite()))
+            .then_some(())
+    }
+
+    /// Solves `S x = b`; `None` when the result is not finite.
+    pub(crate) fn solve(&self, b: &DVector<f64>) -> Option<DVector<f64>> {
         let n = b.len();
         let mut x = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
         self.solve_in_place(&mut x)?;
-        let out = DVector::from_fn(n, |i, _| x[(i, 0)]);
-        out.iter().all(|v| v.is_finite()).then_some(out)
+        Some(DVector::from_fn(n, |i, _| x[(i, 0)]))
     }
 
-    /// Diagonal blocks `(start, len)` of `S⁻¹`, from one Cholesky factorisation and solves against
-    /// the identity columns of the blocks (in batches, so memory stays at n × 256); `None` when
-    /// `S` is not positive definite.
     /// Columns `columns` of the inverse (n × columns.len()), or `None` when a solve fails.
     pub(crate) fn inverse_columns(&self, columns: &[usize]) -> Option<faer::Mat<f64>> {
-        let n = match self {
-            Reduced::Dense(m) => m.nrows(),
-            Reduced::Sparse { pattern, .. } => pattern.n,
-        };
-        let mut rhs = faer::Mat::<f64>::zeros(n, columns.len());
+        let mut rhs = faer::Mat::<f64>::zeros(self.n(), columns.len());
         for (k, &c) in columns.iter().enumerate() {
             rhs[(c, k)] = 1.0;
         }
         self.solve_in_place(&mut rhs)?;
-        (0..columns.len())
-            .all(|k| (0..n).all(|i| rhs[(i, k)].is_finite()))
-            .then_some(rhs)
+        Some(rhs)
     }
 
+    /// Diagonal blocks `(start, len)` of `S⁻¹`, by solves against the identity columns of the
+    /// blocks in batches of [`INVERSE_BATCH`] columns, so that memory stays at n × batch;
+    /// `None` when a solve fails.
     pub(crate) fn inverse_diagonal_blocks(
         &self,
         blocks: &[(usize, usize)],
     ) -> Option<Vec<DMatrix<f64>>> {
-        let n = match self {
-            Reduced::Dense(m) => m.nrows(),
-            Reduced::Sparse { pattern, .. } => pattern.n,
-        };
         // (column of S, block, column within the block)
         let columns: Vec<(usize, usize, usize)> = blocks
             .iter()
@@ -276,32 +299,21 @@ impl Reduced {
             .collect();
         let mut out: Vec<DMatrix<f64>> =
             blocks.iter().map(|&(_, l)| DMatrix::zeros(l, l)).collect();
-        // Dense: one factorisation for all columns; sparse: one per batch of 256 columns (cheap
-        // next to the solves, and keeps the borrow simple).
-        let batch = if matches!(self, Reduced::Dense(_)) {
-            columns.len().max(1)
-        } else {
-            256
-        };
-        for chunk in columns.chunks(batch) {
-            let mut rhs = faer::Mat::<f64>::zeros(n, chunk.len());
-            for (k, &(c, _, _)) in chunk.iter().enumerate() {
-                rhs[(c, k)] = 1.0;
-            }
-            self.solve_in_place(&mut rhs)?;
+        for chunk in columns.chunks(INVERSE_BATCH) {
+            let solved = self.inverse_columns(&chunk.iter().map(|c| c.0).collect::<Vec<_>>())?;
             for (k, &(_, b, j)) in chunk.iter().enumerate() {
                 let (start, len) = blocks[b];
                 for i in 0..len {
-                    out[b][(i, j)] = rhs[(start + i, k)];
+                    out[b][(i, j)] = solved[(start + i, k)];
                 }
             }
-        }
-        if !out.iter().all(|m| m.iter().all(|v| v.is_finite())) {
-            return None;
         }
         Some(out)
     }
 }
+
+/// Columns of `S⁻¹` solved at once by [`Factor::inverse_diagonal_blocks`].
+const INVERSE_BATCH: usize = 256;
 
 #[cfg(test)]
 mod tests {

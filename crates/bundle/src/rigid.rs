@@ -15,11 +15,11 @@
 //! The fit weighs a camera's rotation by the squared lever arm (its distance to the ground), so
 //! that a rotation and a shift that move the ground alike count alike.
 
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3, Vector6};
+use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3, Vector6};
 use timesift_core::Pose;
 
 use crate::BundleError;
-use crate::precision::{CovarianceScale, residual_statistics};
+use crate::precision::CovarianceScale;
 use crate::problem::BundleProblem;
 use crate::solver::{Layout, center_jacobian, reduced_system};
 
@@ -63,19 +63,15 @@ pub fn rigid_motion_covariance(
         )
     };
     let system = reduced_system(p, &layout)?.ok_or_else(singular)?;
-    let factor = match scale {
-        CovarianceScale::Prior => 1.0,
-        CovarianceScale::Posterior => {
-            let v = residual_statistics(p, f64::INFINITY).variance_factor;
-            if v.is_finite() { v } else { 1.0 }
-        }
-    };
+    let system = system.factor().ok_or_else(singular)?;
+    let factor = scale.factor(p);
+    // S⁻¹ Gᵀ, every row of G solved against the one factorisation.
+    let mut solved = faer::Mat::<f64>::from_fn(n, g.nrows(), |c, r| g[(r, c)]);
+    system.solve_in_place(&mut solved).ok_or_else(singular)?;
     let mut covariance = DMatrix::<f64>::zeros(g.nrows(), g.nrows());
     for r in 0..g.nrows() {
-        let row = DVector::from_fn(n, |c, _| g[(r, c)]);
-        let solved = system.solve(&row).ok_or_else(singular)?;
         for q in 0..g.nrows() {
-            covariance[(q, r)] = factor * (0..n).map(|c| g[(q, c)] * solved[c]).sum::<f64>();
+            covariance[(q, r)] = factor * (0..n).map(|c| g[(q, c)] * solved[(c, r)]).sum::<f64>();
         }
     }
     Ok(covariance)

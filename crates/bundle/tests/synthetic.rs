@@ -526,19 +526,7 @@ fn a_fixed_offset_is_applied_and_bad_offsets_are_errors() {
 /// from the (separately tested) diagonal blocks, so this checks the cross terms exactly.
 #[test]
 fn offset_intrinsic_correlations_match_the_conditional_variances() {
-    let (mut p, _) = biased_flight(33, Vector3::new(0.0, 0.0, 2.0));
-    p.prior_offsets = vec![timesift_bundle::PriorOffset {
-        value: Vector3::zeros(),
-        sigma_xy: 1.0,
-        sigma_z: 1.0,
-        fixed: false,
-    }];
-    for c in p.center_priors.iter_mut().skip(4) {
-        c.offset = Some(0);
-    }
-    // Focal length and principal point free.
-    p.groups[0].free = (0..p.groups[0].free.len()).map(|k| k < 3).collect();
-    solve(&mut p, &BundleOptions::default()).unwrap();
+    let p = adjusted_flight_with_offset(33, Vector3::new(0.0, 0.0, 2.0));
     let scale = timesift_bundle::precision::CovarianceScale::Prior;
     let free = timesift_bundle::precision::precision(&p, scale).unwrap();
     let correlations = &free.offset_intrinsic_correlations[0];
@@ -567,4 +555,67 @@ fn offset_intrinsic_correlations_match_the_conditional_variances() {
     calibrated.groups[0].free.fill(false);
     let none = timesift_bundle::precision::precision(&calibrated, scale).unwrap();
     assert!(none.offset_intrinsic_correlations[0].is_empty());
+}
+
+/// [`biased_flight`] with one free offset (σ 1 m) for its biased images, focal length and
+/// principal point free, adjusted.
+fn adjusted_flight_with_offset(seed: u64, bias: Vector3<f64>) -> BundleProblem {
+    let (mut p, _) = biased_flight(seed, bias);
+    p.prior_offsets = vec![timesift_bundle::PriorOffset {
+        value: Vector3::zeros(),
+        sigma_xy: 1.0,
+        sigma_z: 1.0,
+        fixed: false,
+    }];
+    for c in p.center_priors.iter_mut().skip(4) {
+        c.offset = Some(0);
+    }
+    p.groups[0].free = (0..p.groups[0].free.len()).map(|k| k < 3).collect();
+    solve(&mut p, &BundleOptions::default()).unwrap();
+    p
+}
+
+/// The a-posteriori covariances are the a-priori ones times the variance factor, so one
+/// factorisation gives both (`Precision::rescaled`); the precision without the poses has every
+/// other entry of the full one.
+#[test]
+fn a_posteriori_precision_is_the_a_priori_one_rescaled_and_poses_can_be_left_out() {
+    let p = adjusted_flight_with_offset(35, Vector3::new(0.5, -0.3, 2.0));
+    use timesift_bundle::precision::{CovarianceScale, intrinsic_and_offset_precision, precision};
+    let prior = precision(&p, CovarianceScale::Prior).unwrap();
+    let posterior = precision(&p, CovarianceScale::Posterior).unwrap();
+    let factor = CovarianceScale::Posterior.factor(&p);
+    assert!(
+        factor > 0.0 && (factor - 1.0).abs() > 1e-3,
+        "σ0² = {factor}"
+    );
+    let rescaled = prior.rescaled(factor);
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1e-12);
+    assert!(close(rescaled.scale, posterior.scale));
+    for (a, b) in rescaled.poses.iter().zip(&posterior.poses) {
+        let (a, b) = (a.unwrap(), b.unwrap());
+        assert!(
+            a.iter().zip(b.iter()).all(|(x, y)| close(*x, *y)),
+            "{a} != {b}"
+        );
+    }
+    for (a, b) in rescaled.intrinsics.iter().zip(&posterior.intrinsics) {
+        assert_eq!(a.len(), b.len());
+        assert!(a.iter().zip(b).all(|(x, y)| x.0 == y.0 && close(x.1, y.1)));
+    }
+    let (a, b) = (rescaled.offsets[0].unwrap(), posterior.offsets[0].unwrap());
+    assert!(a.iter().zip(b.iter()).all(|(x, y)| close(*x, *y)));
+    assert_eq!(
+        rescaled.offset_intrinsic_correlations,
+        posterior.offset_intrinsic_correlations
+    );
+    let partial = intrinsic_and_offset_precision(&p, CovarianceScale::Posterior).unwrap();
+    assert!(partial.poses.iter().all(Option::is_none));
+    assert!(partial.centers.iter().all(Option::is_none));
+    assert_eq!(partial.intrinsics, posterior.intrinsics);
+    assert_eq!(partial.offsets, posterior.offsets);
+    assert_eq!(
+        partial.offset_intrinsic_correlations,
+        posterior.offset_intrinsic_correlations
+    );
 }

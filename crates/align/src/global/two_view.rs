@@ -27,6 +27,13 @@ pub(crate) const MIN_DIRECTION_ANGLE_DEG: f64 = 1.5;
 /// Most correspondences per pair given to RANSAC: more add time, not accuracy, to a rotation
 /// and a direction.
 const MAX_CORRESPONDENCES: usize = 400;
+/// Partners each image keeps within its own flight and, as many again, from other flights: the
+/// pairs that share most tracks. Tracks join images transitively, so an 800-image block of 8
+/// epochs has about 190 partners per image sharing 30 tracks; the averaging needs a
+/// well-connected graph, not all of them, and the pairs estimated stay linear in the images.
+/// Kept apart for the other flights so that the epochs stay tied to each other when the
+/// images of one flight share more tracks among themselves.
+pub(crate) const MAX_PARTNERS: usize = 20;
 
 /// One pair's relative geometry.
 #[derive(Debug, Clone, Copy)]
@@ -71,10 +78,16 @@ fn correspondences(input: &SfmInput) -> Vec<(u32, u32, u32, u32)> {
     all
 }
 
-/// The relative geometry of every pair with at least [`MIN_PAIR_INLIERS`] shared tracks whose
-/// essential matrix explains most of them. Pairs come sorted by (a, b); the result does not
-/// depend on the thread count (each pair's RANSAC is seeded by the pair).
-pub(crate) fn relative_poses(input: &SfmInput, options: &SfmOptions) -> Vec<TwoView> {
+/// The relative geometry of the pairs with at least [`MIN_PAIR_INLIERS`] shared tracks whose
+/// essential matrix explains most of them, at most [`MAX_PARTNERS`] per image within its flight
+/// and as many across (`flight_of`: each image's flight, `None` for images without one, which
+/// count as one flight). Pairs come sorted by (a, b); the result does not depend on the thread
+/// count (each pair's RANSAC is seeded by the pair).
+pub(crate) fn relative_poses(
+    input: &SfmInput,
+    options: &SfmOptions,
+    flight_of: &[Option<usize>],
+) -> Vec<TwoView> {
     let all = correspondences(input);
     let mut groups: Vec<&[(u32, u32, u32, u32)]> = Vec::new();
     let mut start = 0;
@@ -86,9 +99,41 @@ pub(crate) fn relative_poses(input: &SfmInput, options: &SfmOptions) -> Vec<TwoV
             start = k;
         }
     }
+    let groups = strongest_partners(groups, input.images.len(), flight_of);
     groups
         .par_iter()
         .filter_map(|group| estimate(input, options, group))
+        .collect()
+}
+
+/// The pairs (groups of one pair's correspondences, sorted by pair) among the [`MAX_PARTNERS`]
+/// that share most tracks with either of their images, counted apart within the image's flight
+/// and across; ties go to the lower image index, so the choice is deterministic.
+fn strongest_partners<'a>(
+    groups: Vec<&'a [(u32, u32, u32, u32)]>,
+    images: usize,
+    flight_of: &[Option<usize>],
+) -> Vec<&'a [(u32, u32, u32, u32)]> {
+    let flight = |i: u32| flight_of.get(i as usize).copied().flatten();
+    // Per image and kind (0 within, 1 across): (shared tracks, partner, pair index).
+    let mut partners: Vec<[Vec<(usize, u32, usize)>; 2]> = vec![[Vec::new(), Vec::new()]; images];
+    for (k, group) in groups.iter().enumerate() {
+        let (a, b) = (group[0].0, group[0].1);
+        let kind = usize::from(flight(a) != flight(b));
+        partners[a as usize][kind].push((group.len(), b, k));
+        partners[b as usize][kind].push((group.len(), a, k));
+    }
+    let mut keep = vec![false; groups.len()];
+    for list in partners.iter_mut().flat_map(|kinds| kinds.iter_mut()) {
+        list.sort_unstable_by(|x, y| y.0.cmp(&x.0).then(x.1.cmp(&y.1)));
+        for &(_, _, k) in list.iter().take(MAX_PARTNERS) {
+            keep[k] = true;
+        }
+    }
+    groups
+        .into_iter()
+        .zip(keep)
+        .filter_map(|(group, kept)| kept.then_some(group))
         .collect()
 }
 
@@ -177,4 +222,66 @@ fn median_angle_deg(pose: &Pose, x1: &[Vector3<f64>], x2: &[Vector3<f64>]) -> Op
     let mid = angles.len() / 2;
     let (_, median, _) = angles.select_nth_unstable_by(mid, f64::total_cmp);
     Some(*median)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{MAX_PARTNERS, strongest_partners};
+
+    /// `n` correspondences of pair (a, b).
+    fn pair(a: u32, b: u32, n: usize) -> Vec<(u32, u32, u32, u32)> {
+        (0..n as u32).map(|k| (a, b, k, k)).collect()
+    }
+
+    /// Two flights of 100 images each, every pair within a flight sharing more tracks than any
+    /// pair across: each image keeps its strongest partners within its flight and still its
+    /// strongest across, and no image more than twice [`MAX_PARTNERS`] of its own choosing.
+    #[test]
+    fn each_image_keeps_its_strongest_partners_within_and_across_its_flight() {
+        let images = 200u32;
+        let flight_of: Vec<Option<usize>> = (0..images).map(|i| Some(i as usize / 100)).collect();
+        let mut all = Vec::new();
+        for a in 0..images {
+            for b in a + 1..images {
+                let same = a / 100 == b / 100;
+                // Within: more shared the nearer; across: fewer, also by distance.
+                let n = if same {
+                    400 - (b - a) as usize
+                } else {
+                    200 - (b - a) as usize / 2
+                };
+                all.push(pair(a, b, n));
+            }
+        }
+        let groups: Vec<&[(u32, u32, u32, u32)]> = all.iter().map(|g| g.as_slice()).collect();
+        let total = groups.len();
+        let kept = strongest_partners(groups, images as usize, &flight_of);
+        assert!(
+            kept.len() < total / 2,
+            "{} of {total} pairs kept",
+            kept.len()
+        );
+        assert!(kept.len() <= 2 * MAX_PARTNERS * images as usize);
+        let is_kept = |a: u32, b: u32| kept.iter().any(|g| g[0].0 == a && g[0].1 == b);
+        // Image 0's nearest partner within and its strongest across (image 100), not its
+        // weakest within (image 99).
+        assert!(is_kept(0, 1));
+        assert!(is_kept(0, 100));
+        assert!(!is_kept(0, 99));
+        for image in 0..images {
+            let across = kept
+                .iter()
+                .filter(|g| (g[0].0 == image || g[0].1 == image) && g[0].0 / 100 != g[0].1 / 100)
+                .count();
+            assert!(
+                across >= MAX_PARTNERS,
+                "image {image}: {across} pairs across"
+            );
+        }
+        // The pairs stay sorted by pair, as `estimate`'s callers expect.
+        assert!(
+            kept.windows(2)
+                .all(|w| (w[0][0].0, w[0][0].1) < (w[1][0].0, w[1][0].1))
+        );
+    }
 }

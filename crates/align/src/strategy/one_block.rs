@@ -5,7 +5,7 @@
 
 use crate::AlignError;
 use crate::changed::detect_changed_ground;
-use crate::georef::{Datum, Diagnostics, Georeferenced, georeference};
+use crate::georef::{Datum, Diagnostics, Georeferenced, georeference, georeference_settled};
 use crate::model::Reconstruction;
 use crate::moved::{Separated, separate_moved_points};
 use crate::options::{ChangeDetection, SfmOptions};
@@ -107,11 +107,14 @@ fn tie_on_stable_ground(
             break;
         }
         total += split;
-        let mut again = georeference(
+        // The same images, priors and control, fewer inter-epoch ties: the focal lengths stay
+        // as the first georeferencing settled them.
+        let mut again = georeference_settled(
             &separated.input,
             vec![placed.reconstruction],
             &block.ground,
             options,
+            Some(&placed.focal_held),
         )?;
         again.diagnostics.dropped_components += placed.diagnostics.dropped_components;
         placed = again;
