@@ -385,18 +385,15 @@ fn adjusted_precision(
     use timesift_bundle::precision::{CovarianceScale, intrinsic_and_offset_precision};
     // One factorisation for both: the a-priori covariances are the a-posteriori ones without
     // the variance factor.
-    let prior_precision = if asked {
-        intrinsic_and_offset_precision(problem, CovarianceScale::Prior).ok()
-    } else {
-        None
-    };
+    let prior_precision = asked
+        .then(|| intrinsic_and_offset_precision(problem, CovarianceScale::Prior).ok())
+        .flatten();
     let precision = prior_precision
         .as_ref()
         .map(|p| p.rescaled(CovarianceScale::Posterior.factor(problem)));
     // An offset's σ is the larger of the a-priori and a-posteriori ones: priors that state
     // the bias in their σ make the block's variance factor small, and the posterior σ alone
     // would then claim the mean of the flight's noise is known better than it is.
-    let prior_precision = prior_precision.filter(|_| !problem.prior_offsets.is_empty());
     let offset_std = precision.as_ref().map(|p| {
         (0..problem.prior_offsets.len())
             .map(|o| {

@@ -6,7 +6,7 @@
 use std::collections::HashMap;
 
 use crate::AlignError;
-use crate::adjust::{Adjustment, Intrinsics, TIE_POINT_LOSS};
+use crate::adjust::{Adjustment, CentrePrior, Intrinsics, OffsetPrior, TIE_POINT_LOSS};
 use crate::init::initialise;
 use crate::model::{Reconstruction, SfmInput};
 use crate::options::SfmOptions;
@@ -144,7 +144,7 @@ fn local(state: &mut State<'_>, image: usize) -> Result<(), AlignError> {
 pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<(), AlignError> {
     let points = state.live_points();
     let iterations = state.options.global_iterations;
-    let report = adjust_tie_points(state, points.clone(), intrinsics, iterations)?;
+    let report = adjust_oriented_images(state, points.clone(), intrinsics, iterations, &[], &[])?;
     let dropped = state.filter_points(&points);
     let added = state.complete_all_tracks();
     state.compact();
@@ -162,13 +162,16 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
     Ok(())
 }
 
-/// Adjusts every oriented image with `points`, by their tie points alone (no prior, marker or
-/// height: the frame stays the block's own).
-fn adjust_tie_points(
+/// Adjusts every oriented image with `points` by their tie points and `priors` (with the
+/// flights' `offsets` they refer to); no marker or height. Without priors the frame stays the
+/// block's own.
+pub(crate) fn adjust_oriented_images(
     state: &mut State<'_>,
     points: Vec<usize>,
     intrinsics: Intrinsics,
     iterations: usize,
+    priors: &[CentrePrior],
+    offsets: &[OffsetPrior],
 ) -> Result<timesift_bundle::BundleReport, AlignError> {
     let focal_fixed = state.input.focal_held_during_sfm();
     Ok(state
@@ -176,8 +179,8 @@ fn adjust_tie_points(
             free_images: state.oriented(),
             points,
             intrinsics,
-            priors: &[],
-            offsets: &[],
+            priors,
+            offsets,
             marked: &[],
             loss: TIE_POINT_LOSS,
             iterations,

@@ -20,8 +20,8 @@ mod two_view;
 use timesift_core::Pose;
 
 use crate::AlignError;
-use crate::adjust::{Adjustment, CentrePrior, Intrinsics, OffsetPrior, TIE_POINT_LOSS};
-use crate::incremental::{finish, grow, reconstruct};
+use crate::adjust::{CentrePrior, Intrinsics, OffsetPrior};
+use crate::incremental::{adjust_oriented_images, finish, grow, reconstruct};
 use crate::model::{Reconstruction, SfmInput};
 use crate::options::{GLOBAL_MAPPER_FROM_IMAGES, Mapper, SfmOptions};
 use crate::state::{State, track_table};
@@ -77,25 +77,15 @@ fn adjust_on_a_subset(
     }
     subset.sort_unstable();
     subset.dedup();
-    // As the incremental mapper's adjustments: a focal length from EXIF stays until
-    // georeferencing can tell whether the block determines it.
-    let focal_fixed = state.input.focal_held_during_sfm();
-    let report = state
-        .adjust(&Adjustment {
-            free_images: state.oriented(),
-            points: subset.clone(),
-            intrinsics: Intrinsics::Running,
-            priors,
-            offsets,
-            marked: &[],
-            loss: TIE_POINT_LOSS,
-            iterations: 4 * state.options.global_iterations,
-            focal_fixed: &focal_fixed,
-            precision: false,
-            rigid_sets: &[],
-            heights: &[],
-        })?
-        .report;
+    let iterations = 4 * state.options.global_iterations;
+    let report = adjust_oriented_images(
+        state,
+        subset.clone(),
+        Intrinsics::Running,
+        iterations,
+        priors,
+        offsets,
+    )?;
     tracing::debug!(
         points = subset.len(),
         rms_px = report.rms_px,
@@ -252,7 +242,7 @@ fn reconstruct_global(
     state.max_error_px = SEED_BOUND_FACTOR * options.max_reprojection_px;
     state.complete_all_tracks();
     let unseeded = drop_poorly_seen_images(&mut state);
-    state.offsets = placed.offsets.clone();
+    state.offsets = placed.offsets;
     let (subset, rms_px) = adjust_on_a_subset(&mut state, priors, offsets)?;
     // A wrong seed (a frame turned the wrong way, centres metres off) leaves few points, or
     // points that no adjustment brings within the bound: the incremental mapper then.
