@@ -39,6 +39,9 @@ pub struct ProjectConfig {
     /// Change-detection options.
     #[serde(default)]
     pub change: ChangeConfig,
+    /// Slurm settings of `timesift run --executor slurm` (the command line's options win).
+    #[serde(default)]
+    pub cluster: ClusterConfig,
     /// Known calibrations of camera groups (`[[camera]]`), e.g. from a film camera's
     /// calibration certificate. Default: none (focal length from EXIF or 1.2 × the long side,
     /// refined by self-calibration).
@@ -1301,5 +1304,89 @@ mod tests {
                 && e.contains("all"),
             "{e}"
         );
+    }
+}
+
+/// `[cluster]`: how `timesift run --executor slurm` submits the project's units of work. Every
+/// key is optional; the command line's options of the same names override them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClusterConfig {
+    /// Slurm partition (`--partition`). Default: the cluster's default partition.
+    pub partition: Option<String>,
+    /// Slurm account (`--account`). Default: the user's default account.
+    pub account: Option<String>,
+    /// Time limit per task (`--time`, e.g. `"04:00:00"`). Default: the partition's.
+    pub time: Option<String>,
+    /// CPUs per task (`--cpus-per-task`), the threads of one unit. Default 4.
+    #[serde(default = "default_cpus_per_task")]
+    pub cpus_per_task: usize,
+    /// Most tasks of one array running at once (`--array=...%N`). Default: no limit.
+    pub max_array: Option<usize>,
+    /// Further `sbatch` arguments, added to every submission (e.g. `["--qos=long"]`).
+    #[serde(default)]
+    pub sbatch_args: Vec<String>,
+    /// Times a failed task requeues itself before it fails for good. Default 2.
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+    /// Images per task of `features`. Default 40.
+    #[serde(default = "default_images_per_task")]
+    pub images_per_task: usize,
+    /// Pairs per task of `match`. Default 2000.
+    #[serde(default = "default_pairs_per_task")]
+    pub pairs_per_task: usize,
+    /// Reference images per task of each dense pass. Default 8.
+    #[serde(default = "default_views_per_task")]
+    pub views_per_task: usize,
+}
+
+fn default_cpus_per_task() -> usize {
+    4
+}
+fn default_retries() -> u32 {
+    2
+}
+fn default_images_per_task() -> usize {
+    40
+}
+fn default_pairs_per_task() -> usize {
+    2000
+}
+fn default_views_per_task() -> usize {
+    8
+}
+
+impl Default for ClusterConfig {
+    fn default() -> Self {
+        ClusterConfig {
+            partition: None,
+            account: None,
+            time: None,
+            cpus_per_task: default_cpus_per_task(),
+            max_array: None,
+            sbatch_args: Vec::new(),
+            retries: default_retries(),
+            images_per_task: default_images_per_task(),
+            pairs_per_task: default_pairs_per_task(),
+            views_per_task: default_views_per_task(),
+        }
+    }
+}
+
+impl ClusterConfig {
+    /// Checks the counts: each at least 1.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, v) in [
+            ("cpus_per_task", self.cpus_per_task),
+            ("images_per_task", self.images_per_task),
+            ("pairs_per_task", self.pairs_per_task),
+            ("views_per_task", self.views_per_task),
+            ("max_array", self.max_array.unwrap_or(1)),
+        ] {
+            if v == 0 {
+                return Err(format!("[cluster] {key}: expected at least 1, found 0"));
+            }
+        }
+        Ok(())
     }
 }

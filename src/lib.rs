@@ -21,6 +21,7 @@ pub mod project;
 pub mod report;
 pub mod stable_matcher;
 pub mod stages;
+pub mod tasks;
 
 pub use error::ProjectError;
 pub use project::Project;

@@ -75,6 +75,29 @@ enum Command {
         /// No progress bars and no per-stage lines; errors still go to standard error.
         #[arg(long, short)]
         quiet: bool,
+        /// Where the units of work run: here (`local`) or as Slurm job arrays (`slurm`).
+        #[arg(long, value_enum, default_value_t = Executor::Local)]
+        executor: Executor,
+        /// With `--executor slurm`: print the arrays, tasks, memory and files; submit nothing.
+        #[arg(long)]
+        dry_run: bool,
+        #[command(flatten)]
+        cluster: ClusterArgs,
+    },
+    /// Run one unit of work of a step (what a cluster task runs): `--part i/n`.
+    Task {
+        /// The step (`timesift run --executor slurm --dry-run` lists them).
+        step: String,
+        /// Project directory.
+        dir: PathBuf,
+        /// Unit i of n (1-based).
+        #[arg(long, default_value = "1/1")]
+        part: timesift::tasks::Part,
+    },
+    /// Show per step which units are complete, running, queued, failed or missing.
+    Status {
+        /// Project directory.
+        dir: PathBuf,
     },
     /// Keypoints and descriptors of one image, written in the text format of docs/design.md.
     Features(features::FeaturesRequest),
@@ -171,6 +194,38 @@ enum IcpArg {
     Similarity,
 }
 
+/// Where `timesift run` runs the units of work.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Executor {
+    /// In this process, with every core.
+    Local,
+    /// As Slurm job arrays over the shared project directory.
+    Slurm,
+}
+
+/// The `[cluster]` keys on the command line (they override project.toml's).
+#[derive(clap::Args)]
+struct ClusterArgs {
+    /// Slurm partition.
+    #[arg(long)]
+    partition: Option<String>,
+    /// Slurm account.
+    #[arg(long)]
+    account: Option<String>,
+    /// Time limit per task (e.g. 04:00:00).
+    #[arg(long)]
+    time: Option<String>,
+    /// CPUs per task.
+    #[arg(long)]
+    cpus_per_task: Option<usize>,
+    /// Most tasks of one array running at once.
+    #[arg(long)]
+    max_array: Option<usize>,
+    /// A further sbatch argument (repeat for more), e.g. --sbatch-arg=--qos=long.
+    #[arg(long = "sbatch-arg", allow_hyphen_values = true)]
+    sbatch_args: Vec<String>,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let level = match cli.verbose {
@@ -226,7 +281,45 @@ fn run(command: Command) -> anyhow::Result<()> {
             from,
             to,
             quiet,
-        } => run_pipeline(&dir, from, to, quiet)?,
+            executor,
+            dry_run,
+            cluster,
+        } => match executor {
+            Executor::Local if dry_run => {
+                anyhow::bail!("--dry-run plans a cluster run: add --executor slurm")
+            }
+            Executor::Local => run_pipeline(&dir, from, to, quiet)?,
+            Executor::Slurm => submit_pipeline(&dir, from, to, dry_run, &cluster)?,
+        },
+        Command::Task { step, dir, part } => {
+            let project = Project::load(&dir)?;
+            let project = timesift::Project {
+                progress: timesift::progress::Progress::Hidden,
+                ..project
+            };
+            match timesift::tasks::run_task(&project, &step, part)? {
+                timesift::tasks::UnitOutcome::AlreadyComplete => {
+                    say!("{step} {part}: already complete");
+                }
+                timesift::tasks::UnitOutcome::Ran { outputs, seconds } => {
+                    say!("{step} {part}: {} files in {seconds:.1} s", outputs.len());
+                }
+            }
+        }
+        Command::Status { dir } => {
+            let project = Project::load(&dir)?;
+            let options = plan_options(&project, &ClusterArgs::none());
+            let plan = timesift::tasks::cluster_plan(&project, &options)?;
+            let submission = timesift::tasks::slurm::Submission::read(&project);
+            let jobs = timesift::tasks::slurm::JobStates::query(
+                &submission.as_ref().map(|s| s.jobs()).unwrap_or_default(),
+            );
+            let steps = timesift::tasks::status(&project, &plan, submission.as_ref(), &jobs);
+            say!("{}", timesift::tasks::status_table(&steps).trim_end());
+            for note in &jobs.notes {
+                say!("note: {note}");
+            }
+        }
         Command::Features(request) => {
             let start = std::time::Instant::now();
             let result = features::features(&request)?;
@@ -278,6 +371,7 @@ fn run_pipeline(
     quiet: bool,
 ) -> anyhow::Result<()> {
     let mut project = Project::load(dir)?;
+    let _lock = timesift::tasks::ProjectLock::acquire(&project, "timesift run")?;
     if quiet {
         project.progress = timesift::progress::Progress::Hidden;
     }
@@ -301,6 +395,101 @@ fn run_pipeline(
                 }
             }
         }
+    }
+    Ok(())
+}
+
+impl ClusterArgs {
+    fn none() -> ClusterArgs {
+        ClusterArgs {
+            partition: None,
+            account: None,
+            time: None,
+            cpus_per_task: None,
+            max_array: None,
+            sbatch_args: Vec::new(),
+        }
+    }
+}
+
+/// The split of the cluster plan: `[cluster]`, with the command line's CPUs.
+fn plan_options(project: &Project, args: &ClusterArgs) -> timesift::tasks::PlanOptions {
+    let c = &project.config.cluster;
+    timesift::tasks::PlanOptions {
+        cpus_per_task: args.cpus_per_task.unwrap_or(c.cpus_per_task),
+        images_per_task: c.images_per_task,
+        pairs_per_task: c.pairs_per_task,
+        views_per_task: c.views_per_task,
+    }
+}
+
+/// `timesift run --executor slurm`: the stages' missing units submitted as job arrays (or,
+/// with `--dry-run`, only planned), under the project's lock.
+fn submit_pipeline(
+    dir: &std::path::Path,
+    from: Option<stages::Stage>,
+    to: Option<stages::Stage>,
+    dry_run: bool,
+    args: &ClusterArgs,
+) -> anyhow::Result<()> {
+    use timesift::tasks::slurm;
+    let start = std::time::Instant::now();
+    let project = Project::load(dir)?;
+    let _lock = if dry_run {
+        None
+    } else {
+        Some(timesift::tasks::ProjectLock::acquire(
+            &project,
+            "timesift run --executor slurm (submitting)",
+        )?)
+    };
+    let mut options = slurm::SlurmOptions::from_config(&project.config.cluster);
+    options.partition = args.partition.clone().or(options.partition);
+    options.account = args.account.clone().or(options.account);
+    options.time = args.time.clone().or(options.time);
+    options.cpus_per_task = args.cpus_per_task.unwrap_or(options.cpus_per_task);
+    options.max_array = args.max_array.or(options.max_array);
+    options.sbatch_args.extend(args.sbatch_args.iter().cloned());
+    let plan = timesift::tasks::cluster_plan(&project, &plan_options(&project, args))?;
+    let stages = stages::stage_range(from, to)?;
+    let steps = plan.of_stages(&stages);
+    let (max_array_size, asked) = match slurm::max_array_size() {
+        Some(n) => (n, true),
+        None if dry_run => (slurm::DEFAULT_MAX_ARRAY_SIZE, false),
+        None => anyhow::bail!(
+            "cannot ask Slurm for its configuration (`scontrol show config` failed): is this a \
+             Slurm login node?"
+        ),
+    };
+    let report = slurm::submit(&project, &plan, &steps, &options, max_array_size, dry_run)?;
+    say!("{}", report.table.trim_end());
+    if !asked {
+        say!(
+            "note: MaxArraySize assumed {max_array_size} (Slurm's default; scontrol not reachable)"
+        );
+    }
+    if dry_run {
+        say!(
+            "planned {} steps in {:.2} s; nothing submitted",
+            steps.len(),
+            start.elapsed().as_secs_f64()
+        );
+    } else {
+        for s in &report.submission.steps {
+            for a in &s.arrays {
+                say!(
+                    "submitted {} as job {} ({} tasks)",
+                    s.step,
+                    a.job,
+                    a.tasks.len()
+                );
+            }
+        }
+        say!(
+            "follow with: timesift status {}  (logs in {})",
+            dir.display(),
+            project.layout().slurm_dir().join("logs").display()
+        );
     }
     Ok(())
 }

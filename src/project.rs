@@ -238,6 +238,10 @@ impl Project {
     pub fn from_config(dir: &Path, config: ProjectConfig) -> Result<Self, ProjectError> {
         let cfg_path = dir.join(PROJECT_FILE);
         let crs = projected_crs(&cfg_path, &config)?;
+        config
+            .cluster
+            .validate()
+            .map_err(|e| ProjectError::config(&cfg_path, "cluster", e))?;
         let (epochs, images) = epochs_and_images(dir, &cfg_path, &config)?;
         let reference_epoch = match &config.align.reference_epoch {
             None => EpochId(0),

@@ -173,6 +173,7 @@ fn project_toml(found: &EpochFolders) -> String {
     align_section(&mut text, reference);
     dense_section(&mut text);
     raster_section(&mut text);
+    cluster_section(&mut text);
     gnss_section(&mut text);
     camera_example(&mut text, reference);
     text
@@ -265,6 +266,42 @@ fn dense_section(text: &mut String) {
         text,
         "# black_is_nodata = true  # pure black pixels (scan borders) give no depth\n"
     );
+}
+
+/// The `[cluster]` section, its keys at their defaults.
+fn cluster_section(text: &mut String) {
+    let _ = writeln!(
+        text,
+        "[cluster]  # timesift run --executor slurm (the command line's options of the same names win)"
+    );
+    let _ = writeln!(
+        text,
+        "# partition = \"batch\"     # default: the cluster's default"
+    );
+    let _ = writeln!(
+        text,
+        "# account = \"geo\"         # default: your default account"
+    );
+    let _ = writeln!(
+        text,
+        "# time = \"04:00:00\"       # per task; default: the partition's limit"
+    );
+    let _ = writeln!(text, "# cpus_per_task = 4        # threads of one task");
+    let _ = writeln!(
+        text,
+        "# max_array = 50           # most tasks of one array at once (default: no limit)"
+    );
+    let _ = writeln!(
+        text,
+        "# sbatch_args = [\"--qos=long\"]  # added to every sbatch"
+    );
+    let _ = writeln!(
+        text,
+        "# retries = 2              # times a failed task requeues itself"
+    );
+    let _ = writeln!(text, "# images_per_task = 40     # features");
+    let _ = writeln!(text, "# pairs_per_task = 2000    # match");
+    let _ = writeln!(text, "# views_per_task = 8       # each dense pass\n");
 }
 
 /// The `[raster]` section, its keys at their defaults.

@@ -93,7 +93,43 @@ pub fn change_stable_areas(project: &Project) -> Option<PathBuf> {
 
 /// Compares every pair; returns (pairs computed, pairs up to date).
 fn run_change(project: &Project) -> Result<(usize, usize), ProjectError> {
-    let config = &project.config.change;
+    check_epochs(project)?;
+    let stable = change_stable_areas(project);
+    let (mut done, mut skipped) = (0, 0);
+    for (a, b) in epoch_pairs(project) {
+        if compare_pair(project, stable.as_ref(), &a, &b)? {
+            done += 1;
+        } else {
+            skipped += 1;
+        }
+    }
+    Ok((done, skipped))
+}
+
+/// A unit of the `change` step: the epoch pairs of `part`. The files it owns.
+pub(super) fn unit(project: &Project, part: super::Part) -> Result<Vec<PathBuf>, ProjectError> {
+    check_epochs(project)?;
+    let stable = change_stable_areas(project);
+    let layout = project.layout();
+    let pairs = epoch_pairs(project);
+    let mut owned = Vec::new();
+    for (a, b) in &pairs[part.range(pairs.len())] {
+        compare_pair(project, stable.as_ref(), a, b)?;
+        let dir = layout.change_dir(a, b);
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .map_err(|e| timesift_io::IoError::io(&dir, e))?
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.is_file())
+            .collect();
+        files.sort();
+        owned.extend(files);
+        owned.push(layout.change_settings(a, b));
+    }
+    Ok(owned)
+}
+
+fn check_epochs(project: &Project) -> Result<(), ProjectError> {
     if project.epochs.len() < 2 {
         return Err(stage_error(
             "change",
@@ -104,57 +140,62 @@ fn run_change(project: &Project) -> Result<(usize, usize), ProjectError> {
             ),
         ));
     }
-    let stable = change_stable_areas(project);
+    Ok(())
+}
+
+/// Compares one pair unless what it was made from is unchanged; whether it was computed.
+fn compare_pair(
+    project: &Project,
+    stable: Option<&PathBuf>,
+    a: &str,
+    b: &str,
+) -> Result<bool, ProjectError> {
+    let config = &project.config.change;
     let layout = project.layout();
-    let (mut done, mut skipped) = (0, 0);
-    for (a, b) in epoch_pairs(project) {
-        let out = layout.change_dir(&a, &b);
-        let (dem_a, dem_b) = (layout.dem(&a), layout.dem(&b));
-        let (laz_a, laz_b) = (layout.dense_cloud(&a), layout.dense_cloud(&b));
-        let have_clouds = laz_a.is_file() && laz_b.is_file();
-        let settings = serde_json::json!({
-            "change": format!("{config:?}"),
-            "stable": stable.as_ref().map(|p| (p.display().to_string(), file_stamp(p))),
-            "checkpoints": format!("{:?}", project.checkpoints),
-            "dems": [file_stamp(&dem_a), file_stamp(&dem_b)],
-            "clouds": [file_stamp(&laz_a), file_stamp(&laz_b)],
-        });
-        let record = layout.change_settings(&a, &b);
-        let mut expected = vec![layout.change_stats(&a, &b)];
-        if have_clouds {
-            expected.push(layout.m3c2_stats(&a, &b));
-        }
-        if read_json::<serde_json::Value>(&record).ok().as_ref() == Some(&settings)
-            && expected.iter().all(|p| p.is_file())
-        {
-            tracing::info!(pair = %format!("{a}__{b}"), "change up to date");
-            skipped += 1;
-            continue;
-        }
-        let options = DemCompareOptions {
-            stable: stable.clone(),
-            coregistration: config.coregistration,
-            checkpoints: named_positions(&project.checkpoints),
-            ..Default::default()
-        };
-        compare_dems(&dem_a, &dem_b, &out, &options)?;
-        if have_clouds {
-            let options = CloudCompareOptions {
-                stable: stable.clone(),
-                icp: None,
-                m3c2: M3c2Params {
-                    normal_radii: vec![config.normal_radius],
-                    cylinder_radius: config.cylinder_radius,
-                    max_depth: config.max_depth,
-                    ..M3c2Params::default()
-                },
-                registration_error: Some(config.registration_error),
-                core_spacing: config.core_spacing,
-            };
-            compare_clouds(&laz_a, &laz_b, &out, &options)?;
-        }
-        write_json(&record, &settings)?;
-        done += 1;
+    let out = layout.change_dir(a, b);
+    let (dem_a, dem_b) = (layout.dem(a), layout.dem(b));
+    let (laz_a, laz_b) = (layout.dense_cloud(a), layout.dense_cloud(b));
+    let have_clouds = laz_a.is_file() && laz_b.is_file();
+    let settings = serde_json::json!({
+        "change": format!("{config:?}"),
+        "stable": stable.map(|p| (p.display().to_string(), file_stamp(p))),
+        "checkpoints": format!("{:?}", project.checkpoints),
+        "dems": [file_stamp(&dem_a), file_stamp(&dem_b)],
+        "clouds": [file_stamp(&laz_a), file_stamp(&laz_b)],
+    });
+    let record = layout.change_settings(a, b);
+    let mut expected = vec![layout.change_stats(a, b)];
+    if have_clouds {
+        expected.push(layout.m3c2_stats(a, b));
     }
-    Ok((done, skipped))
+    if read_json::<serde_json::Value>(&record).ok().as_ref() == Some(&settings)
+        && expected.iter().all(|p| p.is_file())
+    {
+        tracing::info!(pair = %format!("{a}__{b}"), "change up to date");
+        return Ok(false);
+    }
+    let options = DemCompareOptions {
+        stable: stable.cloned(),
+        coregistration: config.coregistration,
+        checkpoints: named_positions(&project.checkpoints),
+        ..Default::default()
+    };
+    compare_dems(&dem_a, &dem_b, &out, &options)?;
+    if have_clouds {
+        let options = CloudCompareOptions {
+            stable: stable.cloned(),
+            icp: None,
+            m3c2: M3c2Params {
+                normal_radii: vec![config.normal_radius],
+                cylinder_radius: config.cylinder_radius,
+                max_depth: config.max_depth,
+                ..M3c2Params::default()
+            },
+            registration_error: Some(config.registration_error),
+            core_spacing: config.core_spacing,
+        };
+        compare_clouds(&laz_a, &laz_b, &out, &options)?;
+    }
+    write_json(&record, &settings)?;
+    Ok(true)
 }

@@ -133,11 +133,6 @@ pub fn on_lattice(georef: &GeoReference, width: usize, height: usize, lattice: &
 pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
     let layout = project.layout();
     let grid_file = ensure_grid(project)?;
-    let (grid, crs) = project_grid_of(&grid_file).map_err(|e| ProjectError::Path {
-        path: layout.grid_json(),
-        message: e,
-    })?;
-    let mut report = read_report(project);
     let bar = crate::progress::progress_bar(
         project.progress,
         "dem",
@@ -147,61 +142,148 @@ pub fn dem_stage(project: &Project) -> Result<RasterReport, ProjectError> {
     );
     for epoch in &project.epochs {
         bar.inc(1);
-        let name = &epoch.name;
-        let cloud_path = layout.dense_cloud(name);
-        let options = project.config.raster.dem_options(grid.dem.cell());
-        let settings = serde_json::json!({
-            "algorithm": DEM_ALGORITHM,
-            "grid": [grid_file.origin, [grid_file.dem_cell, 0.0], [grid_file.size[0] as f64, grid_file.size[1] as f64]],
-            "options": format!("{options:?}"),
-            "cloud": file_stamp(&cloud_path),
-        });
-        let settings_path = layout.raster_settings(name, "dem");
-        let outputs = [
-            layout.dem(name),
-            layout.dem_count(name),
-            layout.dem_std(name),
-            layout.dem_filled(name),
-        ];
-        let recorded: Option<serde_json::Value> = read_json(&settings_path).ok();
-        if recorded.as_ref() == Some(&settings)
-            && outputs.iter().all(|p| p.is_file())
-            && report.epochs.contains_key(name)
-        {
-            tracing::info!(epoch = %name, "DEM up to date");
-            continue;
-        }
-        let start = Instant::now();
-        let cloud = read_las_positions(&cloud_path)?;
-        let dem = grid_cloud(&cloud.positions, &grid.dem, &options)
-            .map_err(|e| stage_error("dem", format!("epoch \"{name}\": {e}")))?;
-        write_dem_files(&dem, crs, &outputs, &layout.dem_preview(name))?;
-        let entry = report.epochs.entry(name.clone()).or_default();
-        entry.cloud_points = cloud.positions.len();
-        entry.dem_cells = dem.valid_cells();
-        entry.dem_cells_filled = dem.filled.iter().filter(|f| **f).count();
-        entry.dem_seconds = start.elapsed().as_secs_f64();
-        tracing::info!(
-            epoch = %name,
-            cells = entry.dem_cells,
-            filled = entry.dem_cells_filled,
-            seconds = entry.dem_seconds,
-            "DEM"
-        );
-        write_json(&settings_path, &settings)?;
-        write_json(&layout.raster_report(), &report)?;
+        dem_epoch(project, &grid_file, &epoch.name)?;
     }
     bar.finish_and_clear();
-    report
-        .epochs
-        .retain(|name, _| project.epochs.iter().any(|e| &e.name == name));
+    let report = raster_report_from_records(project);
     write_json(&layout.raster_report(), &report)?;
     Ok(report)
 }
 
-/// `out/raster.json` as it stands (empty when missing or unreadable).
-pub(super) fn read_report(project: &Project) -> RasterReport {
-    read_json::<RasterReport>(&project.layout().raster_report()).unwrap_or_default()
+/// The dem stage's first step (`dem-grid`): the project's lattice. The files it owns.
+pub(super) fn grid_unit(project: &Project) -> Result<Vec<PathBuf>, ProjectError> {
+    ensure_grid(project)?;
+    Ok(vec![project.layout().grid_json()])
+}
+
+/// A unit of the `dem` step: the DEMs of the epochs of `part` on the lattice `dem-grid` made.
+/// The files it owns.
+pub(super) fn unit(project: &Project, part: super::Part) -> Result<Vec<PathBuf>, ProjectError> {
+    let layout = project.layout();
+    let grid_file = read_json::<GridFile>(&layout.grid_json()).map_err(|e| {
+        stage_error(
+            "dem",
+            format!("{e} (the dem-grid step writes it: run it first)"),
+        )
+    })?;
+    let mut owned = Vec::new();
+    for epoch in &project.epochs[part.range(project.epochs.len())] {
+        let name = &epoch.name;
+        dem_epoch(project, &grid_file, name)?;
+        owned.extend(dem_outputs(project, name));
+        owned.extend([
+            layout.dem_preview(name),
+            layout.raster_settings(name, "dem"),
+        ]);
+    }
+    Ok(owned)
+}
+
+/// What `work/raster/<epoch>.dem.json` records: what the DEM was made from, and its figures for
+/// `out/raster.json`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+struct DemRecord {
+    made_from: serde_json::Value,
+    cloud_points: usize,
+    dem_cells: usize,
+    dem_cells_filled: usize,
+    dem_seconds: f64,
+}
+
+/// What `work/raster/<epoch>.ortho.json` records: what the ortho was made from, and its figures
+/// for `out/raster.json`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub(super) struct OrthoRecord {
+    pub(super) made_from: serde_json::Value,
+    pub(super) ortho_painted_fraction: f64,
+    pub(super) seam_jump: f64,
+    pub(super) interior_jump: f64,
+    pub(super) ortho_seconds: f64,
+}
+
+/// `out/raster.json` from every epoch's DEM and ortho records.
+pub(super) fn raster_report_from_records(project: &Project) -> RasterReport {
+    let layout = project.layout();
+    let mut report = RasterReport::default();
+    for epoch in &project.epochs {
+        let name = &epoch.name;
+        let dem = read_json::<DemRecord>(&layout.raster_settings(name, "dem")).ok();
+        let ortho = read_json::<OrthoRecord>(&layout.raster_settings(name, "ortho")).ok();
+        if dem.is_none() && ortho.is_none() {
+            continue;
+        }
+        let entry = report.epochs.entry(name.clone()).or_default();
+        if let Some(d) = dem {
+            entry.cloud_points = d.cloud_points;
+            entry.dem_cells = d.dem_cells;
+            entry.dem_cells_filled = d.dem_cells_filled;
+            entry.dem_seconds = d.dem_seconds;
+        }
+        if let Some(o) = ortho {
+            entry.ortho_painted_fraction = Some(o.ortho_painted_fraction);
+            entry.seam_jump = Some(o.seam_jump);
+            entry.interior_jump = Some(o.interior_jump);
+            entry.ortho_seconds = Some(o.ortho_seconds);
+        }
+    }
+    report
+}
+
+fn dem_outputs(project: &Project, name: &str) -> [PathBuf; 4] {
+    let layout = project.layout();
+    [
+        layout.dem(name),
+        layout.dem_count(name),
+        layout.dem_std(name),
+        layout.dem_filled(name),
+    ]
+}
+
+/// One epoch's DEM gridded from its cloud unless what it was made from is unchanged; whether it
+/// was computed.
+fn dem_epoch(project: &Project, grid_file: &GridFile, name: &str) -> Result<bool, ProjectError> {
+    let layout = project.layout();
+    let (grid, crs) = project_grid_of(grid_file).map_err(|e| ProjectError::Path {
+        path: layout.grid_json(),
+        message: e,
+    })?;
+    let cloud_path = layout.dense_cloud(name);
+    let options = project.config.raster.dem_options(grid.dem.cell());
+    let settings = serde_json::json!({
+        "algorithm": DEM_ALGORITHM,
+        "grid": [grid_file.origin, [grid_file.dem_cell, 0.0], [grid_file.size[0] as f64, grid_file.size[1] as f64]],
+        "options": format!("{options:?}"),
+        "cloud": file_stamp(&cloud_path),
+    });
+    let record_path = layout.raster_settings(name, "dem");
+    let outputs = dem_outputs(project, name);
+    if read_json::<DemRecord>(&record_path).is_ok_and(|r| r.made_from == settings)
+        && outputs.iter().all(|p| p.is_file())
+    {
+        tracing::info!(epoch = %name, "DEM up to date");
+        return Ok(false);
+    }
+    let start = Instant::now();
+    let cloud = read_las_positions(&cloud_path)?;
+    let dem = grid_cloud(&cloud.positions, &grid.dem, &options)
+        .map_err(|e| stage_error("dem", format!("epoch \"{name}\": {e}")))?;
+    write_dem_files(&dem, crs, &outputs, &layout.dem_preview(name))?;
+    let record = DemRecord {
+        made_from: settings,
+        cloud_points: cloud.positions.len(),
+        dem_cells: dem.valid_cells(),
+        dem_cells_filled: dem.filled.iter().filter(|f| **f).count(),
+        dem_seconds: start.elapsed().as_secs_f64(),
+    };
+    tracing::info!(
+        epoch = %name,
+        cells = record.dem_cells,
+        filled = record.dem_cells_filled,
+        seconds = record.dem_seconds,
+        "DEM"
+    );
+    write_json(&record_path, &record)?;
+    Ok(true)
 }
 
 /// Writes the DEM, its count, spread and filled-cell rasters, and the hillshade preview.

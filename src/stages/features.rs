@@ -44,9 +44,9 @@ impl PipelineStage for FeaturesStage {
     }
 }
 
-/// Extracts the features of every image whose feature file is missing or unreadable, with the
-/// extractor `[align] features` names.
-pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
+/// The built-in extractor `[align] features` names, and the settings its features are recorded
+/// as made with.
+fn builtin_extractor(project: &Project) -> (Box<dyn FeatureExtractor>, serde_json::Value) {
     let detector = DetectorOptions {
         limit: Some(KeypointLimit::spread(project.config.align.max_keypoints)),
         // COLMAP's peak threshold: more keypoints in weak texture, which epochs years apart need.
@@ -65,6 +65,13 @@ pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
         "max_keypoints": project.config.align.max_keypoints,
         "contrast_threshold": detector.contrast_threshold,
     });
+    (extractor, settings)
+}
+
+/// Extracts the features of every image whose feature file is missing or unreadable, with the
+/// extractor `[align] features` names.
+pub fn features_stage(project: &Project) -> Result<usize, ProjectError> {
+    let (extractor, settings) = builtin_extractor(project);
     extract_with(project, extractor.as_ref(), &settings)
 }
 
@@ -81,6 +88,87 @@ pub fn extract_features(
     extract_with(project, extractor, &settings)
 }
 
+/// The settings the feature files are made with: `settings` and the scans' interior
+/// orientations.
+fn recorded_settings(
+    project: &Project,
+    source: &ImageSource,
+    settings: &serde_json::Value,
+) -> serde_json::Value {
+    let mut settings = settings.clone();
+    let seen = source.fingerprint(project);
+    if !seen.is_empty() {
+        settings["image_source"] = seen.into();
+    }
+    settings
+}
+
+/// The stage's first step (`features-prepare`): the scans' interior orientations, then the
+/// settings recorded, removing the features (and matches) an earlier run made otherwise. The
+/// files it owns.
+pub(super) fn prepare(project: &Project) -> Result<Vec<std::path::PathBuf>, ProjectError> {
+    let (_, settings) = builtin_extractor(project);
+    prepare_with(project, &settings)?;
+    let layout = project.layout();
+    let mut owned = vec![
+        crate::layout::Layout::settings_file(&layout.features_dir()),
+        layout.fiducials_settings(),
+        layout.fiducials_json(),
+        layout.fiducials_csv(),
+        layout.fiducials_sheet(),
+    ];
+    owned.extend(project.film.keys().map(|c| layout.fiducials_frame(c)));
+    Ok(owned)
+}
+
+fn prepare_with(
+    project: &Project,
+    settings: &serde_json::Value,
+) -> Result<ImageSource, ProjectError> {
+    let layout = project.layout();
+    // Scans are seen through their interior orientations: new ones redo their features.
+    super::fiducials::fiducials_stage(project)?;
+    let source = ImageSource::of(project)?;
+    start_with_settings(
+        "features",
+        &layout.features_dir(),
+        "feat",
+        &recorded_settings(project, &source, settings),
+        &[(&layout.matches_dir(), "match")],
+    )?;
+    Ok(source)
+}
+
+/// A unit of the `features` step: the images of `part` (in project order) whose feature file
+/// is missing or unreadable. `features-prepare` must have recorded today's settings. The files
+/// it owns.
+pub(super) fn unit(
+    project: &Project,
+    part: super::Part,
+) -> Result<Vec<std::path::PathBuf>, ProjectError> {
+    let (extractor, settings) = builtin_extractor(project);
+    let layout = project.layout();
+    let source = ImageSource::of(project)?;
+    let wanted = recorded_settings(project, &source, &settings);
+    let settings_path = crate::layout::Layout::settings_file(&layout.features_dir());
+    let recorded: Option<serde_json::Value> = std::fs::read_to_string(&settings_path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    if recorded.as_ref() != Some(&wanted) {
+        return Err(stage_error(
+            "features",
+            format!(
+                "{} does not record this project's feature settings: run the features-prepare \
+                 step first",
+                settings_path.display()
+            ),
+        ));
+    }
+    let images: Vec<usize> = part.range(project.images.len()).collect();
+    extract_images(project, &source, extractor.as_ref(), &images)?;
+    Ok(images.iter().map(|&i| layout.feature_file(i)).collect())
+}
+
 /// Extracts the features of every image whose feature file is missing or unreadable; `settings`
 /// is what the feature files are recorded as made with.
 fn extract_with(
@@ -88,30 +176,31 @@ fn extract_with(
     extractor: &dyn FeatureExtractor,
     settings: &serde_json::Value,
 ) -> Result<usize, ProjectError> {
+    let source = prepare_with(project, settings)?;
+    let all: Vec<usize> = (0..project.images.len()).collect();
+    let extracted = extract_images(project, &source, extractor, &all)?;
+    tracing::info!(extracted, total = project.images.len(), "features");
+    Ok(extracted)
+}
+
+/// Extracts the features of those of `images` whose feature file is missing or unreadable, in
+/// parallel; how many were extracted.
+fn extract_images(
+    project: &Project,
+    source: &ImageSource,
+    extractor: &dyn FeatureExtractor,
+    images: &[usize],
+) -> Result<usize, ProjectError> {
     let layout = project.layout();
-    let (features_dir, matches_dir) = (layout.features_dir(), layout.matches_dir());
-    // Scans are seen through their interior orientations: new ones redo their features.
-    super::fiducials::fiducials_stage(project)?;
-    let source = ImageSource::of(project)?;
-    let mut settings = settings.clone();
-    let seen = source.fingerprint(project);
-    if !seen.is_empty() {
-        settings["image_source"] = seen.into();
-    }
-    start_with_settings(
-        "features",
-        &features_dir,
-        "feat",
-        &settings,
-        &[(&matches_dir, "match")],
-    )?;
-    let todo: Vec<usize> = (0..project.images.len())
+    let todo: Vec<usize> = images
+        .iter()
+        .copied()
         .filter(|&i| read_features(&layout.feature_file(i)).is_err())
         .collect();
     let failures: Vec<String> = todo
         .par_iter()
         .filter_map(|&i| {
-            let result = extract_one(project, &source, i, extractor)
+            let result = extract_one(project, source, i, extractor)
                 .map_err(|e| format!("{}: {e}", project.images[i].name))
                 .and_then(|f| {
                     write_features(&layout.feature_file(i), &f.keypoints, &f.descriptors)
@@ -130,11 +219,6 @@ fn extract_with(
             ),
         ));
     }
-    tracing::info!(
-        extracted = todo.len(),
-        total = project.images.len(),
-        "features"
-    );
     Ok(todo.len())
 }
 

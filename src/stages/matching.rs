@@ -58,35 +58,64 @@ fn remove_unselected(dir: &std::path::Path, pairs: &[(usize, usize)]) -> Result<
     };
     for entry in entries.flatten() {
         let file = entry.path();
-        if let Some(pair) = Layout::match_file_pair(&file) {
-            if pairs.binary_search(&pair).is_err() {
-                std::fs::remove_file(&file).map_err(|e| {
-                    stage_error("match", format!("{}: cannot remove: {e}", file.display()))
-                })?;
-            }
+        if let Some(pair) = Layout::match_file_pair(&file)
+            && pairs.binary_search(&pair).is_err()
+        {
+            std::fs::remove_file(&file).map_err(|e| {
+                stage_error("match", format!("{}: cannot remove: {e}", file.display()))
+            })?;
         }
     }
     Ok(())
 }
 
 /// Matches and verifies the epoch-aware pairs whose match file is missing, then builds tracks
-/// over all verified pairs and writes the summary.
+/// over all verified pairs and writes the summary: the stage's three steps in one process.
 pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
-    let n = project.images.len();
+    let features = read_all_features(project)?;
+    let pairs = select_pairs(project, Some(&features))?;
+    match_pairs(project, &pairs, &|i| Ok(&features[i]))?;
+    build_summary(
+        project,
+        &pairs,
+        &features.iter().map(|f| f.0.len()).collect::<Vec<_>>(),
+    )
+}
+
+type ImageFeatures = (Vec<timesift_core::Keypoint>, timesift_core::Descriptors);
+
+fn read_all_features(project: &Project) -> Result<Vec<ImageFeatures>, ProjectError> {
     let layout = project.layout();
-    let features = (0..n)
+    (0..project.images.len())
         .into_par_iter()
         .map(|i| read_features(&layout.feature_file(i)))
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))?;
+        .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))
+}
+
+/// The pairs this run matches (also recorded in `work/matches/pairs.json`), after the settings
+/// check and the removal of match files of pairs no longer selected. `features` are needed
+/// only for preselection; `None` reads them then.
+fn select_pairs(
+    project: &Project,
+    features: Option<&[ImageFeatures]>,
+) -> Result<PairList, ProjectError> {
+    let layout = project.layout();
     let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
-    let selection = project.config.align.pair_selection;
     let candidates = candidate_pairs(project, &epoch_of)?;
     // A pair's matches do not depend on which other pairs are selected: only the algorithm.
     let settings = serde_json::json!({ "algorithm": MATCH_ALGORITHM });
     start_with_settings("match", &layout.matches_dir(), "match", &settings, &[])?;
     let candidate_count = candidates.len();
-    let pairs = if selection == PairSelection::Preselect {
+    let pairs = if project.config.align.pair_selection == PairSelection::Preselect {
+        let read;
+        let features = match features {
+            Some(f) => f,
+            None => {
+                read = read_all_features(project)?;
+                &read
+            }
+        };
         let options = PreselectOptions::default();
         let views: Vec<_> = features.iter().map(|(k, d)| (k.as_slice(), d)).collect();
         let coarse = coarse_matches(&views, &candidates, &options)
@@ -96,43 +125,152 @@ pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
         candidates
     };
     remove_unselected(&layout.matches_dir(), &pairs)?;
+    let list = PairList {
+        candidate_pairs: candidate_count,
+        pairs,
+    };
+    write_json(&layout.match_pairs(), &list)?;
+    Ok(list)
+}
+
+/// The pairs the match stage matches, as `work/matches/pairs.json` records them.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct PairList {
+    /// Pairs before preselection.
+    candidate_pairs: usize,
+    /// The pairs, sorted.
+    pairs: Vec<(usize, usize)>,
+}
+
+/// The stage's first step (`match-prepare`): the pairs chosen and recorded. The files it owns.
+pub(super) fn prepare(project: &Project) -> Result<Vec<std::path::PathBuf>, ProjectError> {
+    select_pairs(project, None)?;
+    let layout = project.layout();
+    Ok(vec![
+        layout.match_pairs(),
+        Layout::settings_file(&layout.matches_dir()),
+    ])
+}
+
+fn recorded_pairs(project: &Project) -> Result<PairList, ProjectError> {
+    let path = project.layout().match_pairs();
+    crate::report::read_json::<PairList>(&path).map_err(|e| {
+        stage_error(
+            "match",
+            format!("{e} (the match-prepare step writes it: run it first)"),
+        )
+    })
+}
+
+/// A unit of the `match` step: the pairs of `part` (of `pairs.json`), each matched unless its
+/// file is there; only the features of the images they touch are read. The files it owns.
+pub(super) fn unit(
+    project: &Project,
+    part: super::Part,
+) -> Result<Vec<std::path::PathBuf>, ProjectError> {
+    let layout = project.layout();
+    let list = recorded_pairs(project)?;
+    let mine = &list.pairs[part.range(list.pairs.len())];
+    let todo: Vec<(usize, usize)> = mine
+        .iter()
+        .copied()
+        .filter(|&(a, b)| read_matches(&layout.match_file(a, b)).is_err())
+        .collect();
+    let images: std::collections::BTreeSet<usize> =
+        todo.iter().flat_map(|&(a, b)| [a, b]).collect();
+    let loaded: BTreeMap<usize, ImageFeatures> = images
+        .into_par_iter()
+        .map(|i| {
+            read_features(&layout.feature_file(i))
+                .map(|f| (i, f))
+                .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))
+        })
+        .collect::<Result<_, _>>()?;
+    let get = |i: usize| {
+        loaded
+            .get(&i)
+            .ok_or_else(|| stage_error("match", format!("image {i}: features not loaded")))
+    };
+    let subset = PairList {
+        candidate_pairs: list.candidate_pairs,
+        pairs: todo,
+    };
+    match_pairs(project, &subset, &get)?;
+    Ok(mine.iter().map(|&(a, b)| layout.match_file(a, b)).collect())
+}
+
+/// The stage's last step (`match-tracks`): tracks over every pair's matches and the summary.
+/// The files it owns.
+pub(super) fn finish(project: &Project) -> Result<Vec<std::path::PathBuf>, ProjectError> {
+    let layout = project.layout();
+    let list = recorded_pairs(project)?;
+    let counts = (0..project.images.len())
+        .into_par_iter()
+        .map(|i| read_features(&layout.feature_file(i)).map(|f| f.0.len()))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))?;
+    build_summary(project, &list, &counts)?;
+    Ok(vec![layout.match_summary()])
+}
+
+/// Matches every pair of `list` whose file is missing and writes its file.
+fn match_pairs<'f>(
+    project: &Project,
+    list: &PairList,
+    features: &(dyn Fn(usize) -> Result<&'f ImageFeatures, ProjectError> + Sync),
+) -> Result<(), ProjectError> {
+    let layout = project.layout();
     let options = MatchOptions {
         ratio_on: FloatDistance::Angle,
         ..MatchOptions::default()
     };
     let verify = VerifyOptions::default();
     let guided = GuidedOptions::default();
-    let results: Vec<Result<Vec<timesift_matching::Match>, String>> = pairs
+    list.pairs.par_iter().try_for_each(|&(a, b)| {
+        let path = layout.match_file(a, b);
+        if read_matches(&path).is_ok() {
+            return Ok(());
+        }
+        let inliers = verified_matches(features(a)?, features(b)?, &options, &verify, &guided)
+            .map_err(|e| stage_error("match", e.to_string()))?;
+        write_matches(&path, &inliers).map_err(|e| stage_error("match", e.to_string()))
+    })
+}
+
+/// Tracks over the matches of every pair of `list` (each pair's file must be there), and the
+/// summary written.
+fn build_summary(
+    project: &Project,
+    list: &PairList,
+    keypoint_counts: &[usize],
+) -> Result<MatchSummary, ProjectError> {
+    let layout = project.layout();
+    let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
+    let read: Vec<Vec<timesift_matching::Match>> = list
+        .pairs
         .par_iter()
         .map(|&(a, b)| {
-            let path = layout.match_file(a, b);
-            if let Ok(done) = read_matches(&path) {
-                return Ok(done);
-            }
-            let inliers = verified_matches(&features[a], &features[b], &options, &verify, &guided)
-                .map_err(|e| e.to_string())?;
-            write_matches(&path, &inliers).map_err(|e| e.to_string())?;
-            Ok(inliers)
+            read_matches(&layout.match_file(a, b))
+                .map_err(|e| stage_error("match", format!("{e} (its match unit has not run)")))
+        })
+        .collect::<Result<_, _>>()?;
+    let verified: Vec<PairMatches> = list
+        .pairs
+        .iter()
+        .zip(read)
+        .filter(|(_, m)| !m.is_empty())
+        .map(|(&(a, b), matches)| PairMatches {
+            a: ImageId::from(a),
+            b: ImageId::from(b),
+            matches,
         })
         .collect();
-    let mut verified = Vec::new();
-    for (&(a, b), result) in pairs.iter().zip(results) {
-        let matches = result.map_err(|e| stage_error("match", e))?;
-        if !matches.is_empty() {
-            verified.push(PairMatches {
-                a: ImageId::from(a),
-                b: ImageId::from(b),
-                matches,
-            });
-        }
-    }
-    let counts: Vec<usize> = features.iter().map(|f| f.0.len()).collect();
-    let tracks =
-        build_tracks(&counts, &verified).map_err(|e| stage_error("match", e.to_string()))?;
+    let tracks = build_tracks(keypoint_counts, &verified)
+        .map_err(|e| stage_error("match", e.to_string()))?;
     let per_epoch_pair = verified_per_epoch_pair(project, &epoch_of, &verified);
     let summary = MatchSummary {
-        candidate_pairs: candidate_count,
-        pairs: pairs.len(),
+        candidate_pairs: list.candidate_pairs,
+        pairs: list.pairs.len(),
         verified_pairs: verified.len(),
         verified_pairs_per_epoch_pair: per_epoch_pair,
         tracks: tracks.tracks.len(),
@@ -146,7 +284,7 @@ pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
 /// The pairs to match: within an epoch the spatial neighbours (every pair where an image has no
 /// position prior, or with `pair_selection = "exhaustive"`), across epochs the nearest, with the
 /// reference epoch and the `epoch_partners` epochs either side.
-fn candidate_pairs(
+pub(crate) fn candidate_pairs(
     project: &Project,
     epoch_of: &[EpochId],
 ) -> Result<Vec<(usize, usize)>, ProjectError> {

@@ -14,6 +14,7 @@ mod features;
 mod fiducials;
 mod matching;
 mod ortho;
+mod part;
 mod report;
 
 use std::fmt;
@@ -27,8 +28,10 @@ pub use dem::{dem_stage, epoch_ground_sample_distance, georeference, write_dem_f
 pub use dense::{dense_input, dense_inputs, dense_stage, dense_view};
 pub use features::{extract_features, features_stage};
 pub use fiducials::{FiducialsOutcome, fiducials_stage};
+pub(crate) use matching::candidate_pairs;
 pub use matching::match_stage;
 pub use ortho::ortho_stage;
+pub use part::Part;
 pub use report::report_stage;
 
 use crate::report::{RunLog, StageRun, read_json, write_json};
@@ -167,6 +170,75 @@ pub fn run_stage(project: &Project, stage: Stage) -> Result<StageOutcome, Projec
     tracing::info!(stage = stage.name(), "{}", outcome.summary);
     record_run(project, &outcome)?;
     Ok(outcome)
+}
+
+/// Runs unit `part` of step `step` of stage `stage` (the cluster plan's split,
+/// [`crate::tasks`]); returns the files the unit owns. Steps that are a whole stage run it as
+/// `timesift run` would, its inputs checked and its time recorded.
+pub(crate) fn run_unit(
+    project: &Project,
+    stage: Stage,
+    step: &str,
+    part: Part,
+) -> Result<Vec<PathBuf>, ProjectError> {
+    let single = |part: Part| {
+        if part.count == 1 {
+            Ok(())
+        } else {
+            Err(ProjectError::Stage {
+                stage: "task",
+                message: format!("step {step} is one unit, not {}", part.count),
+            })
+        }
+    };
+    match step {
+        "features-prepare" => single(part).and_then(|()| features::prepare(project)),
+        "features" => features::unit(project, part),
+        "match-prepare" => single(part).and_then(|()| matching::prepare(project)),
+        "match" => matching::unit(project, part),
+        "match-tracks" => single(part).and_then(|()| matching::finish(project)),
+        "dense-prepare" => single(part).and_then(|()| dense::prepare(project)),
+        "dense-fuse" => dense::fuse_unit(project, part),
+        "dense-report" => single(part).and_then(|()| dense::report_unit(project)),
+        "dem-grid" => single(part).and_then(|()| dem::grid_unit(project)),
+        "dem" => dem::unit(project, part),
+        "ortho" => ortho::unit(project, part),
+        "ortho-report" => single(part).and_then(|()| ortho::report_unit(project)),
+        "change" => change::unit(project, part),
+        _ if step.starts_with("dense-pass-") => {
+            let k =
+                step["dense-pass-".len()..]
+                    .parse::<usize>()
+                    .map_err(|_| ProjectError::Stage {
+                        stage: "task",
+                        message: format!("step {step}: expected dense-pass-<k> with a pass number"),
+                    })?;
+            dense::pass_unit(project, k, part)
+        }
+        _ if step == stage.name() && matches!(stage, Stage::Align | Stage::Report) => {
+            single(part)?;
+            run_stage(project, stage)?;
+            // A file a later stage rewrites (raster.json: the DEMs', then the orthos' times)
+            // is that stage's: this unit's record must not go stale when it does.
+            let later: Vec<PathBuf> = Stage::ALL
+                .into_iter()
+                .filter(|s| *s > stage)
+                .flat_map(|s| s.implementation().outputs(project))
+                .collect();
+            Ok(stage
+                .implementation()
+                .outputs(project)
+                .into_iter()
+                .filter(|p| !later.contains(p))
+                .collect())
+        }
+        _ => Err(ProjectError::Stage {
+            stage: "task",
+            message: format!(
+                "unknown step \"{step}\": expected one of the plan `timesift run --dry-run` prints"
+            ),
+        }),
+    }
 }
 
 /// Adds a stage's outcome to `work/run.json`.

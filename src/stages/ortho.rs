@@ -25,10 +25,12 @@ use timesift_raster::{
 
 use super::cache::file_stamp;
 use super::cache::stage_error;
-use super::dem::{georeference, on_lattice, project_grid_of, read_report};
+use super::dem::{
+    OrthoRecord, georeference, on_lattice, project_grid_of, raster_report_from_records,
+};
 use super::{PipelineStage, Stage, dense_inputs};
 use crate::film::ImageSource;
-use crate::report::{EpochRaster, GridFile, RasterReport, read_json, write_json};
+use crate::report::{GridFile, RasterReport, read_json, write_json};
 use crate::{Project, ProjectError};
 
 /// Version of the mosaicking, part of each ortho's settings.
@@ -187,112 +189,170 @@ impl ViewImages for ImageCache<'_> {
 
 /// Runs the ortho stage; returns (and writes) `out/raster.json`.
 pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
-    let layout = project.layout();
-    let grid_file = read_json::<GridFile>(&layout.grid_json())?;
-    let (grid, crs) = project_grid_of(&grid_file).map_err(|e| ProjectError::Path {
-        path: layout.grid_json(),
-        message: e,
-    })?;
-    let ortho_lattice = grid.ortho();
-    let mut report = read_report(project);
-    let inputs = dense_inputs(project)?;
-    let source = ImageSource::of(project)?;
-    for (epoch, (images, input)) in project.epochs.iter().zip(inputs) {
-        let name = &epoch.name;
-        let dem_path = layout.dem(name);
-        let options = project
-            .config
-            .raster
-            .ortho_options(grid.ortho_factor, project.config.dense.black_is_nodata);
-        let settings = ortho_settings(&dem_path, &options, &input, source.fingerprint(project));
-        let settings_path = layout.raster_settings(name, "ortho");
-        let recorded: Option<serde_json::Value> = read_json(&settings_path).ok();
-        if recorded.as_ref() == Some(&settings)
-            && layout.ortho(name).is_file()
-            && report
-                .epochs
-                .get(name)
-                .is_some_and(|r| r.ortho_seconds.is_some())
-        {
-            tracing::info!(epoch = %name, "ortho up to date");
-            continue;
-        }
-        let heights = dem_heights(&dem_path, &grid.dem)?;
-        let views: Vec<OrthoView> = input
-            .views
-            .iter()
-            .map(|v| OrthoView {
-                camera: v.camera.clone(),
-                cam_from_world: v.cam_from_world,
-            })
-            .collect();
-        let cache = ImageCache::new(project, &source, images, &views);
-        let start = Instant::now();
-        let bar = crate::progress::progress_bar(project.progress, "ortho", name, 0, "tiles");
-        let progress = |done: usize, total: usize| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        };
-        // The mosaic goes to its GeoTIFF and to the preview a band of rows at a time: memory
-        // holds the DEM, a few bands and the images of the tiles in flight, whatever the size
-        // of the ortho.
-        let l = &ortho_lattice;
-        let ortho_path = layout.ortho(name);
-        let mut tiff = GeoTiffWriter::create(
-            &ortho_path,
-            l.width(),
-            l.height(),
-            SampleFormat::U8 { bands: 4 },
-            &georeference(l, crs, None),
-        )?;
-        let mut preview = Downscaler::new(4, l.width(), l.height(), 1024);
-        let mut write_rows = |_first_row: usize, rgba: &[u8]| {
-            preview.push_rows(rgba);
-            tiff.push_rows(Pixels::U8 {
-                data: rgba,
-                bands: 4,
-            })
-            .map_err(|e| e.to_string())
-        };
-        let ortho = orthomosaic_by_rows(
-            &heights,
-            &grid.dem,
-            &views,
-            &cache,
-            &options,
-            &progress,
-            &mut write_rows,
-        )
-        .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
-        bar.finish_and_clear();
-        tiff.finish()?;
-        let seconds = start.elapsed().as_secs_f64();
-        let (w, h, small) = preview.finish();
-        timesift_io::image::write_png(&layout.ortho_preview(name), w as u32, h as u32, 4, &small)?;
-        let with_height = heights.iter().filter(|h| h.is_finite()).count();
-        let factor2 = (grid.ortho_factor * grid.ortho_factor) as f64;
-        let entry = report.epochs.entry(name.clone()).or_default();
-        record_ortho(entry, &ortho.stats, with_height as f64 * factor2, seconds);
-        tracing::info!(
-            epoch = %name,
-            painted = entry.ortho_painted_fraction,
-            seam_jump = ortho.stats.seam_jump,
-            seconds,
-            "ortho"
-        );
-        write_json(&settings_path, &settings)?;
-        write_json(&layout.raster_report(), &report)?;
+    let context = OrthoContext::new(project)?;
+    for e in 0..project.epochs.len() {
+        ortho_epoch(project, &context, e)?;
     }
-    Ok(report)
+    report_unit(project)?;
+    Ok(raster_report_from_records(project))
 }
 
-/// An epoch's ortho figures in the raster report: the share of cells with a height that were
+/// A unit of the `ortho` step: the orthomosaics of the epochs of `part`. The files it owns.
+pub(super) fn unit(project: &Project, part: super::Part) -> Result<Vec<PathBuf>, ProjectError> {
+    let context = OrthoContext::new(project)?;
+    let layout = project.layout();
+    let mut owned = Vec::new();
+    for e in part.range(project.epochs.len()) {
+        ortho_epoch(project, &context, e)?;
+        let name = &project.epochs[e].name;
+        owned.extend([
+            layout.ortho(name),
+            layout.ortho_preview(name),
+            layout.raster_settings(name, "ortho"),
+        ]);
+    }
+    Ok(owned)
+}
+
+/// The stage's last step (`ortho-report`): `out/raster.json` from every epoch's DEM and ortho
+/// records. The files it owns.
+pub(super) fn report_unit(project: &Project) -> Result<Vec<PathBuf>, ProjectError> {
+    let path = project.layout().raster_report();
+    write_json(&path, &raster_report_from_records(project))?;
+    Ok(vec![path])
+}
+
+/// What every epoch's ortho reads: the lattice, the epochs' views, the image source.
+struct OrthoContext {
+    grid: timesift_raster::ProjectGrid,
+    crs: timesift_io::coords::Crs,
+    inputs: Vec<(Vec<usize>, EpochInput)>,
+    source: ImageSource,
+}
+
+impl OrthoContext {
+    fn new(project: &Project) -> Result<OrthoContext, ProjectError> {
+        let layout = project.layout();
+        let grid_file = read_json::<GridFile>(&layout.grid_json())?;
+        let (grid, crs) = project_grid_of(&grid_file).map_err(|e| ProjectError::Path {
+            path: layout.grid_json(),
+            message: e,
+        })?;
+        Ok(OrthoContext {
+            grid,
+            crs,
+            inputs: dense_inputs(project)?,
+            source: ImageSource::of(project)?,
+        })
+    }
+}
+
+/// Epoch `e`'s orthomosaic unless what it was made from is unchanged; whether it was made.
+fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bool, ProjectError> {
+    let layout = project.layout();
+    let (grid, crs, source) = (&context.grid, context.crs, &context.source);
+    let ortho_lattice = grid.ortho();
+    let (images, input) = &context.inputs[e];
+    let name = &project.epochs[e].name;
+    let dem_path = layout.dem(name);
+    let options = project
+        .config
+        .raster
+        .ortho_options(grid.ortho_factor, project.config.dense.black_is_nodata);
+    let settings = ortho_settings(&dem_path, &options, input, source.fingerprint(project));
+    let settings_path = layout.raster_settings(name, "ortho");
+    if read_json::<OrthoRecord>(&settings_path).is_ok_and(|r| r.made_from == settings)
+        && layout.ortho(name).is_file()
+    {
+        tracing::info!(epoch = %name, "ortho up to date");
+        return Ok(false);
+    }
+    let heights = dem_heights(&dem_path, &grid.dem)?;
+    let views: Vec<OrthoView> = input
+        .views
+        .iter()
+        .map(|v| OrthoView {
+            camera: v.camera.clone(),
+            cam_from_world: v.cam_from_world,
+        })
+        .collect();
+    let cache = ImageCache::new(project, source, images.clone(), &views);
+    let start = Instant::now();
+    let bar = crate::progress::progress_bar(project.progress, "ortho", name, 0, "tiles");
+    let progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    // The mosaic goes to its GeoTIFF and to the preview a band of rows at a time: memory
+    // holds the DEM, a few bands and the images of the tiles in flight, whatever the size
+    // of the ortho.
+    let l = &ortho_lattice;
+    let ortho_path = layout.ortho(name);
+    let mut tiff = GeoTiffWriter::create(
+        &ortho_path,
+        l.width(),
+        l.height(),
+        SampleFormat::U8 { bands: 4 },
+        &georeference(l, crs, None),
+    )?;
+    let mut preview = Downscaler::new(4, l.width(), l.height(), 1024);
+    let mut write_rows = |_first_row: usize, rgba: &[u8]| {
+        preview.push_rows(rgba);
+        tiff.push_rows(Pixels::U8 {
+            data: rgba,
+            bands: 4,
+        })
+        .map_err(|e| e.to_string())
+    };
+    let ortho = orthomosaic_by_rows(
+        &heights,
+        &grid.dem,
+        &views,
+        &cache,
+        &options,
+        &progress,
+        &mut write_rows,
+    )
+    .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
+    bar.finish_and_clear();
+    tiff.finish()?;
+    let seconds = start.elapsed().as_secs_f64();
+    let (w, h, small) = preview.finish();
+    timesift_io::image::write_png(&layout.ortho_preview(name), w as u32, h as u32, 4, &small)?;
+    let with_height = heights.iter().filter(|h| h.is_finite()).count();
+    let factor2 = (grid.ortho_factor * grid.ortho_factor) as f64;
+    let record = ortho_record(
+        settings,
+        &ortho.stats,
+        with_height as f64 * factor2,
+        seconds,
+    );
+    tracing::info!(
+        epoch = %name,
+        painted = record.ortho_painted_fraction,
+        seam_jump = ortho.stats.seam_jump,
+        seconds,
+        "ortho"
+    );
+    write_json(&settings_path, &record)?;
+    Ok(true)
+}
+
+/// An epoch's ortho figures for the raster report: the share of cells with a height that were
 /// painted (`cells` the ortho cells over DEM cells with a height), the seams' jumps, the time.
-fn record_ortho(entry: &mut EpochRaster, stats: &OrthoStats, cells: f64, seconds: f64) {
-    entry.ortho_painted_fraction = Some(stats.painted_cells as f64 / cells.max(1.0));
-    entry.seam_jump = Some(stats.seam_jump);
-    entry.interior_jump = Some(stats.interior_jump);
-    entry.ortho_seconds = Some(seconds);
+fn ortho_record(
+    made_from: serde_json::Value,
+    stats: &OrthoStats,
+    cells: f64,
+    seconds: f64,
+) -> OrthoRecord {
+    OrthoRecord {
+        made_from,
+        ortho_painted_fraction: stats.painted_cells as f64 / cells.max(1.0),
+        seam_jump: stats.seam_jump,
+        interior_jump: stats.interior_jump,
+        ortho_seconds: seconds,
+    }
 }
 
 /// What an epoch's ortho is made from: the DEM file, the options, every view's camera and pose,

@@ -134,10 +134,11 @@ fn berlin_relative_poses_match_opensfm_within_half_a_degree() {
     // 2-D/3-D correspondences, as incremental SfM does.
     let mut points: BTreeMap<u64, Vector3<f64>> = BTreeMap::new();
     for &i in &inl {
-        if let Ok(p) = triangulate_dlt(&[(cam1, x1[i]), (cam2, x2[i])]) {
-            if p.z > 0.0 && cam2.transform_point(&p).z > 0.0 {
-                points.insert(ids[i], p);
-            }
+        if let Ok(p) = triangulate_dlt(&[(cam1, x1[i]), (cam2, x2[i])])
+            && p.z > 0.0
+            && cam2.transform_point(&p).z > 0.0
+        {
+            points.insert(ids[i], p);
         }
     }
     let pinhole = PinholeCamera::new(3264, 2448, focal_px).unwrap();

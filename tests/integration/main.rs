@@ -4,6 +4,7 @@
 mod berlin;
 mod berlin_align;
 mod cli;
+mod cluster;
 mod common;
 mod compare;
 mod dem_command;

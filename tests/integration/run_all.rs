@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use crate::common::{quick_dense_level_4, timesift};
+use crate::common::{comparable_json, copy_tree, files, quick_dense_level_4, timesift};
 use timesift_core::SeededRng;
 use timesift_synth::scenes::{Scale, build};
 use timesift_synth::writer::{WriteOptions, write_scene};
@@ -26,39 +26,6 @@ fn project(dir: &Path) {
     spec.keep_first_images(10);
     write_scene(&spec, dir, &WriteOptions::default()).expect("write");
     quick_dense_level_4(dir);
-}
-
-fn copy_tree(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).expect("mkdir");
-    for entry in std::fs::read_dir(from).expect("read_dir").flatten() {
-        let target = to.join(entry.file_name());
-        if entry.path().is_dir() {
-            copy_tree(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), &target).expect("copy");
-        }
-    }
-}
-
-/// Every file under `dir`, relative, sorted.
-fn files(dir: &Path) -> Vec<PathBuf> {
-    fn walk(root: &Path, dir: &Path, out: &mut Vec<PathBuf>) {
-        let Ok(entries) = std::fs::read_dir(dir) else {
-            return;
-        };
-        for e in entries.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                walk(root, &p, out);
-            } else if let Ok(rel) = p.strip_prefix(root) {
-                out.push(rel.to_path_buf());
-            }
-        }
-    }
-    let mut out = Vec::new();
-    walk(dir, dir, &mut out);
-    out.sort();
-    out
 }
 
 /// Whether a product file is complete: it parses as what its name says.
@@ -99,25 +66,6 @@ fn complete(path: &Path) -> Result<(), String> {
         }
         _ => Err(bad("unexpected product".into())),
     }
-}
-
-/// A JSON report without what legitimately differs between runs: wall times, work counted in
-/// this run only, and the project's own path.
-fn comparable_json(text: &str, dir: &Path) -> serde_json::Value {
-    fn strip(v: &mut serde_json::Value) {
-        match v {
-            serde_json::Value::Object(map) => {
-                map.retain(|k, _| !k.contains("seconds") && k != "depth_maps_computed");
-                map.values_mut().for_each(strip);
-            }
-            serde_json::Value::Array(items) => items.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
-    let text = text.replace(dir.to_str().expect("utf-8"), "<dir>");
-    let mut v: serde_json::Value = serde_json::from_str(&text).expect("json");
-    strip(&mut v);
-    v
 }
 
 fn run(dir: &Path) -> String {

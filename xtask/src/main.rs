@@ -16,6 +16,8 @@
 //! - `fn-lengths [--max-lines N] [--check COUNT]`: the functions over N lines in the shipped
 //!   code, and whether each says why it stays long.
 //!
+//! - `slurm-up` / `slurm-down`: a one-node Slurm cluster on this machine for the cluster tests.
+//!
 //! - `api [--bless]`: the public API of every library crate against its snapshot in `api/`.
 //!
 //! - `synth <scene> --out DIR [--seed N] [--scale small|full]`: a synthetic multi-epoch project
@@ -46,6 +48,7 @@ mod bench_raster;
 mod bench_scale;
 mod bench_scale_colmap;
 mod fn_lengths;
+mod slurm;
 
 use std::path::PathBuf;
 
@@ -138,6 +141,11 @@ enum Task {
         #[arg(long)]
         root: Option<PathBuf>,
     },
+    /// Start a one-node Slurm cluster on this machine (installs slurm-wlm and munge if
+    /// missing; configuration and state under /tmp/timesift-slurm).
+    SlurmUp,
+    /// Stop the cluster of `slurm-up` and remove its state.
+    SlurmDown,
     /// The public API of every library crate against its snapshot under `api/`.
     Api {
         /// Rewrite the snapshots instead of comparing.
@@ -485,6 +493,8 @@ fn main() -> anyhow::Result<()> {
             check.unwrap_or(usize::MAX),
             check.is_some(),
         )?,
+        Task::SlurmUp => slurm::up()?,
+        Task::SlurmDown => slurm::down()?,
         Task::Api { bless } => {
             let differences = api::check(&api::workspace_root(), bless)?;
             if !differences.is_empty() {

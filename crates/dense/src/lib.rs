@@ -118,7 +118,9 @@ pub use filter::{FilterOptions, filter_depth_map};
 pub use fusion::{FusedCloud, FusionOptions, FusionView, fuse};
 pub use image::{ImageView, Mask, Plane, WorkingImage};
 pub use patchmatch::refine::RefineOptions;
-pub use patchmatch::{Pass, PassInput, PassKind, PatchMatchOptions, plan_schedule, run_pass};
+pub use patchmatch::{
+    Pass, PassInput, PassKind, PatchMatchOptions, plan_schedule, run_pass, schedule,
+};
 pub use plan::{EpochInput, EpochPlan, PlanOptions, SparsePoint, View, ViewPlan, plan_epoch};
 pub use undistort::{UndistortMap, working_camera};
 

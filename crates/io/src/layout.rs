@@ -128,6 +128,39 @@ impl Layout {
         self.work_dir().join("run.json")
     }
 
+    /// `work/matches/pairs.json`: the pairs the match stage's units match, chosen once by its
+    /// first step so that every unit splits the same list.
+    pub fn match_pairs(&self) -> PathBuf {
+        self.matches_dir().join("pairs.json")
+    }
+
+    /// `work/dense/<epoch>/summary.json`: what the epoch's fusion made (points, times), read by
+    /// the step that writes `out/dense.json`.
+    pub fn dense_summary(&self, epoch: &str) -> PathBuf {
+        self.dense_work_dir(epoch).join("summary.json")
+    }
+
+    /// `work/tasks/<step>/`: the completion records of one step's units.
+    pub fn task_records_dir(&self, step: &str) -> PathBuf {
+        self.work_dir().join("tasks").join(step)
+    }
+
+    /// `work/tasks/<step>/<i>-of-<n>.json`: unit `i` (1-based) of `n` of a step is complete.
+    pub fn task_record(&self, step: &str, index: usize, count: usize) -> PathBuf {
+        self.task_records_dir(step)
+            .join(format!("{index}-of-{count}.json"))
+    }
+
+    /// `work/slurm/`: the batch scripts, job ids and task logs of `--executor slurm`.
+    pub fn slurm_dir(&self) -> PathBuf {
+        self.work_dir().join("slurm")
+    }
+
+    /// `work/lock`: held (an OS file lock) by the process running or submitting the project.
+    pub fn lock_file(&self) -> PathBuf {
+        self.work_dir().join("lock")
+    }
+
     /// The file in which a folder of `work/` records the settings its results were made with.
     pub fn settings_file(dir: &Path) -> PathBuf {
         dir.join("settings.json")

@@ -14,6 +14,7 @@
 
 mod input;
 mod maps;
+mod units;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::{Path, PathBuf};
@@ -53,6 +54,7 @@ pub fn dense_view(decoded: &timesift_io::image::ImageF32) -> ImageView<'_> {
 }
 use input::{epoch_input, match_orientation, orientation_fingerprint};
 use maps::{MapCache, read_map, write_map};
+pub(crate) use units::{fuse_unit, pass_unit, prepare, report_unit};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
@@ -99,19 +101,41 @@ fn dense_error(epoch: &str, e: DenseError) -> ProjectError {
     stage_error("dense", format!("epoch \"{epoch}\": {e}"))
 }
 
+/// What every unit of the dense stage reads: the frozen orientation and the sparse model.
+struct Oriented {
+    cameras: Reconstruction,
+    model: ColmapModel,
+    crs: Crs,
+    /// The orientation's camera of each project image.
+    oriented: Vec<Option<usize>>,
+}
+
+impl Oriented {
+    fn read(project: &Project) -> Result<Oriented, ProjectError> {
+        let layout = project.layout();
+        let cameras = read_cameras_json(&layout.cameras_json())?;
+        let model = read_colmap_text(&layout.colmap_dir())?;
+        let crs: Crs = cameras
+            .crs
+            .parse()
+            .map_err(|e: String| ProjectError::Path {
+                path: layout.cameras_json(),
+                message: format!("crs: {e}"),
+            })?;
+        let oriented = match_orientation(project, &cameras)?;
+        Ok(Oriented {
+            cameras,
+            model,
+            crs,
+            oriented,
+        })
+    }
+}
+
 /// Runs the dense stage on every epoch; returns (and writes) `out/dense.json`.
 pub fn dense_stage(project: &Project) -> Result<DenseReport, ProjectError> {
     let layout = project.layout();
-    let cameras = read_cameras_json(&layout.cameras_json())?;
-    let model = read_colmap_text(&layout.colmap_dir())?;
-    let crs: Crs = cameras
-        .crs
-        .parse()
-        .map_err(|e: String| ProjectError::Path {
-            path: layout.cameras_json(),
-            message: format!("crs: {e}"),
-        })?;
-    let oriented = match_orientation(project, &cameras)?;
+    let oriented = Oriented::read(project)?;
     let mut report = if layout.dense_report().is_file() {
         read_json::<DenseReport>(&layout.dense_report()).unwrap_or_default()
     } else {
@@ -121,8 +145,7 @@ pub fn dense_stage(project: &Project) -> Result<DenseReport, ProjectError> {
         .epochs
         .retain(|name, _| project.epochs.iter().any(|e| &e.name == name));
     for (e, epoch) in project.epochs.iter().enumerate() {
-        let options = project.config.dense.options(project.image_kind(e));
-        let summary = dense_epoch(project, e, &cameras, &model, &oriented, crs, &options)?;
+        let summary = dense_epoch(project, e, &oriented)?;
         tracing::info!(
             epoch = %epoch.name,
             points = summary.points,
@@ -133,6 +156,74 @@ pub fn dense_stage(project: &Project) -> Result<DenseReport, ProjectError> {
         write_json(&layout.dense_report(), &report)?;
     }
     Ok(report)
+}
+
+/// One epoch's inputs to dense matching: its images, plan, schedule and the settings its maps
+/// are made with.
+struct EpochWork {
+    name: String,
+    images: Vec<usize>,
+    input: EpochInput,
+    plan: EpochPlan,
+    passes: Vec<Pass>,
+    options: DenseOptions,
+    source: ImageSource,
+    map_settings: serde_json::Value,
+    dir: PathBuf,
+}
+
+impl EpochWork {
+    fn new(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochWork, ProjectError> {
+        let name = project.epochs[epoch].name.clone();
+        let options = project.config.dense.options(project.image_kind(epoch));
+        let (images, input) = epoch_input(project, epoch, &o.cameras, &o.model, &o.oriented)?;
+        check_images_exist(project, &name, &images)?;
+        let plan = plan_epoch(&input, &options.plan).map_err(|e| dense_error(&name, e))?;
+        let passes = plan_schedule(&plan, &options.patchmatch);
+        let source = ImageSource::of(project)?;
+        // Scans in their frames and camera masks are part of what the maps are made from.
+        let fingerprint = orientation_fingerprint(&input) + &source.fingerprint(project);
+        let map_settings = map_settings(&options, &fingerprint, &images);
+        let dir = project.layout().dense_work_dir(&name);
+        Ok(EpochWork {
+            name,
+            images,
+            input,
+            plan,
+            passes,
+            options,
+            source,
+            map_settings,
+            dir,
+        })
+    }
+
+    /// A cache of the epoch's decoded working images, as large as a reference and its sources
+    /// twice over.
+    fn image_cache<'a>(&'a self, project: &'a Project) -> ImageCache<'a> {
+        ImageCache {
+            project,
+            source: &self.source,
+            images: &self.images,
+            maps: BTreeMap::new(),
+            views: &self.input.views,
+            plan: &self.plan,
+            black_is_nodata: self.options.black_is_nodata,
+            // A reference and its sources are matched together; filtering and fusion read maps,
+            // and only the reference's image for its colours.
+            capacity: 2
+                * (self
+                    .plan
+                    .views
+                    .iter()
+                    .map(|v| v.sources.len())
+                    .max()
+                    .unwrap_or(0)
+                    + 1),
+            entries: VecDeque::new(),
+            seconds: 0.0,
+        }
+    }
 }
 
 /// What the depth maps depend on.
@@ -248,86 +339,64 @@ fn camera_key(camera: &Camera) -> String {
     key
 }
 
-#[allow(clippy::too_many_arguments)]
-fn dense_epoch(
-    project: &Project,
-    epoch: usize,
-    cameras: &Reconstruction,
-    model: &ColmapModel,
-    oriented: &[Option<usize>],
-    crs: Crs,
-    options: &DenseOptions,
-) -> Result<EpochDense, ProjectError> {
+/// One epoch's dense cloud: the maps still missing computed, filtered and fused, the cloud and
+/// the epoch's summary written; nothing redone when the cloud is up to date.
+fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDense, ProjectError> {
     let start = Instant::now();
     let layout: Layout = project.layout();
-    let name = project.epochs[epoch].name.as_str();
-    let (images, input) = epoch_input(project, epoch, cameras, model, oriented)?;
-    check_images_exist(project, name, &images)?;
-    let plan = plan_epoch(&input, &options.plan).map_err(|e| dense_error(name, e))?;
-    let passes = plan_schedule(&plan, &options.patchmatch);
-    let work = layout.dense_work_dir(name);
-    let source = ImageSource::of(project)?;
-    // Scans in their frames and camera masks are part of what the maps are made from.
-    let fingerprint = orientation_fingerprint(&input) + &source.fingerprint(project);
-    let maps = map_settings(options, &fingerprint, &images);
-    start_over_if_changed(&work, &maps, name)?;
+    let crs = o.crs;
+    let work = EpochWork::new(project, epoch, o)?;
+    let (name, images, plan, passes, options) = (
+        work.name.as_str(),
+        &work.images,
+        &work.plan,
+        &work.passes,
+        &work.options,
+    );
+    start_over_if_changed(&work.dir, &work.map_settings, name)?;
     let cloud_path = layout.dense_cloud(name);
-    let cloud_record = work.join("cloud.json");
+    let cloud_record = work.dir.join("cloud.json");
+    let summary_path = layout.dense_summary(name);
     let last = passes.len() - 1;
     let final_maps_present =
         (0..images.len()).all(|v| layout.depth_map_file(name, last, images[v]).is_file());
-    let wanted = cloud_settings(options, &maps);
+    let wanted = cloud_settings(options, &work.map_settings);
     if cloud_path.is_file()
         && final_maps_present
         && read_settings(&cloud_record).as_ref() == Some(&wanted)
-        && let Ok(previous) = read_json::<DenseReport>(&layout.dense_report())
-        && let Some(summary) = previous.epochs.get(name)
+        && let Ok(previous) = read_json::<EpochDense>(&summary_path)
     {
         return Ok(EpochDense {
             depth_maps_computed: 0,
             seconds: start.elapsed().as_secs_f64(),
             phase_seconds: DensePhaseSeconds::default(),
-            ..summary.clone()
+            ..previous
         });
     }
-    let mut cache = ImageCache {
-        project,
-        source: &source,
-        images: &images,
-        maps: BTreeMap::new(),
-        views: &input.views,
-        plan: &plan,
-        black_is_nodata: options.black_is_nodata,
-        // A reference and its sources are matched together; filtering and fusion read maps,
-        // and only the reference's image for its colours.
-        capacity: 2
-            * (plan
-                .views
-                .iter()
-                .map(|v| v.sources.len())
-                .max()
-                .unwrap_or(0)
-                + 1),
-        entries: VecDeque::new(),
-        seconds: 0.0,
-    };
+    let mut cache = work.image_cache(project);
     let mut phases = DensePhaseSeconds::default();
     let map_file = |pass: usize, view: usize| layout.depth_map_file(name, pass, images[view]);
     let mut maps = MapCache::new(MAP_CACHE_BYTES);
-    let computed = compute_maps(
-        &plan,
-        &passes,
-        &mut cache,
-        &map_file,
-        name,
-        options,
-        &mut maps,
-        &mut phases,
-    )?;
+    // Fusion needs only the last pass: where every view has it (a cluster's pass steps made
+    // them, or only the fusion options changed) the earlier passes are not read again.
+    let computed = if final_maps_present {
+        0
+    } else {
+        compute_maps(
+            plan,
+            passes,
+            &mut cache,
+            &map_file,
+            name,
+            options,
+            &mut maps,
+            &mut phases,
+        )?
+    };
     // Filtering, then fusion.
     let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
     let (with_depth, upsampled) = filter_maps(
-        &plan,
+        plan,
         last,
         &|view| map_file(last, view),
         &filtered_file,
@@ -339,7 +408,7 @@ fn dense_epoch(
     drop(maps);
     let fusion_start = Instant::now();
     let images_before = cache.seconds;
-    let cloud = fuse_filtered(&plan, &mut cache, &filtered_file, name, options)?;
+    let cloud = fuse_filtered(plan, &mut cache, &filtered_file, name, options)?;
     // Fusion reads the filtered maps and the images' colours: counted there, not here.
     phases.fusion = fusion_start.elapsed().as_secs_f64() - (cache.seconds - images_before);
     let cloud_start = Instant::now();
@@ -348,7 +417,7 @@ fn dense_epoch(
     phases.images = cache.seconds;
     write_settings(&cloud_record, &wanted)?;
     let mean_images = mean_images_per_point(&cloud);
-    Ok(EpochDense {
+    let summary = EpochDense {
         images: images.len(),
         images_with_sources: plan.views.iter().filter(|v| !v.sources.is_empty()).count(),
         level: options.plan.level,
@@ -360,7 +429,9 @@ fn dense_epoch(
         mean_images_per_point: mean_images,
         seconds: start.elapsed().as_secs_f64(),
         phase_seconds: phases,
-    })
+    };
+    write_json(&summary_path, &summary)?;
+    Ok(summary)
 }
 
 /// The epoch's filtered maps fused into its cloud, each view's colours from its image.
