@@ -278,6 +278,7 @@ pub fn submit(
         message: format!("cannot find the timesift executable for the batch scripts: {e}"),
     })?;
     if !dry_run {
+        refuse_while_queued(project)?;
         std::fs::create_dir_all(&logs).map_err(|e| timesift_io::IoError::io(&logs, e))?;
     }
     let mut table = format!(
@@ -341,6 +342,31 @@ pub fn submit(
         timesift_io::fsutil::write_bytes_atomically(&submission_file(project), text.as_bytes())?;
     }
     Ok(SubmitReport { submission, table })
+}
+
+/// An error when Slurm still holds tasks of the project's last submission: submitting their
+/// units again would run them twice.
+fn refuse_while_queued(project: &Project) -> Result<(), ProjectError> {
+    let Some(last) = Submission::read(project) else {
+        return Ok(());
+    };
+    let jobs = JobStates::query(&last.jobs());
+    let held = jobs
+        .states
+        .values()
+        .filter(|s| matches!(s, TaskState::Running | TaskState::Queued))
+        .count();
+    if held > 0 {
+        return Err(ProjectError::Stage {
+            stage: "run",
+            message: format!(
+                "{held} tasks of the last submission (jobs {}) are still queued or running: wait \
+                 for them (timesift status) or cancel them (scancel) before submitting again",
+                last.jobs().join(", ")
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// Submits one array; returns its job id.

@@ -5,8 +5,8 @@
 //!   first is killed a new one starts without any cleanup;
 //! - `--executor slurm` on a real one-node Slurm (`cargo xtask slurm-up`; skipped with the
 //!   reason where none answers): a running task cancelled with `scancel` shows as the only
-//!   missing unit of its step, a second submission runs exactly what is missing, and the
-//!   products equal the local run's.
+//!   missing unit of its step, a second submission runs exactly what is missing (and is refused
+//!   while Slurm still holds the first's tasks), and the products equal the local run's.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -328,6 +328,22 @@ fn on_slurm_a_cancelled_task_is_all_that_is_submitted_again_and_the_products_are
 
     let started = Instant::now();
     let (first, jobs) = submit(&cluster, &conf);
+    // While Slurm holds its tasks, a second submission would run them twice: refused.
+    let again = Command::new(env!("CARGO_BIN_EXE_timesift"))
+        .args([
+            "run",
+            cluster.to_str().expect("utf-8"),
+            "--executor",
+            "slurm",
+        ])
+        .env("SLURM_CONF", &conf)
+        .output()
+        .expect("submit");
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        !again.status.success() && err.contains("still queued or running"),
+        "{err}"
+    );
     // The align task is one array element long enough to be caught running: cancel it.
     let align_job = first
         .lines()
