@@ -540,6 +540,53 @@ mod tests {
     }
 
     #[test]
+    fn a_batch_script_runs_its_unit_with_the_stated_memory_and_requeues_a_bounded_number_of_times()
+    {
+        let step = Step {
+            name: "dense-pass-2".into(),
+            stage: crate::stages::Stage::Dense,
+            units: 12,
+            unit: "8 reference images".into(),
+            memory_mib: 1360,
+            memory_formula: "512 MiB + maps".into(),
+            files: 96,
+        };
+        let options = SlurmOptions {
+            partition: Some("batch".into()),
+            account: None,
+            time: Some("01:00:00".into()),
+            cpus_per_task: 2,
+            max_array: Some(4),
+            sbatch_args: Vec::new(),
+            retries: 3,
+        };
+        let script = batch_script(
+            Path::new("/data/my project"),
+            &step,
+            12,
+            &options,
+            Path::new("/opt/timesift"),
+            Path::new("/data/my project/work/slurm/logs"),
+        );
+        for line in [
+            "#!/bin/bash",
+            "# memory per task: 512 MiB + maps",
+            "#SBATCH --mem=1360M",
+            "#SBATCH --cpus-per-task=2",
+            "#SBATCH --requeue",
+            "#SBATCH --partition=batch",
+            "#SBATCH --time=01:00:00",
+            "unit=$(( offset + ${SLURM_ARRAY_TASK_ID:-1} ))",
+            "'/opt/timesift' -v task 'dense-pass-2' '/data/my project' --part \"$unit/12\"",
+            "if [ \"${SLURM_RESTART_COUNT:-0}\" -lt 3 ]; then",
+        ] {
+            assert!(script.lines().any(|l| l == line), "{line}\n{script}");
+        }
+        assert!(!script.contains("--account"), "{script}");
+        assert_eq!(quoted("it's"), "'it'\\''s'");
+    }
+
+    #[test]
     fn array_specs_are_ranges_with_the_throttle() {
         assert_eq!(array_spec(&[1, 2, 3, 5, 7, 8], Some(4)), "1-3,5,7-8%4");
         assert_eq!(array_spec(&[9], None), "9");
