@@ -372,6 +372,8 @@ fn run_pipeline(
 ) -> anyhow::Result<()> {
     let mut project = Project::load(dir)?;
     let _lock = timesift::tasks::ProjectLock::acquire(&project, "timesift run")?;
+    // Tasks of a cluster submission write the same files: not while Slurm holds any.
+    timesift::tasks::slurm::refuse_while_queued(&project)?;
     if quiet {
         project.progress = timesift::progress::Progress::Hidden;
     }

@@ -120,7 +120,12 @@ pub(super) fn unit(project: &Project, part: super::Part) -> Result<Vec<PathBuf>,
             .map_err(|e| timesift_io::IoError::io(&dir, e))?
             .flatten()
             .map(|e| e.path())
-            .filter(|p| p.is_file())
+            .filter(|p| {
+                p.is_file()
+                    && p.file_name().is_some_and(|n| {
+                        timesift_io::fsutil::temporary_owner(&n.to_string_lossy()).is_none()
+                    })
+            })
             .collect();
         files.sort();
         owned.extend(files);

@@ -235,7 +235,7 @@ pub(crate) fn run_unit(
         _ => Err(ProjectError::Stage {
             stage: "task",
             message: format!(
-                "unknown step \"{step}\": expected one of the plan `timesift run --dry-run` prints"
+                "unknown step \"{step}\": expected one of the plan `timesift run --executor slurm --dry-run` prints"
             ),
         }),
     }

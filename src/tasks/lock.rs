@@ -53,7 +53,15 @@ impl ProjectLock {
                     ),
                 });
             }
-            Err(TryLockError::Error(e)) => return Err(io(e)),
+            Err(TryLockError::Error(e)) => {
+                return Err(ProjectError::Path {
+                    path: path.to_path_buf(),
+                    message: format!(
+                        "cannot lock it ({e}); the file system must support file locks (flock), \
+                         as local disks and NFSv4 do"
+                    ),
+                });
+            }
         }
         let host = std::fs::read_to_string("/etc/hostname")
             .map(|h| h.trim().to_string())

@@ -76,7 +76,7 @@ pub fn step_stage(step: &str) -> Result<Stage, ProjectError> {
         .ok_or_else(|| ProjectError::Stage {
             stage: "task",
             message: format!(
-                "unknown step \"{step}\": expected a step of `timesift run --dry-run`'s plan \
+                "unknown step \"{step}\": expected a step of `timesift run --executor slurm --dry-run`'s plan \
                  (features, match, dense-pass-0, ...)"
             ),
         })

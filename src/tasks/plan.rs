@@ -141,7 +141,11 @@ pub(crate) fn dense_passes(project: &Project, epoch: usize, size: (u32, u32)) ->
     let options = project.config.dense.options(project.image_kind(epoch));
     let refined = usize::from(options.plan.refine && options.plan.level > 1);
     let level = (options.plan.level >> refined).max(1) as usize;
-    let side = size.0.max(size.1) as usize / level;
+    // The working images are undistorted and may be larger than the photographs (barrel
+    // distortion's periphery kept): planned for half as large again, since a pass step more
+    // than the epoch needs costs nothing (its units find no pass) and one too few would leave
+    // the finest maps to the fusion unit.
+    let side = size.0.max(size.1) as usize * 3 / 2 / level;
     timesift_dense::schedule(side, refined, &options.patchmatch).len()
 }
 

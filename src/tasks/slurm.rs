@@ -120,6 +120,12 @@ fn submission_file(project: &Project) -> PathBuf {
     project.layout().slurm_dir().join("submitted.json")
 }
 
+fn write_submission(project: &Project, submission: &Submission) -> Result<(), ProjectError> {
+    let text = serde_json::to_string_pretty(submission).unwrap_or_default();
+    timesift_io::fsutil::write_bytes_atomically(&submission_file(project), text.as_bytes())?;
+    Ok(())
+}
+
 /// Splits the 1-based `units` to submit into arrays whose task ids stay below
 /// `max_array_size`: `(offset, task ids)`, unit = offset + task id.
 pub fn arrays_of(units: &[usize], max_array_size: usize) -> Vec<(usize, Vec<usize>)> {
@@ -288,12 +294,18 @@ pub fn submit(
     let fingerprint = project_fingerprint(project);
     let mut submission = Submission::default();
     let mut previous: Vec<String> = Vec::new();
+    // Once a step runs again, the steps after it are submitted whole: a preparing step may
+    // remove what their records name (new settings), and a unit still up to date returns at
+    // once.
+    let mut rerun_from_here = false;
     for step in steps {
         let todo: Vec<usize> = (1..=step.units)
             .filter(|&i| {
-                !unit_complete(&layout.task_record(&step.name, i, step.units), &fingerprint)
+                rerun_from_here
+                    || !unit_complete(&layout.task_record(&step.name, i, step.units), &fingerprint)
             })
             .collect();
+        rerun_from_here |= !todo.is_empty();
         let arrays = arrays_of(&todo, max_array_size);
         let widest = arrays.iter().map(|(_, t)| t.len()).max().unwrap_or(0);
         let _ = writeln!(
@@ -329,6 +341,13 @@ pub fn submit(
                 };
                 ids.push(job.clone());
                 submitted.arrays.push(SubmittedArray { job, offset, tasks });
+                if !dry_run {
+                    // Recorded as it goes: after a failed sbatch, the arrays already submitted
+                    // are still known to status and to the next submission's check.
+                    let mut so_far = submission.clone();
+                    so_far.steps.push(submitted.clone());
+                    write_submission(project, &so_far)?;
+                }
             }
             previous = ids;
         }
@@ -338,15 +357,14 @@ pub fn submit(
         let _ = writeln!(table, "note: {note}");
     }
     if !dry_run {
-        let text = serde_json::to_string_pretty(&submission).unwrap_or_default();
-        timesift_io::fsutil::write_bytes_atomically(&submission_file(project), text.as_bytes())?;
+        write_submission(project, &submission)?;
     }
     Ok(SubmitReport { submission, table })
 }
 
 /// An error when Slurm still holds tasks of the project's last submission: submitting their
 /// units again would run them twice.
-fn refuse_while_queued(project: &Project) -> Result<(), ProjectError> {
+pub fn refuse_while_queued(project: &Project) -> Result<(), ProjectError> {
     let Some(last) = Submission::read(project) else {
         return Ok(());
     };
