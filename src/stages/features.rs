@@ -151,9 +151,7 @@ pub(super) fn unit(
     let source = ImageSource::of(project)?;
     let wanted = recorded_settings(project, &source, &settings);
     let settings_path = crate::layout::Layout::settings_file(&layout.features_dir());
-    let recorded: Option<serde_json::Value> = std::fs::read_to_string(&settings_path)
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok());
+    let recorded = crate::report::read_json::<serde_json::Value>(&settings_path).ok();
     if recorded.as_ref() != Some(&wanted) {
         return Err(stage_error(
             "features",

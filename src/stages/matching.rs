@@ -74,12 +74,9 @@ fn remove_unselected(dir: &std::path::Path, pairs: &[(usize, usize)]) -> Result<
 pub fn match_stage(project: &Project) -> Result<MatchSummary, ProjectError> {
     let features = read_all_features(project)?;
     let pairs = select_pairs(project, Some(&features))?;
-    match_pairs(project, &pairs, &|i| Ok(&features[i]))?;
-    build_summary(
-        project,
-        &pairs,
-        &features.iter().map(|f| f.0.len()).collect::<Vec<_>>(),
-    )
+    let matches = match_pairs(project, &pairs, &|i| Ok(&features[i]))?;
+    let counts: Vec<usize> = features.iter().map(|f| f.0.len()).collect();
+    build_summary(project, &pairs, matches, &counts)
 }
 
 type ImageFeatures = (Vec<timesift_core::Keypoint>, timesift_core::Descriptors);
@@ -209,44 +206,7 @@ pub(super) fn finish(project: &Project) -> Result<Vec<std::path::PathBuf>, Proje
         .map(|i| read_features(&layout.feature_file(i)).map(|f| f.0.len()))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| stage_error("match", format!("{e} (run the features stage first)")))?;
-    build_summary(project, &list, &counts)?;
-    Ok(vec![layout.match_summary()])
-}
-
-/// Matches every pair of `list` whose file is missing and writes its file.
-fn match_pairs<'f>(
-    project: &Project,
-    list: &PairList,
-    features: &(dyn Fn(usize) -> Result<&'f ImageFeatures, ProjectError> + Sync),
-) -> Result<(), ProjectError> {
-    let layout = project.layout();
-    let options = MatchOptions {
-        ratio_on: FloatDistance::Angle,
-        ..MatchOptions::default()
-    };
-    let verify = VerifyOptions::default();
-    let guided = GuidedOptions::default();
-    list.pairs.par_iter().try_for_each(|&(a, b)| {
-        let path = layout.match_file(a, b);
-        if read_matches(&path).is_ok() {
-            return Ok(());
-        }
-        let inliers = verified_matches(features(a)?, features(b)?, &options, &verify, &guided)
-            .map_err(|e| stage_error("match", e.to_string()))?;
-        write_matches(&path, &inliers).map_err(|e| stage_error("match", e.to_string()))
-    })
-}
-
-/// Tracks over the matches of every pair of `list` (each pair's file must be there), and the
-/// summary written.
-fn build_summary(
-    project: &Project,
-    list: &PairList,
-    keypoint_counts: &[usize],
-) -> Result<MatchSummary, ProjectError> {
-    let layout = project.layout();
-    let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
-    let read: Vec<Vec<timesift_matching::Match>> = list
+    let matches = list
         .pairs
         .par_iter()
         .map(|&(a, b)| {
@@ -254,10 +214,52 @@ fn build_summary(
                 .map_err(|e| stage_error("match", format!("{e} (its match unit has not run)")))
         })
         .collect::<Result<_, _>>()?;
+    build_summary(project, &list, matches, &counts)?;
+    Ok(vec![layout.match_summary()])
+}
+
+/// Every pair of `list`'s matches: read where its file is there, else matched and written.
+fn match_pairs<'f>(
+    project: &Project,
+    list: &PairList,
+    features: &(dyn Fn(usize) -> Result<&'f ImageFeatures, ProjectError> + Sync),
+) -> Result<Vec<Vec<timesift_matching::Match>>, ProjectError> {
+    let layout = project.layout();
+    let options = MatchOptions {
+        ratio_on: FloatDistance::Angle,
+        ..MatchOptions::default()
+    };
+    let verify = VerifyOptions::default();
+    let guided = GuidedOptions::default();
+    list.pairs
+        .par_iter()
+        .map(|&(a, b)| {
+            let path = layout.match_file(a, b);
+            if let Ok(done) = read_matches(&path) {
+                return Ok(done);
+            }
+            let inliers = verified_matches(features(a)?, features(b)?, &options, &verify, &guided)
+                .map_err(|e| stage_error("match", e.to_string()))?;
+            write_matches(&path, &inliers).map_err(|e| stage_error("match", e.to_string()))?;
+            Ok(inliers)
+        })
+        .collect()
+}
+
+/// Tracks over `matches` (those of every pair of `list`, in its order), and the summary
+/// written.
+fn build_summary(
+    project: &Project,
+    list: &PairList,
+    matches: Vec<Vec<timesift_matching::Match>>,
+    keypoint_counts: &[usize],
+) -> Result<MatchSummary, ProjectError> {
+    let layout = project.layout();
+    let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
     let verified: Vec<PairMatches> = list
         .pairs
         .iter()
-        .zip(read)
+        .zip(matches)
         .filter(|(_, m)| !m.is_empty())
         .map(|(&(a, b), matches)| PairMatches {
             a: ImageId::from(a),

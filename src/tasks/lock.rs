@@ -63,9 +63,7 @@ impl ProjectLock {
                 });
             }
         }
-        let host = std::fs::read_to_string("/etc/hostname")
-            .map(|h| h.trim().to_string())
-            .unwrap_or_else(|_| "this machine".into());
+        let host = super::record::host_name().unwrap_or_else(|| "this machine".into());
         let started = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_secs())

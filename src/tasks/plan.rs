@@ -411,9 +411,4 @@ impl ClusterPlan {
             .filter(|s| stages.contains(&s.stage))
             .collect()
     }
-
-    /// The step named `name`.
-    pub fn step(&self, name: &str) -> Option<&Step> {
-        self.steps.iter().find(|s| s.name == name)
-    }
 }

@@ -15,6 +15,14 @@ use serde::{Deserialize, Serialize};
 use super::Part;
 use crate::ProjectError;
 
+/// This machine's name (`HOSTNAME`, else `/etc/hostname`): where a unit ran, who holds a lock.
+pub(super) fn host_name() -> Option<String> {
+    std::env::var("HOSTNAME")
+        .ok()
+        .or_else(|| std::fs::read_to_string("/etc/hostname").ok())
+        .map(|h| h.trim().to_string())
+}
+
 /// Files larger than this enter [`project_fingerprint`] by size and time, not content.
 const LARGEST_HASHED: u64 = 16 << 20;
 
@@ -109,9 +117,7 @@ impl UnitRecord {
         seconds: f64,
         project: &str,
     ) -> UnitRecord {
-        let host = std::env::var("HOSTNAME")
-            .or_else(|_| std::fs::read_to_string("/etc/hostname").map(|h| h.trim().to_string()))
-            .unwrap_or_default();
+        let host = host_name().unwrap_or_default();
         let job = std::env::var("SLURM_JOB_ID")
             .map(|id| format!(" job {id}"))
             .unwrap_or_default();
