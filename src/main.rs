@@ -226,7 +226,39 @@ struct ClusterArgs {
     sbatch_args: Vec<String>,
 }
 
+/// A panic is a bug of timesift's, never the user's input: it is reported in one line, as
+/// errors are, with where it happened (the full report with `RUST_BACKTRACE=1`). Panics of a
+/// third-party decoder on corrupt data are not printed: they return as errors naming the file
+/// (`timesift_io::decoder_guard`).
+fn install_panic_report() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if timesift_io::decoder_guard::guard_active() {
+            return;
+        }
+        if std::env::var_os("RUST_BACKTRACE").is_some_and(|v| v != "0") {
+            return default(info);
+        }
+        let message = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        let place = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()))
+            .unwrap_or_default();
+        eprintln!(
+            "error: internal error{place}: {}; please report it with the command that caused \
+             it (RUST_BACKTRACE=1 prints where)",
+            message.replace('\n', " ")
+        );
+    }));
+}
+
 fn main() -> ExitCode {
+    install_panic_report();
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => LevelFilter::WARN,

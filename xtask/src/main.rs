@@ -48,6 +48,7 @@ mod bench_raster;
 mod bench_scale;
 mod bench_scale_colmap;
 mod fn_lengths;
+mod fuzz;
 mod slurm;
 
 use std::path::PathBuf;
@@ -146,6 +147,34 @@ enum Task {
     SlurmUp,
     /// Stop the cluster of `slurm-up` and remove its state.
     SlurmDown,
+    /// Every reader fuzzed: libFuzzer on nightly (cargo-fuzz), else the stable fallback
+    /// (seeded mutation of the corpus); a table of executions, corpus and findings per target.
+    Fuzz {
+        /// Minutes per target.
+        #[arg(long, default_value_t = 1.0)]
+        minutes: f64,
+        /// Only these targets (comma-separated; default all).
+        #[arg(long, value_delimiter = ',')]
+        targets: Vec<String>,
+        /// Write the seed corpus (timesift's writers and ../shared/data) first.
+        #[arg(long)]
+        seed: bool,
+        /// The stable fallback even where libFuzzer is available.
+        #[arg(long)]
+        stable: bool,
+        /// Targets fuzzed at once.
+        #[arg(long, default_value_t = 2)]
+        jobs: usize,
+    },
+    /// One target's stable fuzz campaign in this process (what `fuzz` runs in a child).
+    #[command(hide = true)]
+    FuzzWorker {
+        target: String,
+        #[arg(long)]
+        seconds: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// The public API of every library crate against its snapshot under `api/`.
     Api {
         /// Rewrite the snapshots instead of comparing.
@@ -495,6 +524,24 @@ fn main() -> anyhow::Result<()> {
         )?,
         Task::SlurmUp => slurm::up()?,
         Task::SlurmDown => slurm::down()?,
+        Task::Fuzz {
+            minutes,
+            targets,
+            seed,
+            stable,
+            jobs,
+        } => fuzz::run(&fuzz::FuzzOptions {
+            minutes,
+            targets,
+            seed,
+            stable,
+            jobs,
+        })?,
+        Task::FuzzWorker {
+            target,
+            seconds,
+            seed,
+        } => fuzz::worker(&target, seconds, seed)?,
         Task::Api { bless } => {
             let differences = api::check(&api::workspace_root(), bless)?;
             if !differences.is_empty() {

@@ -478,7 +478,8 @@ fn geometry_start(upper: &str) -> Option<usize> {
     let mut from = 0;
     while let Some(rel) = upper[from..].find("POLYGON") {
         let at = from + rel;
-        let start = if at >= 5 && &upper[at - 5..at] == "MULTI" {
+        // Compared as bytes: five bytes back may fall inside a character of a name.
+        let start = if at >= 5 && &upper.as_bytes()[at - 5..at] == b"MULTI" {
             at - 5
         } else {
             at

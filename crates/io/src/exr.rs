@@ -4,7 +4,7 @@ use std::path::Path;
 
 use exr::prelude::*;
 
-use crate::{IoError, fsutil};
+use crate::{IoError, budget, fsutil};
 
 /// Writes named f32 channels of one `width × height` image to an EXR file (run-length encoded
 /// in tiles of 64 × 64: lossless). Each channel holds `width * height` row-major values.
@@ -72,6 +72,7 @@ impl F32Channels {
 /// Reads every f32 channel of an EXR file written by [`write_f32_channels`]. Other sample
 /// types are an error naming the channel.
 pub fn read_f32_channels(path: &Path) -> std::result::Result<F32Channels, IoError> {
+    check_claimed_size(path)?;
     let image = read_first_flat_layer_from_file(path)
         .map_err(|e| IoError::invalid(path, format!("cannot read EXR: {e}")))?;
     let size = image.layer_data.size;
@@ -94,6 +95,61 @@ pub fn read_f32_channels(path: &Path) -> std::result::Result<F32Channels, IoErro
         channels,
     })
 }
+
+/// The most channels a map of timesift's has (depth, normal, confidence and a few more).
+const MAX_CHANNELS: usize = 16;
+
+/// Reads the headers alone and checks the sizes they claim (the exr crate allocates every
+/// channel of the first layer, and a block's bytes as a block's header claims them up to the
+/// largest block the layer can have, before reading a sample).
+fn check_claimed_size(path: &Path) -> std::result::Result<(), IoError> {
+    let meta = exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| IoError::invalid(path, format!("cannot read EXR: {e}")))?;
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| IoError::io(path, e))?
+        .len();
+    // No compression of EXR's (deflate at best, about 1,032 to 1) makes more than this of the
+    // file: a larger claim is a corrupt header, whatever memory there is.
+    let justified = MAX_EXPANSION * file_len + (1 << 20);
+    if meta.headers.is_empty() {
+        return Err(IoError::invalid(path, "cannot read EXR: no layer"));
+    }
+    for (k, header) in meta.headers.iter().enumerate() {
+        if header.deep {
+            return Err(IoError::unsupported(path, "EXR layout", "deep data"));
+        }
+        let size = header.layer_size;
+        let cells = budget::check_cells(path, size.0 as u64, size.1 as u64, "the EXR layer")?;
+        let channels = header.channels.list.len();
+        if channels > MAX_CHANNELS {
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "EXR layer {k} claims {channels} channels; at most {MAX_CHANNELS} are read"
+                ),
+            ));
+        }
+        let decoded = cells * 4 * channels as u64;
+        let block = header.max_block_byte_size() as u64;
+        if decoded > justified || block > justified {
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "EXR layer {k} claims {} × {} pixels of {channels} channels in blocks of up \
+                     to {block} bytes, more than its {file_len} bytes can hold",
+                    size.0, size.1
+                ),
+            ));
+        }
+        if k == 0 {
+            budget::ensure_allocatable(path, decoded + block, "the EXR layer")?;
+        }
+    }
+    Ok(())
+}
+
+/// The most bytes a byte of an EXR file decodes to (deflate's bound, with room).
+const MAX_EXPANSION: u64 = 1100;
 
 #[cfg(test)]
 mod tests {

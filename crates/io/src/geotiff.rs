@@ -18,7 +18,7 @@ use crate::coords::Crs;
 use crate::tiled_tiff::{
     Entry, Flavour, Pixels, SampleFormat, TiledError, TiledWriter, write_tiled,
 };
-use crate::{IoError, fsutil};
+use crate::{IoError, budget, fsutil};
 
 /// A north-up affine grid, GDAL geotransform style.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -354,14 +354,43 @@ struct Decoded {
     samples: DecodingResult,
 }
 
-/// Decoding limits: large enough for the rasters of a survey (8 GiB decoded), finite so that a
-/// corrupt header cannot request an absurd allocation.
-fn decoding_limits() -> Limits {
+/// Limits while the header and tags are read: a tag value (tie points, GeoKeys, GDAL
+/// metadata) over 16 MiB is not one a raster of timesift's needs, and a larger claim is refused
+/// before it is allocated.
+fn header_limits() -> Limits {
     let mut limits = Limits::default();
-    limits.decoding_buffer_size = 8 << 30;
-    limits.intermediate_buffer_size = 1 << 30;
-    limits.ifd_value_size = 64 << 20;
+    limits.decoding_buffer_size = 16 << 20;
+    limits.intermediate_buffer_size = 16 << 20;
+    limits.ifd_value_size = 16 << 20;
     limits
+}
+
+/// Limits while the samples are decoded: the whole image (`decoded_bytes`, checked to be
+/// allocatable) and one compressed strip or tile, which cannot be longer than the file.
+fn sample_limits(decoded_bytes: u64, file_len: u64) -> Limits {
+    let mut limits = header_limits();
+    limits.decoding_buffer_size = usize::try_from(decoded_bytes).unwrap_or(usize::MAX);
+    limits.intermediate_buffer_size =
+        usize::try_from(file_len.saturating_add(1 << 20)).unwrap_or(usize::MAX);
+    limits
+}
+
+/// Bits per pixel of a colour type (`None` for depths a sample cannot have).
+fn bits_per_pixel(colortype: ColorType) -> Option<u64> {
+    let (bits, samples) = match colortype {
+        ColorType::Gray(b) | ColorType::Palette(b) => (b, 1),
+        ColorType::GrayA(b) => (b, 2),
+        ColorType::RGB(b) | ColorType::YCbCr(b) | ColorType::Lab(b) => (b, 3),
+        ColorType::RGBA(b) | ColorType::CMYK(b) => (b, 4),
+        ColorType::CMYKA(b) => (b, 5),
+        ColorType::Multiband {
+            bit_depth,
+            num_samples,
+        } => (bit_depth, num_samples),
+        // A colour type of a later tiff release: its size is not known here.
+        _ => return None,
+    };
+    (bits > 0 && bits <= 64 && samples > 0).then(|| u64::from(bits) * u64::from(samples))
 }
 
 /// The size and georeference of a GeoTIFF, its samples not decoded: what is needed to put other
@@ -382,8 +411,21 @@ pub fn read_grid(path: &Path) -> Result<RasterGrid, IoError> {
     Ok(grid)
 }
 
+/// Decodes the samples of the first image once the size its header claims is known to be
+/// allocatable, with room for a copy as f32 (what [`read_f32`] and [`read_bands_f32`] make).
 fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
-    let (mut decoder, colortype, grid) = open_georeferenced(path)?;
+    let (decoder, colortype, grid) = open_georeferenced(path)?;
+    let bits = bits_per_pixel(colortype).ok_or_else(|| {
+        IoError::unsupported(path, "GeoTIFF sample type", format!("{colortype:?}"))
+    })?;
+    let cells = grid.width as u64 * grid.height as u64;
+    let decoded = cells.saturating_mul(bits).div_ceil(8);
+    let as_f32 = cells.saturating_mul(bits.div_ceil(8)).saturating_mul(4);
+    budget::ensure_allocatable(path, decoded.saturating_add(as_f32), "the raster")?;
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| IoError::io(path, e))?
+        .len();
+    let mut decoder = decoder.with_limits(sample_limits(decoded, file_len));
     let samples = decoder.read_image().map_err(|e| tiff_err(path, e))?;
     Ok(Decoded {
         grid,
@@ -400,8 +442,9 @@ fn open_georeferenced(
     let err = |e| tiff_err(path, e);
     let mut decoder = Decoder::new(BufReader::new(file))
         .map_err(err)?
-        .with_limits(decoding_limits());
+        .with_limits(header_limits());
     let (width, height) = decoder.dimensions().map_err(err)?;
+    budget::check_cells(path, width.into(), height.into(), "the raster")?;
     let colortype = decoder.colortype().map_err(err)?;
     let (scale, tie) = pixel_scale_and_tiepoint(&mut decoder, path)?;
     let (crs, pixel_is_point) = crs_and_raster_type(&mut decoder, path)?;
@@ -587,6 +630,9 @@ pub fn read_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
         ));
     }
     let data = samples_f32(path, d.samples)?;
+    if data.len() != d.grid.width * d.grid.height {
+        return Err(sample_count_error(path, data.len(), &d.grid));
+    }
     Ok(GeoRaster {
         width: d.grid.width,
         height: d.grid.height,
@@ -604,15 +650,7 @@ pub fn read_bands_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
     let data = samples_f32(path, d.samples)?;
     let pixels = d.grid.width * d.grid.height;
     if pixels == 0 || data.len() % pixels != 0 {
-        return Err(IoError::invalid(
-            path,
-            format!(
-                "{} samples for {} × {} pixels",
-                data.len(),
-                d.grid.width,
-                d.grid.height
-            ),
-        ));
+        return Err(sample_count_error(path, data.len(), &d.grid));
     }
     Ok(GeoRaster {
         width: d.grid.width,
@@ -621,6 +659,17 @@ pub fn read_bands_f32(path: &Path) -> Result<GeoRaster<f32>, IoError> {
         data,
         georef: d.grid.georef,
     })
+}
+
+/// A decoder that returned another number of samples than the grid holds.
+fn sample_count_error(path: &Path, samples: usize, grid: &RasterGrid) -> IoError {
+    IoError::invalid(
+        path,
+        format!(
+            "{samples} samples for {} × {} pixels",
+            grid.width, grid.height
+        ),
+    )
 }
 
 fn samples_f32(path: &Path, samples: DecodingResult) -> Result<Vec<f32>, IoError> {
@@ -660,6 +709,17 @@ pub fn read_rgb8(path: &Path) -> Result<GeoRaster<u8>, IoError> {
     let DecodingResult::U8(data) = d.samples else {
         return Err(IoError::invalid(path, "unexpected sample type"));
     };
+    if data.len() != d.grid.width * d.grid.height * bands {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{} samples for {} × {} pixels of {bands} bands",
+                data.len(),
+                d.grid.width,
+                d.grid.height
+            ),
+        ));
+    }
     Ok(GeoRaster {
         width: d.grid.width,
         height: d.grid.height,

@@ -6,9 +6,9 @@
 
 use std::path::Path;
 
-use image::{DynamicImage, ImageReader, Limits};
+use image::{DynamicImage, ImageDecoder, ImageReader, Limits};
 
-use crate::IoError;
+use crate::{IoError, budget};
 
 /// A decoded image with interleaved channels, values in [0, 1].
 #[derive(Debug, Clone, PartialEq)]
@@ -31,24 +31,44 @@ impl ImageF32 {
     }
 }
 
-fn decode(path: &Path) -> Result<DynamicImage, IoError> {
+/// Decodes an image whose decoded form, plus a conversion of `out_bytes_per_pixel` bytes per
+/// pixel, fits in memory: the header's size is checked ([`budget::check_cells`]) and the memory
+/// it claims is known to be there before the decoder allocates it (a decoder's failed
+/// allocation aborts the process).
+fn decode(path: &Path, out_bytes_per_pixel: u64) -> Result<DynamicImage, IoError> {
     let mut reader = ImageReader::open(path)
         .map_err(|e| IoError::io(path, e))?
         .with_guessed_format()
         .map_err(|e| IoError::io(path, e))?;
-    // Scans of archival photos exceed the default 512 MiB decoding limit.
-    reader.limits(Limits::no_limits());
-    reader.decode().map_err(|e| match e {
+    // Scans of archival photos exceed the default 512 MiB decoding limit: the bound is the
+    // one every raster of timesift has, checked below with the memory it needs.
+    let mut limits = Limits::default();
+    limits.max_image_width = Some(budget::MAX_SIDE as u32);
+    limits.max_image_height = Some(budget::MAX_SIDE as u32);
+    limits.max_alloc = None;
+    reader.limits(limits);
+    let decoder = reader.into_decoder().map_err(|e| decode_error(path, e))?;
+    let (width, height) = decoder.dimensions();
+    let cells = budget::check_cells(path, width.into(), height.into(), "the image")?;
+    let needed = decoder
+        .total_bytes()
+        .saturating_add(cells.saturating_mul(out_bytes_per_pixel));
+    budget::ensure_allocatable(path, needed, "decoding the image")?;
+    DynamicImage::from_decoder(decoder).map_err(|e| decode_error(path, e))
+}
+
+fn decode_error(path: &Path, e: image::ImageError) -> IoError {
+    match e {
         image::ImageError::Unsupported(u) => {
             IoError::unsupported(path, "image format", u.to_string())
         }
         other => IoError::invalid(path, format!("cannot decode image: {other}")),
-    })
+    }
 }
 
 /// Reads an image as grey f32 (ITU-R 601 luma for colour images).
 pub fn read_grey(path: &Path) -> Result<ImageF32, IoError> {
-    let img = decode(path)?.to_luma32f();
+    let img = decode(path, 4)?.to_luma32f();
     Ok(ImageF32 {
         width: img.width(),
         height: img.height(),
@@ -59,7 +79,7 @@ pub fn read_grey(path: &Path) -> Result<ImageF32, IoError> {
 
 /// Reads an image as RGB f32 (grey images are replicated to three channels).
 pub fn read_rgb(path: &Path) -> Result<ImageF32, IoError> {
-    let img = decode(path)?.to_rgb32f();
+    let img = decode(path, 12)?.to_rgb32f();
     Ok(ImageF32 {
         width: img.width(),
         height: img.height(),
@@ -71,7 +91,7 @@ pub fn read_rgb(path: &Path) -> Result<ImageF32, IoError> {
 /// Reads an image as 8-bit RGB (16-bit images are scaled down, grey ones replicated): what
 /// orthomosaics sample.
 pub fn read_rgb8(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
-    let img = decode(path)?.to_rgb8();
+    let img = decode(path, 3)?.to_rgb8();
     Ok((img.width(), img.height(), img.into_raw()))
 }
 

@@ -13,17 +13,22 @@
 #![warn(missing_docs, unnameable_types)]
 
 pub mod bal;
+pub mod budget;
 pub mod cameras_json;
 pub mod colmap;
 pub mod coords;
 pub mod csv_inputs;
+pub mod decoder_guard;
 mod error;
 pub mod exif;
 pub mod exr;
 pub mod fsutil;
 pub mod geotiff;
 pub mod image;
+mod las_checks;
+mod las_sink;
 pub mod layout;
+mod laz_positions;
 pub mod libmv;
 pub mod metashape;
 pub mod opensfm;

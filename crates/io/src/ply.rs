@@ -151,7 +151,9 @@ pub fn write_tiepoints(path: &Path, epochs: &[String], points: &[TiePoint]) -> R
 /// Reads a file written by [`write_tiepoints`]: the epoch names and the points.
 pub fn read_tiepoints(path: &Path) -> Result<(Vec<String>, Vec<TiePoint>), IoError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let file_len = file.metadata().map_err(|e| IoError::io(path, e))?.len();
     let mut reader = std::io::BufReader::new(file);
+    let mut header_len = 0u64;
     let mut epochs = Vec::new();
     let mut count = None;
     let mut properties: Vec<String> = Vec::new();
@@ -164,6 +166,7 @@ pub fn read_tiepoints(path: &Path) -> Result<(Vec<String>, Vec<TiePoint>), IoErr
         if n == 0 {
             return Err(IoError::invalid(path, "PLY header has no end_header"));
         }
+        header_len += n as u64;
         let l = line.trim_end();
         if let Some(names) = l.strip_prefix("comment timesift tie points; epochs bit mask:") {
             epochs = names.split_whitespace().map(str::to_string).collect();
@@ -178,6 +181,16 @@ pub fn read_tiepoints(path: &Path) -> Result<(Vec<String>, Vec<TiePoint>), IoErr
         }
     }
     let count = count.ok_or_else(|| IoError::invalid(path, "PLY header has no vertex element"))?;
+    if epochs.len() > EpochSet::CAPACITY {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "the header names {} epochs; a tie-point file holds at most {}",
+                epochs.len(),
+                EpochSet::CAPACITY
+            ),
+        ));
+    }
     let words = properties.len().saturating_sub(4);
     let expected: Vec<String> = ["double x", "double y", "double z", "ushort observations"]
         .into_iter()
@@ -195,8 +208,20 @@ pub fn read_tiepoints(path: &Path) -> Result<(Vec<String>, Vec<TiePoint>), IoErr
             ),
         ));
     }
+    let record_len = 26 + 4 * words;
+    // The count is the header's claim: the vertices must be in the file before they are
+    // allocated.
+    let body = file_len.saturating_sub(header_len);
+    if (count as u64).saturating_mul(record_len as u64) > body {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "the header counts {count} vertices of {record_len} bytes; {body} bytes follow it"
+            ),
+        ));
+    }
     let mut points = Vec::with_capacity(count);
-    let mut record = vec![0u8; 26 + 4 * words];
+    let mut record = vec![0u8; record_len];
     for k in 0..count {
         reader
             .read_exact(&mut record)
@@ -257,8 +282,9 @@ mod tests {
         let bytes = std::fs::read(&path).unwrap();
         std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
         let err = read_tiepoints(&path).unwrap_err().to_string();
+        // Caught from the header's count and the file's length, before a vertex is read.
         assert!(
-            err.contains("t.ply") && err.contains("vertex 1 of 2"),
+            err.contains("t.ply") && err.contains("counts 2 vertices"),
             "{err}"
         );
     }

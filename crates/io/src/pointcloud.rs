@@ -5,7 +5,7 @@
 //! offset at the cloud's minimum corner rounded to the metre, so UTM-sized coordinates keep full
 //! precision. The format (LAS or LAZ) follows the file extension.
 
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::io::BufReader;
 use std::path::Path;
 
 use las::{
@@ -13,9 +13,11 @@ use las::{
     point::Format,
 };
 
-use rayon::prelude::*;
-
 use crate::coords::Crs;
+use crate::decoder_guard;
+use crate::las_checks::{self, CheckedHeader};
+use crate::las_sink::FailOnce;
+use crate::laz_positions;
 use crate::{IoError, fsutil};
 
 /// Values of one extra attribute, one per point.
@@ -218,6 +220,11 @@ fn las_header(
     let mut format = Format::new(if cloud.colors.is_some() { 7 } else { 6 })
         .map_err(|e| IoError::invalid(path, e.to_string()))?;
     format.extra_bytes = extra as u16;
+    // LAZ when the file is named so (what `las` decides from a path, done here because the
+    // writer is given a sink, not a path).
+    format.is_compressed = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
     builder.point_format = format;
     builder.transforms = Vector {
         x: Transform {
@@ -261,7 +268,9 @@ fn write_las_points(
     extra: usize,
 ) -> Result<(), IoError> {
     let las_err = |e: las::Error| IoError::invalid(path, format!("cannot write LAS: {e}"));
-    let mut writer = Writer::from_path(tmp, header).map_err(las_err)?;
+    let file = std::fs::File::create(tmp).map_err(|e| IoError::io(path, e))?;
+    let sink = FailOnce::new(std::io::BufWriter::new(file));
+    let mut writer = Writer::new(sink, header).map_err(las_err)?;
     let mut bytes = Vec::with_capacity(extra);
     for i in 0..cloud.positions.len() {
         bytes.clear();
@@ -286,7 +295,11 @@ fn write_las_points(
         };
         writer.write_point(point).map_err(las_err)?;
     }
-    writer.close().map_err(las_err)
+    let sink = writer.into_inner().map_err(las_err)?;
+    // Durable before it is renamed over the target.
+    sink.into_file()
+        .and_then(|file| file.sync_all())
+        .map_err(|e| IoError::io(path, e))
 }
 
 /// One attribute's layout read from the extra-bytes record.
@@ -318,7 +331,7 @@ fn descriptors(path: &Path, vlr: &Vlr) -> Result<Vec<Descriptor>, IoError> {
 /// type u8, f32 and f64 described by an extra-bytes record, and an EPSG CRS when the WKT names one.
 pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
     let las_err = |e: las::Error| IoError::invalid(path, format!("cannot read LAS: {e}"));
-    let mut reader = Reader::from_path(path).map_err(las_err)?;
+    let (mut reader, checked) = open_checked(path)?;
     let header = reader.header().clone();
     let descs = match header
         .all_vlrs()
@@ -351,11 +364,14 @@ pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
     }
     let crs = crs_of(&header);
     let has_color = header.point_format().has_color;
-    let data = reader.read_all().map_err(las_err)?;
+    let data = decoder_guard::catch_decoder_panic(path, "the LAZ decoder", || {
+        reader.read_all().map_err(las_err)
+    })?;
     // Column by column from the decompressed records: materialising a `las::Point` per record
     // allocates its extra bytes, which cost more than the decompression itself.
     let mut positions = Vec::with_capacity(data.len());
     positions.extend(positions_of(&data));
+    check_positions_by_chunk(path, &checked, &header, &positions)?;
     let mut colors = has_color.then(|| Vec::with_capacity(data.len()));
     if let (Some(colors), Some(rgb)) = (colors.as_mut(), data.rgb()) {
         colors.extend(rgb.map(|(r, g, b)| [r, g, b]));
@@ -406,16 +422,25 @@ pub fn read_las(path: &Path) -> Result<PointCloud, IoError> {
 /// The returned cloud has no colours and no attributes.
 pub fn read_las_positions(path: &Path) -> Result<PointCloud, IoError> {
     let las_err = |e: las::Error| IoError::invalid(path, format!("cannot read LAS: {e}"));
-    let mut reader = Reader::from_path(path).map_err(las_err)?;
+    let (mut reader, checked) = open_checked(path)?;
     let header = reader.header().clone();
     let format = header.point_format();
     let positions = match header.laz_vlr() {
         Ok(vlr) if format.is_extended && format.is_compressed => {
             drop(reader);
-            layered_laz_positions(path, &header, vlr)?
+            laz_positions::layered_laz_positions(path, &header, &checked, vlr)?
         }
         // Uncompressed, or point-wise compression (formats 0 to 5): nothing to skip.
-        _ => positions_of(&reader.read_all().map_err(las_err)?).collect(),
+        _ => {
+            let positions: Vec<[f64; 3]> = positions_of(&decoder_guard::catch_decoder_panic(
+                path,
+                "the LAZ decoder",
+                || reader.read_all().map_err(las_err),
+            )?)
+            .collect();
+            check_positions_by_chunk(path, &checked, &header, &positions)?;
+            positions
+        }
     };
     Ok(PointCloud {
         positions,
@@ -425,203 +450,49 @@ pub fn read_las_positions(path: &Path) -> Result<PointCloud, IoError> {
     })
 }
 
-/// The positions of a layered LAZ file, its x, y and z layers alone decompressed. The chunks
-/// decompress in parallel, each into a record buffer of the worker that takes it, turned into
-/// positions while it is in cache: no buffer of every record is made (for a cloud of 600,000
-/// points that buffer and its page faults cost as much as the conversion and half as much as
-/// the decoding). Before positions are allocated, the items must be the point format's own,
-/// the header's point count the chunk table's, and every chunk's bytes in the file. The
-/// compressed bytes are read a group of chunks at a time (a dense cloud's LAZ file is about 0.8
-/// of the positions it holds: reading it whole would nearly double the peak).
-fn layered_laz_positions(
-    path: &Path,
-    header: &las::Header,
-    vlr: laz::LazVlr,
-) -> Result<Vec<[f64; 3]>, IoError> {
-    /// Points decompressed per group of whole chunks: the positions grow by a group at a time.
-    const BATCH: u64 = 1 << 20;
+/// A reader of `path` once what the file claims has been checked against it
+/// ([`las_checks`]): the header, and a LAZ file's chunk table and layer lengths.
+fn open_checked(path: &Path) -> Result<(Reader, CheckedHeader), IoError> {
     let las_err = |e: las::Error| IoError::invalid(path, format!("cannot read LAS: {e}"));
-    let laz_err = |e: laz::LasZipError| IoError::invalid(path, format!("cannot read LAZ: {e}"));
-    let io_err = |e: std::io::Error| IoError::io(path, e);
-    let file = std::fs::File::open(path).map_err(io_err)?;
-    let file_len = file.metadata().map_err(io_err)?.len();
-    let mut source = BufReader::new(file);
-    let raw = las::raw::Header::read_from(&mut source).map_err(las_err)?;
-    let record_len = layered_record_len(path, header, &vlr)?;
-    source
-        .seek(SeekFrom::Start(u64::from(raw.offset_to_point_data)))
-        .map_err(io_err)?;
-    let mut chunks = laz::laszip::ChunkTable::read_from(&mut source, &vlr)
-        .map_err(laz_err)?
-        .as_ref()
-        .to_vec();
-    count_points_of_chunks(path, header.number_of_points(), &vlr, &mut chunks)?;
-    // The chunks follow one another from here; their bytes must lie in the file.
-    let data_start = source.stream_position().map_err(io_err)?;
-    let fits = chunks
-        .iter()
-        .try_fold(data_start, |end, chunk| end.checked_add(chunk.byte_count))
-        .is_some_and(|end| end <= file_len);
-    if !fits {
-        return Err(IoError::invalid(path, "truncated LAZ point data"));
-    }
-    let decoding = PositionDecoding {
-        vlr: &vlr,
-        selection: laz::DecompressionSelection::xy_returns_channel().decompress_z(),
-        record_len,
-        transforms: header.transforms(),
-    };
-    let mut positions: Vec<[f64; 3]> = Vec::new();
-    let mut compressed = Vec::new();
-    let mut rest = chunks.as_slice();
-    while !rest.is_empty() {
-        // A group of whole chunks of about BATCH points.
-        let mut n_chunks = 0;
-        let mut n_points = 0u64;
-        while n_chunks < rest.len() && (n_chunks == 0 || n_points < BATCH) {
-            n_points += rest[n_chunks].point_count;
-            n_chunks += 1;
+    let checked = las_checks::check_header(path)?;
+    if checked.compressed {
+        // Before a reader is made: making one reads the chunk table.
+        las_checks::check_chunk_table(path, &checked)?;
+        let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+        let header = las::Header::new(BufReader::new(file)).map_err(las_err)?;
+        if let Ok(vlr) = header.laz_vlr() {
+            // The items first: items other than the point format's own are misread (and the
+            // decompressor asserts on records of another length), and would misplace every
+            // length checked after.
+            las_checks::record_len_of_items(path, &header, &vlr)?;
+            las_checks::check_chunks(path, &checked, &vlr)?;
         }
-        let (group, later) = rest.split_at(n_chunks);
-        rest = later;
-        // The group's compressed bytes (checked above to lie in the file), cut per chunk.
-        let group_bytes: u64 = group.iter().map(|c| c.byte_count).sum();
-        compressed.resize(group_bytes as usize, 0);
-        source.read_exact(&mut compressed).map_err(io_err)?;
-        let start = positions.len();
-        positions.resize(start + n_points as usize, [0.0; 3]);
-        decoding
-            .decode_group(&compressed, group, &mut positions[start..])
-            .map_err(laz_err)?;
     }
-    Ok(positions)
+    let reader = Reader::from_path(path).map_err(las_err)?;
+    Ok((reader, checked))
 }
 
-/// The length of the file's layered point records, after checking that its LAZ items are the
-/// point format's own. The decoder lays out each item at its own size, whatever the file
-/// states: items other than the point format's own would be misread. (las derived the format's
-/// extra bytes from the header's record length, so the expected items add up to it.)
-fn layered_record_len(
+/// Checks every position against the header's bounds, chunk by chunk when the file is LAZ of
+/// fixed-size chunks (so that the error names the chunk).
+fn check_positions_by_chunk(
     path: &Path,
+    checked: &CheckedHeader,
     header: &las::Header,
-    vlr: &laz::LazVlr,
-) -> Result<usize, IoError> {
-    let format = header.point_format();
-    let expected = format
-        .to_u8()
-        .ok()
-        .and_then(|id| {
-            laz::LazItemRecordBuilder::default_for_point_format_id(id, format.extra_bytes).ok()
-        })
-        .unwrap_or_default();
-    let layout = |items: &[laz::LazItem]| -> Vec<(laz::LazItemType, u16)> {
-        items.iter().map(|i| (i.item_type(), i.size())).collect()
-    };
-    let record_len = usize::from(format.len());
-    if expected.is_empty() || layout(vlr.items()) != layout(&expected) {
-        return Err(IoError::invalid(
-            path,
-            format!("its LAZ items do not make the header's {record_len}-byte layered records"),
-        ));
-    }
-    Ok(record_len)
-}
-
-/// Gives fixed-size chunks their point counts (the table holds none; the last chunk holds what
-/// is left of the header's `point_count`), then checks that the chunks hold `point_count`.
-fn count_points_of_chunks(
-    path: &Path,
-    point_count: u64,
-    vlr: &laz::LazVlr,
-    chunks: &mut [laz::laszip::ChunkTableEntry],
+    positions: &[[f64; 3]],
 ) -> Result<(), IoError> {
-    if !vlr.uses_variable_size_chunks() {
-        // Fixed-size chunks: the table holds no counts; the last chunk holds what is left.
-        let n_chunks = chunks.len();
-        let before_last = (n_chunks as u64).saturating_sub(1) * u64::from(vlr.chunk_size());
-        match chunks.last_mut() {
-            // A last chunk may be empty (a writer that closes a chunk at the end regardless).
-            Some(last)
-                if point_count >= before_last && point_count - before_last <= last.point_count =>
-            {
-                last.point_count = point_count - before_last
-            }
-            None if point_count == 0 => {}
-            _ => {
-                return Err(IoError::invalid(
-                    path,
-                    format!(
-                        "the header's {point_count} points do not fill {} chunks of {}",
-                        n_chunks,
-                        vlr.chunk_size()
-                    ),
-                ));
-            }
-        }
-    }
-    let listed: u64 = chunks.iter().map(|c| c.point_count).sum();
-    if listed != point_count {
-        return Err(IoError::invalid(
-            path,
-            format!("the header counts {point_count} points, the chunk table {listed}"),
-        ));
-    }
-    Ok(())
-}
-
-/// How a layered LAZ file's records become positions: its items, the layers decompressed (x,
-/// y, z), the record length, the header's scales and offsets.
-struct PositionDecoding<'a> {
-    vlr: &'a laz::LazVlr,
-    selection: laz::DecompressionSelection,
-    record_len: usize,
-    transforms: &'a Vector<Transform>,
-}
-
-impl PositionDecoding<'_> {
-    /// Decompresses a group of whole chunks, whose bytes follow one another in `compressed`,
-    /// into `positions` (as many as the chunks hold), the chunks in parallel.
-    fn decode_group(
-        &self,
-        compressed: &[u8],
-        group: &[laz::laszip::ChunkTableEntry],
-        positions: &mut [[f64; 3]],
-    ) -> Result<(), laz::LasZipError> {
-        let (record_len, t) = (self.record_len, self.transforms);
-        let mut jobs = Vec::with_capacity(group.len());
-        let (mut unread, mut free) = (compressed, positions);
-        for chunk in group {
-            let (piece, bytes_left) = unread.split_at(chunk.byte_count as usize);
-            let (out, points_left) = free.split_at_mut(chunk.point_count as usize);
-            jobs.push((piece, chunk, out));
-            (unread, free) = (bytes_left, points_left);
-        }
-        jobs.into_par_iter().try_for_each_init(
-            Vec::new,
-            |records: &mut Vec<u8>, (piece, chunk, out)| {
-                records.resize(out.len() * record_len, 0);
-                laz::par_decompress_selective(
-                    piece,
-                    records,
-                    self.vlr,
-                    std::slice::from_ref(chunk),
-                    self.selection,
-                )?;
-                for (p, record) in out.iter_mut().zip(records.chunks_exact(record_len)) {
-                    // Point formats 6 to 10 begin with x, y and z as little-endian i32.
-                    let n = |k: usize| {
-                        i32::from_le_bytes([
-                            record[4 * k],
-                            record[4 * k + 1],
-                            record[4 * k + 2],
-                            record[4 * k + 3],
-                        ])
-                    };
-                    *p = [t.x.direct(n(0)), t.y.direct(n(1)), t.z.direct(n(2))];
-                }
-                Ok::<(), laz::LasZipError>(())
-            },
-        )
+    let chunk_size = header
+        .laz_vlr()
+        .ok()
+        .filter(|v| !v.uses_variable_size_chunks() && v.chunk_size() > 0)
+        .map(|v| v.chunk_size() as usize);
+    match chunk_size {
+        Some(size) => positions
+            .chunks(size)
+            .enumerate()
+            .try_for_each(|(k, chunk)| {
+                las_checks::check_positions(path, checked, chunk, (k * size) as u64, Some(k))
+            }),
+        None => las_checks::check_positions(path, checked, positions, 0, None),
     }
 }
 

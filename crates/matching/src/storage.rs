@@ -167,8 +167,11 @@ pub fn read_features(path: &Path) -> Result<(Vec<Keypoint>, Descriptors), Matchi
         1 => 1,
         other => return Err(corrupt(format!("unknown descriptor kind {other}"))),
     };
-    let expected = count
-        .checked_mul(KEYPOINT_BYTES + width * value_size)
+    // Every product checked: the counts are the file's claims.
+    let expected = width
+        .checked_mul(value_size)
+        .and_then(|d| d.checked_add(KEYPOINT_BYTES))
+        .and_then(|record| count.checked_mul(record))
         .and_then(|n| n.checked_add(20));
     if expected != Some(body.len()) {
         return Err(corrupt(format!(

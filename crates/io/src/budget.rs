@@ -1,0 +1,92 @@
+//! Sizes a file claims, checked before anything is allocated for them.
+//!
+//! A header states a width, a height, a point count; a corrupt or hostile file can state any
+//! number, and an allocation that fails aborts the process instead of returning an error. So
+//! every reader bounds what a header claims (cells of a raster, [`MAX_CELLS`]) and, before it
+//! allocates a claimed size, asks here whether that much memory can be had at all.
+
+use std::path::Path;
+
+use crate::IoError;
+
+/// The most cells (pixels, samples of a map) a raster or image may claim: 2³¹, what every
+/// product of timesift stays under (a 46,000-pixel square).
+pub const MAX_CELLS: u64 = 1 << 31;
+
+/// The length of one side of an image or raster that no file needs: 2³⁰ pixels.
+pub const MAX_SIDE: u64 = 1 << 30;
+
+/// Checks that a `width` × `height` grid is one a file may claim: neither side zero or over
+/// [`MAX_SIDE`], at most [`MAX_CELLS`] cells. `what` names the grid in the error.
+pub fn check_cells(path: &Path, width: u64, height: u64, what: &str) -> Result<u64, IoError> {
+    let cells = width.saturating_mul(height);
+    if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE || cells > MAX_CELLS {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{what} claims {width} × {height} cells; at most {MAX_CELLS} cells are read \
+                 (a corrupt header, or a grid to cut into tiles first)"
+            ),
+        ));
+    }
+    Ok(cells)
+}
+
+/// Fails with an error naming `path` when `bytes` of memory cannot be allocated now: tried and
+/// released at once, so that a later allocation of that size (inside a decoder that would
+/// abort on failure) is known to be possible. Under an address-space or container limit this
+/// is what turns a header's huge claim into one line instead of an abort.
+pub fn ensure_allocatable(path: &Path, bytes: u64, what: &str) -> Result<(), IoError> {
+    let refused = || {
+        IoError::invalid(
+            path,
+            format!(
+                "{what} needs {:.2} GiB of memory, which cannot be allocated",
+                bytes as f64 / f64::from(1u32 << 30)
+            ),
+        )
+    };
+    let bytes = usize::try_from(bytes)
+        .ok()
+        .filter(|&b| b <= isize::MAX as usize)
+        .ok_or_else(refused)?;
+    let mut probe: Vec<u8> = Vec::new();
+    probe.try_reserve_exact(bytes).map_err(|_| refused())?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn claimed_grids_are_bounded() {
+        let p = Path::new("/data/dem.tif");
+        assert_eq!(check_cells(p, 1000, 2000, "the DEM").unwrap(), 2_000_000);
+        for (w, h) in [
+            (0, 10),
+            (10, 0),
+            (1 << 31, 1),
+            (65_536, 65_536),
+            (u64::MAX, u64::MAX),
+        ] {
+            let e = check_cells(p, w, h, "the DEM").unwrap_err().to_string();
+            assert!(e.contains("dem.tif") && e.contains("the DEM claims"), "{e}");
+        }
+    }
+
+    #[test]
+    fn impossible_allocations_are_errors_not_aborts() {
+        let p = Path::new("/data/x.laz");
+        assert!(ensure_allocatable(p, 1 << 20, "the points").is_ok());
+        let e = ensure_allocatable(p, u64::MAX, "the points")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("x.laz") && e.contains("cannot be allocated"),
+            "{e}"
+        );
+        // More than any address space holds (2^62 bytes): refused by the allocator itself.
+        assert!(ensure_allocatable(p, 1 << 62, "the points").is_err());
+    }
+}
