@@ -98,3 +98,91 @@ pub fn comparable_json(text: &str, dir: &Path) -> serde_json::Value {
     strip(&mut v);
     v
 }
+
+/// Whether a product file is complete: it parses as what its name says.
+pub fn complete(path: &Path) -> Result<(), String> {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let bad = |e: String| format!("{}: {e}", path.display());
+    match ext {
+        "json" => serde_json::from_slice::<serde_json::Value>(
+            &std::fs::read(path).map_err(|e| bad(e.to_string()))?,
+        )
+        .map(|_| ())
+        .map_err(|e| bad(e.to_string())),
+        "tif" if name.starts_with("ortho") => timesift_io::geotiff::read_rgb8(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        "tif" => timesift_io::geotiff::read_f32(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        "laz" => timesift_io::pointcloud::read_las(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        "png" => image::open(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        "ply" => timesift_io::ply::read_tiepoints(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        "txt" => timesift_io::colmap::read_colmap_text(path.parent().expect("dir"))
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        "html" => {
+            let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+            text.trim_end()
+                .ends_with("</html>")
+                .then_some(())
+                .ok_or_else(|| bad("cut short".into()))
+        }
+        _ => Err(bad("unexpected product".into())),
+    }
+}
+
+/// Asserts that `a` and `b` hold the same products under `out/`, byte for byte but for the
+/// reports' times and paths (and report.html, which embeds them), and that `b` holds no
+/// temporary file.
+pub fn assert_same_products(a_dir: &Path, b_dir: &Path) {
+    let (a, b) = (files(&a_dir.join("out")), files(&b_dir.join("out")));
+    let leftovers: Vec<&PathBuf> = b
+        .iter()
+        .filter(|f| f.to_string_lossy().contains(".tmp-"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+    assert_eq!(a, b, "different sets of products");
+    let mut differing = Vec::new();
+    for f in &a {
+        let (pa, pb) = (a_dir.join("out").join(f), b_dir.join("out").join(f));
+        let same = match f.extension().and_then(|e| e.to_str()) {
+            Some("html") => continue,
+            Some("json") => {
+                comparable_json(&std::fs::read_to_string(&pa).expect("read"), a_dir)
+                    == comparable_json(&std::fs::read_to_string(&pb).expect("read"), b_dir)
+            }
+            _ => std::fs::read(&pa).expect("read") == std::fs::read(&pb).expect("read"),
+        };
+        if !same {
+            differing.push(f.clone());
+        }
+    }
+    assert!(differing.is_empty(), "products differ: {differing:?}");
+}
+
+/// Renders the project into `dir`: the first two epochs of `landslide`, each cut to its first ten
+/// images (the same ground in both: one flight plan), dense matching at level 4 with the quick
+/// settings (`DenseConfig::quick`) — every stage has work to do, and a run lasts long
+/// enough to be killed in each.
+pub fn small_landslide(dir: &Path) {
+    let mut spec =
+        timesift_synth::scenes::build("landslide", timesift_synth::scenes::Scale::Small, 3)
+            .expect("scene");
+    spec.epochs.truncate(2);
+    spec.keep_first_images(10);
+    timesift_synth::writer::write_scene(
+        &spec,
+        dir,
+        &timesift_synth::writer::WriteOptions::default(),
+    )
+    .expect("write");
+    quick_dense_level_4(dir);
+}

@@ -9,6 +9,7 @@ mod common;
 mod compare;
 mod dem_command;
 mod downstream;
+mod faults;
 mod features;
 mod film;
 mod raster_stacking;

@@ -7,66 +7,12 @@
 //!   (skipped with a printed reason where no Chromium is installed).
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use crate::common::{comparable_json, copy_tree, files, quick_dense_level_4, timesift};
+use crate::common::{assert_same_products, complete, copy_tree, files, small_landslide, timesift};
 use timesift_core::SeededRng;
-use timesift_synth::scenes::{Scale, build};
-use timesift_synth::writer::{WriteOptions, write_scene};
-
-/// Renders the project into `dir`: the first two epochs of `landslide`, each cut to its first ten
-/// images (the same ground in both: one flight plan), dense matching at level 4 with the quick
-/// settings (`DenseConfig::quick`) — every stage has work to do, and a run lasts long
-/// enough to be killed in each.
-fn project(dir: &Path) {
-    let mut spec = build("landslide", Scale::Small, 3).expect("scene");
-    spec.epochs.truncate(2);
-    spec.keep_first_images(10);
-    write_scene(&spec, dir, &WriteOptions::default()).expect("write");
-    quick_dense_level_4(dir);
-}
-
-/// Whether a product file is complete: it parses as what its name says.
-fn complete(path: &Path) -> Result<(), String> {
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    let bad = |e: String| format!("{}: {e}", path.display());
-    match ext {
-        "json" => serde_json::from_slice::<serde_json::Value>(
-            &std::fs::read(path).map_err(|e| bad(e.to_string()))?,
-        )
-        .map(|_| ())
-        .map_err(|e| bad(e.to_string())),
-        "tif" if name.starts_with("ortho") => timesift_io::geotiff::read_rgb8(path)
-            .map(|_| ())
-            .map_err(|e| bad(e.to_string())),
-        "tif" => timesift_io::geotiff::read_f32(path)
-            .map(|_| ())
-            .map_err(|e| bad(e.to_string())),
-        "laz" => timesift_io::pointcloud::read_las(path)
-            .map(|_| ())
-            .map_err(|e| bad(e.to_string())),
-        "png" => image::open(path)
-            .map(|_| ())
-            .map_err(|e| bad(e.to_string())),
-        "ply" => timesift_io::ply::read_tiepoints(path)
-            .map(|_| ())
-            .map_err(|e| bad(e.to_string())),
-        "txt" => timesift_io::colmap::read_colmap_text(path.parent().expect("dir"))
-            .map(|_| ())
-            .map_err(|e| bad(e.to_string())),
-        "html" => {
-            let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
-            text.trim_end()
-                .ends_with("</html>")
-                .then_some(())
-                .ok_or_else(|| bad("cut short".into()))
-        }
-        _ => Err(bad("unexpected product".into())),
-    }
-}
 
 fn run(dir: &Path) -> String {
     let (ok, out, err) = timesift(&["run", dir.to_str().expect("utf-8")]);
@@ -78,7 +24,7 @@ fn run(dir: &Path) -> String {
 fn a_killed_run_resumes_to_the_same_products_and_the_report_renders() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let (whole, killed) = (tmp.path().join("whole"), tmp.path().join("killed"));
-    project(&whole);
+    small_landslide(&whole);
     copy_tree(&whole, &killed);
 
     let log = run(&whole);
@@ -131,34 +77,8 @@ fn a_killed_run_resumes_to_the_same_products_and_the_report_renders() {
     );
     run(&killed);
 
-    // Same products, byte for byte, but for the reports' times and paths.
-    let (a, b) = (files(&whole.join("out")), files(&killed.join("out")));
-    let leftovers: Vec<&PathBuf> = b
-        .iter()
-        .filter(|f| f.to_string_lossy().contains(".tmp-"))
-        .collect();
-    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
-    assert_eq!(a, b, "different sets of products");
-    let mut differing = BTreeMap::new();
-    for f in &a {
-        let (pa, pb) = (whole.join("out").join(f), killed.join("out").join(f));
-        let same = match f.extension().and_then(|e| e.to_str()) {
-            Some("html") => continue,
-            Some("json") => {
-                comparable_json(&std::fs::read_to_string(&pa).expect("read"), &whole)
-                    == comparable_json(&std::fs::read_to_string(&pb).expect("read"), &killed)
-            }
-            _ => std::fs::read(&pa).expect("read") == std::fs::read(&pb).expect("read"),
-        };
-        if !same {
-            differing.insert(f.clone(), ());
-        }
-    }
-    assert!(
-        differing.is_empty(),
-        "differ after kills: {:?}",
-        differing.keys()
-    );
+    // Same products, byte for byte, but for the reports' times and paths; no temporary left.
+    assert_same_products(&whole, &killed);
 
     check_exports(&whole);
     check_in_browser(&whole.join("out/report.html"), tmp.path());

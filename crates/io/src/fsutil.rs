@@ -1,10 +1,11 @@
 //! Atomic file output: write beside the target, then rename over it.
 
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::{BufWriter, ErrorKind, Write};
 use std::path::{Path, PathBuf};
 
 use crate::IoError;
+use crate::faults::{self, Op};
 
 /// The temporary path used while writing `path`: same folder, so the final rename is atomic.
 pub(crate) fn temporary_path(path: &Path) -> PathBuf {
@@ -24,9 +25,11 @@ pub fn temporary_owner(file_name: &str) -> Option<u32> {
     digits.parse().ok()
 }
 
-/// Writes a file atomically: `write` fills a buffered writer on a temporary file beside `path`, which
-/// is renamed to `path` only when everything succeeded. On failure the temporary file is removed and
-/// an existing `path` is left untouched.
+/// Writes a file atomically and durably: `write` fills a buffered writer on a temporary file
+/// beside `path`, which is flushed to the disk, renamed to `path` only when everything
+/// succeeded, and the rename itself made durable by flushing the folder (write-then-rename
+/// alone can leave an empty or missing file after a power cut). On failure the temporary file
+/// is removed and an existing `path` is left untouched.
 pub fn write_atomically<F>(path: &Path, write: F) -> Result<(), IoError>
 where
     F: FnOnce(&mut BufWriter<File>) -> Result<(), IoError>,
@@ -39,12 +42,15 @@ where
         let file = File::create(&tmp).map_err(|e| IoError::io(&tmp, e))?;
         let mut writer = BufWriter::new(file);
         write(&mut writer)?;
+        faults::check(Op::Write, path).map_err(|e| IoError::io(path, e))?;
         writer.flush().map_err(|e| IoError::io(path, e))?;
         let file = writer
             .into_inner()
             .map_err(|e| IoError::io(path, e.into_error()))?;
-        file.sync_all().map_err(|e| IoError::io(path, e))?;
-        std::fs::rename(&tmp, path).map_err(|e| IoError::io(path, e))
+        faults::check(Op::Fsync, path)
+            .and_then(|()| file.sync_all())
+            .map_err(|e| IoError::io(path, e))?;
+        rename_durably(&tmp, path)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -66,22 +72,49 @@ pub fn temporary_sibling(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{stem}.tmp-{}{ext}", std::process::id()))
 }
 
-/// Renames a finished temporary file over its target, or removes it when writing failed.
+/// Renames a finished temporary file over its target, durably (the file and then the folder
+/// flushed to the disk), or removes it when writing failed or cannot be made durable.
 pub fn commit_temporary<T>(
     tmp: &Path,
     path: &Path,
     written: Result<T, IoError>,
 ) -> Result<T, IoError> {
-    match written {
-        Ok(value) => {
-            std::fs::rename(tmp, path).map_err(|e| IoError::io(path, e))?;
-            Ok(value)
-        }
-        Err(e) => {
-            let _ = std::fs::remove_file(tmp);
-            Err(e)
+    let committed = written.and_then(|value| {
+        faults::check(Op::Write, path)
+            .and_then(|()| faults::check(Op::Fsync, path))
+            .and_then(|()| File::open(tmp))
+            .and_then(|file| file.sync_all())
+            .map_err(|e| IoError::io(path, e))?;
+        rename_durably(tmp, path)?;
+        Ok(value)
+    });
+    if committed.is_err() {
+        let _ = std::fs::remove_file(tmp);
+    }
+    committed
+}
+
+/// Renames `tmp` over `path`, then flushes their folder so that the rename survives a power
+/// cut (a folder that cannot be opened for that, on some network file systems, is let be).
+fn rename_durably(tmp: &Path, path: &Path) -> Result<(), IoError> {
+    faults::check(Op::Rename, path)
+        .and_then(|()| std::fs::rename(tmp, path))
+        .map_err(|e| IoError::io(path, e))?;
+    let folder = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    faults::check(Op::Fsync, folder).map_err(|e| IoError::io(path, e))?;
+    if let Ok(dir) = File::open(folder) {
+        match dir.sync_all() {
+            // File systems that cannot flush a folder say so; nothing more can be done there.
+            Err(e) if !matches!(e.kind(), ErrorKind::InvalidInput | ErrorKind::Unsupported) => {
+                return Err(IoError::io(folder, e));
+            }
+            _ => {}
         }
     }
+    Ok(())
 }
 
 /// Writes a whole file from bytes, atomically.

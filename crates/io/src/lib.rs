@@ -22,6 +22,7 @@ pub mod decoder_guard;
 mod error;
 pub mod exif;
 pub mod exr;
+mod faults;
 pub mod fsutil;
 pub mod geotiff;
 pub mod image;

@@ -1,0 +1,91 @@
+//! Faults injected into whole runs (`timesift-io`'s `fault-injection` feature, armed by
+//! `TIMESIFT_FAULT=<op>:<n>`): the n-th write, rename or fsync of a `timesift run` fails. The run
+//! must stop with one line naming the file, leave every product it had written complete and
+//! no temporary file behind, and the next run must complete to the products of a run that met
+//! no fault.
+
+use std::path::Path;
+use std::process::Command;
+
+use crate::common::{assert_same_products, complete, copy_tree, files, small_landslide, timesift};
+
+/// The faults tried, one of each operation in a different stage: the first write of a file
+/// whose path holds the marker, and so on, counted in the log of a run that met no fault
+/// (`TIMESIFT_FAULT_LOG`), so that each lands where it is meant to whatever the counts.
+const FAULTS: [(&str, &str); 3] = [
+    ("write", "/work/matches/"),
+    ("rename", "/work/dense/"),
+    ("fsync", "/out/change/"),
+];
+
+/// `op:n` for the first `op` on a path holding `marker` in the log.
+fn fault_in(log: &str, op: &str, marker: &str) -> String {
+    log.lines()
+        .find_map(|line| {
+            let mut words = line.splitn(3, ' ');
+            let (o, n, path) = (words.next()?, words.next()?, words.next()?);
+            (o.eq_ignore_ascii_case(op) && path.contains(marker)).then(|| format!("{op}:{n}"))
+        })
+        .unwrap_or_else(|| panic!("no {op} under {marker} in a run"))
+}
+
+fn run_with_fault(dir: &Path, fault: &str) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_timesift"))
+        .args(["run", dir.to_str().expect("utf-8"), "--quiet"])
+        .env("TIMESIFT_FAULT", fault)
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_failed_write_rename_or_fsync_loses_nothing_and_the_next_run_completes() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (fresh, whole) = (tmp.path().join("fresh"), tmp.path().join("whole"));
+    small_landslide(&fresh);
+    copy_tree(&fresh, &whole);
+    let log_path = tmp.path().join("operations.log");
+    let out = Command::new(env!("CARGO_BIN_EXE_timesift"))
+        .args(["run", whole.to_str().expect("utf-8"), "--quiet"])
+        .env("TIMESIFT_FAULT_LOG", &log_path)
+        .output()
+        .expect("the binary runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let log = std::fs::read_to_string(&log_path).expect("the operations' log");
+    println!("a run: {} writes, renames and fsyncs", log.lines().count());
+    for (op, marker) in FAULTS {
+        let fault = fault_in(&log, op, marker);
+        let fault = fault.as_str();
+        let dir = tmp.path().join(fault.replace(':', "-"));
+        copy_tree(&fresh, &dir);
+        let (ok, err) = run_with_fault(&dir, fault);
+        assert!(!ok, "{fault}: the run met no such operation and succeeded");
+        let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert_eq!(lines.len(), 1, "{fault}: not one line:\n{err}");
+        assert!(
+            lines[0].contains("injected") && lines[0].contains(&*dir.to_string_lossy()),
+            "{fault}: {}",
+            lines[0]
+        );
+        // What the failed run left: complete products, no temporary file anywhere.
+        for f in files(&dir.join("out")) {
+            complete(&dir.join("out").join(&f)).unwrap_or_else(|e| panic!("{fault}: {e}"));
+        }
+        let temporaries: Vec<_> = files(&dir)
+            .into_iter()
+            .filter(|f| f.to_string_lossy().contains(".tmp-"))
+            .collect();
+        assert!(temporaries.is_empty(), "{fault}: {temporaries:?}");
+        let (ok, _, err) = timesift(&["run", dir.to_str().expect("utf-8"), "--quiet"]);
+        assert!(ok, "{fault}: the next run failed: {err}");
+        assert_same_products(&whole, &dir);
+        println!("{fault}: {}", lines[0]);
+    }
+}
