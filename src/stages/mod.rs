@@ -277,8 +277,8 @@ pub fn run_with(
     Ok(outcomes)
 }
 
-/// Removes the temporary files (`.<name>.tmp-<pid>…`) that a run killed while writing left
-/// behind, where the process that wrote them is gone. Where processes cannot be checked (no
+/// Removes the temporary files and folders (`.<name>.tmp-<pid>…`) that a run killed while
+/// writing left behind, where the process that wrote them is gone. Where processes cannot be checked (no
 /// `/proc`), nothing is removed.
 fn remove_stale_temporaries(dir: &std::path::Path) {
     let proc = std::path::Path::new("/proc");
@@ -290,16 +290,19 @@ fn remove_stale_temporaries(dir: &std::path::Path) {
     };
     for entry in entries.flatten() {
         let path = entry.path();
-        if path.is_dir() {
-            remove_stale_temporaries(&path);
-            continue;
-        }
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(pid) = timesift_io::fsutil::temporary_owner(&name) else {
-            continue;
-        };
-        if pid != std::process::id() && !proc.join(pid.to_string()).exists() {
-            let _ = std::fs::remove_file(&path);
+        let stale = timesift_io::fsutil::temporary_owner(&name)
+            .is_some_and(|pid| pid != std::process::id() && !proc.join(pid.to_string()).exists());
+        match (path.is_dir(), stale) {
+            // A folder written as a whole (`write_dir_atomically`), left by a killed run.
+            (true, true) => {
+                let _ = std::fs::remove_dir_all(&path);
+            }
+            (true, false) => remove_stale_temporaries(&path),
+            (false, true) => {
+                let _ = std::fs::remove_file(&path);
+            }
+            (false, false) => {}
         }
     }
 }

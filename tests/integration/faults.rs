@@ -2,7 +2,8 @@
 //! `TIMESIFT_FAULT=<op>:<n>`): the n-th write, rename or fsync of a `timesift run` fails. The run
 //! must stop with one line naming the file, leave every product it had written complete and
 //! no temporary file behind, and the next run must complete to the products of a run that met
-//! no fault.
+//! no fault. Killed at a seeded random moment inside each stage in turn (`kill:<n>:<path>`),
+//! the runs resume to those products too.
 
 use std::path::Path;
 use std::process::Command;
@@ -18,14 +19,27 @@ const FAULTS: [(&str, &str); 3] = [
     ("fsync", "/out/change/"),
 ];
 
+/// The log's operations: (kind, count of its kind, count of all, file).
+fn operations(log: &str) -> Vec<(String, u64, u64, String)> {
+    log.lines()
+        .filter_map(|line| {
+            let mut words = line.splitn(4, ' ');
+            Some((
+                words.next()?.to_lowercase(),
+                words.next()?.parse().ok()?,
+                words.next()?.parse().ok()?,
+                words.next()?.to_string(),
+            ))
+        })
+        .collect()
+}
+
 /// `op:n` for the first `op` on a path holding `marker` in the log.
 fn fault_in(log: &str, op: &str, marker: &str) -> String {
-    log.lines()
-        .find_map(|line| {
-            let mut words = line.splitn(3, ' ');
-            let (o, n, path) = (words.next()?, words.next()?, words.next()?);
-            (o.eq_ignore_ascii_case(op) && path.contains(marker)).then(|| format!("{op}:{n}"))
-        })
+    operations(log)
+        .into_iter()
+        .find(|(o, _, _, path)| o == op && path.contains(marker))
+        .map(|(_, n, _, _)| format!("{op}:{n}"))
         .unwrap_or_else(|| panic!("no {op} under {marker} in a run"))
 }
 
@@ -59,7 +73,22 @@ fn a_failed_write_rename_or_fsync_loses_nothing_and_the_next_run_completes() {
         String::from_utf8_lossy(&out.stderr)
     );
     let log = std::fs::read_to_string(&log_path).expect("the operations' log");
-    println!("a run: {} writes, renames and fsyncs", log.lines().count());
+    let mut folders = std::collections::BTreeMap::<String, usize>::new();
+    for (_, _, _, path) in operations(&log) {
+        let relative = path
+            .strip_prefix(&*whole.to_string_lossy())
+            .unwrap_or(&path);
+        let folder: Vec<&str> = relative
+            .split('/')
+            .filter(|s| !s.is_empty())
+            .take(2)
+            .collect();
+        *folders.entry(folder.join("/")).or_default() += 1;
+    }
+    println!(
+        "a run: {} writes, renames and fsyncs: {folders:?}",
+        log.lines().count()
+    );
     for (op, marker) in FAULTS {
         let fault = fault_in(&log, op, marker);
         let fault = fault.as_str();
@@ -88,4 +117,51 @@ fn a_failed_write_rename_or_fsync_loses_nothing_and_the_next_run_completes() {
         assert_same_products(&whole, &dir);
         println!("{fault}: {}", lines[0]);
     }
+    killed_inside_every_stage(&fresh, &whole, &log, tmp.path());
+}
+
+/// The stages in their order, each by a text of the paths it writes.
+const STAGE_PATHS: [(&str, &str); 8] = [
+    ("features", "/work/features/"),
+    ("match", "/work/matches/"),
+    ("align", "colmap"),
+    ("dense", "/work/dense/"),
+    ("dem", "/dem"),
+    ("ortho", "/ortho"),
+    ("change", "/out/change/"),
+    ("report", "/out/report.html"),
+];
+
+/// One project killed inside each stage in turn, at a seeded random one of the stage's writes,
+/// renames and fsyncs (before it is done: a temporary left, a rename not made), each run
+/// resuming the last: every product present at a kill is complete, and the run after the last
+/// kill ends with the products of a run that met none.
+fn killed_inside_every_stage(fresh: &Path, whole: &Path, log: &str, tmp: &Path) {
+    let dir = tmp.join("killed");
+    copy_tree(fresh, &dir);
+    let ops = operations(log);
+    let mut rng = timesift_core::SeededRng::new(20_261_129);
+    for (stage, marker) in STAGE_PATHS {
+        let count = ops.iter().filter(|(_, _, _, p)| p.contains(marker)).count();
+        assert!(
+            count > 0,
+            "{stage}: no operation on a path holding {marker}"
+        );
+        let n = 1 + rng.below(count);
+        let (ok, err) = run_with_fault(&dir, &format!("kill:{n}:{marker}"));
+        assert!(
+            !ok,
+            "{stage}: not killed at its operation {n} of {count}: {err}"
+        );
+        for f in files(&dir.join("out")) {
+            if !f.to_string_lossy().contains(".tmp-") {
+                complete(&dir.join("out").join(&f))
+                    .unwrap_or_else(|e| panic!("killed in {stage}: {e}"));
+            }
+        }
+        println!("killed in {stage} at its operation {n} of {count}");
+    }
+    let (ok, _, err) = timesift(&["run", dir.to_str().expect("utf-8"), "--quiet"]);
+    assert!(ok, "the run after the kills failed: {err}");
+    assert_same_products(whole, &dir);
 }

@@ -223,19 +223,13 @@ fn libfuzzer(target: Target, duration: Duration) -> Result<Row> {
         .join("target/fuzz-corpus")
         .join(format!("{}.log", target.name()));
     std::fs::write(&log_path, log.as_bytes())?;
-    // Inputs that add coverage join the committed corpus.
-    let merged = Command::new(&binary)
-        .args(["-merge=1", &format!("-max_len={MAX_INPUT_LEN}")])
-        .arg(&committed)
-        .arg(&work)
-        .output()
-        .context("cannot merge the corpus")?;
-    if !merged.status.success() {
-        bail!(
-            "merging the corpus of {target} failed; see {}",
+    // The committed corpus becomes a small cover of everything reached: committed, so small.
+    commit_cover(&binary, target, &committed, &work).with_context(|| {
+        format!(
+            "merging the corpus of {target}; log: {}",
             log_path.display()
-        );
-    }
+        )
+    })?;
     let new_findings: Vec<String> = std::fs::read_dir(&artifacts)?
         .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
         .collect();
@@ -262,6 +256,52 @@ fn libfuzzer(target: Target, duration: Duration) -> Result<Row> {
         hangs,
         ooms: ooms + kind("leak-"),
     })
+}
+
+/// Inputs of the committed corpus longer than this are left to the working copy: the committed
+/// corpus is replayed by every test run and kept in the repository.
+const COMMITTED_INPUT_LEN: usize = 4096;
+
+/// At most this many inputs per target are committed (the smallest of a cover), besides the seeds.
+const COMMITTED_INPUTS: usize = 200;
+
+/// Replaces the committed corpus of `target` by a set cover (libFuzzer's `-set_cover_merge`) of
+/// what the committed corpus and the working copy reach, among inputs of at most
+/// [`COMMITTED_INPUT_LEN`] bytes, the smallest [`COMMITTED_INPUTS`] of it, and the seeds.
+fn commit_cover(binary: &Path, target: Target, committed: &Path, work: &Path) -> Result<()> {
+    let cover = work.with_extension("cover");
+    let _ = std::fs::remove_dir_all(&cover);
+    std::fs::create_dir_all(&cover)?;
+    let merged = Command::new(binary)
+        .args([
+            "-set_cover_merge=1",
+            &format!("-max_len={COMMITTED_INPUT_LEN}"),
+        ])
+        .arg(&cover)
+        .arg(committed)
+        .arg(work)
+        .output()
+        .context("cannot run the merge")?;
+    if !merged.status.success() {
+        bail!("the merge of {target} failed ({})", merged.status);
+    }
+    let mut inputs: Vec<(u64, PathBuf)> = std::fs::read_dir(&cover)?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| Some((e.metadata().ok()?.len(), e.path())))
+        .collect();
+    inputs.sort();
+    inputs.truncate(COMMITTED_INPUTS);
+    for entry in std::fs::read_dir(committed)?.filter_map(|e| e.ok()) {
+        if !entry.file_name().to_string_lossy().starts_with("seed-") {
+            std::fs::remove_file(entry.path())?;
+        }
+    }
+    for (_, path) in inputs {
+        if let Some(name) = path.file_name() {
+            std::fs::copy(&path, committed.join(name))?;
+        }
+    }
+    Ok(())
 }
 
 /// One target under the stable fallback, in a child process with an address-space limit.

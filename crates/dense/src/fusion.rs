@@ -97,8 +97,8 @@ impl Cache {
         view: usize,
         load: &mut dyn FnMut(usize) -> Result<FusionView, E>,
     ) -> Result<(), E> {
-        if let Some(pos) = self.entries.iter().position(|(v, _)| *v == view) {
-            let entry = self.entries.remove(pos).expect("position is in range");
+        let found = self.entries.iter().position(|(v, _)| *v == view);
+        if let Some(entry) = found.and_then(|pos| self.entries.remove(pos)) {
             self.entries.push_back(entry);
             return Ok(());
         }
@@ -218,6 +218,8 @@ fn reference_view<'a>(
     cache: &'a Cache,
 ) -> Result<ReferenceView<'a>, DenseError> {
     let vp = &plan.views[view];
+    // Invariant: `fuse` loaded the view and its neighbours just before, and the cache holds
+    // 2 × (most neighbours + 1) views, so none of them was evicted.
     let loaded = |v: usize| cache.find(v).expect("just loaded");
     let reference = loaded(view);
     let map = &reference.map;

@@ -32,6 +32,34 @@ pub fn check_cells(path: &Path, width: u64, height: u64, what: &str) -> Result<u
     Ok(cells)
 }
 
+/// Refuses a decoded size no file of `file_len` bytes can hold: more than `ratio` decoded bytes
+/// per byte of the file (the most its compression makes of a byte, with room), plus a MiB.
+/// A claim beyond that is a corrupt header, whatever memory there is; it is refused before
+/// anything is allocated or tried (an allocator under a sanitizer or a fuzzer's limit treats
+/// a huge request as a failure in itself).
+pub fn check_expansion(
+    path: &Path,
+    decoded: u64,
+    file_len: u64,
+    ratio: u64,
+    what: &str,
+) -> Result<(), IoError> {
+    if decoded > ratio.saturating_mul(file_len).saturating_add(1 << 20) {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{what} claims {decoded} bytes decoded, more than the file's {file_len} bytes \
+                 can hold (a corrupt header)"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The most bytes a byte of a compressed raster or image decodes to: LZW's longest code
+/// (about 2,730 to 1) with room; deflate stops near 1,032 to 1, PackBits at 64, JPEG lower.
+pub const MAX_RASTER_EXPANSION: u64 = 4096;
+
 /// Fails with an error naming `path` when `bytes` of memory cannot be allocated now: tried and
 /// released at once, so that a later allocation of that size (inside a decoder that would
 /// abort on failure) is known to be possible. Under an address-space or container limit this
@@ -73,6 +101,20 @@ mod tests {
             let e = check_cells(p, w, h, "the DEM").unwrap_err().to_string();
             assert!(e.contains("dem.tif") && e.contains("the DEM claims"), "{e}");
         }
+    }
+
+    #[test]
+    fn claims_beyond_what_the_file_holds_are_refused() {
+        let p = Path::new("/data/scan.jpg");
+        assert!(check_expansion(p, 4096 * 1000 + (1 << 20), 1000, 4096, "the image").is_ok());
+        let e = check_expansion(p, 4096 * 1000 + (1 << 20) + 1, 1000, 4096, "the image")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("scan.jpg") && e.contains("the image claims"),
+            "{e}"
+        );
+        assert!(check_expansion(p, u64::MAX, u64::MAX, u64::MAX, "x").is_ok());
     }
 
     #[test]

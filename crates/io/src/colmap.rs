@@ -328,10 +328,18 @@ pub fn to_reconstruction(model: &ColmapModel, crs: &str) -> Result<Reconstructio
     })
 }
 
-/// Writes `cameras.txt`, `images.txt` and `points3D.txt` into `dir` (created if needed), each
-/// atomically. Numbers are written in shortest round-trip form, so nothing is lost.
+/// Writes `cameras.txt`, `images.txt` and `points3D.txt` into `dir`, the folder replaced as a
+/// whole ([`fsutil::write_dir_atomically`]: never a new `cameras.txt` beside an old
+/// `images.txt`). Numbers are written in shortest round-trip form, so nothing is lost.
 pub fn write_colmap_text(dir: &Path, model: &ColmapModel) -> Result<(), IoError> {
-    std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| IoError::io(parent, e))?;
+    }
+    fsutil::write_dir_atomically(dir, |tmp| write_colmap_files(tmp, model))
+}
+
+/// The three files of a model, into `dir`.
+fn write_colmap_files(dir: &Path, model: &ColmapModel) -> Result<(), IoError> {
     let mut cams = String::from(
         "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n",
     );

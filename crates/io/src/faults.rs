@@ -2,9 +2,11 @@
 //! compiled only with the `fault-injection` feature (the root package's tests turn it on), and
 //! armed only by the environment variable `TIMESIFT_FAULT=<op>:<n>` (`op` one of `write`,
 //! `rename`, `fsync`): the n-th such operation of the process (from 1) fails with an error
-//! saying it was injected. Every durable output goes through [`crate::fsutil`], which asks here
-//! before each of the three operations. `TIMESIFT_FAULT_LOG=<file>` lists every operation with
-//! its count and file, to choose faults from.
+//! saying it was injected; `kill:<n>[:<text>]` aborts the process at the n-th operation of any
+//! kind (on a file whose path holds the text), before it is done: a kill at a chosen moment
+//! inside a stage. Every durable output goes through [`crate::fsutil`], which asks here
+//! before each of the three operations. `TIMESIFT_FAULT_LOG=<file>` lists every operation (kind,
+//! count of its kind, count of all, file), to choose faults from.
 
 /// The operations a fault can be injected into.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -24,24 +26,42 @@ mod armed {
 
     use super::Op;
 
-    /// The armed fault: which operation, and its count.
-    fn armed() -> Option<(Op, u64)> {
-        static ARMED: OnceLock<Option<(Op, u64)>> = OnceLock::new();
+    /// What is armed: an operation failing, or the process killed.
+    #[derive(Clone, Copy)]
+    enum Armed {
+        /// The n-th operation of this kind fails.
+        Fail(Op, u64),
+        /// The process dies at the n-th operation of any kind on a file whose path holds the
+        /// text (any file when it is empty), before the operation is done.
+        Kill(u64, &'static str),
+    }
+
+    fn armed() -> Option<Armed> {
+        static ARMED: OnceLock<Option<Armed>> = OnceLock::new();
         *ARMED.get_or_init(|| {
             let spec = std::env::var("TIMESIFT_FAULT").ok()?;
-            let (op, n) = spec.split_once(':')?;
-            let op = match op {
-                "write" => Op::Write,
-                "rename" => Op::Rename,
-                "fsync" => Op::Fsync,
+            let (op, rest) = spec.split_once(':')?;
+            let (n, marker) = rest.split_once(':').unwrap_or((rest, ""));
+            let n = n.parse().ok()?;
+            Some(match op {
+                "write" => Armed::Fail(Op::Write, n),
+                "rename" => Armed::Fail(Op::Rename, n),
+                "fsync" => Armed::Fail(Op::Fsync, n),
+                // Read once per process: leaking the text keeps `Armed` a plain value.
+                "kill" => Armed::Kill(n, String::leak(marker.to_string())),
                 _ => return None,
-            };
-            Some((op, n.parse().ok()?))
+            })
         })
     }
 
-    /// Operations of each kind so far.
-    static COUNTS: [AtomicU64; 3] = [AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0)];
+    /// Operations of each kind so far, of all kinds, and on the files a kill waits for.
+    static COUNTS: [AtomicU64; 5] = [
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+    ];
 
     /// Where every operation is listed (`TIMESIFT_FAULT_LOG`), to choose faults from.
     fn log() -> Option<&'static std::sync::Mutex<std::fs::File>> {
@@ -60,11 +80,22 @@ mod armed {
 
     pub(super) fn fails(op: Op, path: &std::path::Path) -> bool {
         let count = COUNTS[op as usize].fetch_add(1, Ordering::SeqCst) + 1;
+        let total = COUNTS[3].fetch_add(1, Ordering::SeqCst) + 1;
         if let Some(Ok(mut file)) = log().map(|l| l.lock()) {
             use std::io::Write;
-            let _ = writeln!(file, "{op:?} {count} {}", path.display());
+            let _ = writeln!(file, "{op:?} {count} {total} {}", path.display());
         }
-        armed().is_some_and(|(armed_op, n)| armed_op == op && count == n)
+        match armed() {
+            Some(Armed::Fail(armed_op, n)) => armed_op == op && count == n,
+            Some(Armed::Kill(n, marker)) if path.to_string_lossy().contains(marker) => {
+                if COUNTS[4].fetch_add(1, Ordering::SeqCst) + 1 == n {
+                    // No destructor, no flush, no cleanup: what a SIGKILL or a power cut leaves.
+                    std::process::abort();
+                }
+                false
+            }
+            _ => false,
+        }
     }
 }
 

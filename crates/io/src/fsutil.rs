@@ -117,6 +117,34 @@ fn rename_durably(tmp: &Path, path: &Path) -> Result<(), IoError> {
     Ok(())
 }
 
+/// Writes a folder of files that belong together (a COLMAP model's three files) atomically:
+/// `fill` writes them into a temporary folder beside `dir`, which then takes `dir`'s place. A
+/// process killed on the way leaves either the old folder, or none (between the two renames),
+/// never a mixture of old and new files; a later run removes the temporary folders left.
+pub fn write_dir_atomically<F>(dir: &Path, fill: F) -> Result<(), IoError>
+where
+    F: FnOnce(&Path) -> Result<(), IoError>,
+{
+    let tmp = temporary_path(dir);
+    let old = temporary_sibling(&dir.with_extension("old"));
+    let result = (|| {
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir_all(&tmp).map_err(|e| IoError::io(&tmp, e))?;
+        fill(&tmp)?;
+        if dir.exists() {
+            faults::check(Op::Rename, dir)
+                .and_then(|()| std::fs::rename(dir, &old))
+                .map_err(|e| IoError::io(dir, e))?;
+        }
+        rename_durably(&tmp, dir)
+    })();
+    let _ = std::fs::remove_dir_all(&old);
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
 /// Writes a whole file from bytes, atomically.
 pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     write_atomically(path, |w| {

@@ -421,10 +421,17 @@ fn read_georeferenced(path: &Path) -> Result<Decoded, IoError> {
     let cells = grid.width as u64 * grid.height as u64;
     let decoded = cells.saturating_mul(bits).div_ceil(8);
     let as_f32 = cells.saturating_mul(bits.div_ceil(8)).saturating_mul(4);
-    budget::ensure_allocatable(path, decoded.saturating_add(as_f32), "the raster")?;
     let file_len = std::fs::metadata(path)
         .map_err(|e| IoError::io(path, e))?
         .len();
+    budget::check_expansion(
+        path,
+        decoded,
+        file_len,
+        budget::MAX_RASTER_EXPANSION,
+        "the raster",
+    )?;
+    budget::ensure_allocatable(path, decoded.saturating_add(as_f32), "the raster")?;
     let mut decoder = decoder.with_limits(sample_limits(decoded, file_len));
     let samples = decoder.read_image().map_err(|e| tiff_err(path, e))?;
     Ok(Decoded {

@@ -50,6 +50,16 @@ fn decode(path: &Path, out_bytes_per_pixel: u64) -> Result<DynamicImage, IoError
     let decoder = reader.into_decoder().map_err(|e| decode_error(path, e))?;
     let (width, height) = decoder.dimensions();
     let cells = budget::check_cells(path, width.into(), height.into(), "the image")?;
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| IoError::io(path, e))?
+        .len();
+    budget::check_expansion(
+        path,
+        decoder.total_bytes(),
+        file_len,
+        budget::MAX_RASTER_EXPANSION,
+        "the image",
+    )?;
     let needed = decoder
         .total_bytes()
         .saturating_add(cells.saturating_mul(out_bytes_per_pixel));

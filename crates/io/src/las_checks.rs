@@ -10,6 +10,13 @@ use std::path::Path;
 
 use crate::{IoError, budget};
 
+/// The most bytes of point records a byte of a LAZ file decodes to (a typical cloud is 5 to
+/// 10; a cloud of identical points reaches a few thousand).
+const MAX_LAZ_EXPANSION: u64 = 16_384;
+
+/// The length of point format 0's record, the shortest.
+const MIN_RECORD_LEN: u64 = 20;
+
 /// Length of an extended variable-length record's header.
 const EVLR_HEADER_LEN: u64 = 60;
 
@@ -62,6 +69,14 @@ pub(crate) fn check_header(path: &Path) -> Result<CheckedHeader, IoError> {
         .max(u64::from(raw.number_of_point_records));
     let compressed = raw.point_data_record_format & 0xC0 != 0;
     let record_len = u64::from(raw.point_data_record_length);
+    // The shortest record of any point format is 20 bytes; a shorter one makes every count
+    // check below vacuous.
+    if points > 0 && record_len < MIN_RECORD_LEN {
+        return Err(invalid(format!(
+            "{points} points of {record_len}-byte records; a LAS record has at least \
+             {MIN_RECORD_LEN} bytes"
+        )));
+    }
     let offset_to_point_data = u64::from(raw.offset_to_point_data);
     let end_of_points = points
         .checked_mul(record_len)
@@ -92,6 +107,15 @@ pub(crate) fn check_header(path: &Path) -> Result<CheckedHeader, IoError> {
             )));
         }
     }
+    // LAZ makes a few bytes of a point at best; points of constant coordinates and attributes
+    // still take a little of the arithmetic coder's output each.
+    budget::check_expansion(
+        path,
+        points.saturating_mul(record_len + 3 * 8 + 8),
+        file_len,
+        MAX_LAZ_EXPANSION,
+        "the point records",
+    )?;
     // The decoded records and their positions (what reading every attribute holds at once).
     budget::ensure_allocatable(
         path,
@@ -317,6 +341,14 @@ pub(crate) fn check_chunks(
         }
         size
     };
+    // A chunk's records are allocated at once, whatever the chunk holds.
+    budget::check_expansion(
+        path,
+        largest.saturating_mul(vlr.items_size()),
+        header.file_len,
+        MAX_LAZ_EXPANSION,
+        "a LAZ chunk",
+    )?;
     // A group of chunks decompressed at once, and the last one's records kept aside.
     budget::ensure_allocatable(
         path,

@@ -222,6 +222,8 @@ impl Rows {
             (Rows::F32(a), Rows::F32(b)) => a.extend_from_slice(&b),
             (Rows::U8(a), Rows::U8(b)) if a.is_empty() => *a = b,
             (Rows::U8(a), Rows::U8(b)) => a.extend_from_slice(&b),
+            // Invariant: `push_rows` refuses pixels of another format than the writer's, and
+            // every level's rows are made of the writer's one format.
             _ => unreachable!("one level holds one sample type"),
         }
     }
@@ -237,6 +239,7 @@ impl Rows {
                 data: &v[..samples],
                 bands,
             },
+            // Invariant: the rows and `format` are both the writer's one format.
             _ => unreachable!("one level holds one sample type"),
         }
     }

@@ -287,8 +287,8 @@ struct ImageCache<'a> {
 
 impl ImageCache<'_> {
     fn get(&mut self, view: usize) -> Result<Arc<WorkingImage>, ProjectError> {
-        if let Some(pos) = self.entries.iter().position(|(v, _)| *v == view) {
-            let entry = self.entries.remove(pos).unwrap_or_else(|| unreachable!());
+        let found = self.entries.iter().position(|(v, _)| *v == view);
+        if let Some(entry) = found.and_then(|pos| self.entries.remove(pos)) {
             let image = entry.1.clone();
             self.entries.push_back(entry);
             return Ok(image);

@@ -127,14 +127,7 @@ impl BrownCamera {
                 expected: "f + b1 > 0",
             });
         }
-        if self.width == 0 || self.height == 0 {
-            return Err(CoreError::InvalidCameraParameter {
-                name: "width/height",
-                value: 0.0,
-                expected: "a positive image size",
-            });
-        }
-        Ok(())
+        super::check_image_size(self.width, self.height)
     }
 
     fn principal_point(&self) -> (f64, f64) {

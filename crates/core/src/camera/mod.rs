@@ -11,6 +11,24 @@ mod pinhole;
 pub use brown::BrownCamera;
 pub use pinhole::PinholeCamera;
 
+/// The most pixels a camera's image may have: 2³¹ (a 46,000-pixel square), what every buffer
+/// made from a camera's size (dense maps, undistortion tables) can hold. A camera file claiming
+/// more is corrupt, whatever the memory.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 31;
+
+/// A positive image size of at most [`MAX_IMAGE_PIXELS`] pixels.
+fn check_image_size(width: u32, height: u32) -> Result<(), crate::CoreError> {
+    let pixels = u64::from(width) * u64::from(height);
+    if width == 0 || height == 0 || pixels > MAX_IMAGE_PIXELS {
+        return Err(crate::CoreError::InvalidCameraParameter {
+            name: "width/height",
+            value: pixels as f64,
+            expected: "a positive image size of at most 2^31 pixels",
+        });
+    }
+    Ok(())
+}
+
 use nalgebra::{Matrix2x3, SMatrix, Vector2, Vector3};
 
 use crate::{CoreError, Pose};

@@ -49,14 +49,7 @@ impl PinholeCamera {
                 expected: "a positive focal length in pixels",
             });
         }
-        if self.width == 0 || self.height == 0 {
-            return Err(CoreError::InvalidCameraParameter {
-                name: "width/height",
-                value: 0.0,
-                expected: "a positive image size",
-            });
-        }
-        Ok(())
+        super::check_image_size(self.width, self.height)
     }
 
     fn principal_point(&self) -> (f64, f64) {
