@@ -239,12 +239,7 @@ fn install_panic_report() {
         if std::env::var_os("RUST_BACKTRACE").is_some_and(|v| v != "0") {
             return default(info);
         }
-        let message = info
-            .payload()
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| info.payload().downcast_ref::<String>().cloned())
-            .unwrap_or_default();
+        let message = timesift_io::decoder_guard::panic_text(info.payload());
         let place = info
             .location()
             .map(|l| format!(" at {}:{}", l.file(), l.line()))

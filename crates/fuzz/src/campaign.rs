@@ -63,12 +63,11 @@ pub fn finding(target: Target, bytes: &[u8]) -> Option<String> {
 
 /// The text of a panic's payload.
 pub fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
-    if let Some(s) = payload.downcast_ref::<&str>() {
-        format!("panic: {s}")
-    } else if let Some(s) = payload.downcast_ref::<String>() {
-        format!("panic: {s}")
-    } else {
+    let text = timesift_io::decoder_guard::panic_text(payload.as_ref());
+    if text.is_empty() {
         "panic".to_string()
+    } else {
+        format!("panic: {text}")
     }
 }
 

@@ -37,6 +37,15 @@ impl Drop for Active {
     }
 }
 
+/// The text a panic was raised with (empty when its payload is not text).
+pub fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_default()
+}
+
 /// Runs `decode`; a panic inside it is an error naming `path`: `what` failed on corrupt data.
 pub fn catch_decoder_panic<T>(
     path: &Path,
@@ -47,11 +56,7 @@ pub fn catch_decoder_panic<T>(
     match catch_unwind(AssertUnwindSafe(decode)) {
         Ok(result) => result,
         Err(payload) => {
-            let message = payload
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_default();
+            let message = panic_text(payload.as_ref());
             Err(IoError::invalid(
                 path,
                 format!("{what} failed on corrupt data ({message})"),
