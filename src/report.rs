@@ -84,7 +84,22 @@ pub struct AlignReport {
     /// Per pair of epochs, the tie points observed in both and how they spread.
     #[serde(default)]
     pub epoch_pairs: Vec<EpochPairTies>,
+    /// The epochs a joint block (`timesift`, `msfm`) did not tie to the reference epoch: no
+    /// chain of epoch pairs sharing [`MIN_CO_REGISTERING_TIES`] tie points leads from them to
+    /// it. Their orientation rests on their own GNSS priors and control points alone, so their
+    /// DEMs stack with the others' only as well as that control allows.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub not_co_registered: Vec<String>,
+    /// Control points left out of the adjustment: where the other priors and control points
+    /// place the block, their markers intersect far from their surveyed coordinates. Their
+    /// residuals (under each epoch's `control_points`) say by how much.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub control_points_rejected: Vec<String>,
 }
+
+/// The tie points two epochs must share for the block to hold one to the other: fewer cannot
+/// fix an epoch's seven degrees of freedom robustly against a few wrong matches.
+pub const MIN_CO_REGISTERING_TIES: usize = 20;
 
 /// The tie points two epochs share and their spread against every tie point's, along the
 /// block's principal axes: inter-epoch ties bunched along a corridor's axis leave a roll about

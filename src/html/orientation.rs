@@ -212,12 +212,23 @@ pub(super) fn orientation_section(
 ) -> String {
     let a = &inputs.align;
     let mut rows = Vec::new();
+    for name in &a.control_points_rejected {
+        warnings.push(format!(
+            "control point {name}: left out of the adjustment: where the camera priors and the \
+             other control points place the block, its markers intersect far from its surveyed \
+             coordinates (a typing error, another CRS, a marker on the wrong point); its \
+             residual below says by how much"
+        ));
+    }
     for e in &project.epochs {
         let Some(r) = a.epochs.get(&e.name) else {
             continue;
         };
         rows.push(orientation_row(&e.name, r));
         orientation_warnings(&e.name, r, warnings);
+        if a.not_co_registered.contains(&e.name) {
+            warnings.push(not_co_registered_warning(&e.name));
+        }
     }
     let mut s = table(
         &[
@@ -401,6 +412,18 @@ fn tilt_cell(t: Option<crate::report::DatumTiltReport>) -> String {
             t.sigma_max_mm_per_m, t.loose_azimuth_deg, t.sigma_min_mm_per_m
         )
     })
+}
+
+/// Why an epoch the block did not tie to the reference epoch matters, and what to do.
+pub(crate) fn not_co_registered_warning(name: &str) -> String {
+    format!(
+        "epoch {name}: not co-registered: no chain of epochs sharing {} tie points ties it to the \
+         reference epoch, so its orientation rests on its own GNSS priors and control points \
+         alone and its DEM and DoDs carry their errors; unchanged ground photographed in both \
+         epochs or natural stable points measured in both (`[align] method = \"manual\"`) tie \
+         it",
+        crate::report::MIN_CO_REGISTERING_TIES
+    )
 }
 
 /// The warnings one epoch's orientation calls for: a loose datum tilt, a GNSS offset the focal

@@ -95,6 +95,22 @@ pub(crate) fn content_fingerprint(files: &[std::path::PathBuf]) -> String {
     hash.hex()
 }
 
+/// [`Fnv1a`] of a file's bytes, read a megabyte at a time; `None` when it cannot be read.
+pub(crate) fn file_content_hash(path: &Path) -> Option<String> {
+    use std::io::Read;
+    let mut file = std::fs::File::open(path).ok()?;
+    let mut hash = Fnv1a::new();
+    let mut buffer = vec![0u8; 1 << 20];
+    loop {
+        match file.read(&mut buffer) {
+            Ok(0) => return Some(hash.hex()),
+            Ok(n) => hash.write(&buffer[..n]),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(_) => return None,
+        }
+    }
+}
+
 /// The error of a stage.
 pub(crate) fn stage_error(stage: &'static str, message: String) -> ProjectError {
     ProjectError::Stage { stage, message }

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use timesift_change::m3c2::M3c2Params;
 
-use super::cache::{file_stamp, stage_error};
+use super::cache::file_stamp;
 use super::{PipelineStage, Stage};
 use crate::commands::compare::{
     CloudCompareOptions, DemCompareOptions, compare_clouds, compare_dems, named_positions,
@@ -46,6 +46,9 @@ impl PipelineStage for ChangeStage {
             .collect()
     }
     fn run(&self, project: &Project) -> Result<String, ProjectError> {
+        if project.epochs.len() < 2 {
+            return Ok("nothing to compare: the project has one epoch".into());
+        }
         let (done, skipped) = run_change(project)?;
         Ok(format!(
             "change products of {} epoch pairs written, {skipped} up to date",
@@ -93,7 +96,6 @@ pub fn change_stable_areas(project: &Project) -> Option<PathBuf> {
 
 /// Compares every pair; returns (pairs computed, pairs up to date).
 fn run_change(project: &Project) -> Result<(usize, usize), ProjectError> {
-    check_epochs(project)?;
     let stable = change_stable_areas(project);
     let (mut done, mut skipped) = (0, 0);
     for (a, b) in epoch_pairs(project) {
@@ -108,7 +110,6 @@ fn run_change(project: &Project) -> Result<(usize, usize), ProjectError> {
 
 /// A unit of the `change` step: the epoch pairs of `part`. The files it owns.
 pub(super) fn unit(project: &Project, part: super::Part) -> Result<Vec<PathBuf>, ProjectError> {
-    check_epochs(project)?;
     let stable = change_stable_areas(project);
     let layout = project.layout();
     let pairs = epoch_pairs(project);
@@ -132,20 +133,6 @@ pub(super) fn unit(project: &Project, part: super::Part) -> Result<Vec<PathBuf>,
         owned.push(layout.change_settings(a, b));
     }
     Ok(owned)
-}
-
-fn check_epochs(project: &Project) -> Result<(), ProjectError> {
-    if project.epochs.len() < 2 {
-        return Err(stage_error(
-            "change",
-            format!(
-                "{}: the change stage needs two epochs; {} given",
-                project.layout().project_toml().display(),
-                project.epochs.len()
-            ),
-        ));
-    }
-    Ok(())
 }
 
 /// Compares one pair unless what it was made from is unchanged; whether it was computed.

@@ -112,6 +112,7 @@ pub(super) fn prepare(project: &Project) -> Result<Vec<std::path::PathBuf>, Proj
     let layout = project.layout();
     let mut owned = vec![
         crate::layout::Layout::settings_file(&layout.features_dir()),
+        layout.features_dir().join("images.json"),
         layout.fiducials_settings(),
         layout.fiducials_json(),
         layout.fiducials_csv(),
@@ -136,7 +137,87 @@ fn prepare_with(
         &recorded_settings(project, &source, settings),
         &[(&layout.matches_dir(), "match")],
     )?;
+    forget_changed_images(project)?;
     Ok(source)
+}
+
+/// What one feature file was made from, recorded per image index in
+/// `work/features/images.json`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+struct ImageRecord {
+    /// The image's name (path in the project).
+    name: String,
+    /// Its size and modification time ([`super::cache::file_stamp`]).
+    stamp: serde_json::Value,
+    /// A hash of its bytes: a copied project (new times, same photos) keeps its features.
+    content: Option<String>,
+}
+
+/// Removes the feature files, and the match files, of every image index whose image is not the
+/// one they were made from: an image replaced, edited, added or removed (indices shift) since.
+/// A feature file is named by index alone; without this, a replaced photo would keep its old
+/// features and another photo could inherit a removed one's. An image whose size or time
+/// changed is read whole once to tell an edit from a copy.
+fn forget_changed_images(project: &Project) -> Result<(), ProjectError> {
+    let layout = project.layout();
+    let record = layout.features_dir().join("images.json");
+    let recorded: Vec<ImageRecord> = crate::report::read_json(&record).unwrap_or_default();
+    let current: Vec<ImageRecord> = (0..project.images.len())
+        .into_par_iter()
+        .map(|i| {
+            let name = project.images[i].name.clone();
+            let path = project.image_path(timesift_core::ImageId::from(i));
+            let stamp = super::cache::file_stamp(&path);
+            let content = match recorded.get(i) {
+                Some(r) if r.name == name && r.stamp == stamp => r.content.clone(),
+                _ => super::cache::file_content_hash(&path),
+            };
+            ImageRecord {
+                name,
+                stamp,
+                content,
+            }
+        })
+        .collect();
+    if recorded == current {
+        return Ok(());
+    }
+    let changed = |i: usize| match (recorded.get(i), current.get(i)) {
+        (Some(r), Some(c)) => r.name != c.name || r.content.is_none() || r.content != c.content,
+        _ => true,
+    };
+    let remove = |path: &std::path::Path| match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(stage_error(
+            "features",
+            format!("{}: cannot remove: {e}", path.display()),
+        )),
+        _ => Ok(()),
+    };
+    let mut forgotten = 0;
+    for i in (0..recorded.len().max(current.len())).filter(|&i| changed(i)) {
+        let file = layout.feature_file(i);
+        forgotten += usize::from(file.is_file());
+        remove(&file)?;
+    }
+    if let Ok(entries) = std::fs::read_dir(layout.matches_dir()) {
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let pair = name
+                .strip_suffix(".match")
+                .and_then(|stem| stem.split_once('_'))
+                .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)));
+            if pair.is_some_and(|(a, b)| changed(a) || changed(b)) {
+                remove(&entry.path())?;
+            }
+        }
+    }
+    if forgotten > 0 {
+        tracing::info!(
+            forgotten,
+            "images changed since their features: features redone"
+        );
+    }
+    crate::report::write_json(&record, &current)
 }
 
 /// A unit of the `features` step: the images of `part` (in project order) whose feature file
@@ -199,7 +280,10 @@ fn extract_images(
         .par_iter()
         .filter_map(|&i| {
             let result = extract_one(project, source, i, extractor)
-                .map_err(|e| format!("{}: {e}", project.images[i].name))
+                .map_err(|e| match e.contains(&project.images[i].name) {
+                    true => e,
+                    false => format!("{}: {e}", project.images[i].name),
+                })
                 .and_then(|f| {
                     write_features(&layout.feature_file(i), &f.keypoints, &f.descriptors)
                         .map_err(|e| e.to_string())

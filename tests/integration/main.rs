@@ -7,6 +7,7 @@ mod cli;
 mod cluster;
 mod common;
 mod compare;
+mod degenerate;
 mod dem_command;
 mod downstream;
 mod faults;

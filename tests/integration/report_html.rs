@@ -112,6 +112,8 @@ fn project(dir: &Path) {
             ),
         ]),
         epoch_pairs: Vec::new(),
+        not_co_registered: Vec::new(),
+        control_points_rejected: Vec::new(),
     };
     write_json(&dir.join("out/report.json"), &report).expect("report.json");
 }

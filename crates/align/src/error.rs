@@ -32,6 +32,24 @@ pub enum AlignError {
         /// The median triangulation angle a pair needs, degrees.
         min_angle_deg: f64,
     },
+    /// Every candidate pair shows the same view: nothing can be triangulated.
+    #[error(
+        "no baseline: each of the {pairs} most connected image pairs shows the same view pixel \
+         for pixel (e.g. images {first} and {second}, median displacement \
+         {displacement_px:.2} px): \
+         the images are identical or were taken from one spot; the block needs photos taken \
+         from different places"
+    )]
+    NoBaseline {
+        /// How many candidate pairs were evaluated.
+        pairs: usize,
+        /// One such pair: the first image's index.
+        first: usize,
+        /// One such pair: the second image's index.
+        second: usize,
+        /// That pair's median displacement, pixels.
+        displacement_px: f64,
+    },
     /// Georeferencing is impossible with the given priors.
     #[error("cannot georeference: {0}")]
     Georeferencing(String),

@@ -193,6 +193,11 @@ pub struct Georeferenced {
     /// The height observations from the reference DEM in the final adjustment (by track): with
     /// the control and priors, what fixes the datum's tilt.
     pub dem_heights: Vec<crate::SurfaceHeight>,
+    /// The control points left out of the adjustment, by name: where the block is placed by
+    /// the other priors and control points, their markers intersect far from their surveyed
+    /// coordinates (a typing error, a point in another CRS, a wrong marker). Their residuals
+    /// still show by how much.
+    pub rejected_control: Vec<String>,
 }
 
 /// What a georeferencing and the strategy around it left out, rejected, split or joined: for
@@ -251,6 +256,7 @@ impl Georeferenced {
             surface_fits: Vec::new(),
             fits_against_dem: false,
             dem_heights: Vec::new(),
+            rejected_control: Vec::new(),
         }
     }
 }
@@ -262,6 +268,8 @@ struct Correspondences {
     sigma: Vec<f64>,
     from_control: usize,
     prior_index: Vec<Option<usize>>,
+    /// Per correspondence: the control point's index into `geo.points`.
+    control_index: Vec<Option<usize>>,
 }
 
 fn intersect(
@@ -297,6 +305,7 @@ fn correspondences(
         sigma: Vec::new(),
         from_control: 0,
         prior_index: Vec::new(),
+        control_index: Vec::new(),
     };
     for (k, prior) in geo.centre_priors.iter().enumerate() {
         if let Some(Some(pose)) = rec.poses.get(prior.image) {
@@ -304,9 +313,10 @@ fn correspondences(
             c.dst.push(prior.position);
             c.sigma.push(prior.sigma_xy.max(prior.sigma_z));
             c.prior_index.push(Some(k));
+            c.control_index.push(None);
         }
     }
-    for point in geo.points.iter().filter(|p| !p.check) {
+    for (k, point) in geo.points.iter().enumerate().filter(|(_, p)| !p.check) {
         if let (_, Some(point_at)) = intersect(input, rec, &point.markers, point.marker_sigma(geo))
         {
             c.src.push(point_at.position);
@@ -314,19 +324,32 @@ fn correspondences(
             c.sigma.push(point.sigma_xy.max(point.sigma_z));
             c.from_control += 1;
             c.prior_index.push(None);
+            c.control_index.push(Some(k));
         }
     }
     c
 }
 
-/// Places a component in the world frame; returns the priors it accepted (indices into
-/// `geo.centre_priors`) and whether control points took part, or `None` when it cannot be placed.
+/// What placing one component accepted and rejected.
+struct Placed {
+    /// Indices into `geo.centre_priors` of the priors accepted.
+    accepted_priors: Vec<usize>,
+    /// Whether control points took part.
+    control: bool,
+    /// Priors rejected as outliers.
+    rejected_priors: usize,
+    /// Indices into `geo.points` of the control points rejected as outliers.
+    rejected_control: Vec<usize>,
+}
+
+/// Places a component in the world frame by a robust similarity, or `None` when it cannot be
+/// placed.
 fn place(
     input: &SfmInput,
     rec: &mut Reconstruction,
     geo: &GeoreferenceInput,
     seed: u64,
-) -> Option<(Vec<usize>, bool, usize)> {
+) -> Option<Placed> {
     let c = correspondences(input, rec, geo);
     if c.src.len() < 3 {
         return None;
@@ -362,8 +385,17 @@ fn place(
     let world_from_block = umeyama(&src, &dst, Some(&weights), TransformKind::Similarity).ok()?;
     rec.transform(&world_from_block);
     let accepted: Vec<usize> = inliers.iter().filter_map(|&k| c.prior_index[k]).collect();
-    let rejected = c.prior_index.iter().flatten().count() - accepted.len();
-    Some((accepted, c.from_control > 0, rejected))
+    let rejected_priors = c.prior_index.iter().flatten().count() - accepted.len();
+    let rejected_control: Vec<usize> = (0..c.src.len())
+        .filter(|&k| !result.inliers[k])
+        .filter_map(|k| c.control_index[k])
+        .collect();
+    Some(Placed {
+        control: inliers.iter().any(|&k| c.control_index[k].is_some()),
+        accepted_priors: accepted,
+        rejected_priors,
+        rejected_control,
+    })
 }
 
 /// Georeferences the components of [`crate::reconstruct`] (largest first) and adjusts the
@@ -411,6 +443,32 @@ pub(crate) fn georeference_settled(
         return Ok(local);
     }
     let datum = placement.datum;
+    // Control points the placement rejected are left out of the adjustment: one point typed
+    // 100 km off would otherwise pull the whole block (and its priors out) towards it.
+    let kept_control;
+    let adjusted_geo = match placement.rejected_control.is_empty() {
+        true => geo,
+        false => {
+            let mut kept = geo.clone();
+            kept.points = geo
+                .points
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| !placement.rejected_control.contains(k))
+                .map(|(_, p)| p.clone())
+                .collect();
+            kept_control = kept;
+            &kept_control
+        }
+    };
+    let rejected_control: Vec<String> = placement
+        .rejected_control
+        .iter()
+        .map(|&k| geo.points[k].name.clone())
+        .collect();
+    for name in &rejected_control {
+        tracing::warn!(point = %name, "control point rejected: its markers disagree with the block");
+    }
     let priors = placement
         .accepted_priors
         .iter()
@@ -418,7 +476,7 @@ pub(crate) fn georeference_settled(
         .collect();
     let track_of = track_table(input);
     let mut state = State::with_reconstruction(input, options, &track_of, placement.merged);
-    let mut rounds = PriorAdjustment::new(input, geo, options, priors);
+    let mut rounds = PriorAdjustment::new(input, adjusted_geo, options, priors);
     match focal_held {
         Some(held) if held.len() == rounds.focal_fixed.len() => {
             rounds.focal_fixed.copy_from_slice(held);
@@ -451,6 +509,7 @@ pub(crate) fn georeference_settled(
         surface_fits: Vec::new(),
         fits_against_dem: false,
         dem_heights: Vec::new(),
+        rejected_control,
     })
 }
 
@@ -461,6 +520,8 @@ struct Placement {
     /// Indices into the input's centre priors of those the placements accepted.
     accepted_priors: Vec<usize>,
     rejected_priors: usize,
+    /// Indices into `geo.points` of the control points a placement rejected, ascending.
+    rejected_control: Vec<usize>,
     dropped_components: usize,
 }
 
@@ -477,13 +538,15 @@ fn place_components(
     let mut accepted_priors: Vec<usize> = Vec::new();
     let mut used_control = false;
     let mut rejected_priors = 0;
+    let mut rejected_control = Vec::new();
     let mut largest_unplaced = None;
     for (k, mut rec) in components.into_iter().enumerate() {
         match place(input, &mut rec, geo, seed ^ k as u64) {
-            Some((accepted, control, rejected)) => {
-                accepted_priors.extend(accepted);
-                used_control |= control;
-                rejected_priors += rejected;
+            Some(p) => {
+                accepted_priors.extend(p.accepted_priors);
+                used_control |= p.control;
+                rejected_priors += p.rejected_priors;
+                rejected_control.extend(p.rejected_control);
                 placed.push(rec);
             }
             None if k == 0 => largest_unplaced = Some(rec),
@@ -500,6 +563,7 @@ fn place_components(
             datum: Datum::Local,
             accepted_priors,
             rejected_priors,
+            rejected_control: Vec::new(),
             dropped_components,
         });
     };
@@ -516,11 +580,14 @@ fn place_components(
         (true, true) => Datum::ControlPoints,
         _ => Datum::Gnss,
     };
+    rejected_control.sort_unstable();
+    rejected_control.dedup();
     Ok(Placement {
         merged,
         datum,
         accepted_priors,
         rejected_priors,
+        rejected_control,
         dropped_components,
     })
 }

@@ -41,6 +41,30 @@ struct Candidate {
     median_angle_deg: f64,
 }
 
+/// Below this median displacement of their shared tracks (pixels, after undistortion, in the
+/// cameras' own frames) two images show the same view: identical files, or photos taken from one
+/// spot in one direction. No essential matrix or triangulation is defined for them.
+const SAME_VIEW_PX: f64 = 0.5;
+
+/// Why a pair cannot start the reconstruction.
+enum Rejection {
+    /// The pair's tracks are the same pixels in both images (median displacement, pixels).
+    SameView(f64),
+    /// Too few shared tracks or essential inliers, or no relative pose.
+    Weak,
+}
+
+/// The median distance, in pixels at `focal`, between corresponding normalised rays.
+fn median_displacement_px(rays_a: &[Vector3<f64>], rays_b: &[Vector3<f64>], focal: f64) -> f64 {
+    let mut d: Vec<f64> = rays_a
+        .iter()
+        .zip(rays_b)
+        .map(|(a, b)| (a.xy() - b.xy()).norm() * focal)
+        .collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(f64::INFINITY)
+}
+
 /// Relative pose of a pair from their shared tracks.
 fn evaluate(
     state: &State<'_>,
@@ -48,7 +72,7 @@ fn evaluate(
     b: usize,
     seed: u64,
     min_inliers: usize,
-) -> Option<Candidate> {
+) -> Result<Candidate, Rejection> {
     let input = state.input;
     let camera_a = state.rec.camera_of(input, a);
     let camera_b = state.rec.camera_of(input, b);
@@ -69,9 +93,13 @@ fn evaluate(
         }
     }
     if rays_a.len() < min_inliers {
-        return None;
+        return Err(Rejection::Weak);
     }
     let focal = 0.5 * (focal_px(camera_a) + focal_px(camera_b));
+    let displacement = median_displacement_px(&rays_a, &rays_b, focal);
+    if displacement < SAME_VIEW_PX {
+        return Err(Rejection::SameView(displacement));
+    }
     let estimator = EssentialEstimator {
         x1: &rays_a,
         x2: &rays_b,
@@ -85,9 +113,9 @@ fn evaluate(
             ..RansacOptions::default()
         },
     )
-    .ok()?;
+    .map_err(|_| Rejection::Weak)?;
     if result.num_inliers < min_inliers {
-        return None;
+        return Err(Rejection::Weak);
     }
     let (x1, x2): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = result
         .inliers
@@ -96,7 +124,8 @@ fn evaluate(
         .filter(|(_, ok)| **ok)
         .map(|(k, _)| (rays_a[k], rays_b[k]))
         .unzip();
-    let (pose, _) = relative_pose_from_essential(&result.model, &x1, &x2).ok()?;
+    let (pose, _) =
+        relative_pose_from_essential(&result.model, &x1, &x2).map_err(|_| Rejection::Weak)?;
     let identity = Pose::identity();
     let mut angles: Vec<f64> = x1
         .iter()
@@ -108,10 +137,10 @@ fn evaluate(
         })
         .collect();
     if angles.len() < min_inliers {
-        return None;
+        return Err(Rejection::Weak);
     }
     angles.sort_by(f64::total_cmp);
-    Some(Candidate {
+    Ok(Candidate {
         cam_b_from_cam_a: pose,
         inliers: result.num_inliers,
         median_angle_deg: angles[angles.len() / 2],
@@ -152,6 +181,7 @@ pub(crate) fn initialise(state: &mut State<'_>) -> Result<(usize, usize), AlignE
     // EXTRA_BATCHES more batches found none); the relaxations below then choose among all
     // evaluated.
     let mut evaluated: Vec<((usize, usize), Candidate)> = Vec::new();
+    let (mut tried, mut same_view) = (0usize, Vec::new());
     let connected: Vec<(usize, usize)> = pairs
         .iter()
         .take_while(|(_, shared)| *shared >= min_shared)
@@ -159,14 +189,17 @@ pub(crate) fn initialise(state: &mut State<'_>) -> Result<(usize, usize), AlignE
         .collect();
     let batch = options.init_max_trials.max(1);
     for chunk in connected.chunks(batch).take(1 + EXTRA_BATCHES) {
-        evaluated.extend(chunk.iter().filter_map(|&(a, b)| {
+        for &(a, b) in chunk {
             let seed = options.seed ^ ((a as u64) << 32 | b as u64);
-            let c = evaluate(state, a, b, seed, min_shared);
-            if c.is_none() {
-                tracing::debug!(a, b, "initial pair: too few essential inliers");
+            tried += 1;
+            match evaluate(state, a, b, seed, min_shared) {
+                Ok(c) => evaluated.push(((a, b), c)),
+                Err(Rejection::SameView(px)) => same_view.push(((a, b), px)),
+                Err(Rejection::Weak) => {
+                    tracing::debug!(a, b, "initial pair: too few essential inliers")
+                }
             }
-            c.map(|c| ((a, b), c))
-        }));
+        }
         let passes_in_full = evaluated.iter().any(|(_, c)| {
             c.inliers >= options.init_min_inliers
                 && c.median_angle_deg >= options.init_min_angle_deg
@@ -204,8 +237,17 @@ pub(crate) fn initialise(state: &mut State<'_>) -> Result<(usize, usize), AlignE
             state.point_of_track.fill(crate::state::NONE);
         }
     }
+    if tried > 0 && same_view.len() == tried {
+        let ((a, b), px) = same_view[0];
+        return Err(AlignError::NoBaseline {
+            pairs: tried,
+            first: a,
+            second: b,
+            displacement_px: px,
+        });
+    }
     Err(AlignError::NoInitialPair {
-        tried: evaluated.len(),
+        tried,
         min_inliers: options.init_min_inliers,
         min_angle_deg: options.init_min_angle_deg,
     })

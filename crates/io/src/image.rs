@@ -36,6 +36,7 @@ impl ImageF32 {
 /// it claims is known to be there before the decoder allocates it (a decoder's failed
 /// allocation aborts the process).
 fn decode(path: &Path, out_bytes_per_pixel: u64) -> Result<DynamicImage, IoError> {
+    check_signature(path)?;
     let mut reader = ImageReader::open(path)
         .map_err(|e| IoError::io(path, e))?
         .with_guessed_format()
@@ -65,6 +66,49 @@ fn decode(path: &Path, out_bytes_per_pixel: u64) -> Result<DynamicImage, IoError
         .saturating_add(cells.saturating_mul(out_bytes_per_pixel));
     budget::ensure_allocatable(path, needed, "decoding the image")?;
     DynamicImage::from_decoder(decoder).map_err(|e| decode_error(path, e))
+}
+
+/// Refuses a file named as a JPEG, PNG or TIFF whose first bytes are those of no image format
+/// (a text file, an HTML page saved as `.jpg`, a zero-filled download): said plainly, not as a
+/// decoder's complaint about its markers.
+fn check_signature(path: &Path) -> Result<(), IoError> {
+    use std::io::Read;
+    let named = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .is_some_and(|e| ["jpg", "jpeg", "png", "tif", "tiff"].contains(&e.as_str()));
+    if !named {
+        return Ok(());
+    }
+    let mut head = [0u8; 16];
+    let mut file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let mut n = 0;
+    while n < head.len() {
+        match file.read(&mut head[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(IoError::io(path, e)),
+        }
+    }
+    if image::guess_format(&head[..n]).is_ok() {
+        return Ok(());
+    }
+    let shown: Vec<String> = head[..n.min(4)]
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    Err(IoError::invalid(
+        path,
+        match n {
+            0 => "not an image: the file is empty".to_string(),
+            _ => format!(
+                "not an image: it starts with the bytes {}, which begin no JPEG, PNG or TIFF \
+                 file",
+                shown.join(" ")
+            ),
+        },
+    ))
 }
 
 fn decode_error(path: &Path, e: image::ImageError) -> IoError {

@@ -119,6 +119,7 @@ pub(super) fn load_input(
         };
         group_of_epoch.push(g);
     }
+    check_one_size_per_group(project, source, &cameras, &group_of_epoch)?;
     let images = project
         .images
         .iter()
@@ -134,6 +135,51 @@ pub(super) fn load_input(
         tracks: tracks.tracks,
         focal,
     })
+}
+
+/// Refuses a camera group whose images differ in size: one group is one set of intrinsics, and
+/// an image of another size read through them has the wrong principal point and focal length in
+/// pixels (the block absorbs it, bent).
+fn check_one_size_per_group(
+    project: &Project,
+    source: &ImageSource,
+    cameras: &[Camera],
+    group_of_epoch: &[usize],
+) -> Result<(), ProjectError> {
+    let sizes: Vec<Result<(u32, u32), ProjectError>> = (0..project.images.len())
+        .into_par_iter()
+        .map(|i| source.dimensions(project, i))
+        .collect();
+    for (i, size) in sizes.into_iter().enumerate() {
+        let (w, h) = size?;
+        let epoch = &project.epochs[project.images[i].epoch.index()];
+        let camera = &cameras[group_of_epoch[project.images[i].epoch.index()]];
+        let expected = (camera.width(), camera.height());
+        if (w, h) == expected {
+            continue;
+        }
+        let first = project
+            .epochs
+            .iter()
+            .filter(|e| e.camera_group == epoch.camera_group)
+            .find_map(|e| e.images.first())
+            .map_or_else(String::new, |f| project.images[f.index()].name.clone());
+        return Err(stage_error(format!(
+            "camera group \"{}\": {} is {w}×{h} pixels, the group's first image {first} {}×{}{}: \
+             one camera group is one sensor at one resolution; give images of another size an \
+             epoch or `[[camera]]` group of their own, or export every image at one size",
+            epoch.camera_group,
+            project.images[i].name,
+            expected.0,
+            expected.1,
+            if (h, w) == expected {
+                " (rotated: export it unrotated)"
+            } else {
+                ""
+            },
+        )));
+    }
+    Ok(())
 }
 
 /// The camera groups in the order of the input's cameras: as their first epochs come.
@@ -206,6 +252,7 @@ pub(super) struct LocalFrame {
 impl LocalFrame {
     pub(super) fn of(project: &Project) -> Result<Self, ProjectError> {
         let priors = project.camera_priors()?;
+        super::checks::check_ground_points_near_priors(project, &priors)?;
         let positions: Vec<Vector3<f64>> = priors
             .iter()
             .flatten()

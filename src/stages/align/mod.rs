@@ -6,6 +6,7 @@
 //! and control points, whole metres) so that solvers never see UTM-sized coordinates; the origin
 //! is added back when writing.
 
+mod checks;
 mod input;
 mod outputs;
 mod reference_dem;
@@ -80,13 +81,28 @@ impl PipelineStage for AlignStage {
                 report
             }
         };
-        Ok(format!(
+        let mut summary = format!(
             "{}{} of {} images oriented, RMS {:.3} px",
             if up_to_date { "up to date: " } else { "" },
             report.images_oriented,
             report.images_given,
             report.rms_reprojection_px.unwrap_or(f64::NAN)
-        ))
+        );
+        if !report.control_points_rejected.is_empty() {
+            summary.push_str(&format!(
+                "; control points left out (their markers miss them by far more than their σ, \
+                 see out/report.json): {}",
+                report.control_points_rejected.join(", ")
+            ));
+        }
+        for name in &report.not_co_registered {
+            summary.push_str(&format!(
+                "; epoch {name} NOT co-registered (fewer than {} tie points with the others: \
+                 it rests on its own priors and control)",
+                crate::report::MIN_CO_REGISTERING_TIES
+            ));
+        }
+        Ok(summary)
     }
 }
 
@@ -238,7 +254,7 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
     };
     let block = strategy
         .orient(&block_input, &options)
-        .map_err(|e| stage_error(e.to_string()))?;
+        .map_err(|e| stage_error(align_error_text(project, &e)))?;
     let (input, geo) = (&block_input.sfm, &block_input.ground);
     write_outputs(
         project,
@@ -249,4 +265,34 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
         &*strategy,
         start.elapsed().as_secs_f64(),
     )
+}
+
+/// An orientation error in the project's words: images by their paths, not their indices.
+fn align_error_text(project: &Project, error: &timesift_align::AlignError) -> String {
+    use timesift_align::AlignError;
+    let name = |i: usize| {
+        project
+            .images
+            .get(i)
+            .map_or_else(|| format!("image {i}"), |im| im.name.clone())
+    };
+    match error {
+        AlignError::NoBaseline {
+            pairs,
+            first,
+            second,
+            displacement_px,
+        } => format!(
+            "no baseline: each of the {pairs} most connected image pairs shows the same view \
+             pixel for pixel (e.g. {} and {}, median displacement {displacement_px:.2} px): the \
+             images are identical or were taken from one spot; the block needs photos taken from \
+             different places",
+            name(*first),
+            name(*second)
+        ),
+        AlignError::Epoch { epoch, source } => {
+            format!("epoch \"{epoch}\": {}", align_error_text(project, source))
+        }
+        other => other.to_string(),
+    }
 }

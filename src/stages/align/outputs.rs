@@ -536,8 +536,17 @@ fn report(
     for (e, epoch) in project.epochs.iter().enumerate() {
         epochs.insert(epoch.name.clone(), epoch_orientation(&of_block, e));
     }
+    let epoch_pairs = epoch_pair_ties(project, tiepoints, motions.as_ref());
+    let not_co_registered = match strategy.method() {
+        timesift_align::Method::Timesift | timesift_align::Method::Msfm => {
+            super::checks::not_co_registered(project, &epoch_pairs)
+        }
+        _ => Vec::new(),
+    };
     AlignReport {
-        epoch_pairs: epoch_pair_ties(project, tiepoints, motions.as_ref()),
+        epoch_pairs,
+        not_co_registered,
+        control_points_rejected: block.rejected_control.clone(),
         method: strategy.method(),
         datum: format!("{:?}", block.datum),
         images_given: project.images.len(),

@@ -94,6 +94,21 @@ pub(super) fn epoch_input(
         .map(|i| i.index())
         .filter(|&i| oriented[i].is_some())
         .collect();
+    if images.len() < 2 {
+        let name = &project.epochs[epoch].name;
+        return Err(stage_error(
+            "dense",
+            format!(
+                "epoch \"{name}\": {} of its {} images were oriented ({}): too little overlap or \
+                 texture, or no tie points shared with the other epochs and no GNSS priors or \
+                 control points of its own to place it; dense matching needs two. Give the epoch \
+                 priors or markers, or remove it from project.toml",
+                images.len(),
+                project.epochs[epoch].images.len(),
+                project.layout().report_json().display()
+            ),
+        ));
+    }
     let mut views = Vec::with_capacity(images.len());
     for &i in &images {
         let entry = &cameras.images[oriented[i].unwrap_or_default()];

@@ -113,7 +113,13 @@ impl Block {
         let mut group_bound_px: Vec<Option<f64>> = vec![None; input.cameras.len()];
         let mut group_sigma_px: Vec<Option<f64>> = vec![None; input.cameras.len()];
         let mut gnss_offsets: Vec<EstimatedOffset> = Vec::new();
+        let mut rejected_control: Vec<String> = Vec::new();
         for part in parts {
+            for name in &part.rejected_control {
+                if !rejected_control.contains(name) {
+                    rejected_control.push(name.clone());
+                }
+            }
             keep_carried_offsets(&mut gnss_offsets, &part.gnss_offsets);
             bound = match (bound, part.observation_bound_px) {
                 (Some(a), Some(b)) => Some(a.max(b)),
@@ -157,6 +163,7 @@ impl Block {
             surface_fits: Vec::new(),
             fits_against_dem: false,
             dem_heights: Vec::new(),
+            rejected_control,
         }
     }
 }
