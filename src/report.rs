@@ -489,6 +489,64 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, Project
     })
 }
 
+/// The key of a sealed record's checksum ([`write_sealed_json`]).
+const SEAL_KEY: &str = "checksum";
+
+/// FNV-1a (64 bit) of a record's compact JSON text without its seal.
+fn seal_of(record: &serde_json::Value) -> String {
+    let text = record.to_string();
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in text.as_bytes() {
+        hash ^= u64::from(b);
+        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("fnv1a64:{hash:016x}")
+}
+
+/// Writes a record of cached work (under `work/`: what a result was made from, or a result
+/// reused by later runs) as [`write_json`] does, with a `checksum` key over the rest: a digit
+/// changed by a damaged disk still parses, and [`read_sealed_json`] refuses it, so the work is
+/// redone rather than trusted. The record must serialise to a JSON object.
+pub fn write_sealed_json<T: Serialize>(path: &Path, record: &T) -> Result<(), ProjectError> {
+    let not_object = || ProjectError::Path {
+        path: path.to_path_buf(),
+        message: "a sealed record must be a JSON object".into(),
+    };
+    let mut value = serde_json::to_value(record).map_err(|e| ProjectError::Path {
+        path: path.to_path_buf(),
+        message: format!("cannot serialise: {e}"),
+    })?;
+    let seal = seal_of(&value);
+    value
+        .as_object_mut()
+        .ok_or_else(not_object)?
+        .insert(SEAL_KEY.into(), seal.into());
+    write_json(path, &value)
+}
+
+/// Reads a record written by [`write_sealed_json`]; a missing or wrong checksum is an error
+/// naming the file (the caller recomputes what it records).
+pub fn read_sealed_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ProjectError> {
+    let error = |message: String| ProjectError::Path {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut value: serde_json::Value = read_json(path)?;
+    let recorded = value
+        .as_object_mut()
+        .and_then(|m| m.remove(SEAL_KEY))
+        .and_then(|v| v.as_str().map(str::to_string))
+        .ok_or_else(|| error("no checksum: not a record of this version, or cut short".into()))?;
+    let found = seal_of(&value);
+    if found != recorded {
+        return Err(error(format!(
+            "checksum mismatch: the record hashes to {found}, it recorded {recorded} (changed \
+             or damaged after it was written)"
+        )));
+    }
+    serde_json::from_value(value).map_err(|e| error(format!("not the expected record: {e}")))
+}
+
 /// `out/grid.json`: the one raster lattice of the project, used by every epoch's DEM and ortho.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GridFile {

@@ -18,9 +18,7 @@ pub(crate) fn start_with_settings(
     dependents: &[(&Path, &str)],
 ) -> Result<(), ProjectError> {
     let path = Layout::settings_file(dir);
-    let recorded: Option<serde_json::Value> = std::fs::read_to_string(&path)
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok());
+    let recorded: Option<serde_json::Value> = crate::report::read_sealed_json(&path).ok();
     if recorded.as_ref() == Some(settings) {
         return Ok(());
     }
@@ -40,9 +38,7 @@ pub(crate) fn start_with_settings(
     if recorded.is_some() {
         tracing::info!(stage, "settings changed: earlier results removed");
     }
-    let text = serde_json::to_string_pretty(settings).unwrap_or_default();
-    timesift_io::fsutil::write_bytes_atomically(&path, text.as_bytes())?;
-    Ok(())
+    crate::report::write_sealed_json(&path, settings)
 }
 
 /// Size and modification time of a file: enough to notice that an earlier stage rewrote it.

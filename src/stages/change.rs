@@ -15,7 +15,7 @@ use crate::commands::compare::{
     CloudCompareOptions, DemCompareOptions, compare_clouds, compare_dems, named_positions,
 };
 use crate::config::ChangePairs;
-use crate::report::{read_json, write_json};
+use crate::report::{read_sealed_json, write_sealed_json};
 use crate::{Project, ProjectError};
 
 /// The `change` stage.
@@ -160,7 +160,7 @@ fn compare_pair(
     if have_clouds {
         expected.push(layout.m3c2_stats(a, b));
     }
-    if read_json::<serde_json::Value>(&record).ok().as_ref() == Some(&settings)
+    if read_sealed_json::<serde_json::Value>(&record).ok().as_ref() == Some(&settings)
         && expected.iter().all(|p| p.is_file())
     {
         tracing::info!(pair = %format!("{a}__{b}"), "change up to date");
@@ -188,6 +188,6 @@ fn compare_pair(
         };
         compare_clouds(&laz_a, &laz_b, &out, &options)?;
     }
-    write_json(&record, &settings)?;
+    write_sealed_json(&record, &settings)?;
     Ok(true)
 }

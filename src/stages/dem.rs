@@ -23,7 +23,9 @@ use super::cache::file_stamp;
 use super::cache::stage_error;
 use super::dense_inputs;
 use super::{PipelineStage, Stage};
-use crate::report::{GridFile, RasterReport, read_json, write_json};
+use crate::report::{
+    GridFile, RasterReport, read_json, read_sealed_json, write_json, write_sealed_json,
+};
 use crate::{Project, ProjectError};
 use timesift_dense::EpochInput;
 
@@ -207,8 +209,8 @@ pub(super) fn raster_report_from_records(project: &Project) -> RasterReport {
     let mut report = RasterReport::default();
     for epoch in &project.epochs {
         let name = &epoch.name;
-        let dem = read_json::<DemRecord>(&layout.raster_settings(name, "dem")).ok();
-        let ortho = read_json::<OrthoRecord>(&layout.raster_settings(name, "ortho")).ok();
+        let dem = read_sealed_json::<DemRecord>(&layout.raster_settings(name, "dem")).ok();
+        let ortho = read_sealed_json::<OrthoRecord>(&layout.raster_settings(name, "ortho")).ok();
         if dem.is_none() && ortho.is_none() {
             continue;
         }
@@ -257,7 +259,7 @@ fn dem_epoch(project: &Project, grid_file: &GridFile, name: &str) -> Result<bool
     });
     let record_path = layout.raster_settings(name, "dem");
     let outputs = dem_outputs(project, name);
-    if read_json::<DemRecord>(&record_path).is_ok_and(|r| r.made_from == settings)
+    if read_sealed_json::<DemRecord>(&record_path).is_ok_and(|r| r.made_from == settings)
         && outputs.iter().all(|p| p.is_file())
     {
         tracing::info!(epoch = %name, "DEM up to date");
@@ -282,7 +284,7 @@ fn dem_epoch(project: &Project, grid_file: &GridFile, name: &str) -> Result<bool
         seconds = record.dem_seconds,
         "DEM"
     );
-    write_json(&record_path, &record)?;
+    write_sealed_json(&record_path, &record)?;
     Ok(true)
 }
 

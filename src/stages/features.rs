@@ -161,7 +161,9 @@ struct ImageRecord {
 fn forget_changed_images(project: &Project) -> Result<(), ProjectError> {
     let layout = project.layout();
     let record = layout.features_dir().join("images.json");
-    let recorded: Vec<ImageRecord> = crate::report::read_json(&record).unwrap_or_default();
+    let recorded: Vec<ImageRecord> = crate::report::read_sealed_json::<ImageRecords>(&record)
+        .map(|r| r.images)
+        .unwrap_or_default();
     let current: Vec<ImageRecord> = (0..project.images.len())
         .into_par_iter()
         .map(|i| {
@@ -217,7 +219,14 @@ fn forget_changed_images(project: &Project) -> Result<(), ProjectError> {
             "images changed since their features: features redone"
         );
     }
-    crate::report::write_json(&record, &current)
+    crate::report::write_sealed_json(&record, &ImageRecords { images: current })
+}
+
+/// `work/features/images.json`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+struct ImageRecords {
+    /// Per image index.
+    images: Vec<ImageRecord>,
 }
 
 /// A unit of the `features` step: the images of `part` (in project order) whose feature file
@@ -232,7 +241,7 @@ pub(super) fn unit(
     let source = ImageSource::of(project)?;
     let wanted = recorded_settings(project, &source, &settings);
     let settings_path = crate::layout::Layout::settings_file(&layout.features_dir());
-    let recorded = crate::report::read_json::<serde_json::Value>(&settings_path).ok();
+    let recorded = crate::report::read_sealed_json::<serde_json::Value>(&settings_path).ok();
     if recorded.as_ref() != Some(&wanted) {
         return Err(stage_error(
             "features",

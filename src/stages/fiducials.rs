@@ -81,7 +81,7 @@ pub fn fiducials_stage(project: &Project) -> Result<Option<FiducialsOutcome>, Pr
         layout.fiducials_sheet(),
     ];
     outputs.extend(project.film.keys().map(|c| layout.fiducials_frame(c)));
-    let recorded = read_json::<serde_json::Value>(&record).ok();
+    let recorded = crate::report::read_sealed_json::<serde_json::Value>(&record).ok();
     if recorded.as_ref() == Some(&settings) && outputs.iter().all(|p| p.exists()) {
         let report = read_json::<FiducialsReport>(&layout.fiducials_json())?;
         return Ok(Some(FiducialsOutcome {
@@ -102,7 +102,7 @@ pub fn fiducials_stage(project: &Project) -> Result<Option<FiducialsOutcome>, Pr
     )?;
     write_contact_sheet(&report, &crops, &layout.fiducials_sheet())?;
     write_frame_examples(project, &report)?;
-    write_json(&record, &settings)?;
+    crate::report::write_sealed_json(&record, &settings)?;
     Ok(Some(FiducialsOutcome {
         report,
         measured: true,

@@ -18,7 +18,7 @@ use super::cache::{stage_error, start_with_settings};
 use super::{PipelineStage, Stage};
 use crate::config::PairSelection;
 use crate::layout::Layout;
-use crate::report::{MatchSummary, write_json};
+use crate::report::MatchSummary;
 use crate::{Project, ProjectError};
 
 /// The `match` stage.
@@ -126,7 +126,7 @@ fn select_pairs(
         candidate_pairs: candidate_count,
         pairs,
     };
-    write_json(&layout.match_pairs(), &list)?;
+    crate::report::write_sealed_json(&layout.match_pairs(), &list)?;
     Ok(list)
 }
 
@@ -151,7 +151,7 @@ pub(super) fn prepare(project: &Project) -> Result<Vec<std::path::PathBuf>, Proj
 
 fn recorded_pairs(project: &Project) -> Result<PairList, ProjectError> {
     let path = project.layout().match_pairs();
-    crate::report::read_json::<PairList>(&path).map_err(|e| {
+    crate::report::read_sealed_json::<PairList>(&path).map_err(|e| {
         stage_error(
             "match",
             format!("{e} (the match-prepare step writes it: run it first)"),
@@ -279,7 +279,7 @@ fn build_summary(
         conflicting_matches: tracks.conflicts,
         track_lengths: tracks.length_histogram(),
     };
-    write_json(&layout.match_summary(), &summary)?;
+    crate::report::write_sealed_json(&layout.match_summary(), &summary)?;
     Ok(summary)
 }
 

@@ -30,7 +30,9 @@ use super::dem::{
 };
 use super::{PipelineStage, Stage, dense_inputs};
 use crate::film::ImageSource;
-use crate::report::{GridFile, RasterReport, read_json, write_json};
+use crate::report::{
+    GridFile, RasterReport, read_json, read_sealed_json, write_json, write_sealed_json,
+};
 use crate::{Project, ProjectError};
 
 /// Version of the mosaicking, part of each ortho's settings.
@@ -261,7 +263,7 @@ fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bo
         .ortho_options(grid.ortho_factor, project.config.dense.black_is_nodata);
     let settings = ortho_settings(&dem_path, &options, input, source.fingerprint(project));
     let settings_path = layout.raster_settings(name, "ortho");
-    if read_json::<OrthoRecord>(&settings_path).is_ok_and(|r| r.made_from == settings)
+    if read_sealed_json::<OrthoRecord>(&settings_path).is_ok_and(|r| r.made_from == settings)
         && layout.ortho(name).is_file()
     {
         tracing::info!(epoch = %name, "ortho up to date");
@@ -334,7 +336,7 @@ fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bo
         seconds,
         "ortho"
     );
-    write_json(&settings_path, &record)?;
+    write_sealed_json(&settings_path, &record)?;
     Ok(true)
 }
 

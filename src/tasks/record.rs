@@ -136,15 +136,12 @@ impl UnitRecord {
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent).map_err(|e| timesift_io::IoError::io(parent, e))?;
         }
-        let text = serde_json::to_string_pretty(self).unwrap_or_default();
-        timesift_io::fsutil::write_bytes_atomically(path, text.as_bytes())?;
-        Ok(())
+        crate::report::write_sealed_json(path, self)
     }
 
     /// The record at `path`, if it is there and readable.
     pub fn read(path: &Path) -> Option<UnitRecord> {
-        let text = std::fs::read_to_string(path).ok()?;
-        serde_json::from_str(&text).ok()
+        crate::report::read_sealed_json(path).ok()
     }
 }
 

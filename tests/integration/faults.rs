@@ -165,3 +165,143 @@ fn killed_inside_every_stage(fresh: &Path, whole: &Path, log: &str, tmp: &Path) 
     assert!(ok, "the run after the kills failed: {err}");
     assert_same_products(whole, &dir);
 }
+
+/// Damages a file the way a failing disk does: a digit of a JSON record changed (it still
+/// parses), or a byte in the middle of a binary file flipped; with `truncate`, cuts the file to
+/// two thirds instead.
+fn damage(path: &Path, truncate: bool) {
+    let mut bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    if truncate {
+        bytes.truncate(bytes.len() * 2 / 3);
+    } else if path.extension().is_some_and(|e| e == "json") {
+        let at = bytes
+            .iter()
+            .rposition(|b| (b'1'..=b'8').contains(b))
+            .unwrap_or_else(|| panic!("{}: no digit to change", path.display()));
+        bytes[at] += 1;
+    } else {
+        let at = bytes.len() / 2;
+        bytes[at] ^= 0x04;
+    }
+    std::fs::write(path, bytes).expect("write");
+}
+
+/// One file of each kind the stages cache under `work/`: features, matches, depth maps of a
+/// pass and filtered, and the records of what each stage's results were made from; with
+/// `stage_records`, also the records a whole stage's cache hangs on (`settings.json` of the
+/// features and the dense maps, `features/images.json`): damaged, nothing says what the cache
+/// was made from, and the whole stage is redone.
+fn cached_files(dir: &Path, stage_records: bool) -> Vec<std::path::PathBuf> {
+    let work = dir.join("work");
+    let all = files(&work);
+    let first = |pattern: &dyn Fn(&str) -> bool| {
+        all.iter()
+            .map(|f| f.to_string_lossy().into_owned())
+            .find(|f| pattern(f))
+            .map(|f| work.join(f))
+            .unwrap_or_else(|| panic!("no cached file of a kind under {}", work.display()))
+    };
+    let mut found = vec![
+        first(&|f| f.starts_with("features/") && f.ends_with(".feat")),
+        first(&|f| f.starts_with("matches/") && f.ends_with(".match")),
+        first(&|f| f == "matches/pairs.json"),
+        first(&|f| f == "matches/summary.json"),
+        first(&|f| f == "align.json"),
+        // The last pass's map: the one the fusion reads (an earlier pass's is read only to
+        // make a later pass's again).
+        {
+            let last = all
+                .iter()
+                .filter_map(|f| {
+                    f.to_str()?
+                        .split("/pass")
+                        .nth(1)?
+                        .split('/')
+                        .next()?
+                        .parse::<usize>()
+                        .ok()
+                })
+                .max()
+                .expect("a pass");
+            first(&|f| f.contains(&format!("/pass{last}/")) && f.ends_with(".exr"))
+        },
+        first(&|f| f.contains("/filtered/") && f.ends_with(".exr")),
+        first(&|f| f.starts_with("dense/") && f.ends_with("/summary.json")),
+        first(&|f| f.starts_with("dense/") && f.ends_with("/cloud.json")),
+        first(&|f| f.starts_with("raster/") && f.ends_with(".dem.json")),
+        first(&|f| f.starts_with("raster/") && f.ends_with(".ortho.json")),
+        first(&|f| f.starts_with("change/") && f.ends_with(".json")),
+    ];
+    if stage_records {
+        found.extend([
+            first(&|f| f == "features/settings.json"),
+            first(&|f| f == "features/images.json"),
+            first(&|f| f.starts_with("dense/") && f.ends_with("/settings.json")),
+        ]);
+    }
+    found
+}
+
+/// A file of `work/` is trusted only when it reads back as written.
+fn reads_back(path: &Path) -> Result<(), String> {
+    let bad = |e: String| format!("{}: {e}", path.display());
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("feat") => timesift_matching::storage::read_features(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        Some("match") => timesift_matching::storage::read_matches(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        Some("exr") => timesift_io::exr::read_f32_channels(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+        _ => timesift::report::read_sealed_json::<serde_json::Value>(path)
+            .map(|_| ())
+            .map_err(|e| bad(e.to_string())),
+    }
+}
+
+/// A flipped byte or a truncation in any cached file under `work/` is noticed: the unit it
+/// belongs to is made again (its file reads back as written afterwards), and the products are
+/// those of a run that met no damage.
+#[test]
+fn damaged_caches_are_recomputed_never_trusted() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("project");
+    small_landslide(&dir);
+    let (ok, _, err) = timesift(&["run", dir.to_str().expect("utf-8"), "--quiet"]);
+    assert!(ok, "{err}");
+    let reference = tmp.path().join("reference");
+    copy_tree(&dir.join("out"), &reference.join("out"));
+    // A flipped byte in one file of each unit's kind, then every cached file of each kind cut
+    // short, the stages' own records too.
+    for truncate in [false, true] {
+        let damaged = cached_files(&dir, truncate);
+        for f in &damaged {
+            reads_back(f).unwrap_or_else(|e| panic!("before the damage: {e}"));
+            damage(f, truncate);
+            assert!(
+                reads_back(f).is_err(),
+                "{}: damage not noticed",
+                f.display()
+            );
+        }
+        let (ok, _, err) = timesift(&["run", dir.to_str().expect("utf-8")]);
+        assert!(ok, "truncate {truncate}: {err}");
+        let features = err
+            .lines()
+            .find(|l| l.starts_with("features"))
+            .unwrap_or_else(|| panic!("no features line: {err}"));
+        let expected = match truncate {
+            false => "features of 1 images extracted (19 cached)",
+            true => "features of 20 images extracted (0 cached)",
+        };
+        assert!(features.contains(expected), "{features}");
+        for f in &damaged {
+            if f.exists() {
+                reads_back(f).unwrap_or_else(|e| panic!("truncate {truncate}: left damaged: {e}"));
+            }
+        }
+        assert_same_products(&reference, &dir);
+    }
+}

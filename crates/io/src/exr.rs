@@ -34,9 +34,14 @@ pub fn write_f32_channels(
         }
         list.push(AnyChannel::new(*name, FlatSamples::F32(data.to_vec())));
     }
+    let mut attributes = LayerAttributes::default();
+    attributes.other.insert(
+        Text::from(CHECKSUM_ATTRIBUTE),
+        AttributeValue::Text(Text::from(checksum(channels.iter().copied()).as_str())),
+    );
     let layer = Layer::new(
         (width, height),
-        LayerAttributes::default(),
+        attributes,
         Encoding::FAST_LOSSLESS,
         AnyChannels::sort(list),
     );
@@ -46,6 +51,30 @@ pub fn write_f32_channels(
         .to_file(&tmp)
         .map_err(|e| IoError::invalid(path, format!("cannot write EXR: {e}")));
     fsutil::commit_temporary(&tmp, path, written)
+}
+
+/// The layer attribute holding [`checksum`]: run-length encoded samples decode from a damaged
+/// file as other numbers without an error, and a map read back must be the map written.
+const CHECKSUM_ATTRIBUTE: &str = "timesiftChecksum";
+
+/// FNV-1a (64 bit) of the channels in name order: each name, then its samples' bits.
+fn checksum<'a>(channels: impl Iterator<Item = (&'a str, &'a [f32])>) -> String {
+    let mut sorted: Vec<(&str, &[f32])> = channels.collect();
+    sorted.sort_by(|a, b| a.0.cmp(b.0));
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut feed = |bytes: &[u8]| {
+        for &b in bytes {
+            hash ^= u64::from(b);
+            hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    for (name, samples) in sorted {
+        feed(name.as_bytes());
+        for v in samples {
+            feed(&v.to_bits().to_le_bytes());
+        }
+    }
+    format!("fnv1a64:{hash:016x}")
 }
 
 /// The f32 channels of one image.
@@ -70,11 +99,21 @@ impl F32Channels {
 }
 
 /// Reads every f32 channel of an EXR file written by [`write_f32_channels`]. Other sample
-/// types are an error naming the channel.
+/// types are an error naming the channel, and so are samples that differ from those written
+/// (the checksum [`write_f32_channels`] records; files of other programs have none).
 pub fn read_f32_channels(path: &Path) -> std::result::Result<F32Channels, IoError> {
     check_claimed_size(path)?;
     let image = read_first_flat_layer_from_file(path)
         .map_err(|e| IoError::invalid(path, format!("cannot read EXR: {e}")))?;
+    let recorded = match image
+        .layer_data
+        .attributes
+        .other
+        .get(&Text::from(CHECKSUM_ATTRIBUTE))
+    {
+        Some(AttributeValue::Text(t)) => Some(t.to_string()),
+        _ => None,
+    };
     let size = image.layer_data.size;
     let mut channels = Vec::new();
     for ch in image.layer_data.channel_data.list {
@@ -87,6 +126,18 @@ pub fn read_f32_channels(path: &Path) -> std::result::Result<F32Channels, IoErro
                     format!("channel {name}: expected 32-bit float samples"),
                 ));
             }
+        }
+    }
+    if let Some(recorded) = recorded {
+        let found = checksum(channels.iter().map(|(n, v)| (n.as_str(), v.as_slice())));
+        if found != recorded {
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "checksum mismatch: the samples hash to {found}, the file recorded \
+                     {recorded} (damaged after it was written)"
+                ),
+            ));
         }
     }
     Ok(F32Channels {
@@ -172,6 +223,13 @@ mod tests {
         assert_eq!((read.width, read.height), (4, 3));
         assert_eq!(read.channel("Z"), Some(depth.as_slice()));
         assert_eq!(read.channel("Y"), None);
+        // A flipped bit in the samples decodes without an error: the checksum tells.
+        let mut bytes = std::fs::read(&p).unwrap();
+        let last = bytes.len() - 1;
+        bytes[last] ^= 0x10;
+        std::fs::write(&p, &bytes).unwrap();
+        let err = read_f32_channels(&p).unwrap_err().to_string();
+        assert!(err.contains("checksum mismatch"), "{err}");
         std::fs::write(&p, b"not exr").unwrap();
         assert!(
             read_f32_channels(&p)

@@ -37,7 +37,8 @@ use crate::layout::Layout;
 use crate::project::GivenFocal;
 use crate::report::{
     AlignReport, DatumTiltReport, EpochOrientation, GnssOffset, GroupNoise,
-    PointResidual as ResidualRow, PointResiduals, Rmse, read_json, write_json,
+    PointResidual as ResidualRow, PointResiduals, Rmse, read_json, read_sealed_json, write_json,
+    write_sealed_json,
 };
 use crate::stable_matcher::FeatureFileMatcher;
 use crate::{Project, ProjectError};
@@ -71,13 +72,14 @@ impl PipelineStage for AlignStage {
         let layout = project.layout();
         let settings = align_settings(project);
         let record = layout.align_settings();
-        let up_to_date = read_json::<serde_json::Value>(&record).ok().as_ref() == Some(&settings)
+        let up_to_date = read_sealed_json::<serde_json::Value>(&record).ok().as_ref()
+            == Some(&settings)
             && self.outputs(project).iter().all(|p| p.exists());
         let report = match up_to_date {
             true => read_json::<AlignReport>(&layout.report_json())?,
             false => {
                 let report = align_stage(project)?;
-                write_json(&record, &settings)?;
+                write_sealed_json(&record, &settings)?;
                 report
             }
         };

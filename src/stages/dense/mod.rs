@@ -261,13 +261,11 @@ fn cloud_settings(options: &DenseOptions, maps: &serde_json::Value) -> serde_jso
 }
 
 fn read_settings(path: &Path) -> Option<serde_json::Value> {
-    std::fs::read_to_string(path)
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
+    crate::report::read_sealed_json(path).ok()
 }
 
 fn write_settings(path: &Path, value: &serde_json::Value) -> Result<(), ProjectError> {
-    write_json(path, value)
+    crate::report::write_sealed_json(path, value)
 }
 
 /// Decoded and resampled images of an epoch, the most recently used kept.
@@ -364,7 +362,7 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
     if cloud_path.is_file()
         && final_maps_present
         && read_settings(&cloud_record).as_ref() == Some(&wanted)
-        && let Ok(previous) = read_json::<EpochDense>(&summary_path)
+        && let Ok(previous) = crate::report::read_sealed_json::<EpochDense>(&summary_path)
     {
         return Ok(EpochDense {
             depth_maps_computed: 0,
@@ -379,7 +377,7 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
     let mut maps = MapCache::new(MAP_CACHE_BYTES);
     // Fusion needs only the last pass: where every view has it (a cluster's pass steps made
     // them, or only the fusion options changed) the earlier passes are not read again.
-    let computed = if final_maps_present {
+    let mut computed = if final_maps_present {
         0
     } else {
         compute_maps(
@@ -395,7 +393,7 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
     };
     // Filtering, then fusion.
     let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
-    let (with_depth, upsampled) = filter_maps(
+    let filtered = filter_maps(
         plan,
         last,
         &|view| map_file(last, view),
@@ -404,7 +402,35 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
         options,
         &mut maps,
         &mut phases,
-    )?;
+    );
+    let (with_depth, upsampled) = match filtered {
+        // A final map there but damaged (its checksum): the passes make it again, reading
+        // the earlier passes' maps where they read back as written.
+        Err(e) if final_maps_present => {
+            tracing::warn!(epoch = name, "{e}: depth maps made again where unreadable");
+            computed = compute_maps(
+                plan,
+                passes,
+                &mut cache,
+                &map_file,
+                name,
+                options,
+                &mut maps,
+                &mut phases,
+            )?;
+            filter_maps(
+                plan,
+                last,
+                &|view| map_file(last, view),
+                &filtered_file,
+                name,
+                options,
+                &mut maps,
+                &mut phases,
+            )?
+        }
+        other => other?,
+    };
     drop(maps);
     let fusion_start = Instant::now();
     let images_before = cache.seconds;
@@ -430,7 +456,7 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
         seconds: start.elapsed().as_secs_f64(),
         phase_seconds: phases,
     };
-    write_json(&summary_path, &summary)?;
+    crate::report::write_sealed_json(&summary_path, &summary)?;
     Ok(summary)
 }
 

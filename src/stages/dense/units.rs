@@ -8,7 +8,7 @@ use super::{
     read_map, read_settings, start_over_if_changed, write_map,
 };
 use crate::layout::Layout;
-use crate::report::{DenseReport, EpochDense, read_json, write_json};
+use crate::report::{DenseReport, EpochDense, write_json};
 use crate::stages::cache::stage_error;
 use crate::{Project, ProjectError};
 
@@ -128,7 +128,7 @@ pub(crate) fn report_unit(project: &Project) -> Result<Vec<PathBuf>, ProjectErro
     let mut report = DenseReport::default();
     for epoch in &project.epochs {
         let path = layout.dense_summary(&epoch.name);
-        let summary = read_json::<EpochDense>(&path).map_err(|e| {
+        let summary = crate::report::read_sealed_json::<EpochDense>(&path).map_err(|e| {
             stage_error(
                 "dense",
                 format!("{e} (the dense-fuse step writes it: run it first)"),
