@@ -305,3 +305,167 @@ fn damaged_caches_are_recomputed_never_trusted() {
         assert_same_products(&reference, &dir);
     }
 }
+
+/// `timesift run DIR --quiet` as a child whose files may grow to `bytes` at most
+/// (`RLIMIT_FSIZE`, SIGXFSZ ignored so that the write fails with EFBIG instead of killing it):
+/// a disk that fills up, as a process sees it. (success, standard error)
+fn run_with_file_size_limit(dir: &Path, bytes: u64) -> (bool, String) {
+    use std::os::unix::process::CommandExt;
+    let mut command = Command::new(env!("CARGO_BIN_EXE_timesift"));
+    command.args(["run", dir.to_str().expect("utf-8"), "--quiet"]);
+    // SAFETY: the closure runs in the forked child before exec and calls only signal and
+    // setrlimit, which are async-signal-safe; an ignored signal stays ignored across exec.
+    unsafe {
+        command.pre_exec(move || {
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            let limit = libc::rlimit {
+                rlim_cur: bytes,
+                rlim_max: bytes,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let out = command.output().expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// The products under `out/` and their bytes.
+fn snapshot(dir: &Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
+    files(&dir.join("out"))
+        .into_iter()
+        .map(|f| {
+            let bytes = std::fs::read(dir.join("out").join(&f)).expect("read");
+            (f, bytes)
+        })
+        .collect()
+}
+
+/// What a failed run must leave: one error line naming a file of the project and saying why,
+/// every product complete, no temporary file.
+fn assert_failed_cleanly(dir: &Path, err: &str, why: &str) -> String {
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "not one line:\n{err}");
+    assert!(
+        lines[0].contains(&*dir.to_string_lossy()) && lines[0].contains(why),
+        "{}",
+        lines[0]
+    );
+    for f in files(&dir.join("out")) {
+        complete(&dir.join("out").join(&f)).unwrap_or_else(|e| panic!("{e}"));
+    }
+    let temporaries: Vec<_> = files(dir)
+        .into_iter()
+        .filter(|f| f.to_string_lossy().contains(".tmp-"))
+        .collect();
+    assert!(temporaries.is_empty(), "{temporaries:?}");
+    lines[0].to_string()
+}
+
+/// A tmpfs mounted for the test's life.
+struct Mounted(std::path::PathBuf);
+
+impl Drop for Mounted {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg(&self.0).status();
+    }
+}
+
+/// The disk fills up while the dense clouds are made again (each file may grow to half the
+/// smallest cloud): the run stops with one line naming the file, the earlier products are
+/// untouched, and the next run, with room, completes. Then, where the test may mount a tmpfs
+/// (root), the whole project on a 40 MB one: the run stops where the space ends, and completes
+/// once the tmpfs is grown.
+#[test]
+fn a_full_disk_stops_the_run_in_one_line_and_the_next_run_completes() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("project");
+    small_landslide(&dir);
+    let (ok, _, err) = timesift(&[
+        "run",
+        dir.to_str().expect("utf-8"),
+        "--quiet",
+        "--to",
+        "dense",
+    ]);
+    assert!(ok, "{err}");
+    let before = snapshot(&dir);
+    let clouds: Vec<std::path::PathBuf> = before
+        .keys()
+        .filter(|f| f.extension().is_some_and(|e| e == "laz"))
+        .cloned()
+        .collect();
+    assert!(!clouds.is_empty());
+    for cloud in &clouds {
+        std::fs::remove_file(dir.join("out").join(cloud)).expect("remove");
+    }
+    // Half the smallest cloud: the dense stage cannot write what it makes.
+    let limit = clouds.iter().map(|c| before[c].len()).min().unwrap_or(0) as u64 / 2;
+    let (ok, err) = run_with_file_size_limit(&dir, limit);
+    assert!(!ok, "the run met no file over {limit} bytes");
+    let line = assert_failed_cleanly(&dir, &err, "File too large");
+    assert!(
+        line.contains("/work/dense/") || line.contains("dense.laz"),
+        "{line}"
+    );
+    println!("file size limit: {line}");
+    let after = snapshot(&dir);
+    for (f, bytes) in &after {
+        assert_eq!(
+            before.get(f),
+            Some(bytes),
+            "{}: changed by the failed run",
+            f.display()
+        );
+    }
+    let (ok, _, err) = timesift(&["run", dir.to_str().expect("utf-8"), "--quiet"]);
+    assert!(ok, "the next run failed: {err}");
+    for f in files(&dir.join("out")) {
+        complete(&dir.join("out").join(&f)).unwrap_or_else(|e| panic!("{e}"));
+    }
+
+    // A real small file system, where this test may mount one.
+    let disk = tmp.path().join("disk");
+    std::fs::create_dir_all(&disk).expect("mkdir");
+    let mounted = Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=40m", "tmpfs"])
+        .arg(&disk)
+        .output();
+    match mounted {
+        Ok(out) if out.status.success() => {}
+        Ok(out) => {
+            println!(
+                "no tmpfs part: mount failed ({}), the test is not root",
+                String::from_utf8_lossy(&out.stderr).trim()
+            );
+            return;
+        }
+        Err(e) => {
+            println!("no tmpfs part: no mount command ({e})");
+            return;
+        }
+    }
+    let _unmount = Mounted(disk.clone());
+    let project = disk.join("project");
+    small_landslide(&project);
+    let (ok, _, err) = timesift(&["run", project.to_str().expect("utf-8"), "--quiet"]);
+    assert!(!ok, "the project fitted in 40 MB");
+    let line = assert_failed_cleanly(&project, &err, "No space left on device");
+    println!("40 MB tmpfs: {line}");
+    let grown = Command::new("mount")
+        .args(["-o", "remount,size=400m"])
+        .arg(&disk)
+        .status()
+        .expect("mount");
+    assert!(grown.success(), "remount failed");
+    let (ok, _, err) = timesift(&["run", project.to_str().expect("utf-8"), "--quiet"]);
+    assert!(ok, "the next run, with room, failed: {err}");
+    for f in files(&project.join("out")) {
+        complete(&project.join("out").join(&f)).unwrap_or_else(|e| panic!("{e}"));
+    }
+}

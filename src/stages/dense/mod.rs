@@ -406,8 +406,12 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
     let (with_depth, upsampled) = match filtered {
         // A final map there but damaged (its checksum): the passes make it again, reading
         // the earlier passes' maps where they read back as written.
-        Err(e) if final_maps_present => {
-            tracing::warn!(epoch = name, "{e}: depth maps made again where unreadable");
+        Err(FilterError::Unreadable(path)) if final_maps_present => {
+            tracing::info!(
+                epoch = name,
+                "{}: unreadable: depth maps made again where unreadable",
+                path.display()
+            );
             computed = compute_maps(
                 plan,
                 passes,
@@ -608,17 +612,14 @@ fn filter_maps(
     options: &DenseOptions,
     maps: &mut MapCache,
     phases: &mut DensePhaseSeconds,
-) -> Result<(usize, usize), ProjectError> {
+) -> Result<(usize, usize), FilterError> {
     let mut final_map = |view: usize| {
         if let Some(map) = maps.get(last, view) {
             return Ok(map);
         }
-        read_map(&final_file(view)).map(Arc::new).ok_or_else(|| {
-            stage_error(
-                "dense",
-                format!("{}: unreadable depth map", final_file(view).display()),
-            )
-        })
+        read_map(&final_file(view))
+            .map(Arc::new)
+            .ok_or_else(|| FilterError::Unreadable(final_file(view)))
     };
     let (mut with_depth, mut upsampled) = (0usize, 0usize);
     for (view, vp) in plan.views.iter().enumerate() {
@@ -642,6 +643,31 @@ fn filter_maps(
         phases.map_files += files.elapsed().as_secs_f64();
     }
     Ok((with_depth, upsampled))
+}
+
+/// Why the final maps could not be filtered.
+enum FilterError {
+    /// A final map is missing or does not read back as written.
+    Unreadable(PathBuf),
+    /// Anything else (a file that cannot be written, a failed filter).
+    Other(ProjectError),
+}
+
+impl From<ProjectError> for FilterError {
+    fn from(e: ProjectError) -> Self {
+        FilterError::Other(e)
+    }
+}
+
+impl From<FilterError> for ProjectError {
+    fn from(e: FilterError) -> Self {
+        match e {
+            FilterError::Unreadable(path) => {
+                stage_error("dense", format!("{}: unreadable depth map", path.display()))
+            }
+            FilterError::Other(e) => e,
+        }
+    }
 }
 
 /// One view's map of pass `k`, reading the maps of pass `k − 1` it needs.
