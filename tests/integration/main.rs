@@ -13,6 +13,7 @@ mod downstream;
 mod faults;
 mod features;
 mod film;
+mod huge_claims;
 mod raster_stacking;
 mod reference_dem;
 mod report_html;
