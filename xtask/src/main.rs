@@ -10,6 +10,8 @@
 //! - `bench align`: images to oriented block on `lund` against COLMAP's CPU pipeline (time, RMS
 //!   reprojection error).
 //! - `bench change`: Nuth & Kääb / DoD statistics against xdem and M3C2 against py4dgeo.
+//! - `bench memory`: peak resident memory of features on 100 MP, dense and a large ortho of
+//!   `rendered-mar`, `timesift dem` of 30 million points, against their budgets.
 //! - `bench scale [--max-images N]`: every stage's time, memory and files on `synth scale-N`
 //!   blocks of 100 to 1,600 images, growth exponents, accuracy per N, a log-log plot.
 //!
@@ -43,6 +45,7 @@ mod bench_features;
 mod bench_film;
 mod bench_geometry;
 mod bench_matching;
+mod bench_memory;
 mod bench_methods;
 mod bench_raster;
 mod bench_scale;
@@ -225,6 +228,13 @@ enum Task {
 
 #[derive(Subcommand)]
 enum BenchStage {
+    /// Peak memory of features on 100 MP, the dense and ortho stages of rendered-mar and
+    /// `timesift dem` of 30 million points, against their budgets.
+    Memory {
+        /// Working folder (replaced).
+        #[arg(long, default_value = "target/bench-memory")]
+        out: PathBuf,
+    },
     /// RANSAC homography and essential matrix against OpenCV (Python).
     Geometry {
         /// Repetitions of each estimator.
@@ -556,6 +566,9 @@ fn main() -> anyhow::Result<()> {
                 );
             }
         }
+        Task::Bench {
+            stage: BenchStage::Memory { out },
+        } => bench_memory::run(&out)?,
         Task::Bench {
             stage: BenchStage::Geometry { runs },
         } => bench_geometry::run(runs)?,
