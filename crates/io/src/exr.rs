@@ -103,8 +103,12 @@ impl F32Channels {
 /// (the checksum [`write_f32_channels`] records; files of other programs have none).
 pub fn read_f32_channels(path: &Path) -> std::result::Result<F32Channels, IoError> {
     check_claimed_size(path)?;
-    let image = read_first_flat_layer_from_file(path)
-        .map_err(|e| IoError::invalid(path, format!("cannot read EXR: {e}")))?;
+    // A corrupt block can trip the exr crate's own assertions (a line of another resolution
+    // level than the one read): an error naming the file, like any other corruption.
+    let image = crate::decoder_guard::catch_decoder_panic(path, "the EXR decoder", || {
+        read_first_flat_layer_from_file(path)
+            .map_err(|e| IoError::invalid(path, format!("cannot read EXR: {e}")))
+    })?;
     let recorded = match image
         .layer_data
         .attributes

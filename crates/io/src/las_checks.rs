@@ -302,8 +302,12 @@ pub(crate) fn check_chunks(
     let mut file = BufReader::new(File::open(path).map_err(io)?);
     file.seek(SeekFrom::Start(header.offset_to_point_data))
         .map_err(io)?;
-    let table = laz::laszip::ChunkTable::read_from(&mut file, vlr)
-        .map_err(|e| invalid(format!("cannot read LAZ: {e}")))?;
+    // The table is compressed with the same arithmetic coder as the points: corrupt, it can
+    // trip the decoder's own assertions.
+    let table = crate::decoder_guard::catch_decoder_panic(path, "the LAZ chunk table", || {
+        laz::laszip::ChunkTable::read_from(&mut file, vlr)
+            .map_err(|e| invalid(format!("cannot read LAZ: {e}")))
+    })?;
     let chunks = table.as_ref();
     let largest = if vlr.uses_variable_size_chunks() {
         let mut sum = 0u64;

@@ -37,10 +37,11 @@ pub(crate) fn layered_laz_positions(
     source
         .seek(SeekFrom::Start(u64::from(raw.offset_to_point_data)))
         .map_err(io_err)?;
-    let mut chunks = laz::laszip::ChunkTable::read_from(&mut source, &vlr)
-        .map_err(laz_err)?
-        .as_ref()
-        .to_vec();
+    let mut chunks = decoder_guard::catch_decoder_panic(path, "the LAZ chunk table", || {
+        laz::laszip::ChunkTable::read_from(&mut source, &vlr).map_err(laz_err)
+    })?
+    .as_ref()
+    .to_vec();
     count_points_of_chunks(path, header.number_of_points(), &vlr, &mut chunks)?;
     // The chunks follow one another from here; their bytes must lie in the file.
     let data_start = source.stream_position().map_err(io_err)?;
