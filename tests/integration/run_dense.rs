@@ -176,7 +176,10 @@ fn dense_stage_names_bad_inputs() {
     let (ok, err) = run_dense(path);
     assert!(!ok);
     assert!(
-        err.lines().count() == 1 && err.contains(&names[1]) && err.contains("1 oriented image"),
+        err.lines().count() == 1
+            && err.contains(&names[1])
+            && err.contains("1 of its 6 images were oriented")
+            && err.contains("dense matching needs two"),
         "{err}"
     );
     // cameras.json of another project: image names it does not have.
