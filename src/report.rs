@@ -494,13 +494,9 @@ const SEAL_KEY: &str = "checksum";
 
 /// FNV-1a (64 bit) of a record's compact JSON text without its seal.
 fn seal_of(record: &serde_json::Value) -> String {
-    let text = record.to_string();
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in text.as_bytes() {
-        hash ^= u64::from(b);
-        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("fnv1a64:{hash:016x}")
+    let mut hash = crate::stages::cache::Fnv1a::new();
+    hash.write(record.to_string().as_bytes());
+    format!("fnv1a64:{}", hash.hex())
 }
 
 /// Writes a record of cached work (under `work/`: what a result was made from, or a result

@@ -6,7 +6,7 @@
 //! earlier stages intact.
 
 mod align;
-mod cache;
+pub(crate) mod cache;
 mod change;
 mod dem;
 mod dense;

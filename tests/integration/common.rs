@@ -192,3 +192,36 @@ pub fn small_landslide(dir: &Path) {
     .expect("write");
     quick_dense_level_4(dir);
 }
+
+/// Runs `command` with a resource limit of `bytes` (`libc::RLIMIT_AS`, `RLIMIT_FSIZE`, …) set in
+/// the child; for `RLIMIT_FSIZE`, SIGXFSZ is ignored so that a write past it fails with EFBIG
+/// instead of killing the child. (success, standard error)
+pub fn output_with_limit(
+    command: &mut Command,
+    resource: libc::__rlimit_resource_t,
+    bytes: u64,
+) -> (bool, String) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: the closure runs in the forked child before exec and calls only signal and
+    // setrlimit, which are async-signal-safe; an ignored signal stays ignored across exec.
+    unsafe {
+        command.pre_exec(move || {
+            if resource == libc::RLIMIT_FSIZE {
+                libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            }
+            let limit = libc::rlimit {
+                rlim_cur: bytes,
+                rlim_max: bytes,
+            };
+            if libc::setrlimit(resource, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let out = command.output().expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}

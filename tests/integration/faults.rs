@@ -310,29 +310,9 @@ fn damaged_caches_are_recomputed_never_trusted() {
 /// (`RLIMIT_FSIZE`, SIGXFSZ ignored so that the write fails with EFBIG instead of killing it):
 /// a disk that fills up, as a process sees it. (success, standard error)
 fn run_with_file_size_limit(dir: &Path, bytes: u64) -> (bool, String) {
-    use std::os::unix::process::CommandExt;
     let mut command = Command::new(env!("CARGO_BIN_EXE_timesift"));
     command.args(["run", dir.to_str().expect("utf-8"), "--quiet"]);
-    // SAFETY: the closure runs in the forked child before exec and calls only signal and
-    // setrlimit, which are async-signal-safe; an ignored signal stays ignored across exec.
-    unsafe {
-        command.pre_exec(move || {
-            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
-            let limit = libc::rlimit {
-                rlim_cur: bytes,
-                rlim_max: bytes,
-            };
-            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
-    let out = command.output().expect("the binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    crate::common::output_with_limit(&mut command, libc::RLIMIT_FSIZE, bytes)
 }
 
 /// The products under `out/` and their bytes.

@@ -12,29 +12,9 @@ use timesift_io::pointcloud::{LasWriteOptions, PointCloud};
 
 /// `timesift ARGS` under a 512 MiB address-space limit: (success, standard error).
 fn timesift_in_512_mib(args: &[&str]) -> (bool, String) {
-    use std::os::unix::process::CommandExt;
     let mut command = Command::new(env!("CARGO_BIN_EXE_timesift"));
     command.args(args);
-    // SAFETY: the closure runs in the forked child before exec and only calls setrlimit, which
-    // is async-signal-safe.
-    unsafe {
-        command.pre_exec(|| {
-            let bytes = 512 << 20;
-            let limit = libc::rlimit {
-                rlim_cur: bytes,
-                rlim_max: bytes,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &limit) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
-    let out = command.output().expect("the binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    crate::common::output_with_limit(&mut command, libc::RLIMIT_AS, 512 << 20)
 }
 
 fn assert_one_line_naming(err: &str, file: &Path) {

@@ -33,13 +33,7 @@ pub enum AlignError {
         min_angle_deg: f64,
     },
     /// Every candidate pair shows the same view: nothing can be triangulated.
-    #[error(
-        "no baseline: each of the {pairs} most connected image pairs shows the same view pixel \
-         for pixel (e.g. images {first} and {second}, median displacement \
-         {displacement_px:.2} px): \
-         the images are identical or were taken from one spot; the block needs photos taken \
-         from different places"
-    )]
+    #[error("{}", no_baseline_text(*.pairs, &image_label(.first), &image_label(.second), *.displacement_px))]
     NoBaseline {
         /// How many candidate pairs were evaluated.
         pairs: usize,
@@ -70,4 +64,36 @@ pub enum AlignError {
     /// The bundle adjustment rejected or failed a problem.
     #[error(transparent)]
     Bundle(#[from] timesift_bundle::BundleError),
+}
+
+impl AlignError {
+    /// The message with images called by `name` (the caller's paths: this crate knows only
+    /// indices) where it names any.
+    pub fn to_string_naming(&self, name: &dyn Fn(usize) -> String) -> String {
+        match self {
+            AlignError::NoBaseline {
+                pairs,
+                first,
+                second,
+                displacement_px,
+            } => no_baseline_text(*pairs, &name(*first), &name(*second), *displacement_px),
+            AlignError::Epoch { epoch, source } => {
+                format!("epoch \"{epoch}\": {}", source.to_string_naming(name))
+            }
+            other => other.to_string(),
+        }
+    }
+}
+
+fn image_label(index: &usize) -> String {
+    format!("image {index}")
+}
+
+fn no_baseline_text(pairs: usize, first: &str, second: &str, displacement_px: f64) -> String {
+    format!(
+        "no baseline: each of the {pairs} most connected image pairs shows the same view pixel \
+         for pixel (e.g. {first} and {second}, median displacement {displacement_px:.2} px): the \
+         images are identical or were taken from one spot; the block needs photos taken from \
+         different places"
+    )
 }

@@ -271,30 +271,10 @@ pub fn align_stage(project: &Project) -> Result<AlignReport, ProjectError> {
 
 /// An orientation error in the project's words: images by their paths, not their indices.
 fn align_error_text(project: &Project, error: &timesift_align::AlignError) -> String {
-    use timesift_align::AlignError;
-    let name = |i: usize| {
+    error.to_string_naming(&|i| {
         project
             .images
             .get(i)
             .map_or_else(|| format!("image {i}"), |im| im.name.clone())
-    };
-    match error {
-        AlignError::NoBaseline {
-            pairs,
-            first,
-            second,
-            displacement_px,
-        } => format!(
-            "no baseline: each of the {pairs} most connected image pairs shows the same view \
-             pixel for pixel (e.g. {} and {}, median displacement {displacement_px:.2} px): the \
-             images are identical or were taken from one spot; the block needs photos taken from \
-             different places",
-            name(*first),
-            name(*second)
-        ),
-        AlignError::Epoch { epoch, source } => {
-            format!("epoch \"{epoch}\": {}", align_error_text(project, source))
-        }
-        other => other.to_string(),
-    }
+    })
 }

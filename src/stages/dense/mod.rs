@@ -377,41 +377,13 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
     let mut maps = MapCache::new(MAP_CACHE_BYTES);
     // Fusion needs only the last pass: where every view has it (a cluster's pass steps made
     // them, or only the fusion options changed) the earlier passes are not read again.
-    let mut computed = if final_maps_present {
-        0
-    } else {
-        compute_maps(
-            plan,
-            passes,
-            &mut cache,
-            &map_file,
-            name,
-            options,
-            &mut maps,
-            &mut phases,
-        )?
-    };
-    // Filtering, then fusion.
+    // Filtering, then fusion; a final map there but damaged (its checksum) has the passes
+    // make it again, reading the earlier passes' maps where they read back as written.
     let filtered_file = |view: usize| layout.filtered_map_file(name, images[view]);
-    let filtered = filter_maps(
-        plan,
-        last,
-        &|view| map_file(last, view),
-        &filtered_file,
-        name,
-        options,
-        &mut maps,
-        &mut phases,
-    );
-    let (with_depth, upsampled) = match filtered {
-        // A final map there but damaged (its checksum): the passes make it again, reading
-        // the earlier passes' maps where they read back as written.
-        Err(FilterError::Unreadable(path)) if final_maps_present => {
-            tracing::info!(
-                epoch = name,
-                "{}: unreadable: depth maps made again where unreadable",
-                path.display()
-            );
+    let mut computed = 0;
+    let mut maps_made = !final_maps_present;
+    let (with_depth, upsampled) = loop {
+        if maps_made {
             computed = compute_maps(
                 plan,
                 passes,
@@ -422,18 +394,28 @@ fn dense_epoch(project: &Project, epoch: usize, o: &Oriented) -> Result<EpochDen
                 &mut maps,
                 &mut phases,
             )?;
-            filter_maps(
-                plan,
-                last,
-                &|view| map_file(last, view),
-                &filtered_file,
-                name,
-                options,
-                &mut maps,
-                &mut phases,
-            )?
         }
-        other => other?,
+        let filtered = filter_maps(
+            plan,
+            last,
+            &|view| map_file(last, view),
+            &filtered_file,
+            name,
+            options,
+            &mut maps,
+            &mut phases,
+        );
+        match filtered {
+            Err(FilterError::Unreadable(path)) if !maps_made => {
+                tracing::info!(
+                    epoch = name,
+                    "{}: unreadable: depth maps made again where unreadable",
+                    path.display()
+                );
+                maps_made = true;
+            }
+            other => break other?,
+        }
     };
     drop(maps);
     let fusion_start = Instant::now();
