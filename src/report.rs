@@ -494,7 +494,7 @@ const SEAL_KEY: &str = "checksum";
 
 /// FNV-1a (64 bit) of a record's compact JSON text without its seal.
 fn seal_of(record: &serde_json::Value) -> String {
-    let mut hash = crate::stages::cache::Fnv1a::new();
+    let mut hash = timesift_io::fingerprint::Fnv1a::new();
     hash.write(record.to_string().as_bytes());
     format!("fnv1a64:{}", hash.hex())
 }

@@ -52,32 +52,7 @@ pub(crate) fn file_stamp(path: &Path) -> serde_json::Value {
     serde_json::json!([meta.map(|m| m.len()), modified])
 }
 
-/// FNV-1a, 64 bit: the fingerprints of what cached work was made from (not a checksum against
-/// tampering, only a cheap way to notice a change).
-pub(crate) struct Fnv1a(u64);
-
-impl Fnv1a {
-    pub(crate) fn new() -> Self {
-        Fnv1a(0xcbf2_9ce4_8422_2325)
-    }
-
-    pub(crate) fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 ^= b as u64;
-            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-
-    /// Feeds the bits of a number.
-    pub(crate) fn write_f64(&mut self, v: f64) {
-        self.write(&v.to_bits().to_le_bytes());
-    }
-
-    /// The hash as 16 hex digits.
-    pub(crate) fn hex(&self) -> String {
-        format!("{:016x}", self.0)
-    }
-}
+pub(crate) use timesift_io::fingerprint::Fnv1a;
 
 /// A fingerprint of the contents of files (names and bytes, in the order given): what a stage
 /// that reads whole folders records, since a rewrite with the same bytes changes no result.

@@ -61,20 +61,14 @@ const CHECKSUM_ATTRIBUTE: &str = "timesiftChecksum";
 fn checksum<'a>(channels: impl Iterator<Item = (&'a str, &'a [f32])>) -> String {
     let mut sorted: Vec<(&str, &[f32])> = channels.collect();
     sorted.sort_by(|a, b| a.0.cmp(b.0));
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut feed = |bytes: &[u8]| {
-        for &b in bytes {
-            hash ^= u64::from(b);
-            hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    };
+    let mut hash = crate::fingerprint::Fnv1a::new();
     for (name, samples) in sorted {
-        feed(name.as_bytes());
-        for v in samples {
-            feed(&v.to_bits().to_le_bytes());
+        hash.write(name.as_bytes());
+        for &v in samples {
+            hash.write_f32(v);
         }
     }
-    format!("fnv1a64:{hash:016x}")
+    format!("fnv1a64:{}", hash.hex())
 }
 
 /// The f32 channels of one image.

@@ -23,6 +23,7 @@ mod error;
 pub mod exif;
 pub mod exr;
 mod faults;
+pub mod fingerprint;
 pub mod fsutil;
 pub mod geotiff;
 pub mod image;

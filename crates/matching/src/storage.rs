@@ -17,12 +17,7 @@ const KEYPOINT_BYTES: usize = 40;
 const MATCH_BYTES: usize = 12;
 
 fn fnv1a(data: &[u8]) -> u64 {
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in data {
-        hash ^= b as u64;
-        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    hash
+    timesift_io::fingerprint::Fnv1a::of(data)
 }
 
 fn write_atomic(path: &Path, mut bytes: Vec<u8>) -> Result<(), MatchingError> {
