@@ -24,6 +24,7 @@ use timesift_io::geotiff::{read_f32, write_f32};
 use timesift_io::pointcloud::{
     AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, write_las,
 };
+use timesift_io::qgis::{RasterStyle, write_qml};
 use timesift_io::wkt::Polygon;
 
 use crate::ProjectError;
@@ -421,6 +422,9 @@ fn write_dod_rasters(out: &Path, analysis: &PairAnalysis) -> Result<Vec<String>,
     let dod_path = out.join("dod.tif");
     write_f32(&dod_path, &dod.to_raster())?;
     outputs.push(dod_path.display().to_string());
+    // QGIS's style beside it: change about zero, the LoD95 band not drawn.
+    let style = RasterStyle::diverging_fitted(&dod.values, None, analysis.lod95);
+    outputs.push(write_qml(&dod_path, &style)?.display().to_string());
     if let Some(flags) = analysis.significance() {
         let mask = Dem {
             grid: dod.grid,

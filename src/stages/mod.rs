@@ -15,6 +15,7 @@ mod fiducials;
 mod matching;
 mod ortho;
 mod part;
+mod qgis_styles;
 mod report;
 
 use std::fmt;

@@ -23,11 +23,14 @@ impl PipelineStage for ReportStage {
     }
     fn run(&self, project: &Project) -> Result<String, ProjectError> {
         let page = report_stage(project)?;
+        let qgis = super::qgis_styles::write_qgis_files(project)?;
         Ok(format!(
-            "{} written ({} kB, {} warnings)",
+            "{} written ({} kB, {} warnings); out/timesift.qgs: {} layers, each product's style \
+             beside it (.qml)",
             project.layout().report_html().display(),
             page.html.len() / 1024,
-            page.warnings.len()
+            page.warnings.len(),
+            qgis.layers
         ))
     }
 }

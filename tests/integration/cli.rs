@@ -514,3 +514,66 @@ fn camera_calibration_is_checked_and_shown() {
     let e = info_error(p.path());
     assert!(e.contains("camera[1].name") && e.contains("twice"), "{e}");
 }
+
+/// Shell completions name every command; the manual has a page per command, each a roff page
+/// of its command's options; an unknown shell is refused with the shells there are.
+#[test]
+fn completions_and_manual_pages_cover_every_command() {
+    let commands = [
+        "init",
+        "info",
+        "run",
+        "task",
+        "status",
+        "features",
+        "dem",
+        "demo",
+        "fiducials",
+        "export",
+        "compare",
+        "completions",
+        "man",
+    ];
+    for shell in ["bash", "zsh", "fish"] {
+        let (ok, out, err) = timesift(&["completions", shell]);
+        assert!(ok, "{shell}: {err}");
+        for command in commands {
+            assert!(out.contains(command), "{shell} completion lacks {command}");
+        }
+        assert!(out.contains("--executor"), "{shell}: run's options");
+    }
+    let (ok, _, err) = timesift(&["completions", "tcsh"]);
+    assert!(!ok && err.contains("bash") && err.contains("fish"), "{err}");
+
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("man1");
+    let (ok, out, err) = timesift(&["man", dir.to_str().expect("utf-8")]);
+    assert!(ok, "{err}");
+    assert!(out.contains("manual pages"), "{out}");
+    let top = std::fs::read_to_string(dir.join("timesift.1")).expect("timesift.1");
+    assert!(
+        top.starts_with(".ie") || top.contains(".TH timesift 1"),
+        "a roff page"
+    );
+    for command in commands {
+        let page = std::fs::read_to_string(dir.join(format!("timesift-{command}.1")))
+            .unwrap_or_else(|e| panic!("timesift-{command}.1: {e}"));
+        assert!(
+            page.contains(&format!(".TH timesift-{command} 1")),
+            "{command}"
+        );
+    }
+    let run = std::fs::read_to_string(dir.join("timesift-run.1")).expect("run page");
+    assert!(
+        run.contains("executor") && run.contains("dry"),
+        "run's options in its page"
+    );
+    // A file in the way of the folder is a one-line error naming it.
+    let blocked = tmp.path().join("file");
+    std::fs::write(&blocked, "x").expect("file");
+    let (ok, _, err) = timesift(&["man", blocked.join("man1").to_str().expect("utf-8")]);
+    assert!(
+        !ok && err.contains("file") && err.lines().count() == 1,
+        "{err}"
+    );
+}

@@ -128,10 +128,11 @@ pub fn complete(path: &Path) -> Result<(), String> {
         "txt" => timesift_io::colmap::read_colmap_text(path.parent().expect("dir"))
             .map(|_| ())
             .map_err(|e| bad(e.to_string())),
-        "html" => {
+        "html" | "qml" | "qgs" => {
             let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+            let end = if ext == "html" { "</html>" } else { "</qgis>" };
             text.trim_end()
-                .ends_with("</html>")
+                .ends_with(end)
                 .then_some(())
                 .ok_or_else(|| bad("cut short".into()))
         }

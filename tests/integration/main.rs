@@ -13,6 +13,8 @@ mod downstream;
 mod faults;
 mod features;
 mod film;
+mod guide_examples;
+mod guide_reference;
 mod huge_claims;
 mod raster_stacking;
 mod reference_dem;

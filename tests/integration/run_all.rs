@@ -4,7 +4,10 @@
 //!   products as an uninterrupted run, and no product is ever left half-written at a kill;
 //! - a second run finds every stage up to date;
 //! - `out/report.html` renders in headless Chromium with every section and no broken image
-//!   (skipped with a printed reason where no Chromium is installed).
+//!   (skipped with a printed reason where no Chromium is installed);
+//! - `out/timesift.qgs` opens in QGIS (Debian's python3-qgis, headless) with every layer valid,
+//!   drawn by the renderer its product calls for, on the product's extent, and renders (skipped
+//!   with a printed reason where QGIS's Python is not installed).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -82,6 +85,109 @@ fn a_killed_run_resumes_to_the_same_products_and_the_report_renders() {
 
     check_exports(&whole);
     check_in_browser(&whole.join("out/report.html"), tmp.path());
+    check_in_qgis(&whole, tmp.path());
+}
+
+/// A Python that imports QGIS's (Debian installs it for the system's `/usr/bin/python3`).
+fn qgis_python() -> Option<&'static str> {
+    ["/usr/bin/python3", "python3"].into_iter().find(|python| {
+        Command::new(python)
+            .args(["-c", "import qgis.core"])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    })
+}
+
+fn check_in_qgis(dir: &Path, tmp: &Path) {
+    let Some(python) = qgis_python() else {
+        println!(
+            "skipped: QGIS's Python is not installed (.ci/run installs Debian's python3-qgis)"
+        );
+        return;
+    };
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/integration/scripts/qgis_layers.py");
+    let render = tmp.join("qgis.png");
+    let out = Command::new(python)
+        .arg(&script)
+        .arg(dir.join("out/timesift.qgs"))
+        .arg(&render)
+        .env("QT_QPA_PLATFORM", "offscreen")
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut renderers = BTreeMap::new();
+    for line in text.lines() {
+        let fields: Vec<&str> = line.split('\t').collect();
+        assert_eq!(fields.len(), 9, "{line}");
+        let (name, valid, renderer, source) = (fields[0], fields[1], fields[2], fields[7]);
+        assert_eq!(valid, "1", "layer {name} is not valid in QGIS: {source}");
+        // The raster added on its own takes the style beside it (the DEM's, for its hillshade).
+        if renderer != "hillshade" {
+            assert_eq!(fields[8], renderer, "{name}: the .qml beside {source}");
+        }
+        let extent: Vec<f64> = fields[3..7]
+            .iter()
+            .map(|v| v.parse().expect("extent"))
+            .collect();
+        let grid = timesift_io::geotiff::read_grid(Path::new(source)).expect("the layer's raster");
+        let t = grid.georef.transform;
+        let expected = [
+            t.origin_x,
+            t.origin_y + grid.height as f64 * t.pixel_height,
+            t.origin_x + grid.width as f64 * t.pixel_width,
+            t.origin_y,
+        ];
+        for (got, want) in extent.iter().zip(expected) {
+            assert!(
+                (got - want).abs() < 1e-6,
+                "{name}: extent {extent:?}, product {expected:?}"
+            );
+        }
+        let kind = name.split(' ').next().unwrap_or(name);
+        let previous = renderers.insert(kind.to_string(), renderer.to_string());
+        assert!(previous.is_none_or(|p| p == renderer), "{name}: {renderer}");
+    }
+    let expected = [
+        ("DEM", "singlebandpseudocolor"),
+        ("hillshade", "hillshade"),
+        ("ortho", "multibandcolor"),
+        ("DoD", "singlebandpseudocolor"),
+        ("points", "singlebandpseudocolor"),
+        ("height", "singlebandpseudocolor"),
+        ("filled", "paletted"),
+        ("beyond", "paletted"),
+    ];
+    for (kind, renderer) in expected {
+        assert_eq!(
+            renderers.get(kind).map(String::as_str),
+            Some(renderer),
+            "{kind}: {text}"
+        );
+    }
+    // Two epochs: 6 layers each, one pair: 2, and the ground the block found unchanged when
+    // the align stage wrote it.
+    let found = dir.join("out/stable_found.tif").is_file();
+    if found {
+        assert_eq!(
+            renderers.get("ground").map(String::as_str),
+            Some("paletted")
+        );
+    }
+    assert_eq!(text.lines().count(), 14 + usize::from(found), "{text}");
+    let image = image::open(&render).expect("QGIS's render").to_rgb8();
+    let distinct: std::collections::BTreeSet<[u8; 3]> =
+        image.pixels().step_by(53).map(|p| p.0).collect();
+    assert!(
+        distinct.len() > 50,
+        "a blank map: {} colours",
+        distinct.len()
+    );
 }
 
 /// The value between `<tag>` and `</tag>` after `from`, with where it ends.

@@ -178,6 +178,13 @@ enum Task {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// The guide's generated reference pages (project.toml keys, every command's --help)
+    /// checked against the code, then the book built with mdbook when it is installed.
+    Guide {
+        /// Rewrite the reference pages instead of comparing.
+        #[arg(long)]
+        bless: bool,
+    },
     /// The public API of every library crate against its snapshot under `api/`.
     Api {
         /// Rewrite the snapshots instead of comparing.
@@ -521,7 +528,13 @@ fn write_results(
 }
 
 fn main() -> anyhow::Result<()> {
-    match Cli::parse().task {
+    let cli = Cli::parse();
+    // The guide's tested examples (tests/integration/guide_examples.rs): parse, run nothing.
+    if std::env::var_os("TIMESIFT_CHECK_ARGS").is_some() {
+        println!("arguments accepted");
+        return Ok(());
+    }
+    match cli.task {
         Task::FnLengths {
             max_lines,
             check,
@@ -552,6 +565,7 @@ fn main() -> anyhow::Result<()> {
             seconds,
             seed,
         } => fuzz::worker(&target, seconds, seed)?,
+        Task::Guide { bless } => guide(bless)?,
         Task::Api { bless } => {
             let differences = api::check(&api::workspace_root(), bless)?;
             if !differences.is_empty() {
@@ -830,6 +844,41 @@ fn main() -> anyhow::Result<()> {
             if !missing.is_empty() {
                 bail!("shared data missing: {}", missing.join(", "));
             }
+        }
+    }
+    Ok(())
+}
+
+/// `cargo xtask guide`: the reference pages are made by the test that checks them
+/// (tests/integration/guide_reference.rs), so there is one generator; then `mdbook build`.
+fn guide(bless: bool) -> anyhow::Result<()> {
+    let root = api::workspace_root();
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut test = std::process::Command::new(cargo);
+    test.args([
+        "test",
+        "-p",
+        "timesift",
+        "--test",
+        "integration",
+        "guide_reference",
+    ])
+    .current_dir(&root);
+    if bless {
+        test.env("TIMESIFT_BLESS", "1");
+    }
+    if !test.status()?.success() {
+        bail!("the guide's reference pages are stale: run `cargo xtask guide --bless`");
+    }
+    match std::process::Command::new("mdbook")
+        .args(["build", "docs/guide"])
+        .current_dir(&root)
+        .status()
+    {
+        Ok(status) if status.success() => println!("built docs/guide/book/index.html"),
+        Ok(_) => bail!("mdbook build docs/guide failed"),
+        Err(_) => {
+            println!("mdbook is not installed (cargo install mdbook): the book was not built")
         }
     }
     Ok(())

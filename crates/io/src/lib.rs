@@ -36,6 +36,7 @@ pub mod metashape;
 pub mod opensfm;
 pub mod ply;
 pub mod pointcloud;
+pub mod qgis;
 pub mod tiled_tiff;
 pub mod topocentric;
 pub mod truth_csv;
