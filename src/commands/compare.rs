@@ -24,7 +24,9 @@ use timesift_io::geotiff::{read_f32, write_f32};
 use timesift_io::pointcloud::{
     AttributeValues, ExtraAttribute, LasWriteOptions, PointCloud, read_las, write_las,
 };
-use timesift_io::qgis::{RasterStyle, write_qml};
+use timesift_io::qgis::write_qml;
+
+use crate::stages::product_styles;
 use timesift_io::wkt::Polygon;
 
 use crate::ProjectError;
@@ -423,7 +425,7 @@ fn write_dod_rasters(out: &Path, analysis: &PairAnalysis) -> Result<Vec<String>,
     write_f32(&dod_path, &dod.to_raster())?;
     outputs.push(dod_path.display().to_string());
     // QGIS's style beside it: change about zero, the LoD95 band not drawn.
-    let style = RasterStyle::diverging_fitted(&dod.values, None, analysis.lod95);
+    let style = product_styles::dod(&dod.values, None, analysis.lod95);
     outputs.push(write_qml(&dod_path, &style)?.display().to_string());
     if let Some(flags) = analysis.significance() {
         let mask = Dem {
@@ -436,6 +438,8 @@ fn write_dod_rasters(out: &Path, analysis: &PairAnalysis) -> Result<Vec<String>,
         let path = out.join("significant.tif");
         write_f32(&path, &mask.to_raster())?;
         outputs.push(path.display().to_string());
+        let style = write_qml(&path, &product_styles::significant())?;
+        outputs.push(style.display().to_string());
     }
     Ok(outputs)
 }

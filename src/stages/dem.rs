@@ -16,6 +16,8 @@ use timesift_change::grid::DEM_NODATA;
 use timesift_core::Camera;
 use timesift_io::coords::Crs;
 use timesift_io::geotiff::{GeoRaster, GeoReference, GeoTransform, write_f32, write_u8};
+
+use super::product_styles;
 use timesift_io::pointcloud::read_las_positions;
 use timesift_raster::{Bounds, EpochFootprint, Lattice, ProjectGrid, grid_cloud, plan_grid};
 
@@ -336,7 +338,19 @@ pub fn write_dem_files(
             )?)
         },
     ];
-    writers.par_iter().try_for_each(|write| write())
+    writers.par_iter().try_for_each(|write| write())?;
+    // Their QGIS styles beside them: what the report's project draws them with.
+    let counts: Vec<f32> = dem.count.iter().map(|n| *n as f32).collect();
+    let styles = [
+        (dem_path, product_styles::dem(&dem.height, None)),
+        (count_path, product_styles::amount(&counts, None)),
+        (std_path, product_styles::amount(&dem.spread, None)),
+        (filled_path, product_styles::filled()),
+    ];
+    for (path, style) in styles {
+        timesift_io::qgis::write_qml(path, &style)?;
+    }
+    Ok(())
 }
 
 /// A height or spread as written: NaN (no points) becomes the DEM's nodata value.

@@ -15,6 +15,7 @@ mod fiducials;
 mod matching;
 mod ortho;
 mod part;
+pub(crate) mod product_styles;
 mod qgis_styles;
 mod report;
 

@@ -318,6 +318,7 @@ fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bo
     .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
     bar.finish_and_clear();
     tiff.finish()?;
+    timesift_io::qgis::write_qml(&ortho_path, &super::product_styles::ortho())?;
     let seconds = start.elapsed().as_secs_f64();
     let (w, h, small) = preview.finish();
     timesift_io::image::write_png(&layout.ortho_preview(name), w as u32, h as u32, 4, &small)?;

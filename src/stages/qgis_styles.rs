@@ -1,10 +1,11 @@
-//! The products as QGIS opens them: a `.qml` style beside every GeoTIFF product and
-//! `out/timesift.qgs`, one project of every epoch's DEM (terrain ramp under its hillshade),
-//! ortho, count, spread and filled cells, and every DoD (a diverging ramp about zero with the
-//! LoD95 band left out), in groups. Written by the report stage, after every product exists.
+//! The products as QGIS opens them: `out/timesift.qgs`, one project of every epoch's DEM
+//! (terrain ramp under its hillshade), ortho, count, spread and filled cells, and every DoD (a
+//! diverging ramp about zero with the LoD95 band left out), in groups, drawn as
+//! [`super::product_styles`] says. Written by the report stage, after every product exists.
 //!
-//! The ramps are fitted to the data (the 2nd and 98th percentiles of the heights; ±the 98th
-//! percentile of |DoD|, at least twice the LoD95), so the files are rewritten on every report.
+//! Each product's `.qml` is written by the stage that writes the product (a unit of work never
+//! writes another's files); the report stage only adds a style where a product has none, as
+//! the products of a project made before styles existed.
 
 use std::path::Path;
 
@@ -12,7 +13,7 @@ use timesift_io::coords::Crs;
 use timesift_io::geotiff::{GeoTransform, read_f32, read_grid};
 use timesift_io::qgis::{ProjectGroup, ProjectLayer, RasterStyle, write_qgs, write_qml};
 
-use super::epoch_pairs;
+use super::{epoch_pairs, product_styles};
 use crate::report::read_json;
 use crate::{Project, ProjectError};
 
@@ -49,7 +50,7 @@ impl LayerMaker<'_> {
         let raster = read_f32(&path)?;
         let style = style(&raster.data, raster.georef.nodata);
         let extent = extent_of(&raster.georef.transform, raster.width, raster.height);
-        self.styled(&path, relative, name, visible, style, extent)
+        self.layer(&path, relative, name, visible, style, extent)
     }
 
     /// An orthomosaic (RGBA: the ortho stage writes band 4 as coverage): only its header is read.
@@ -65,12 +66,18 @@ impl LayerMaker<'_> {
         }
         let grid = read_grid(&path)?;
         let extent = extent_of(&grid.georef.transform, grid.width, grid.height);
-        let style = RasterStyle::Rgb { alpha: true };
-        self.styled(&path, relative, name, visible, style, extent)
+        self.layer(
+            &path,
+            relative,
+            name,
+            visible,
+            product_styles::ortho(),
+            extent,
+        )
     }
 
-    /// Writes the product's style beside it; the layer of it.
-    fn styled(
+    /// The layer of a product; its style written beside it when it has none.
+    fn layer(
         &mut self,
         path: &Path,
         relative: &str,
@@ -79,7 +86,9 @@ impl LayerMaker<'_> {
         style: RasterStyle,
         extent: [f64; 4],
     ) -> Result<Option<ProjectLayer>, ProjectError> {
-        write_qml(path, &style)?;
+        if !path.with_extension("qml").is_file() {
+            write_qml(path, &style)?;
+        }
         self.extents.push(extent);
         Ok(Some(ProjectLayer {
             name,
@@ -89,14 +98,6 @@ impl LayerMaker<'_> {
             visible,
         }))
     }
-}
-
-fn flags(label: &str, colour: [u8; 3]) -> impl Fn(&[f32], Option<f64>) -> RasterStyle {
-    let classes = vec![
-        (0, "no".to_string(), None),
-        (1, label.to_string(), Some(colour)),
-    ];
-    move |_, _| RasterStyle::Classes(classes.clone())
 }
 
 /// What the report stage wrote for QGIS: the project file and its layer count.
@@ -125,13 +126,13 @@ pub(crate) fn write_qgis_files(project: &Project) -> Result<QgisFiles, ProjectEr
             &format!("{dir}/dod.tif"),
             format!("DoD {a} → {b}"),
             k == 0,
-            |v, n| RasterStyle::diverging_fitted(v, n, lod95),
+            |v, n| product_styles::dod(v, n, lod95),
         )?;
         let significant = maker.band(
             &format!("{dir}/significant.tif"),
             format!("beyond LoD95 {a} → {b}"),
             false,
-            flags("beyond the LoD95", [60, 60, 60]),
+            |_, _| product_styles::significant(),
         )?;
         change.extend(dod.into_iter().chain(significant));
     }
@@ -177,7 +178,7 @@ pub(crate) fn write_qgis_files(project: &Project) -> Result<QgisFiles, ProjectEr
                 &format!("{dir}/dem_filled.tif"),
                 format!("filled cells {e}"),
                 false,
-                flags("filled", [230, 140, 20]),
+                |_, _| product_styles::filled(),
             )?,
         ];
         layers.extend(others.into_iter().flatten());
@@ -192,7 +193,7 @@ pub(crate) fn write_qgis_files(project: &Project) -> Result<QgisFiles, ProjectEr
         "stable_found.tif",
         "ground found unchanged".into(),
         false,
-        flags("unchanged", [40, 160, 60]),
+        |_, _| product_styles::stable_found(),
     )? {
         groups.push(ProjectGroup {
             name: "orientation".into(),

@@ -157,6 +157,7 @@ fn write_stable_found(
         },
     };
     timesift_io::geotiff::write_u8(&path, &raster)?;
+    timesift_io::qgis::write_qml(&path, &crate::stages::product_styles::stable_found())?;
     Ok(())
 }
 
