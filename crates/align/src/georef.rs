@@ -6,7 +6,7 @@
 
 use nalgebra::{Vector2, Vector3};
 use timesift_geometry::ransac::{RansacOptions, ransac};
-use timesift_geometry::similarity::{SimilarityEstimator, TransformKind, umeyama};
+use timesift_geometry::similarity::{Similarity, SimilarityEstimator, TransformKind, umeyama};
 use timesift_geometry::triangulation::{IntersectedPoint, PixelObservation, intersect_weighted};
 
 use timesift_bundle::Loss;
@@ -342,6 +342,39 @@ struct Placed {
     rejected_control: Vec<usize>,
 }
 
+/// A control point whose miss after placement is this many times the control points' median
+/// miss (and beyond the placement's threshold) is a gross error: left out of the adjustment.
+const GROSS_CONTROL_FACTOR: f64 = 20.0;
+
+/// The control points left out of the adjustment: outliers of the placement that miss by far more
+/// than the others do. The placement's threshold follows the points' survey σ, but a control
+/// point's position in the block is its markers' intersection, which on scanned film is metres
+/// off (2.7 m pixels): there every control point misses the threshold, and the placement's
+/// outliers are only the ones that agree least. Such points stay in the adjustment, which weighs
+/// their markers as what they are; a point typed 100 km off, or in another CRS, does not.
+fn gross_control_errors(
+    c: &Correspondences,
+    world_from_block: &Similarity,
+    inliers: &[bool],
+    threshold: f64,
+) -> Vec<usize> {
+    let miss = |k: usize| (world_from_block.apply(&c.src[k]) - c.dst[k]).norm();
+    let mut misses: Vec<f64> = (0..c.src.len())
+        .filter(|&k| c.control_index[k].is_some())
+        .map(miss)
+        .collect();
+    if misses.is_empty() {
+        return Vec::new();
+    }
+    misses.sort_by(f64::total_cmp);
+    let median = misses[misses.len() / 2];
+    let bound = threshold.max(GROSS_CONTROL_FACTOR * median);
+    (0..c.src.len())
+        .filter(|&k| !inliers[k] && miss(k) > bound)
+        .filter_map(|k| c.control_index[k])
+        .collect()
+}
+
 /// Places a component in the world frame by a robust similarity, or `None` when it cannot be
 /// placed.
 fn place(
@@ -386,10 +419,7 @@ fn place(
     rec.transform(&world_from_block);
     let accepted: Vec<usize> = inliers.iter().filter_map(|&k| c.prior_index[k]).collect();
     let rejected_priors = c.prior_index.iter().flatten().count() - accepted.len();
-    let rejected_control: Vec<usize> = (0..c.src.len())
-        .filter(|&k| !result.inliers[k])
-        .filter_map(|k| c.control_index[k])
-        .collect();
+    let rejected_control = gross_control_errors(&c, &world_from_block, &result.inliers, threshold);
     Some(Placed {
         control: inliers.iter().any(|&k| c.control_index[k].is_some()),
         accepted_priors: accepted,
@@ -1015,6 +1045,49 @@ pub fn ground_point_residuals(
 mod tests {
     use super::*;
     use timesift_core::{Pose, SeededRng};
+
+    /// Control points whose block positions are their markers' intersections on film scans
+    /// (metres off, every one beyond a survey-σ threshold) all stay in the adjustment; one typed
+    /// 100 km off among them is left out, and so is a point off by far more than the others on
+    /// a drone block.
+    #[test]
+    fn only_gross_control_errors_are_left_out_of_the_adjustment() {
+        let identity = Similarity {
+            scale: 1.0,
+            rotation: nalgebra::UnitQuaternion::identity(),
+            translation: Vector3::zeros(),
+        };
+        let correspondences = |misses: &[f64]| Correspondences {
+            src: misses.iter().map(|&m| Vector3::new(m, 0.0, 0.0)).collect(),
+            dst: vec![Vector3::zeros(); misses.len()],
+            sigma: vec![0.08; misses.len()],
+            from_control: misses.len(),
+            prior_index: vec![None; misses.len()],
+            control_index: (0..misses.len()).map(Some).collect(),
+        };
+        let threshold = 4.0 * 0.08;
+        let outside =
+            |misses: &[f64]| -> Vec<bool> { misses.iter().map(|m| *m <= threshold).collect() };
+        let film = [1.4, 0.6, 1.8, 1.3, 0.7, 6.8, 4.7, 0.3];
+        let c = correspondences(&film);
+        assert_eq!(
+            gross_control_errors(&c, &identity, &outside(&film), threshold),
+            Vec::<usize>::new()
+        );
+        let mut typo = film.to_vec();
+        typo[2] = 100_000.0;
+        let c = correspondences(&typo);
+        assert_eq!(
+            gross_control_errors(&c, &identity, &outside(&typo), threshold),
+            vec![2]
+        );
+        let drone = [0.02, 0.03, 0.01, 1.5, 0.04, 0.02];
+        let c = correspondences(&drone);
+        assert_eq!(
+            gross_control_errors(&c, &identity, &outside(&drone), threshold),
+            vec![3]
+        );
+    }
 
     /// Two flights of 300 priors scattered by σ = (0.5, 1.0) m about their own offsets: the
     /// estimate recovers each flight's σ, and the priors are weighed by it within the stated σ.
