@@ -304,8 +304,14 @@ fn surface_fit_table(
                     Some(_) => "the reference DEM",
                     None => "the reference epoch's surface",
                 };
+                // "an offset", "a tilt".
+                let article = if name.starts_with(['a', 'e', 'i', 'o', 'u']) {
+                    "an"
+                } else {
+                    "a"
+                };
                 warnings.push(format!(
-                    "epoch {}: its tie points miss {against} by a {name} of \
+                    "epoch {}: its tie points miss {against} by {article} {name} of \
                      {:.*} {unit} (σ {:.*}, {:.1} σ) over stable ground: its DEM and the DoDs \
                      with it carry that difference",
                     e.name,
