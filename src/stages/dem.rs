@@ -306,19 +306,27 @@ pub fn write_dem_files(
         data,
         georef: georeference(l, crs, nodata),
     };
+    // A band and its QGIS style beside it (what the report's project draws it with), fitted
+    // to the values as written.
+    let styled = |path: &Path, data: Vec<f32>, nodata: Option<f64>, style: StyleOf| {
+        let style = style(&data, nodata);
+        write_f32(path, &raster(data, nodata))?;
+        timesift_io::qgis::write_qml(path, &style)?;
+        Ok::<(), ProjectError>(())
+    };
     // Five independent files, each compressed as it is written: written side by side.
     let writers: [&(dyn Fn() -> Result<(), ProjectError> + Sync); 5] = [
         &|| {
             let heights = dem.height.iter().map(|h| finite_or_nodata(*h)).collect();
-            Ok(write_f32(dem_path, &raster(heights, nodata))?)
+            styled(dem_path, heights, nodata, product_styles::dem)
         },
         &|| {
             let counts = dem.count.iter().map(|n| *n as f32).collect();
-            Ok(write_f32(count_path, &raster(counts, None))?)
+            styled(count_path, counts, None, product_styles::amount)
         },
         &|| {
             let spread = dem.spread.iter().map(|s| finite_or_nodata(*s)).collect();
-            Ok(write_f32(std_path, &raster(spread, nodata))?)
+            styled(std_path, spread, nodata, product_styles::amount)
         },
         &|| {
             let filled = GeoRaster {
@@ -328,7 +336,9 @@ pub fn write_dem_files(
                 data: dem.filled.iter().map(|f| *f as u8).collect(),
                 georef: georeference(l, crs, None),
             };
-            Ok(write_u8(filled_path, &filled)?)
+            write_u8(filled_path, &filled)?;
+            timesift_io::qgis::write_qml(filled_path, &product_styles::filled())?;
+            Ok(())
         },
         &|| {
             let shade = timesift_raster::hillshade(&dem.height, l);
@@ -338,20 +348,11 @@ pub fn write_dem_files(
             )?)
         },
     ];
-    writers.par_iter().try_for_each(|write| write())?;
-    // Their QGIS styles beside them: what the report's project draws them with.
-    let counts: Vec<f32> = dem.count.iter().map(|n| *n as f32).collect();
-    let styles = [
-        (dem_path, product_styles::dem(&dem.height, None)),
-        (count_path, product_styles::amount(&counts, None)),
-        (std_path, product_styles::amount(&dem.spread, None)),
-        (filled_path, product_styles::filled()),
-    ];
-    for (path, style) in styles {
-        timesift_io::qgis::write_qml(path, &style)?;
-    }
-    Ok(())
+    writers.par_iter().try_for_each(|write| write())
 }
+
+/// How a band's style is fitted to its values.
+type StyleOf = fn(&[f32], Option<f64>) -> timesift_io::qgis::RasterStyle;
 
 /// A height or spread as written: NaN (no points) becomes the DEM's nodata value.
 fn finite_or_nodata(value: f32) -> f32 {

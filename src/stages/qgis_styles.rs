@@ -4,135 +4,109 @@
 //! [`super::product_styles`] says. Written by the report stage, after every product exists.
 //!
 //! Each product's `.qml` is written by the stage that writes the product (a unit of work never
-//! writes another's files); the report stage only adds a style where a product has none, as
-//! the products of a project made before styles existed.
+//! writes another's files), and the project embeds it as it is, so the report reads only the
+//! rasters' headers. Only a product without a style (made before styles existed) is decoded, to
+//! fit its style, which is then written beside it.
 
 use std::path::Path;
 
+use timesift_change::grid::Grid;
 use timesift_io::coords::Crs;
-use timesift_io::geotiff::{GeoTransform, read_f32, read_grid};
-use timesift_io::qgis::{ProjectGroup, ProjectLayer, RasterStyle, write_qgs, write_qml};
+use timesift_io::geotiff::{read_f32, read_grid};
+use timesift_io::qgis::{
+    LayerStyle, ProjectGroup, ProjectLayer, RasterStyle, read_qml, write_qgs, write_qml,
+};
 
 use super::{epoch_pairs, product_styles};
+use crate::commands::compare::DemReport;
 use crate::report::read_json;
 use crate::{Project, ProjectError};
 
-fn extent_of(t: &GeoTransform, width: usize, height: usize) -> [f64; 4] {
-    let x1 = t.origin_x + width as f64 * t.pixel_width;
-    let y1 = t.origin_y + height as f64 * t.pixel_height;
-    [
-        t.origin_x.min(x1),
-        t.origin_y.min(y1),
-        t.origin_x.max(x1),
-        t.origin_y.max(y1),
-    ]
-}
-
-/// A layer of a product in `out/`, its sidecar written; `None` when the product is absent.
+/// The layers of the products under `out/`.
 struct LayerMaker<'a> {
     out: &'a Path,
-    extents: Vec<[f64; 4]>,
 }
 
 impl LayerMaker<'_> {
-    /// A single-band product: decoded for its range, styled by `style`.
-    fn band(
-        &mut self,
+    /// The layer of the product at `relative` (`None` when it is absent), drawn by the style
+    /// beside it; without one, by `style`'s (given the product's path), written beside it.
+    fn layer(
+        &self,
         relative: &str,
         name: String,
         visible: bool,
-        style: impl Fn(&[f32], Option<f64>) -> RasterStyle,
-    ) -> Result<Option<ProjectLayer>, ProjectError> {
-        let path = self.out.join(relative);
-        if !path.is_file() {
-            return Ok(None);
-        }
-        let raster = read_f32(&path)?;
-        let style = style(&raster.data, raster.georef.nodata);
-        let extent = extent_of(&raster.georef.transform, raster.width, raster.height);
-        self.layer(&path, relative, name, visible, style, extent)
-    }
-
-    /// An orthomosaic (RGBA: the ortho stage writes band 4 as coverage): only its header is read.
-    fn image(
-        &mut self,
-        relative: &str,
-        name: String,
-        visible: bool,
+        style: impl FnOnce(&Path) -> Result<RasterStyle, ProjectError>,
     ) -> Result<Option<ProjectLayer>, ProjectError> {
         let path = self.out.join(relative);
         if !path.is_file() {
             return Ok(None);
         }
         let grid = read_grid(&path)?;
-        let extent = extent_of(&grid.georef.transform, grid.width, grid.height);
-        self.layer(
-            &path,
-            relative,
-            name,
-            visible,
-            product_styles::ortho(),
-            extent,
-        )
-    }
-
-    /// The layer of a product; its style written beside it when it has none.
-    fn layer(
-        &mut self,
-        path: &Path,
-        relative: &str,
-        name: String,
-        visible: bool,
-        style: RasterStyle,
-        extent: [f64; 4],
-    ) -> Result<Option<ProjectLayer>, ProjectError> {
-        if !path.with_extension("qml").is_file() {
-            write_qml(path, &style)?;
+        let (xmin, ymin, xmax, ymax) = Grid {
+            transform: grid.georef.transform,
+            width: grid.width,
+            height: grid.height,
+            crs: grid.georef.crs,
         }
-        self.extents.push(extent);
+        .extent();
+        let style = match read_qml(&path)? {
+            Some(style) => style,
+            None => {
+                let style = style(&path)?;
+                write_qml(&path, &style)?;
+                LayerStyle::Style(style)
+            }
+        };
         Ok(Some(ProjectLayer {
             name,
             path: relative.to_string(),
             style,
-            extent,
+            extent: [xmin, ymin, xmax, ymax],
             visible,
         }))
     }
 }
 
-/// What the report stage wrote for QGIS: the project file and its layer count.
+/// A style fitted to a product's values, which are decoded for it.
+fn fitted(
+    fit: impl FnOnce(&[f32], Option<f64>) -> RasterStyle,
+) -> impl FnOnce(&Path) -> Result<RasterStyle, ProjectError> {
+    move |path| {
+        let raster = read_f32(path)?;
+        Ok(fit(&raster.data, raster.georef.nodata))
+    }
+}
+
+/// What the report stage wrote for QGIS: the project file's layer count.
 pub(crate) struct QgisFiles {
     pub layers: usize,
 }
 
-/// Writes every product's `.qml` and `out/timesift.qgs`.
+/// Writes `out/timesift.qgs` (and a `.qml` beside any product without one).
 pub(crate) fn write_qgis_files(project: &Project) -> Result<QgisFiles, ProjectError> {
     let layout = project.layout();
     let out = layout.out_dir();
-    let mut maker = LayerMaker {
-        out: &out,
-        extents: Vec::new(),
-    };
+    let maker = LayerMaker { out: &out };
     let mut groups = Vec::new();
     let mut change = Vec::new();
     for (k, (a, b)) in epoch_pairs(project).iter().enumerate() {
         let dir = format!("change/{a}__{b}");
-        // The LoD95 of the pair's statistics (`DemReport::lod95`), read as plain JSON: this
-        // module is also the `compare` command's.
-        let lod95 = read_json::<serde_json::Value>(&layout.change_stats(a, b))
-            .ok()
-            .and_then(|r| r.get("lod95").and_then(serde_json::Value::as_f64));
-        let dod = maker.band(
+        let dod = maker.layer(
             &format!("{dir}/dod.tif"),
             format!("DoD {a} → {b}"),
             k == 0,
-            |v, n| product_styles::dod(v, n, lod95),
+            fitted(|v, n| {
+                let lod95 = read_json::<DemReport>(&layout.change_stats(a, b))
+                    .ok()
+                    .and_then(|r| r.lod95);
+                product_styles::dod(v, n, lod95)
+            }),
         )?;
-        let significant = maker.band(
+        let significant = maker.layer(
             &format!("{dir}/significant.tif"),
             format!("beyond LoD95 {a} → {b}"),
             false,
-            |_, _| product_styles::significant(),
+            |_| Ok(product_styles::significant()),
         )?;
         change.extend(dod.into_iter().chain(significant));
     }
@@ -145,40 +119,44 @@ pub(crate) fn write_qgis_files(project: &Project) -> Result<QgisFiles, ProjectEr
     for (k, epoch) in project.epochs.iter().enumerate() {
         let e = &epoch.name;
         let dir = format!("epochs/{e}");
-        let first = k == 0;
         let mut layers = Vec::new();
-        if let Some(dem) = maker.band(
+        if let Some(dem) = maker.layer(
             &format!("{dir}/dem.tif"),
             format!("DEM {e}"),
-            first,
-            RasterStyle::terrain_fitted,
+            k == 0,
+            fitted(product_styles::dem),
         )? {
             layers.push(ProjectLayer {
                 name: format!("hillshade {e}"),
-                style: RasterStyle::Hillshade,
+                style: LayerStyle::Style(RasterStyle::Hillshade),
                 ..dem.clone()
             });
             layers.push(dem);
         }
         let others = [
-            maker.image(&format!("{dir}/ortho.tif"), format!("ortho {e}"), false)?,
-            maker.band(
+            maker.layer(
+                &format!("{dir}/ortho.tif"),
+                format!("ortho {e}"),
+                false,
+                |_| Ok(product_styles::ortho()),
+            )?,
+            maker.layer(
                 &format!("{dir}/dem_count.tif"),
                 format!("points per cell {e}"),
                 false,
-                RasterStyle::sequential_fitted,
+                fitted(product_styles::amount),
             )?,
-            maker.band(
+            maker.layer(
                 &format!("{dir}/dem_std.tif"),
                 format!("height spread {e}"),
                 false,
-                RasterStyle::sequential_fitted,
+                fitted(product_styles::amount),
             )?,
-            maker.band(
+            maker.layer(
                 &format!("{dir}/dem_filled.tif"),
                 format!("filled cells {e}"),
                 false,
-                |_, _| product_styles::filled(),
+                |_| Ok(product_styles::filled()),
             )?,
         ];
         layers.extend(others.into_iter().flatten());
@@ -189,19 +167,19 @@ pub(crate) fn write_qgis_files(project: &Project) -> Result<QgisFiles, ProjectEr
             });
         }
     }
-    if let Some(found) = maker.band(
+    if let Some(found) = maker.layer(
         "stable_found.tif",
         "ground found unchanged".into(),
         false,
-        |_, _| product_styles::stable_found(),
+        |_| Ok(product_styles::stable_found()),
     )? {
         groups.push(ProjectGroup {
             name: "orientation".into(),
             layers: vec![found],
         });
     }
-    let layers = groups.iter().map(|g| g.layers.len()).sum();
-    let Some(extent) = maker.extents.iter().copied().reduce(|a, b| {
+    let all = || groups.iter().flat_map(|g| &g.layers);
+    let Some(extent) = all().map(|l| l.extent).reduce(|a, b| {
         [
             a[0].min(b[0]),
             a[1].min(b[1]),
@@ -211,6 +189,7 @@ pub(crate) fn write_qgis_files(project: &Project) -> Result<QgisFiles, ProjectEr
     }) else {
         return Ok(QgisFiles { layers: 0 });
     };
+    let layers = all().count();
     let crs: Crs = project.config.crs.parse().unwrap_or(Crs::Local);
     write_qgs(&out.join("timesift.qgs"), "timesift", crs, extent, &groups)?;
     Ok(QgisFiles { layers })

@@ -15,23 +15,14 @@ fn root() -> &'static Path {
 
 /// The README and every page of the guide.
 fn documents() -> Vec<PathBuf> {
-    let mut files = vec![root().join("README.md")];
-    let mut dirs = vec![root().join("docs/guide/src")];
-    while let Some(dir) = dirs.pop() {
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        for entry in entries.flatten() {
-            let path = entry.path();
-            if path.is_dir() {
-                dirs.push(path);
-            } else if path.extension().is_some_and(|e| e == "md") {
-                files.push(path);
-            }
-        }
-    }
-    files.sort();
-    files
+    let guide = root().join("docs/guide/src");
+    let pages = crate::common::files(&guide)
+        .into_iter()
+        .filter(|p| p.extension().is_some_and(|e| e == "md"))
+        .map(|p| guide.join(p));
+    std::iter::once(root().join("README.md"))
+        .chain(pages)
+        .collect()
 }
 
 /// Which program a documented line runs.

@@ -88,18 +88,29 @@ fn a_killed_run_resumes_to_the_same_products_and_the_report_renders() {
     check_in_qgis(&whole, tmp.path());
 }
 
-/// A Python that imports QGIS's (Debian installs it for the system's `/usr/bin/python3`).
-fn qgis_python() -> Option<&'static str> {
-    ["/usr/bin/python3", "python3"].into_iter().find(|python| {
-        Command::new(python)
-            .args(["-c", "import qgis.core"])
+/// The first of the programs that runs `probe` successfully.
+fn first_that_runs(programs: &[&'static str], probe: &[&str]) -> Option<&'static str> {
+    programs.iter().copied().find(|program| {
+        Command::new(program)
+            .args(probe)
             .output()
             .is_ok_and(|o| o.status.success())
     })
 }
 
+/// An image that shows something: more than 50 colours among every `step`-th pixel.
+fn assert_not_blank(image: &image::RgbImage, step: usize, what: &str) {
+    let distinct: std::collections::BTreeSet<[u8; 3]> =
+        image.pixels().step_by(step).map(|p| p.0).collect();
+    assert!(distinct.len() > 50, "{what}: {} colours", distinct.len());
+}
+
 fn check_in_qgis(dir: &Path, tmp: &Path) {
-    let Some(python) = qgis_python() else {
+    // Debian installs QGIS's Python for the system's `/usr/bin/python3`.
+    let Some(python) = first_that_runs(
+        &["/usr/bin/python3", "python3"],
+        &["-c", "import qgis.core"],
+    ) else {
         println!(
             "skipped: QGIS's Python is not installed (.ci/run installs Debian's python3-qgis)"
         );
@@ -136,13 +147,14 @@ fn check_in_qgis(dir: &Path, tmp: &Path) {
             .map(|v| v.parse().expect("extent"))
             .collect();
         let grid = timesift_io::geotiff::read_grid(Path::new(source)).expect("the layer's raster");
-        let t = grid.georef.transform;
-        let expected = [
-            t.origin_x,
-            t.origin_y + grid.height as f64 * t.pixel_height,
-            t.origin_x + grid.width as f64 * t.pixel_width,
-            t.origin_y,
-        ];
+        let (xmin, ymin, xmax, ymax) = timesift_change::grid::Grid {
+            transform: grid.georef.transform,
+            width: grid.width,
+            height: grid.height,
+            crs: grid.georef.crs,
+        }
+        .extent();
+        let expected = [xmin, ymin, xmax, ymax];
         for (got, want) in extent.iter().zip(expected) {
             assert!(
                 (got - want).abs() < 1e-6,
@@ -181,13 +193,7 @@ fn check_in_qgis(dir: &Path, tmp: &Path) {
     }
     assert_eq!(text.lines().count(), 14 + usize::from(found), "{text}");
     let image = image::open(&render).expect("QGIS's render").to_rgb8();
-    let distinct: std::collections::BTreeSet<[u8; 3]> =
-        image.pixels().step_by(53).map(|p| p.0).collect();
-    assert!(
-        distinct.len() > 50,
-        "a blank map: {} colours",
-        distinct.len()
-    );
+    assert_not_blank(&image, 53, "a blank map");
 }
 
 /// The value between `<tag>` and `</tag>` after `from`, with where it ends.
@@ -359,15 +365,10 @@ fn check_exports(dir: &Path) {
 /// Loads the report in headless Chromium: the DOM after load must hold every section and no
 /// image that failed to decode, and a screenshot must show a page, not a blank.
 fn check_in_browser(report: &Path, tmp: &Path) {
-    let Some(browser) = ["chromium", "chromium-browser", "google-chrome"]
-        .into_iter()
-        .find(|b| {
-            Command::new(b)
-                .arg("--version")
-                .output()
-                .is_ok_and(|o| o.status.success())
-        })
-    else {
+    let Some(browser) = first_that_runs(
+        &["chromium", "chromium-browser", "google-chrome"],
+        &["--version"],
+    ) else {
         println!("skipped: no Chromium installed (.ci/run installs Debian's chromium)");
         return;
     };
@@ -436,11 +437,5 @@ fn check_in_browser(report: &Path, tmp: &Path) {
     );
     let image = image::open(&shot).expect("screenshot").to_rgb8();
     assert_eq!(image.dimensions(), (1200, 1800));
-    let distinct: std::collections::BTreeSet<[u8; 3]> =
-        image.pixels().step_by(97).map(|p| p.0).collect();
-    assert!(
-        distinct.len() > 50,
-        "a blank page: {} colours",
-        distinct.len()
-    );
+    assert_not_blank(&image, 97, "a blank page");
 }

@@ -19,7 +19,8 @@ use std::process::Command;
 
 use anyhow::{Context, bail};
 
-use crate::bench_dense_time::time_command;
+use crate::bench_dense_time::{DenseRun, time_command};
+use crate::bench_film::copy_tree;
 
 /// One measured command.
 struct Row {
@@ -41,20 +42,6 @@ fn timesift_exe() -> anyhow::Result<PathBuf> {
         bail!("cargo build --release --bin timesift failed");
     }
     Ok(root.join("target/release/timesift"))
-}
-
-fn copy_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
-    std::fs::create_dir_all(to)?;
-    for entry in std::fs::read_dir(from)? {
-        let entry = entry?;
-        let target = to.join(entry.file_name());
-        if entry.path().is_dir() {
-            copy_tree(&entry.path(), &target)?;
-        } else {
-            std::fs::copy(entry.path(), &target)?;
-        }
-    }
-    Ok(())
 }
 
 /// The planner's memory per task of each step, MiB, from `--dry-run`'s table.
@@ -89,14 +76,44 @@ fn planned(plan: &[(String, f64)], step: &dyn Fn(&str) -> bool) -> anyhow::Resul
         .context("a step missing from the plan")
 }
 
-/// `timesift run DIR -q --from S --to S` timed on 2 threads.
-fn stage(exe: &Path, dir: &Path, name: &str) -> anyhow::Result<crate::bench_dense_time::DenseRun> {
+/// `timesift ARGS` timed as a process of its own on 2 threads.
+fn on_two_threads<S: AsRef<std::ffi::OsStr>>(
+    exe: &Path,
+    args: impl IntoIterator<Item = S>,
+) -> anyhow::Result<DenseRun> {
     let mut command = Command::new(exe);
-    command
-        .args(["run", "-q", "--from", name, "--to", name])
-        .arg(dir)
-        .env("RAYON_NUM_THREADS", "2");
+    command.args(args).env("RAYON_NUM_THREADS", "2");
     time_command(&mut command, 2)
+}
+
+/// `timesift run DIR -q --from S --to S` timed on 2 threads.
+fn stage(exe: &Path, dir: &Path, name: &str) -> anyhow::Result<DenseRun> {
+    let dir = dir.as_os_str();
+    on_two_threads(
+        exe,
+        [
+            "run".as_ref(),
+            "-q".as_ref(),
+            "--from".as_ref(),
+            name.as_ref(),
+            "--to".as_ref(),
+            name.as_ref(),
+            dir,
+        ],
+    )
+}
+
+/// `timesift run DIR -q ARGS`, which must succeed (the stages before the measured one).
+fn run_quietly(exe: &Path, dir: &Path, args: &[&str], what: &str) -> anyhow::Result<()> {
+    let status = Command::new(exe)
+        .args(["run", "-q"])
+        .args(args)
+        .arg(dir)
+        .status()?;
+    if !status.success() {
+        bail!("{}: {what} failed", dir.display());
+    }
+    Ok(())
 }
 
 pub fn run(out: &Path) -> anyhow::Result<()> {
@@ -112,14 +129,16 @@ pub fn run(out: &Path) -> anyhow::Result<()> {
     big.to_luma8().save(&big_path)?;
     drop(big);
     let pixels = 11548.0 * 8660.0;
-    let mut command = Command::new(&exe);
-    command
-        .arg("features")
-        .arg(&big_path)
-        .arg("--out")
-        .arg(out.join("100mp.txt"))
-        .env("RAYON_NUM_THREADS", "2");
-    let run = time_command(&mut command, 2)?;
+    let features_out = out.join("100mp.txt");
+    let run = on_two_threads(
+        &exe,
+        [
+            "features".as_ref(),
+            big_path.as_os_str(),
+            "--out".as_ref(),
+            features_out.as_os_str(),
+        ],
+    )?;
     rows.push(Row {
         what: "timesift features, 100 MP image (11548 × 8660), 2 threads".into(),
         wall: run.wall,
@@ -130,18 +149,12 @@ pub fn run(out: &Path) -> anyhow::Result<()> {
 
     // Dense and a large ortho of rendered-mar.
     let mar = out.join("rendered-mar");
-    copy_tree(&crate::shared_data().join("rendered-mar"), &mar)?;
+    copy_tree(&crate::shared_data().join("rendered-mar"), &mar, &[])?;
     let toml = mar.join("project.toml");
     let text =
         std::fs::read_to_string(&toml)? + "\n[dense]\nlevel = 2\n\n[raster]\northo_cell = 0.02\n";
     std::fs::write(&toml, text)?;
-    let status = Command::new(&exe)
-        .args(["run", "-q", "--to", "align"])
-        .arg(&mar)
-        .status()?;
-    if !status.success() {
-        bail!("rendered-mar: the stages before dense failed");
-    }
+    run_quietly(&exe, &mar, &["--to", "align"], "the stages before dense")?;
     let plan = planned_memory(&exe, &mar)?;
     let run = stage(&exe, &mar, "dense")?;
     rows.push(Row {
@@ -151,13 +164,12 @@ pub fn run(out: &Path) -> anyhow::Result<()> {
         budget_mib: planned(&plan, &|s| s.starts_with("dense-pass") || s == "dense-fuse")?,
         budget: "planner: the larger of dense-pass-k and dense-fuse".into(),
     });
-    let status = Command::new(&exe)
-        .args(["run", "-q", "--from", "dem", "--to", "dem"])
-        .arg(&mar)
-        .status()?;
-    if !status.success() {
-        bail!("rendered-mar: the dem stage failed");
-    }
+    run_quietly(
+        &exe,
+        &mar,
+        &["--from", "dem", "--to", "dem"],
+        "the dem stage",
+    )?;
     let run = stage(&exe, &mar, "ortho")?;
     let cells = std::fs::read_to_string(mar.join("out/grid.json"))
         .ok()
@@ -198,14 +210,18 @@ pub fn run(out: &Path) -> anyhow::Result<()> {
         },
         &timesift_io::pointcloud::LasWriteOptions::default(),
     )?;
-    let mut command = Command::new(&exe);
-    command
-        .arg("dem")
-        .arg(&cloud_path)
-        .args(["--cell", "0.5", "--out"])
-        .arg(out.join("large_dem.tif"))
-        .env("RAYON_NUM_THREADS", "2");
-    let run = time_command(&mut command, 2)?;
+    let dem_out = out.join("large_dem.tif");
+    let run = on_two_threads(
+        &exe,
+        [
+            "dem".as_ref(),
+            cloud_path.as_os_str(),
+            "--cell".as_ref(),
+            "0.5".as_ref(),
+            "--out".as_ref(),
+            dem_out.as_os_str(),
+        ],
+    )?;
     rows.push(Row {
         what: "timesift dem, 30 million points (LAZ), 0.5 m cells, 2 threads".into(),
         wall: run.wall,

@@ -358,20 +358,21 @@ fn gross_control_errors(
     inliers: &[bool],
     threshold: f64,
 ) -> Vec<usize> {
-    let miss = |k: usize| (world_from_block.apply(&c.src[k]) - c.dst[k]).norm();
-    let mut misses: Vec<f64> = (0..c.src.len())
+    // Each control point's miss (its correspondence, the distance).
+    let misses: Vec<(usize, f64)> = (0..c.src.len())
         .filter(|&k| c.control_index[k].is_some())
-        .map(miss)
+        .map(|k| (k, (world_from_block.apply(&c.src[k]) - c.dst[k]).norm()))
         .collect();
-    if misses.is_empty() {
+    let mut sorted: Vec<f64> = misses.iter().map(|&(_, miss)| miss).collect();
+    sorted.sort_by(f64::total_cmp);
+    let Some(&median) = sorted.get(sorted.len() / 2) else {
         return Vec::new();
-    }
-    misses.sort_by(f64::total_cmp);
-    let median = misses[misses.len() / 2];
+    };
     let bound = threshold.max(GROSS_CONTROL_FACTOR * median);
-    (0..c.src.len())
-        .filter(|&k| !inliers[k] && miss(k) > bound)
-        .filter_map(|k| c.control_index[k])
+    misses
+        .into_iter()
+        .filter(|&(k, miss)| !inliers[k] && miss > bound)
+        .filter_map(|(k, _)| c.control_index[k])
         .collect()
 }
 

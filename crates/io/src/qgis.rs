@@ -265,6 +265,49 @@ pub fn write_qml(raster: &Path, style: &RasterStyle) -> Result<PathBuf, IoError>
     Ok(path)
 }
 
+/// The style beside the raster at `raster` (its `.qml`), as a project layer takes it: the
+/// elements inside the file's `<qgis>` element, verbatim. `None` when there is no such file. A
+/// style a user saved from QGIS over timesift's is taken as it is.
+pub fn read_qml(raster: &Path) -> Result<Option<LayerStyle>, IoError> {
+    let path = raster.with_extension("qml");
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = crate::fsutil::read_text(&path)?;
+    let body = text
+        .find("<qgis")
+        .and_then(|open| text[open..].find('>').map(|end| open + end + 1))
+        .zip(text.rfind("</qgis>"))
+        .filter(|(start, end)| start <= end)
+        .map(|(start, end)| text[start..end].trim_matches('\n').to_string() + "\n");
+    match body {
+        Some(body) => Ok(Some(LayerStyle::Qml(body))),
+        None => Err(IoError::invalid(
+            &path,
+            "not a QGIS style: no <qgis> element",
+        )),
+    }
+}
+
+/// How a layer of a project is drawn.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LayerStyle {
+    /// A style of timesift's.
+    Style(RasterStyle),
+    /// The body of a `.qml` file ([`read_qml`]).
+    Qml(String),
+}
+
+impl LayerStyle {
+    /// The elements a project's `<maplayer>` holds for it.
+    fn body(&self) -> String {
+        match self {
+            LayerStyle::Style(style) => pipe_and_blend(style),
+            LayerStyle::Qml(body) => body.clone(),
+        }
+    }
+}
+
 /// One raster of a project.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProjectLayer {
@@ -273,7 +316,7 @@ pub struct ProjectLayer {
     /// The raster, relative to the project file's folder (written with `/`).
     pub path: String,
     /// How it is drawn.
-    pub style: RasterStyle,
+    pub style: LayerStyle,
     /// Extent `[xmin, ymin, xmax, ymax]` in the project's CRS.
     pub extent: [f64; 4],
     /// Drawn when the project opens.
@@ -337,7 +380,7 @@ pub fn qgs(title: &str, crs: Crs, extent: [f64; 4], groups: &[ProjectGroup]) -> 
                  <srs>{srs}</srs>\n      <provider>gdal</provider>\n{}    </maplayer>\n",
                 escape(&layer.path),
                 escape(&layer.name),
-                indent(&pipe_and_blend(&layer.style), "    ")
+                indent(&layer.style.body(), "    ")
             );
         }
         tree.push_str("    </layer-tree-group>\n");
@@ -433,12 +476,31 @@ mod tests {
         assert!(shade.contains(&format!("<blendMode>{BLEND_MULTIPLY}</blendMode>")));
     }
 
+    /// A style written beside a raster reads back as the elements a project embeds for it; a
+    /// file that is not a style is an error naming it.
+    #[test]
+    fn a_written_style_reads_back_as_the_project_embeds_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let raster = dir.path().join("dem.tif");
+        assert_eq!(read_qml(&raster).expect("no file"), None);
+        let style = RasterStyle::Terrain {
+            min: 10.0,
+            max: 20.0,
+        };
+        write_qml(&raster, &style).expect("written");
+        let read = read_qml(&raster).expect("read").expect("a style");
+        assert_eq!(read.body(), LayerStyle::Style(style).body());
+        std::fs::write(raster.with_extension("qml"), "hello").expect("written");
+        let err = read_qml(&raster).expect_err("not a style").to_string();
+        assert!(err.contains("dem.qml") && err.contains("<qgis>"), "{err}");
+    }
+
     #[test]
     fn a_project_lists_every_layer_once_in_its_group_with_escaped_names() {
         let layer = |name: &str, path: &str| ProjectLayer {
             name: name.into(),
             path: path.into(),
-            style: RasterStyle::Rgb { alpha: true },
+            style: LayerStyle::Style(RasterStyle::Rgb { alpha: true }),
             extent: [0.0, 0.0, 10.0, 20.0],
             visible: true,
         };
