@@ -118,6 +118,15 @@ pub struct EpochPairTies {
     pub all_across_std_m: f64,
     /// Every tie point's standard deviation along the block, metres.
     pub all_along_std_m: f64,
+    /// The standard deviation across the block of the tie points observed in both together
+    /// with the points of either epoch held to the reference epoch's surface (surface ties),
+    /// metres: across how much of the block the pair is tied. `None` where neither is held.
+    #[serde(default)]
+    pub held_across_std_m: Option<f64>,
+    /// The standard deviation across the block of every tie point on the stable areas
+    /// (`stable.csv`), metres: the ground the pair can be tied on. `None` without stable areas.
+    #[serde(default)]
+    pub stable_across_std_m: Option<f64>,
     /// The tilt of the second epoch's surface against the first's (the DoD's tilt) that the
     /// block allows, from its covariance: what the inter-epoch ties, GNSS and control hold.
     #[serde(default)]
@@ -218,6 +227,11 @@ pub struct DatumTiltReport {
     pub sigma_min_mm_per_m: f64,
     /// Direction of the loosest tilt's gradient, degrees counter-clockwise from east.
     pub loose_azimuth_deg: f64,
+    /// The datum's height σ at the control's centre, metres, where the control fixes one (the
+    /// prediction from the control only, `datum_tilt`): how far every DEM of the block may sit
+    /// up or down together.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_height_m: Option<f64>,
 }
 
 /// An epoch's estimated GNSS offset: its receiver's positions minus the true camera centres,
@@ -513,10 +527,15 @@ pub fn write_sealed_json<T: Serialize>(path: &Path, record: &T) -> Result<(), Pr
         message: format!("cannot serialise: {e}"),
     })?;
     let seal = seal_of(&value);
-    value
-        .as_object_mut()
-        .ok_or_else(not_object)?
-        .insert(SEAL_KEY.into(), seal.into());
+    let object = value.as_object_mut().ok_or_else(not_object)?;
+    // A field of the record's own by the seal's name would be overwritten and fail every read.
+    if object.contains_key(SEAL_KEY) {
+        return Err(ProjectError::Path {
+            path: path.to_path_buf(),
+            message: format!("a sealed record cannot have a field named \"{SEAL_KEY}\""),
+        });
+    }
+    object.insert(SEAL_KEY.into(), seal.into());
     write_json(path, &value)
 }
 
@@ -611,4 +630,26 @@ pub struct StageRun {
     pub seconds: f64,
     /// Its one-line summary.
     pub summary: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sealed_record_reads_back_and_a_changed_digit_or_a_field_named_like_the_seal_is_refused() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("r.json");
+        let record = serde_json::json!({"made_from": "a", "seconds": 1.25});
+        write_sealed_json(&path, &record).expect("write");
+        let back: serde_json::Value = read_sealed_json(&path).expect("read");
+        assert_eq!(back["seconds"], 1.25);
+        let text = std::fs::read_to_string(&path).expect("text");
+        std::fs::write(&path, text.replace("1.25", "1.35")).expect("write");
+        let e = read_sealed_json::<serde_json::Value>(&path).expect_err("changed digit");
+        assert!(e.to_string().contains("r.json"), "{e}");
+        let e = write_sealed_json(&path, &serde_json::json!({"checksum": "0"}))
+            .expect_err("a field named checksum");
+        assert!(e.to_string().contains("checksum"), "{e}");
+    }
 }

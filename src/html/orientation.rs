@@ -241,7 +241,7 @@ pub(super) fn orientation_section(
             "control RMSE dE/dN/dH mm",
             "check RMSE dE/dN/dH mm",
             "GNSS offset E/N/H m",
-            "datum tilt σ mm/m: loosest / firmest",
+            "datum tilt σ mm/m: loosest / firmest (height σ)",
             "block tilt σ mm/m: loosest / firmest",
         ],
         &rows,
@@ -410,11 +410,15 @@ fn orientation_row(name: &str, r: &EpochOrientation) -> Vec<String> {
     ]
 }
 
-/// A tilt σ: loosest (with its gradient's direction) / firmest.
+/// A tilt σ: loosest (with its gradient's direction) / firmest; the datum's height σ where
+/// the figure gives one.
 fn tilt_cell(t: Option<crate::report::DatumTiltReport>) -> String {
     t.map_or("–".into(), |t| {
+        let height = t
+            .sigma_height_m
+            .map_or(String::new(), |h| format!(" (± {h:.3} m)"));
         format!(
-            "{:.2} (gradient at {:.0}°) / {:.2}",
+            "{:.2} (gradient at {:.0}°) / {:.2}{height}",
             t.sigma_max_mm_per_m, t.loose_azimuth_deg, t.sigma_min_mm_per_m
         )
     })

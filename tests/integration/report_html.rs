@@ -78,6 +78,7 @@ fn project(dir: &Path) {
             sigma_max_mm_per_m: 0.83,
             sigma_min_mm_per_m: 0.27,
             loose_azimuth_deg: 161.0,
+            sigma_height_m: None,
         }),
         surface_fit,
     };

@@ -72,6 +72,14 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
             "{name}"
         );
     }
+    // Without stable areas, no spread of the tie points on them; the points held to the
+    // reference epoch's surface, where any are, widen the ties.
+    for pair in report["epoch_pairs"].as_array().unwrap() {
+        assert!(pair["stable_across_std_m"].is_null(), "{pair}");
+        if let Some(held) = pair["held_across_std_m"].as_f64() {
+            assert!(held.is_finite() && held > 0.0, "{pair}");
+        }
+    }
     // One block: every epoch rests on all of its control, so the tilt σ that control allows
     // is one figure.
     let tilts: Vec<f64> = report["epochs"]
@@ -148,6 +156,36 @@ fn align_stage_orients_every_epoch_within_the_ground_sampling_distance() {
     assert_eq!(mask.georef.crs, ours.crs.parse().unwrap());
     let stable = mask.data.iter().filter(|v| **v == 1.0).count();
     assert!(stable > 0 && mask.data.iter().all(|v| *v == 0.0 || *v == 1.0));
+
+    // A stable area around the whole site: every tie point is on stable ground, so their
+    // spread across the block is every tie point's.
+    let (x, y) = (centroid.x, centroid.y);
+    std::fs::write(
+        dir.path().join("stable.csv"),
+        format!(
+            "name,wkt\nsite,\"POLYGON(({} {}, {} {}, {} {}, {} {}, {} {}))\"\n",
+            x - 200.0,
+            y - 200.0,
+            x + 200.0,
+            y - 200.0,
+            x + 200.0,
+            y + 200.0,
+            x - 200.0,
+            y + 200.0,
+            x - 200.0,
+            y - 200.0
+        ),
+    )
+    .unwrap();
+    let (ok, _, err) = timesift(&["run", path, "--from", "align", "--to", "align"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    for pair in report["epoch_pairs"].as_array().unwrap() {
+        let stable = pair["stable_across_std_m"].as_f64().expect("stable spread");
+        let all = pair["all_across_std_m"].as_f64().expect("spread");
+        assert!((stable - all).abs() <= 1e-9 * all, "{pair}");
+    }
 }
 
 /// Every epoch fully oriented, RMS within 0.5 px, check points within 1 GSD across the wall

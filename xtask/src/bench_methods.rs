@@ -497,17 +497,25 @@ fn rms(v: &[f64]) -> Option<f64> {
 }
 
 /// Per strategy and pair of epochs, the tie points both observe and their spread across and
-/// along the block against every tie point's.
+/// along the block against every tie point's; across, with the points held to the reference
+/// epoch's surface too, and against the tie points on the stable areas (where given).
 fn tie_table(rows: &[(String, String, timesift::report::EpochPairTies)]) -> String {
     let mut s = String::from(
         "\n## Inter-epoch ties per pair of epochs: count, spread across / along the block (std, m) \
-         against all tie points'\n\n| scene | method | pair | ties | across (all) | along (all) | \
-         across / all |\n|---|---|---|---|---|---|---|\n",
+         against all tie points'; across with the points held to the reference epoch's surface \
+         (surface ties), and against the tie points on stable ground\n\n| scene | method | pair \
+         | ties | across (all) | along (all) | across / all | across, with held | across (stable) \
+         | across / stable | with held / stable |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let m = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.1}"));
+    let ratio = |a: Option<f64>, b: Option<f64>| match (a, b) {
+        (Some(a), Some(b)) if b > 0.0 => format!("{:.0} %", 100.0 * a / b),
+        _ => "–".into(),
+    };
     for (scene, method, p) in rows {
+        let all = Some(p.all_across_std_m);
         s.push_str(&format!(
-            "| {scene} | {method} | {} → {} | {} | {} ({:.1}) | {} ({:.1}) | {} |\n",
+            "| {scene} | {method} | {} → {} | {} | {} ({:.1}) | {} ({:.1}) | {} | {} | {} | {} | {} |\n",
             p.epochs[0],
             p.epochs[1],
             p.ties,
@@ -515,12 +523,11 @@ fn tie_table(rows: &[(String, String, timesift::report::EpochPairTies)]) -> Stri
             p.all_across_std_m,
             m(p.along_std_m),
             p.all_along_std_m,
-            p.across_std_m
-                .filter(|_| p.all_across_std_m > 0.0)
-                .map_or("–".into(), |a| format!(
-                    "{:.0} %",
-                    100.0 * a / p.all_across_std_m
-                )),
+            ratio(p.across_std_m, all),
+            m(p.held_across_std_m),
+            m(p.stable_across_std_m),
+            ratio(p.across_std_m, p.stable_across_std_m),
+            ratio(p.held_across_std_m.or(p.across_std_m), p.stable_across_std_m),
         ));
     }
     s

@@ -41,6 +41,11 @@ pub struct DatumTilt {
     /// Direction of steepest loose tilt (the gradient's direction, perpendicular to the axis it
     /// turns about), degrees counter-clockwise from +x (east).
     pub loose_azimuth_deg: f64,
+    /// Standard deviation of the datum's height at the observations' weighted centre, metres:
+    /// how far the block as a whole may sit up or down, which no DoD shows but every absolute
+    /// height (a DEM against a survey) does. `None` when no observation's height is absolute
+    /// (GNSS heights that all carry an estimated offset without a prior).
+    pub sigma_height_m: Option<f64>,
 }
 
 /// The tilt's covariance from `observations`, each GNSS offset with the prior σ in
@@ -108,6 +113,12 @@ pub fn datum_tilt(
     // Without absolute heights, the datum's height and the offsets are one unknown: a prior
     // a billion times weaker than the data separates them. The tilt does not depend on how
     // (their confounded direction has no tilt component), only the matrix needs it.
+    // The datum's height is fixed where some height is absolute, or carries an offset that a
+    // prior bounds.
+    let absolute = usable.iter().any(|o| {
+        o.offset
+            .is_none_or(|k| offsets_sigma_z[k] > 0.0 && offsets_sigma_z[k].is_finite())
+    });
     if usable.iter().all(|o| o.offset.is_some()) {
         normal[(0, 0)] *= 1.0 + 1e-9;
     }
@@ -142,6 +153,9 @@ pub fn datum_tilt(
         sigma_max_mm_per_m: 1e3 * max.sqrt(),
         sigma_min_mm_per_m: 1e3 * min.sqrt(),
         loose_azimuth_deg: azimuth,
+        sigma_height_m: absolute
+            .then(|| covariance[(0, 0)].sqrt())
+            .filter(|s| s.is_finite()),
     })
 }
 
@@ -178,6 +192,8 @@ mod tests {
         let tilt = datum_tilt(&points, &[]).expect("tilt");
         close(tilt.sigma_max_mm_per_m, 0.1, 1e-9);
         close(tilt.sigma_min_mm_per_m, 0.1, 1e-9);
+        // The height at the centre: the mean of four, σ / 2.
+        close(tilt.sigma_height_m.expect("height"), 0.005, 1e-9);
     }
 
     #[test]
@@ -220,6 +236,20 @@ mod tests {
         let fixed = datum_tilt(&absolute_points, &[]).expect("tilt");
         close(free.sigma_max_mm_per_m, fixed.sigma_max_mm_per_m, 1e-6);
         close(free.sigma_min_mm_per_m, fixed.sigma_min_mm_per_m, 1e-6);
+        assert_eq!(free.sigma_height_m, None);
+        close(
+            fixed.sigma_height_m.expect("height"),
+            1.0 / 5f64.sqrt(),
+            1e-9,
+        );
+        // A prior on the offset fixes the height: the heights' mean (σ² 1/5) less the offset
+        // (σ² 2²).
+        let bounded = datum_tilt(&flight, &[2.0]).expect("tilt");
+        close(
+            bounded.sigma_height_m.expect("height"),
+            (0.2f64 + 4.0).sqrt(),
+            1e-6,
+        );
     }
 
     #[test]

@@ -193,6 +193,10 @@ pub struct Georeferenced {
     /// The height observations from the reference DEM in the final adjustment (by track): with
     /// the control and priors, what fixes the datum's tilt.
     pub dem_heights: Vec<crate::SurfaceHeight>,
+    /// The height observations from the reference epoch's surface in the final adjustment (by
+    /// track; surface ties): where the later epochs are held to the reference epoch, which
+    /// ties them across more of the block than their shared tie points may.
+    pub surface_held: Vec<crate::SurfaceHeight>,
     /// The control points left out of the adjustment, by name: where the block is placed by
     /// the other priors and control points, their markers intersect far from their surveyed
     /// coordinates (a typing error, a point in another CRS, a wrong marker). Their residuals
@@ -256,6 +260,7 @@ impl Georeferenced {
             surface_fits: Vec::new(),
             fits_against_dem: false,
             dem_heights: Vec::new(),
+            surface_held: Vec::new(),
             rejected_control: Vec::new(),
         }
     }
@@ -540,6 +545,7 @@ pub(crate) fn georeference_settled(
         surface_fits: Vec::new(),
         fits_against_dem: false,
         dem_heights: Vec::new(),
+        surface_held: Vec::new(),
         rejected_control,
     })
 }

@@ -8,7 +8,9 @@
 
 mod checks;
 mod input;
+mod motions;
 mod outputs;
+mod pairs;
 mod reference_dem;
 
 use std::collections::BTreeMap;

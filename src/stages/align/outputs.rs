@@ -1,8 +1,9 @@
 //! What the align stage writes: `out/cameras.json`, `out/colmap/`, `out/tiepoints.ply` and
 //! `out/report.json` with each epoch's orientation.
 
+use super::motions::EpochMotions;
+use super::pairs::{HeldPoint, WorldPoints, epoch_pair_ties, held_points};
 use super::*;
-use timesift_io::ply::EpochSet;
 
 pub(super) fn write_outputs(
     project: &Project,
@@ -56,7 +57,12 @@ pub(super) fn write_outputs(
         .collect();
     let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
     timesift_io::ply::write_tiepoints(&layout.tiepoints_ply(), &epoch_names, &tiepoints)?;
-    let mut report = report(project, input, geo, block, strategy, &tiepoints, seconds);
+    let held: Vec<HeldPoint> = held_points(rec, &block.surface_held, &epoch_of, origin);
+    let points = WorldPoints {
+        tiepoints: &tiepoints,
+        held: &held,
+    };
+    let mut report = report(project, input, geo, block, strategy, &points, seconds);
     report.colmap_terms_dropped = colmap_terms_dropped;
     write_json(&layout.report_json(), &report)?;
     write_stable_found(project, block, origin, &tiepoints)?;
@@ -273,165 +279,6 @@ fn rmse_of(vectors: &[Vector3<f64>]) -> Option<Rmse> {
     })
 }
 
-/// Per pair of epochs, the tie points both observe, and their spread across and along the
-/// principal horizontal axes of every tie point; the tilt σ of their DoD from the block's
-/// covariance of the epochs' rigid motions.
-fn epoch_pair_ties(
-    project: &Project,
-    tiepoints: &[timesift_io::ply::TiePoint],
-    motions: Option<&EpochMotions<'_>>,
-) -> Vec<crate::report::EpochPairTies> {
-    let n = tiepoints.len().max(1) as f64;
-    let mean = tiepoints
-        .iter()
-        .fold(Vector2::zeros(), |m, p| m + p.position.xy() / n);
-    let covariance = tiepoints.iter().fold(nalgebra::Matrix2::zeros(), |c, p| {
-        let d = p.position.xy() - mean;
-        c + d * d.transpose() / n
-    });
-    let eigen = covariance.symmetric_eigen();
-    let smaller = usize::from(eigen.eigenvalues[1] < eigen.eigenvalues[0]);
-    let minor: Vector2<f64> = eigen.eigenvectors.column(smaller).into_owned();
-    let major: Vector2<f64> = eigen.eigenvectors.column(1 - smaller).into_owned();
-    let spread = |points: &[Vector2<f64>], axis: &Vector2<f64>| -> Option<f64> {
-        (points.len() >= 2).then(|| {
-            let k = points.len() as f64;
-            let m = points.iter().map(|p| p.dot(axis)).sum::<f64>() / k;
-            (points
-                .iter()
-                .map(|p| (p.dot(axis) - m).powi(2))
-                .sum::<f64>()
-                / k)
-                .sqrt()
-        })
-    };
-    let all: Vec<Vector2<f64>> = tiepoints.iter().map(|p| p.position.xy() - mean).collect();
-    let (all_across, all_along) = (
-        spread(&all, &minor).unwrap_or(0.0),
-        spread(&all, &major).unwrap_or(0.0),
-    );
-    let mut pairs = Vec::new();
-    for a in 0..project.epochs.len() {
-        for b in a + 1..project.epochs.len() {
-            let both: EpochSet = [a, b].into_iter().collect();
-            let shared: Vec<Vector2<f64>> = tiepoints
-                .iter()
-                .filter(|p| p.epochs.contains_all(&both))
-                .map(|p| p.position.xy() - mean)
-                .collect();
-            pairs.push(crate::report::EpochPairTies {
-                epochs: [
-                    project.epochs[a].name.clone(),
-                    project.epochs[b].name.clone(),
-                ],
-                ties: shared.len(),
-                across_std_m: spread(&shared, &minor),
-                along_std_m: spread(&shared, &major),
-                all_across_std_m: all_across,
-                all_along_std_m: all_along,
-                dod_tilt: motions.and_then(|m| m.dod(a, b)),
-            });
-        }
-    }
-    pairs
-}
-
-/// The epochs' rigid motions as the block holds them, from its covariance (6 rows per epoch,
-/// rotation first). An epoch held to the reference epoch's surface by height observations
-/// (surface ties) is special: the adjustment takes those heights as known, so its covariance
-/// is the epoch's motion *relative to that surface*, and the surface moves with the reference
-/// epoch. Its motion is then the reference epoch's plus its own relative one (independent).
-struct EpochMotions<'a> {
-    covariance: &'a nalgebra::DMatrix<f64>,
-    reference: usize,
-    /// Per epoch: held to the reference epoch's surface.
-    on_surface: Vec<bool>,
-}
-
-impl EpochMotions<'_> {
-    fn of<'a>(
-        block: &'a Georeferenced,
-        reference: usize,
-        epochs: usize,
-    ) -> Option<EpochMotions<'a>> {
-        let covariance = block.set_motion_covariance.as_ref()?;
-        // Held to a reference DEM, the epochs are held to a fixed surface: their covariance is
-        // their own motion.
-        let tied = block.diagnostics.surface_heights > 0 && !block.fits_against_dem;
-        let on_surface = (0..epochs)
-            .map(|e| tied && e != reference && block.surface_fits.iter().any(|f| f.epoch == e))
-            .collect();
-        Some(EpochMotions {
-            covariance,
-            reference,
-            on_surface,
-        })
-    }
-
-    /// Tilt covariance (2 × 2, radians²) of `Σ w·motion(set)` as the covariance holds it.
-    fn raw(&self, combination: &[(usize, f64)]) -> Option<nalgebra::Matrix2<f64>> {
-        let c = self.covariance;
-        let mut cov = nalgebra::Matrix2::<f64>::zeros();
-        for &(s, ws) in combination {
-            for &(t, wt) in combination {
-                for r in 0..2 {
-                    for q in 0..2 {
-                        cov[(r, q)] += ws * wt * *c.get((6 * s + r, 6 * t + q))?;
-                    }
-                }
-            }
-        }
-        Some(cov)
-    }
-
-    /// The tilt σ of epoch `e` against the world.
-    fn epoch(&self, e: usize) -> Option<DatumTiltReport> {
-        let own = self.raw(&[(e, 1.0)])?;
-        match self.on_surface.get(e) == Some(&true) {
-            true => tilt_report(own + self.raw(&[(self.reference, 1.0)])?),
-            false => tilt_report(own),
-        }
-    }
-
-    /// The tilt σ of the DoD `b − a`.
-    fn dod(&self, a: usize, b: usize) -> Option<DatumTiltReport> {
-        let held = |e: usize| self.on_surface.get(e) == Some(&true);
-        let relative = |e: usize| -> Option<nalgebra::Matrix2<f64>> {
-            match (e == self.reference, held(e)) {
-                (true, _) => Some(nalgebra::Matrix2::zeros()),
-                (false, true) => self.raw(&[(e, 1.0)]),
-                (false, false) => None,
-            }
-        };
-        match (relative(a), relative(b)) {
-            // Both follow the reference surface: only their motions relative to it differ.
-            (Some(ca), Some(cb)) => tilt_report(ca + cb),
-            _ => tilt_report(self.raw(&[(b, 1.0), (a, -1.0)])?),
-        }
-    }
-}
-
-/// The tilt σ report of a tilt covariance: the horizontal components of a rotation are the
-/// surface's slope (radians), their covariance's eigenvalues the loosest and firmest tilt.
-fn tilt_report(cov: nalgebra::Matrix2<f64>) -> Option<DatumTiltReport> {
-    let eigen = cov.symmetric_eigen();
-    let (loose, firm) = match eigen.eigenvalues[0] >= eigen.eigenvalues[1] {
-        true => (0, 1),
-        false => (1, 0),
-    };
-    let (max, min) = (eigen.eigenvalues[loose], eigen.eigenvalues[firm]);
-    if !(max.is_finite() && min >= -1e-18) {
-        return None;
-    }
-    // A rotation (θx, θy) raises the ground by θx·y − θy·x: its gradient is (−θy, θx).
-    let axis = eigen.eigenvectors.column(loose);
-    Some(DatumTiltReport {
-        sigma_max_mm_per_m: 1000.0 * max.sqrt(),
-        sigma_min_mm_per_m: 1000.0 * min.max(0.0).sqrt(),
-        loose_azimuth_deg: (axis[0]).atan2(-axis[1]).to_degrees().rem_euclid(180.0),
-    })
-}
-
 /// How loosely the control an epoch's orientation rests on fixes its datum's tilt
 /// ([`timesift_align::datum_tilt`]), by whose control fixes it ([`DatumControl`]): in a single
 /// block the control of every epoch, oriented alone (and the reference epoch of the strategies
@@ -501,6 +348,7 @@ fn datum_tilt_of_epoch(
         sigma_max_mm_per_m: t.sigma_max_mm_per_m,
         sigma_min_mm_per_m: t.sigma_min_mm_per_m,
         loose_azimuth_deg: t.loose_azimuth_deg,
+        sigma_height_m: t.sigma_height_m,
     })
 }
 
@@ -510,9 +358,10 @@ fn report(
     geo: &GeoreferenceInput,
     block: &Georeferenced,
     strategy: &dyn Strategy,
-    tiepoints: &[timesift_io::ply::TiePoint],
+    points: &WorldPoints<'_>,
     seconds: f64,
 ) -> AlignReport {
+    let tiepoints = points.tiepoints;
     let rec = &block.reconstruction;
     let mut epochs = BTreeMap::new();
     let residuals: Vec<(timesift_core::TrackElement, f64)> = rec.residuals(input).collect();
@@ -537,7 +386,7 @@ fn report(
     for (e, epoch) in project.epochs.iter().enumerate() {
         epochs.insert(epoch.name.clone(), epoch_orientation(&of_block, e));
     }
-    let epoch_pairs = epoch_pair_ties(project, tiepoints, motions.as_ref());
+    let epoch_pairs = epoch_pair_ties(project, tiepoints, points.held, motions.as_ref());
     let not_co_registered = match strategy.method() {
         timesift_align::Method::Timesift | timesift_align::Method::Msfm => {
             super::checks::not_co_registered(project, &epoch_pairs)

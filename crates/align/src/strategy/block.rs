@@ -163,6 +163,7 @@ impl Block {
             surface_fits: Vec::new(),
             fits_against_dem: false,
             dem_heights: Vec::new(),
+            surface_held: Vec::new(),
             rejected_control,
         }
     }

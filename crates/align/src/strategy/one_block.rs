@@ -190,7 +190,11 @@ fn tie_by_surface(
                 break;
             }
             heights.sort_by_key(|h| h.track);
-            placed = adjust_with_heights(block, separated, placed, heights, options)?.0;
+            let (adjusted, held) = adjust_with_heights(block, separated, placed, heights, options)?;
+            placed = Georeferenced {
+                surface_held: held,
+                ..adjusted
+            };
         }
     }
     placed.surface_fits = comparison.fits(&placed.reconstruction);
