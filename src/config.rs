@@ -1338,6 +1338,11 @@ pub struct ClusterConfig {
     /// Reference images per task of each dense pass. Default 8.
     #[serde(default = "default_views_per_task")]
     pub views_per_task: usize,
+    /// Ortho cells per task of `ortho`, millions: every epoch's mosaic is made in rows of tiles
+    /// shared out among the tasks, then merged by one task per epoch. Default 100 (a task holds
+    /// its part, 4 bytes a cell, in memory).
+    #[serde(default = "default_ortho_megapixels_per_task")]
+    pub ortho_megapixels_per_task: f64,
 }
 
 fn default_cpus_per_task() -> usize {
@@ -1355,6 +1360,9 @@ fn default_pairs_per_task() -> usize {
 fn default_views_per_task() -> usize {
     8
 }
+fn default_ortho_megapixels_per_task() -> f64 {
+    100.0
+}
 
 impl Default for ClusterConfig {
     fn default() -> Self {
@@ -1369,6 +1377,7 @@ impl Default for ClusterConfig {
             images_per_task: default_images_per_task(),
             pairs_per_task: default_pairs_per_task(),
             views_per_task: default_views_per_task(),
+            ortho_megapixels_per_task: default_ortho_megapixels_per_task(),
         }
     }
 }
@@ -1386,6 +1395,12 @@ impl ClusterConfig {
             if v == 0 {
                 return Err(format!("[cluster] {key}: expected at least 1, found 0"));
             }
+        }
+        if !(self.ortho_megapixels_per_task > 0.0 && self.ortho_megapixels_per_task.is_finite()) {
+            return Err(format!(
+                "[cluster] ortho_megapixels_per_task: expected a positive number, found {}",
+                self.ortho_megapixels_per_task
+            ));
         }
         Ok(())
     }

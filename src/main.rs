@@ -505,6 +505,7 @@ fn plan_options(project: &Project, args: &ClusterArgs) -> timesift::tasks::PlanO
         images_per_task: c.images_per_task,
         pairs_per_task: c.pairs_per_task,
         views_per_task: c.views_per_task,
+        ortho_megapixels_per_task: c.ortho_megapixels_per_task,
     }
 }
 

@@ -301,7 +301,11 @@ fn cluster_section(text: &mut String) {
     );
     let _ = writeln!(text, "# images_per_task = 40     # features");
     let _ = writeln!(text, "# pairs_per_task = 2000    # match");
-    let _ = writeln!(text, "# views_per_task = 8       # each dense pass\n");
+    let _ = writeln!(text, "# views_per_task = 8       # each dense pass");
+    let _ = writeln!(
+        text,
+        "# ortho_megapixels_per_task = 100.0  # ortho (rows of tiles of every epoch's mosaic)\n"
+    );
 }
 
 /// The `[raster]` section, its keys at their defaults.

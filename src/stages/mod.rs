@@ -204,7 +204,9 @@ pub(crate) fn run_unit(
         "dense-report" => single(part).and_then(|()| dense::report_unit(project)),
         "dem-grid" => single(part).and_then(|()| dem::grid_unit(project)),
         "dem" => dem::unit(project, part),
+        "ortho-gains" => ortho::gains_unit(project, part),
         "ortho" => ortho::unit(project, part),
+        "ortho-merge" => ortho::merge_unit(project, part),
         "ortho-report" => single(part).and_then(|()| ortho::report_unit(project)),
         "change" => change::unit(project, part),
         _ if step.starts_with("dense-pass-") => {

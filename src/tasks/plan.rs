@@ -24,6 +24,8 @@ pub struct PlanOptions {
     pub pairs_per_task: usize,
     /// Reference images per unit of each dense pass.
     pub views_per_task: usize,
+    /// Ortho cells per unit of `ortho`, millions.
+    pub ortho_megapixels_per_task: f64,
 }
 
 impl Default for PlanOptions {
@@ -33,6 +35,7 @@ impl Default for PlanOptions {
             images_per_task: 40,
             pairs_per_task: 2000,
             views_per_task: 8,
+            ortho_megapixels_per_task: 100.0,
         }
     }
 }
@@ -104,6 +107,10 @@ const KEYPOINTS_PER_PIXEL: f64 = 0.06;
 /// Fused points per working-image pixel: 6,936,432 points from 800 images of 240 x 180 working
 /// pixels on the 800-image scale bench.
 const POINTS_PER_WORKING_PIXEL: f64 = 0.2;
+
+/// Ortho cells per fused point: a DEM cell per point, and the default ortho lattice's 2 × 2
+/// cells per DEM cell.
+const ORTHO_CELLS_PER_POINT: f64 = 4.0;
 
 const MIB: f64 = 1024.0 * 1024.0;
 /// What any unit needs besides its data: the binary, the project, buffers.
@@ -347,13 +354,53 @@ pub fn cluster_plan(project: &Project, options: &PlanOptions) -> Result<ClusterP
         "48 B per point of the largest epoch's cloud (its positions and the grids)",
         6 * epochs as u64,
     ));
+    // Every epoch's mosaic: its gains (a fit over every tile), its rows of tiles shared out
+    // among the units, then one merge per epoch. An ortho cell per DEM cell and a DEM cell per
+    // fused point, at the default lattices' factor of 2 per side: 4 cells per point.
+    let ortho_cells: f64 = project
+        .epochs
+        .iter()
+        .enumerate()
+        .map(|(e, ep)| ep.images.len() as f64 * working_px(e) * POINTS_PER_WORKING_PIXEL)
+        .map(|points| ORTHO_CELLS_PER_POINT * points)
+        .sum();
+    let per_unit = options.ortho_megapixels_per_task.max(1e-6) * 1e6;
+    let ortho_units = ((ortho_cells / per_unit).ceil() as usize).max(epochs);
+    let dem_bytes = largest_epoch * 16.0;
+    let cache = 1536.0 * MIB;
+    steps.push(step(
+        "ortho-gains",
+        Stage::Ortho,
+        epochs,
+        "one epoch's exposure gains (every tile's overlaps)",
+        dem_bytes + cache,
+        "16 B per point of the largest epoch's cloud (its DEM) and the 1.5 GiB image cache",
+        epochs as u64,
+    ));
+    let part_cells = (ortho_cells / ortho_units as f64).ceil();
     steps.push(step(
         "ortho",
         Stage::Ortho,
+        ortho_units,
+        format!(
+            "rows of tiles of the epochs' orthomosaics ({:.0} million cells)",
+            part_cells / 1e6
+        ),
+        dem_bytes + cache + 8.0 * part_cells,
+        format!(
+            "16 B per point of the largest epoch's cloud (its DEM), the 1.5 GiB image cache and              8 B per cell of its part ({:.1} million: 4 per fused point, shared out)",
+            part_cells / 1e6
+        ),
+        2 * (ortho_units + epochs) as u64,
+    ));
+    let largest_part = part_cells.min(ORTHO_CELLS_PER_POINT * largest_epoch);
+    steps.push(step(
+        "ortho-merge",
+        Stage::Ortho,
         epochs,
-        "one epoch's orthomosaic",
-        largest_epoch * 16.0 + 1536.0 * MIB,
-        "16 B per point of the largest epoch's cloud (its DEM) and the 1.5 GiB image cache",
+        "one epoch's orthomosaic from its parts",
+        dem_bytes + 8.0 * largest_part,
+        "16 B per point of the largest epoch's cloud (its DEM) and 8 B per cell of the largest          part",
         3 * epochs as u64,
     ));
     steps.push(step(

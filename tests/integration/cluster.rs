@@ -1,6 +1,7 @@
 //! Units of work and the cluster executor on a rendered three-epoch project:
 //! - every unit of the plan run alone with `timesift task`, each step's units in reverse order
-//!   and one of them killed with SIGKILL while it ran, gives the local run's products;
+//!   (the orthomosaics made in parts of rows of tiles, merged per epoch) and one of them killed
+//!   with SIGKILL while it ran, gives the local run's products;
 //! - two `timesift run` on one project: the second is refused naming the first, and after the
 //!   first is killed a new one starts without any cleanup;
 //! - `--executor slurm` on a real one-node Slurm (`cargo xtask slurm-up`; skipped with the
@@ -26,7 +27,8 @@ fn project(dir: &Path) {
     quick_dense_level_4(dir);
     let toml = dir.join("project.toml");
     let text = std::fs::read_to_string(&toml).expect("project.toml")
-        + "\n[cluster]\nimages_per_task = 5\npairs_per_task = 40\nviews_per_task = 3\n";
+        + "\n[cluster]\nimages_per_task = 5\npairs_per_task = 40\nviews_per_task = 3\n\
+           ortho_megapixels_per_task = 0.05\n";
     std::fs::write(&toml, text).expect("project.toml");
 }
 
@@ -129,7 +131,7 @@ fn units_run_alone_in_any_order_and_after_a_kill_make_the_local_runs_products() 
     run_local(&local);
 
     let steps = plan(&units);
-    for expected in ["features", "match", "dense-pass-0", "dense-fuse"] {
+    for expected in ["features", "match", "dense-pass-0", "dense-fuse", "ortho"] {
         let (_, n) = steps.iter().find(|(s, _)| s == expected).expect(expected);
         assert!(*n > 1, "{expected} has {n} unit(s): the test needs a split");
     }

@@ -149,6 +149,13 @@ pub fn read_rgb8(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
     Ok((img.width(), img.height(), img.into_raw()))
 }
 
+/// Reads an image as 8-bit RGBA (opaque where it has no alpha): an orthomosaic's part as the
+/// ortho step wrote it.
+pub fn read_rgba8(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
+    let img = decode(path, 4)?.to_rgba8();
+    Ok((img.width(), img.height(), img.into_raw()))
+}
+
 /// Writes an 8-bit PNG of 1 (grey), 2 (grey + alpha), 3 (RGB) or 4 (RGBA) channels, atomically.
 pub fn write_png(
     path: &Path,

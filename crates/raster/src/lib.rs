@@ -59,6 +59,6 @@ pub use lattice::{
     Bounds, EpochFootprint, ExtentRule, GridOptions, Lattice, ProjectGrid, plan_grid, tidy_cell,
 };
 pub use ortho::{
-    Ortho, OrthoOptions, OrthoStats, OrthoSummary, OrthoView, RgbImage, RowSink, ViewImages,
-    orthomosaic, orthomosaic_by_rows,
+    Ortho, OrthoMosaic, OrthoOptions, OrthoStats, OrthoSummary, OrthoView, RgbImage, RowSink,
+    TileRowFigures, ViewImages, ortho_stats, orthomosaic, orthomosaic_by_rows,
 };

@@ -273,7 +273,8 @@ pub fn orthomosaic(
 /// ortho lattice (RGBA, alpha 0 where no image sees the cell), so that memory holds a few
 /// bands of tiles, never the mosaic (an error `rows` returns stops the work). `progress` is
 /// told (tiles done, tiles to do) as the work goes (the gain fit visits every tile once too).
-/// The rows do not depend on the number of threads.
+/// The rows do not depend on the number of threads. The same mosaic made in parts
+/// ([`OrthoMosaic`]) has the same rows and figures, bit for bit.
 pub fn orthomosaic_by_rows(
     heights: &[f32],
     lattice: &Lattice,
@@ -283,90 +284,212 @@ pub fn orthomosaic_by_rows(
     progress: &(dyn Fn(usize, usize) + Sync),
     rows: &mut RowSink<'_>,
 ) -> Result<OrthoSummary, RasterError> {
-    validate(heights, lattice, views, options)?;
-    let finite = heights.iter().filter(|h| h.is_finite());
-    let (min_height, max_height) = finite
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), h| {
-            (lo.min(*h as f64), hi.max(*h as f64))
-        });
-    if !min_height.is_finite() {
-        return Err(RasterError::InvalidInput(
-            "the DEM has no height: nothing to project the images onto".into(),
-        ));
-    }
-    let prepared = views
-        .iter()
-        .map(|v| prepare_view(v, lattice, min_height, max_height))
-        .collect();
-    let ctx = Context {
-        lattice,
-        heights,
-        max_height,
-        blocks: BlockMax::new(heights, lattice.width(), lattice.height()),
-        views: prepared,
-        options: *options,
-    };
-    let tiles = tiles_of(lattice, options.tile);
-    let total = tiles.len() * if options.gain_compensation { 2 } else { 1 };
-    let done = AtomicUsize::new(0);
-    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
-    let gains = if options.gain_compensation {
-        fit_gains(&ctx, &tiles, images, &tick)?
-    } else {
-        vec![[1.0; 3]; views.len()]
-    };
+    let mosaic = OrthoMosaic::new(heights, lattice, views, options)?;
+    let tiles = mosaic.tiles.len();
+    let total = tiles * if options.gain_compensation { 2 } else { 1 };
+    let gains = mosaic.gains(images, &|done, _| progress(done, total))?;
+    let offset = total - tiles;
+    let figures = mosaic.make_rows(
+        0..mosaic.tile_rows(),
+        images,
+        &gains,
+        &|done, _| progress(offset + done, total),
+        rows,
+    )?;
+    Ok(OrthoSummary {
+        lattice: mosaic.ortho_lattice,
+        gains,
+        stats: ortho_stats(&figures),
+    })
+}
 
-    let ortho_lattice = lattice.subdivided(options.factor)?;
-    let f = options.factor;
-    let (ow, oh) = (ortho_lattice.width(), ortho_lattice.height());
-    let tiles_across = lattice.width().div_ceil(options.tile);
-    let tiles_down = lattice.height().div_ceil(options.tile);
-    let band_rows = options.tile * f;
-    // Bands of tiles are made a batch at a time, in parallel, and handed over in order: two
-    // bands per thread keep the threads busy, one per thread where bands are large (a wide
-    // mosaic), so that memory grows with the mosaic's width, never with its area.
-    let threads = rayon::current_num_threads().max(1);
-    let band_bytes = (band_rows * ow * 4).max(1);
-    let batch = (BANDS_IN_FLIGHT_BYTES / band_bytes).clamp(threads, 2 * threads);
+/// What one row of tiles of a mosaic adds to its figures ([`OrthoStats`]): kept per row, so
+/// that a mosaic made in parts sums them in the same order as one made whole.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TileRowFigures {
+    /// Ortho cells painted.
+    pub painted_cells: usize,
+    /// Sum of the colour jumps across seams (see [`OrthoStats::seam_jump`]).
+    pub seam_sum: f64,
+    /// Neighbouring pairs of ortho cells across seams.
+    pub seam_pairs: usize,
+    /// Sum of the colour jumps away from seams.
+    pub interior_sum: f64,
+    /// Neighbouring pairs away from seams.
+    pub interior_pairs: usize,
+}
+
+/// The figures of a mosaic from its tile rows' figures, top to bottom.
+pub fn ortho_stats(figures: &[TileRowFigures]) -> OrthoStats {
     let mut sums = JumpSums::default();
     let mut stats = OrthoStats::default();
-    for first in (0..tiles_down).step_by(batch) {
-        let bands: Vec<Result<Band, RasterError>> = (first..(first + batch).min(tiles_down))
-            .into_par_iter()
-            .map(|tile_row| {
-                let row0 = tile_row * band_rows;
-                let mut out = vec![0u8; band_rows.min(oh - row0) * ow * 4];
-                let mut jumps = JumpSums::default();
-                let mut painted = 0;
-                for tile_col in 0..tiles_across {
-                    let core = tiles[tile_row * tiles_across + tile_col];
-                    let tile = TileData::compute(&ctx, core, images, &gains)?;
-                    painted += tile.paint(&ctx, &mut out, row0, &mut jumps);
-                    tick();
-                }
-                Ok(Band {
-                    rgba: out,
-                    jumps,
-                    painted,
-                })
-            })
-            .collect();
-        // Sums in band order, so the figures do not depend on the thread count.
-        for (tile_row, band) in (first..).zip(bands) {
-            let band = band?;
-            stats.painted_cells += band.painted;
-            sums.add(&band.jumps);
-            rows(tile_row * band_rows, &band.rgba).map_err(RasterError::Output)?;
-        }
+    for f in figures {
+        stats.painted_cells += f.painted_cells;
+        sums.add(&JumpSums {
+            seam: f.seam_sum,
+            seam_n: f.seam_pairs,
+            interior: f.interior_sum,
+            interior_n: f.interior_pairs,
+        });
     }
     stats.seam_cells = sums.seam_n;
     stats.seam_jump = sums.seam / sums.seam_n.max(1) as f64;
     stats.interior_jump = sums.interior / sums.interior_n.max(1) as f64;
-    Ok(OrthoSummary {
-        lattice: ortho_lattice,
-        gains,
-        stats,
-    })
+    stats
+}
+
+/// A mosaic to be made, perhaps in parts (a cluster's tasks): the DEM and the views prepared.
+/// [`Self::gains`] once, then [`Self::make_rows`] over disjoint ranges of tile rows, in any
+/// order and in any process, give the rows and figures (through [`ortho_stats`], in order)
+/// that [`orthomosaic_by_rows`] gives: each tile is made from the DEM, the views and the
+/// gains alone.
+pub struct OrthoMosaic<'a> {
+    ctx: Context<'a>,
+    tiles: Vec<(usize, usize, usize, usize)>,
+    ortho_lattice: Lattice,
+}
+
+impl<'a> OrthoMosaic<'a> {
+    /// The mosaic of `views` onto the DEM (`heights` on `lattice`, NaN = none).
+    pub fn new(
+        heights: &'a [f32],
+        lattice: &'a Lattice,
+        views: &'a [OrthoView],
+        options: &OrthoOptions,
+    ) -> Result<OrthoMosaic<'a>, RasterError> {
+        validate(heights, lattice, views, options)?;
+        let finite = heights.iter().filter(|h| h.is_finite());
+        let (min_height, max_height) = finite
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), h| {
+                (lo.min(*h as f64), hi.max(*h as f64))
+            });
+        if !min_height.is_finite() {
+            return Err(RasterError::InvalidInput(
+                "the DEM has no height: nothing to project the images onto".into(),
+            ));
+        }
+        let prepared = views
+            .iter()
+            .map(|v| prepare_view(v, lattice, min_height, max_height))
+            .collect();
+        let ctx = Context {
+            lattice,
+            heights,
+            max_height,
+            blocks: BlockMax::new(heights, lattice.width(), lattice.height()),
+            views: prepared,
+            options: *options,
+        };
+        Ok(OrthoMosaic {
+            ctx,
+            tiles: tiles_of(lattice, options.tile),
+            ortho_lattice: lattice.subdivided(options.factor)?,
+        })
+    }
+
+    /// The ortho lattice (the DEM's, subdivided).
+    pub fn lattice(&self) -> &Lattice {
+        &self.ortho_lattice
+    }
+
+    /// Rows of tiles: the units the mosaic can be made in.
+    pub fn tile_rows(&self) -> usize {
+        self.ctx.lattice.height().div_ceil(self.ctx.options.tile)
+    }
+
+    /// The rows of the ortho lattice that `tile_rows` make.
+    pub fn ortho_rows(&self, tile_rows: std::ops::Range<usize>) -> std::ops::Range<usize> {
+        let band = self.ctx.options.tile * self.ctx.options.factor;
+        let height = self.ortho_lattice.height();
+        (tile_rows.start * band).min(height)..(tile_rows.end * band).min(height)
+    }
+
+    /// The gain per view and channel (1 everywhere without gain compensation): a fit over the
+    /// overlaps of every tile. `progress` is told (tiles done, tiles).
+    pub fn gains(
+        &self,
+        images: &dyn ViewImages,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<Vec<[f64; 3]>, RasterError> {
+        if !self.ctx.options.gain_compensation {
+            return Ok(vec![[1.0; 3]; self.ctx.views.len()]);
+        }
+        let total = self.tiles.len();
+        let done = AtomicUsize::new(0);
+        let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+        fit_gains(&self.ctx, &self.tiles, images, &tick)
+    }
+
+    /// The rows of `tile_rows` with `gains` (one per view, [`Self::gains`]), handed to `rows`
+    /// top to bottom as [`orthomosaic_by_rows`] hands them (first row counted from the top of
+    /// the whole mosaic); each tile row's figures. `progress` is told (tiles done, tiles).
+    pub fn make_rows(
+        &self,
+        tile_rows: std::ops::Range<usize>,
+        images: &dyn ViewImages,
+        gains: &[[f64; 3]],
+        progress: &(dyn Fn(usize, usize) + Sync),
+        rows: &mut RowSink<'_>,
+    ) -> Result<Vec<TileRowFigures>, RasterError> {
+        let ctx = &self.ctx;
+        if gains.len() != ctx.views.len() {
+            return Err(RasterError::InvalidInput(format!(
+                "{} gains for {} views",
+                gains.len(),
+                ctx.views.len()
+            )));
+        }
+        let tiles_down = self.tile_rows();
+        let tile_rows = tile_rows.start.min(tiles_down)..tile_rows.end.min(tiles_down);
+        let f = ctx.options.factor;
+        let (ow, oh) = (self.ortho_lattice.width(), self.ortho_lattice.height());
+        let tiles_across = ctx.lattice.width().div_ceil(ctx.options.tile);
+        let band_rows = ctx.options.tile * f;
+        let total = tile_rows.len() * tiles_across;
+        let done = AtomicUsize::new(0);
+        let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+        // Bands of tiles are made a batch at a time, in parallel, and handed over in order: two
+        // bands per thread keep the threads busy, one per thread where bands are large (a wide
+        // mosaic), so that memory grows with the mosaic's width, never with its area.
+        let threads = rayon::current_num_threads().max(1);
+        let band_bytes = (band_rows * ow * 4).max(1);
+        let batch = (BANDS_IN_FLIGHT_BYTES / band_bytes).clamp(threads, 2 * threads);
+        let mut figures = Vec::with_capacity(tile_rows.len());
+        for first in tile_rows.clone().step_by(batch) {
+            let bands: Vec<Result<Band, RasterError>> = (first..(first + batch).min(tile_rows.end))
+                .into_par_iter()
+                .map(|tile_row| {
+                    let row0 = tile_row * band_rows;
+                    let mut out = vec![0u8; band_rows.min(oh - row0) * ow * 4];
+                    let mut jumps = JumpSums::default();
+                    let mut painted = 0;
+                    for tile_col in 0..tiles_across {
+                        let core = self.tiles[tile_row * tiles_across + tile_col];
+                        let tile = TileData::compute(ctx, core, images, gains)?;
+                        painted += tile.paint(ctx, &mut out, row0, &mut jumps);
+                        tick();
+                    }
+                    Ok(Band {
+                        rgba: out,
+                        jumps,
+                        painted,
+                    })
+                })
+                .collect();
+            for (tile_row, band) in (first..).zip(bands) {
+                let band = band?;
+                figures.push(TileRowFigures {
+                    painted_cells: band.painted,
+                    seam_sum: band.jumps.seam,
+                    seam_pairs: band.jumps.seam_n,
+                    interior_sum: band.jumps.interior,
+                    interior_pairs: band.jumps.interior_n,
+                });
+                rows(tile_row * band_rows, &band.rgba).map_err(RasterError::Output)?;
+            }
+        }
+        Ok(figures)
+    }
 }
 
 fn validate(

@@ -7,8 +7,8 @@ use std::sync::Arc;
 use nalgebra::{Matrix3, Vector2, Vector3};
 use timesift_core::{BrownCamera, Camera, CameraModel, Pose};
 use timesift_raster::{
-    Lattice, OrthoOptions, OrthoView, RasterError, RgbImage, ViewImages, orthomosaic,
-    orthomosaic_by_rows,
+    Lattice, OrthoMosaic, OrthoOptions, OrthoView, RasterError, RgbImage, ViewImages, ortho_stats,
+    orthomosaic, orthomosaic_by_rows,
 };
 
 /// Ground colour: smooth enough for bilinear sampling, varied enough to show seams.
@@ -219,7 +219,7 @@ fn flat_ground_is_reproduced_and_an_overexposed_view_is_compensated() {
         160usize.div_ceil(options.tile * options.factor)
     );
     assert_eq!(bands.concat(), ortho.rgba);
-    assert_eq!((summary.gains, summary.stats), (ortho.gains, ortho.stats));
+    assert_eq!((&summary.gains, summary.stats), (&ortho.gains, ortho.stats));
     let mut taken = 0;
     let full_disk = by_rows(&mut |_, _| {
         taken += 1;
@@ -231,6 +231,50 @@ fn flat_ground_is_reproduced_and_an_overexposed_view_is_compensated() {
     });
     assert_eq!(full_disk, Err(RasterError::Output("disk full".into())));
     assert_eq!(taken, 2);
+
+    // In parts, as a cluster makes it: the gains once, then disjoint ranges of tile rows in any
+    // order (here the last first, each with its own thread pool), their rows put in place and
+    // their figures summed top to bottom: the same mosaic and figures, bit for bit.
+    let mosaic = OrthoMosaic::new(&heights, &lattice, &views, &options).unwrap();
+    assert_eq!(mosaic.lattice(), &ol);
+    let gains = mosaic.gains(&images, &|_, _| {}).unwrap();
+    assert_eq!(gains, ortho.gains);
+    let tile_rows = mosaic.tile_rows();
+    assert_eq!(tile_rows, 80usize.div_ceil(options.tile));
+    let parts = [0..1, 1..3, 3..tile_rows];
+    let mut rgba = vec![0u8; ortho.rgba.len()];
+    let mut figures = vec![Vec::new(); parts.len()];
+    for (k, part) in parts.iter().enumerate().rev() {
+        let rows = mosaic.ortho_rows(part.clone());
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(k + 1)
+            .build()
+            .unwrap();
+        figures[k] = pool
+            .install(|| {
+                mosaic.make_rows(
+                    part.clone(),
+                    &images,
+                    &gains,
+                    &|_, _| {},
+                    &mut |first, band| {
+                        assert!(rows.contains(&first));
+                        let at = 4 * first * ol.width();
+                        rgba[at..at + band.len()].copy_from_slice(band);
+                        Ok(())
+                    },
+                )
+            })
+            .unwrap();
+        assert_eq!(figures[k].len(), part.len());
+    }
+    assert_eq!(rgba, ortho.rgba);
+    assert_eq!(ortho_stats(&figures.concat()), ortho.stats);
+    // Gains that do not match the views are refused, not indexed out of bounds.
+    assert!(matches!(
+        mosaic.make_rows(0..1, &images, &gains[..2], &|_, _| {}, &mut |_, _| Ok(())),
+        Err(RasterError::InvalidInput(_))
+    ));
 }
 
 #[test]

@@ -19,8 +19,8 @@ use timesift_dense::EpochInput;
 use timesift_io::geotiff::{GeoTiffWriter, read_f32};
 use timesift_io::tiled_tiff::{Pixels, SampleFormat};
 use timesift_raster::{
-    Downscaler, Lattice, OrthoOptions, OrthoStats, OrthoView, RgbImage, ViewImages,
-    orthomosaic_by_rows,
+    Downscaler, Lattice, OrthoMosaic, OrthoOptions, OrthoStats, OrthoView, RgbImage,
+    TileRowFigures, ViewImages, ortho_stats,
 };
 
 use super::cache::file_stamp;
@@ -34,6 +34,10 @@ use crate::report::{
     GridFile, RasterReport, read_json, read_sealed_json, write_json, write_sealed_json,
 };
 use crate::{Project, ProjectError};
+
+mod parts;
+
+pub(in crate::stages) use parts::{gains_unit, merge_unit, unit};
 
 /// Version of the mosaicking, part of each ortho's settings.
 const ORTHO_ALGORITHM: u32 = 1;
@@ -80,7 +84,7 @@ impl PipelineStage for OrthoStage {
 }
 
 /// An epoch's images, read on demand, the most recently used kept.
-struct ImageCache<'a> {
+pub(super) struct ImageCache<'a> {
     project: &'a Project,
     source: &'a ImageSource,
     /// Project index of each view's image.
@@ -199,23 +203,6 @@ pub fn ortho_stage(project: &Project) -> Result<RasterReport, ProjectError> {
     Ok(raster_report_from_records(project))
 }
 
-/// A unit of the `ortho` step: the orthomosaics of the epochs of `part`. The files it owns.
-pub(super) fn unit(project: &Project, part: super::Part) -> Result<Vec<PathBuf>, ProjectError> {
-    let context = OrthoContext::new(project)?;
-    let layout = project.layout();
-    let mut owned = Vec::new();
-    for e in part.range(project.epochs.len()) {
-        ortho_epoch(project, &context, e)?;
-        let name = &project.epochs[e].name;
-        owned.extend([
-            layout.ortho(name),
-            layout.ortho_preview(name),
-            layout.raster_settings(name, "ortho"),
-        ]);
-    }
-    Ok(owned)
-}
-
 /// The stage's last step (`ortho-report`): `out/raster.json` from every epoch's DEM and ortho
 /// records. The files it owns.
 pub(super) fn report_unit(project: &Project) -> Result<Vec<PathBuf>, ProjectError> {
@@ -225,7 +212,7 @@ pub(super) fn report_unit(project: &Project) -> Result<Vec<PathBuf>, ProjectErro
 }
 
 /// What every epoch's ortho reads: the lattice, the epochs' views, the image source.
-struct OrthoContext {
+pub(super) struct OrthoContext {
     grid: timesift_raster::ProjectGrid,
     crs: timesift_io::coords::Crs,
     inputs: Vec<(Vec<usize>, EpochInput)>,
@@ -249,38 +236,95 @@ impl OrthoContext {
     }
 }
 
-/// Epoch `e`'s orthomosaic unless what it was made from is unchanged; whether it was made.
+/// One epoch's mosaic to make: its DEM's heights, its views, its options and what it is made
+/// from.
+pub(super) struct EpochOrtho {
+    e: usize,
+    name: String,
+    heights: Vec<f32>,
+    views: Vec<OrthoView>,
+    options: OrthoOptions,
+    /// What the ortho is made from (`work/raster/<epoch>.ortho.json`'s `made_from`).
+    settings: serde_json::Value,
+    up_to_date: bool,
+}
+
+impl EpochOrtho {
+    fn new(
+        project: &Project,
+        context: &OrthoContext,
+        e: usize,
+    ) -> Result<EpochOrtho, ProjectError> {
+        let layout = project.layout();
+        let (_, input) = &context.inputs[e];
+        let name = project.epochs[e].name.clone();
+        let dem_path = layout.dem(&name);
+        let options = project.config.raster.ortho_options(
+            context.grid.ortho_factor,
+            project.config.dense.black_is_nodata,
+        );
+        let settings = ortho_settings(
+            &dem_path,
+            &options,
+            input,
+            context.source.fingerprint(project),
+        );
+        let up_to_date = read_sealed_json::<OrthoRecord>(&layout.raster_settings(&name, "ortho"))
+            .is_ok_and(|r| r.made_from == settings)
+            && layout.ortho(&name).is_file();
+        let (heights, views) = if up_to_date {
+            (Vec::new(), Vec::new())
+        } else {
+            let views = input
+                .views
+                .iter()
+                .map(|v| OrthoView {
+                    camera: v.camera.clone(),
+                    cam_from_world: v.cam_from_world,
+                })
+                .collect();
+            (dem_heights(&dem_path, &context.grid.dem)?, views)
+        };
+        Ok(EpochOrtho {
+            e,
+            name,
+            heights,
+            views,
+            options,
+            settings,
+            up_to_date,
+        })
+    }
+
+    fn up_to_date(&self) -> bool {
+        if self.up_to_date {
+            tracing::info!(epoch = %self.name, "ortho up to date");
+        }
+        self.up_to_date
+    }
+
+    fn mosaic<'a>(&'a self, context: &'a OrthoContext) -> Result<OrthoMosaic<'a>, ProjectError> {
+        OrthoMosaic::new(&self.heights, &context.grid.dem, &self.views, &self.options)
+            .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", self.name)))
+    }
+
+    fn images<'a>(&self, project: &'a Project, context: &'a OrthoContext) -> ImageCache<'a> {
+        let (images, _) = &context.inputs[self.e];
+        ImageCache::new(project, &context.source, images.clone(), &self.views)
+    }
+}
+
+/// Epoch `e`'s orthomosaic, made whole, unless what it was made from is unchanged; whether it
+/// was made.
 fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bool, ProjectError> {
-    let layout = project.layout();
-    let (grid, crs, source) = (&context.grid, context.crs, &context.source);
-    let ortho_lattice = grid.ortho();
-    let (images, input) = &context.inputs[e];
-    let name = &project.epochs[e].name;
-    let dem_path = layout.dem(name);
-    let options = project
-        .config
-        .raster
-        .ortho_options(grid.ortho_factor, project.config.dense.black_is_nodata);
-    let settings = ortho_settings(&dem_path, &options, input, source.fingerprint(project));
-    let settings_path = layout.raster_settings(name, "ortho");
-    if read_sealed_json::<OrthoRecord>(&settings_path).is_ok_and(|r| r.made_from == settings)
-        && layout.ortho(name).is_file()
-    {
-        tracing::info!(epoch = %name, "ortho up to date");
+    let epoch = EpochOrtho::new(project, context, e)?;
+    if epoch.up_to_date() {
         return Ok(false);
     }
-    let heights = dem_heights(&dem_path, &grid.dem)?;
-    let views: Vec<OrthoView> = input
-        .views
-        .iter()
-        .map(|v| OrthoView {
-            camera: v.camera.clone(),
-            cam_from_world: v.cam_from_world,
-        })
-        .collect();
-    let cache = ImageCache::new(project, source, images.clone(), &views);
+    let mosaic = epoch.mosaic(context)?;
+    let cache = epoch.images(project, context);
     let start = Instant::now();
-    let bar = crate::progress::progress_bar(project.progress, "ortho", name, 0, "tiles");
+    let bar = crate::progress::progress_bar(project.progress, "ortho", &epoch.name, 0, "tiles");
     let progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
@@ -288,57 +332,101 @@ fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bo
     // The mosaic goes to its GeoTIFF and to the preview a band of rows at a time: memory
     // holds the DEM, a few bands and the images of the tiles in flight, whatever the size
     // of the ortho.
-    let l = &ortho_lattice;
-    let ortho_path = layout.ortho(name);
-    let mut tiff = GeoTiffWriter::create(
-        &ortho_path,
-        l.width(),
-        l.height(),
-        SampleFormat::U8 { bands: 4 },
-        &georeference(l, crs, None),
-    )?;
-    let mut preview = Downscaler::new(4, l.width(), l.height(), 1024);
-    let mut write_rows = |_first_row: usize, rgba: &[u8]| {
-        preview.push_rows(rgba);
-        tiff.push_rows(Pixels::U8 {
-            data: rgba,
-            bands: 4,
-        })
-        .map_err(|e| e.to_string())
-    };
-    let ortho = orthomosaic_by_rows(
-        &heights,
-        &grid.dem,
-        &views,
-        &cache,
-        &options,
-        &progress,
-        &mut write_rows,
-    )
-    .map_err(|e| stage_error("ortho", format!("epoch \"{name}\": {e}")))?;
+    let gains = mosaic
+        .gains(&cache, &progress)
+        .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", epoch.name)))?;
+    let mut writer = OrthoWriter::create(project, context, &epoch.name)?;
+    let figures = mosaic
+        .make_rows(
+            0..mosaic.tile_rows(),
+            &cache,
+            &gains,
+            &progress,
+            &mut |_, rgba| writer.push(rgba),
+        )
+        .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", epoch.name)))?;
     bar.finish_and_clear();
-    tiff.finish()?;
-    timesift_io::qgis::write_qml(&ortho_path, &super::product_styles::ortho())?;
-    let seconds = start.elapsed().as_secs_f64();
-    let (w, h, small) = preview.finish();
-    timesift_io::image::write_png(&layout.ortho_preview(name), w as u32, h as u32, 4, &small)?;
-    let with_height = heights.iter().filter(|h| h.is_finite()).count();
-    let factor2 = (grid.ortho_factor * grid.ortho_factor) as f64;
-    let record = ortho_record(
-        settings,
-        &ortho.stats,
-        with_height as f64 * factor2,
-        seconds,
-    );
-    tracing::info!(
-        epoch = %name,
-        painted = record.ortho_painted_fraction,
-        seam_jump = ortho.stats.seam_jump,
-        seconds,
-        "ortho"
-    );
-    write_sealed_json(&settings_path, &record)?;
+    writer.finish(project, &epoch, &figures, start.elapsed().as_secs_f64())?;
     Ok(true)
+}
+
+/// One epoch's `ortho.tif` and preview, written a band of rows at a time, top to bottom.
+pub(super) struct OrthoWriter {
+    path: PathBuf,
+    tiff: GeoTiffWriter,
+    preview: Downscaler,
+}
+
+impl OrthoWriter {
+    fn create(
+        project: &Project,
+        context: &OrthoContext,
+        name: &str,
+    ) -> Result<OrthoWriter, ProjectError> {
+        let l = context.grid.ortho();
+        let path = project.layout().ortho(name);
+        let tiff = GeoTiffWriter::create(
+            &path,
+            l.width(),
+            l.height(),
+            SampleFormat::U8 { bands: 4 },
+            &georeference(&l, context.crs, None),
+        )?;
+        Ok(OrthoWriter {
+            path,
+            tiff,
+            preview: Downscaler::new(4, l.width(), l.height(), 1024),
+        })
+    }
+
+    fn push(&mut self, rgba: &[u8]) -> Result<(), String> {
+        self.preview.push_rows(rgba);
+        self.tiff
+            .push_rows(Pixels::U8 {
+                data: rgba,
+                bands: 4,
+            })
+            .map_err(|e| e.to_string())
+    }
+
+    /// The GeoTIFF, its style, the preview and the epoch's record, from the mosaic's figures
+    /// (every tile row's, top to bottom).
+    fn finish(
+        self,
+        project: &Project,
+        epoch: &EpochOrtho,
+        figures: &[TileRowFigures],
+        seconds: f64,
+    ) -> Result<(), ProjectError> {
+        let layout = project.layout();
+        self.tiff.finish()?;
+        timesift_io::qgis::write_qml(&self.path, &super::product_styles::ortho())?;
+        let (w, h, small) = self.preview.finish();
+        timesift_io::image::write_png(
+            &layout.ortho_preview(&epoch.name),
+            w as u32,
+            h as u32,
+            4,
+            &small,
+        )?;
+        let stats = ortho_stats(figures);
+        let with_height = epoch.heights.iter().filter(|h| h.is_finite()).count();
+        let factor2 = (epoch.options.factor * epoch.options.factor) as f64;
+        let record = ortho_record(
+            epoch.settings.clone(),
+            &stats,
+            with_height as f64 * factor2,
+            seconds,
+        );
+        tracing::info!(
+            epoch = %epoch.name,
+            painted = record.ortho_painted_fraction,
+            seam_jump = stats.seam_jump,
+            seconds,
+            "ortho"
+        );
+        write_sealed_json(&layout.raster_settings(&epoch.name, "ortho"), &record)
+    }
 }
 
 /// An epoch's ortho figures for the raster report: the share of cells with a height that were
