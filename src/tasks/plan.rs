@@ -388,7 +388,8 @@ pub fn cluster_plan(project: &Project, options: &PlanOptions) -> Result<ClusterP
         ),
         dem_bytes + cache + 8.0 * part_cells,
         format!(
-            "16 B per point of the largest epoch's cloud (its DEM), the 1.5 GiB image cache and              8 B per cell of its part ({:.1} million: 4 per fused point, shared out)",
+            "16 B per point of the largest epoch's cloud (its DEM), the 1.5 GiB image cache and \
+             8 B per cell of its part ({:.1} million: 4 per fused point, shared out)",
             part_cells / 1e6
         ),
         2 * (ortho_units + epochs) as u64,
@@ -400,7 +401,8 @@ pub fn cluster_plan(project: &Project, options: &PlanOptions) -> Result<ClusterP
         epochs,
         "one epoch's orthomosaic from its parts",
         dem_bytes + 8.0 * largest_part,
-        "16 B per point of the largest epoch's cloud (its DEM) and 8 B per cell of the largest          part",
+        "16 B per point of the largest epoch's cloud (its DEM) and 8 B per cell of the largest \
+         part",
         3 * epochs as u64,
     ));
     steps.push(step(
