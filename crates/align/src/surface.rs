@@ -141,6 +141,12 @@ const MIN_SIGMA: f64 = 1e-9;
 /// another adjustment of the block (on `synth shore`, 16 points over three epochs moved the
 /// check points by a few millimetres either way, through the adjustment's new outlier bounds).
 const MIN_HELD: usize = 100;
+/// Fewest points an epoch holds to a reference DEM: the DEM is the datum (no control, or
+/// control the user trusts less), so an epoch with few points on stable ground is held by what
+/// it has rather than left to its ties with the others. On `synth archival` with a reference
+/// DEM and no control, the oldest epoch's 196 kept points (98 held) fell below [`MIN_HELD`]
+/// and its DEM tilted 3.5 mm/m against the reference while the others were held to 0.3.
+const MIN_HELD_ON_DEM: usize = MIN_COMPARED / 2;
 /// Most rounds of the robust fit (trimming, refitting): each round's fit, freed of the points
 /// the last one left out, shows more of a changed region (the neighbourhood test needs about
 /// twenty on a region raised by twice the points' noise).
@@ -828,7 +834,7 @@ impl SurfaceComparison<'_> {
 
     /// Per later epoch compared, its fit against the reference epoch's surface (before the
     /// observations act) and the height observations its points would get (every other one,
-    /// [`holds`]; none below [`MIN_HELD`]).
+    /// [`holds`]; none below [`MIN_HELD`], or [`MIN_HELD_ON_DEM`] against a reference DEM).
     pub fn heights(&self, rec: &Reconstruction) -> Vec<EpochSurface> {
         let mut epochs = Vec::new();
         for (epoch, points) in self.compared(rec).iter().enumerate() {
@@ -854,7 +860,11 @@ impl SurfaceComparison<'_> {
                     slope: p.slope,
                 })
                 .collect();
-            if held.len() < MIN_HELD {
+            let fewest = match self.dem {
+                Some(_) => MIN_HELD_ON_DEM,
+                None => MIN_HELD,
+            };
+            if held.len() < fewest {
                 held.clear();
             }
             epochs.push(EpochSurface { fit, held });
@@ -1091,6 +1101,47 @@ mod tests {
             assert!((h.slope[0] - 0.05).abs() < 1e-4 && (h.slope[1] - 0.02).abs() < 1e-4);
             assert_eq!(h.sigma, 0.3);
         }
+    }
+
+    #[test]
+    fn an_epoch_with_few_points_is_held_to_a_reference_dem_but_not_to_the_reference_epoch() {
+        // The later epoch keeps 70 points in one corner, 10 columns of 7 (those of even track,
+        // 3 of the 7 rows, would be held): too few to be worth holding to the reference
+        // epoch's surface, enough to hold it to a DEM.
+        let mut rec = scene(0.0, planted, |_, _| false);
+        rec.points.retain(|p| {
+            let later = p.observations[0].image.index() >= 3;
+            !later || (p.position.x < 30.0 && p.position.y < 20.0)
+        });
+        let later_points = rec
+            .points
+            .iter()
+            .filter(|p| p.observations[0].image.index() >= 3)
+            .count();
+        assert_eq!(later_points, 70);
+        let later_held = |heights: &[SurfaceHeight]| {
+            heights
+                .iter()
+                .filter(|h| {
+                    let p = rec.points.iter().find(|p| p.track == h.track);
+                    p.is_some_and(|p| p.observations[0].image.index() >= 3)
+                })
+                .count()
+        };
+        let (on_epoch, _) = split(compare_with(None).heights(&rec));
+        assert_eq!(later_held(&on_epoch), 0);
+        let dem = ground_dem();
+        let comparison = SurfaceComparison {
+            dem: Some(&dem),
+            ..compare_with(None)
+        };
+        let (on_dem, fits) = split(comparison.heights(&rec));
+        assert_eq!(later_held(&on_dem), 30);
+        let f = fits
+            .iter()
+            .find(|f| f.epoch == 1)
+            .expect("the later epoch's fit");
+        assert!((f.plane[1] - 0.003).abs() < 1e-6, "{:?}", f.plane);
     }
 
     #[test]
