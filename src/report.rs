@@ -182,6 +182,11 @@ pub struct SurfaceFitReport {
     pub points_compared: usize,
     /// Points kept (the others miss by more than 2.5 σ: ground that changed, wrong points).
     pub points_kept: usize,
+    /// Of the epoch's points, how many the final adjustment held to the surface by height
+    /// observations (others than those compared here, which are never held). None: the epoch
+    /// sits where its ties to the others put it (too few points, or nothing to correct).
+    #[serde(default)]
+    pub points_held: usize,
     /// One point's miss about the fit, metres (robust σ).
     pub sigma_m: f64,
     /// Offset at the points' centroid, metres.

@@ -285,7 +285,10 @@ fn surface_fit_table(
             .chain(shape);
         let mut row = vec![
             esc(&e.name),
-            format!("{} / {}", f.points_kept, f.points_compared),
+            format!(
+                "{} / {} / {}",
+                f.points_held, f.points_kept, f.points_compared
+            ),
             format!("{:.3}", f.sigma_m),
         ];
         for (name, t, unit, digits) in terms {
@@ -350,7 +353,7 @@ fn surface_fit_table(
     s.push_str(&table(
         &[
             "epoch",
-            "points kept / compared",
+            "points held / kept / compared",
             "σ of one point m",
             "offset m",
             "slope east mm/m",

@@ -138,8 +138,15 @@ fn a_film_block_without_control_lands_on_a_reference_dem() {
         "{report:#}"
     );
     // Every epoch (the reference too) is compared with the DEM, from points never held to it:
-    // no offset beyond 3 σ and a few centimetres.
+    // no offset beyond 3 σ and a few centimetres; and every epoch is held to it, by points of
+    // its own, which together are all the heights held (a point seen in both is held once).
+    let mut held_per_epoch = 0;
     for (name, epoch) in report["epochs"].as_object().unwrap() {
+        let held = epoch["surface_fit"]["points_held"]
+            .as_u64()
+            .expect("points_held");
+        assert!(held > 0, "{name}: none of its points held to the DEM");
+        held_per_epoch += held;
         let offset = &epoch["surface_fit"]["offset_m"];
         let (value, sigma) = (
             offset["value"].as_f64().expect("offset"),
@@ -150,6 +157,11 @@ fn a_film_block_without_control_lands_on_a_reference_dem() {
             "{name}: {value} ± {sigma} m off the DEM"
         );
     }
+    let total = report["surface_heights"].as_u64().unwrap();
+    assert!(
+        held_per_epoch >= total,
+        "{held_per_epoch} held by epoch, {total} in all"
+    );
     // On the DEM: 0.5 m above the truth to a decimetre. The centres' common error falls to a
     // tenth of the bias: sideways through the slopes of the DEM's tangent planes (heights
     // alone cannot move a block sideways), in height to the DEM's shift and what the scale,

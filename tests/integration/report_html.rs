@@ -55,6 +55,7 @@ fn project(dir: &Path) {
     let surface = timesift::report::SurfaceFitReport {
         points_compared: 900,
         points_kept: 800,
+        points_held: 400,
         sigma_m: 0.085,
         offset_m: term(-0.012, 0.01),
         slope_east_mm_per_m: term(-1.2, 0.1),
@@ -140,7 +141,7 @@ fn a_report_of_the_orientation_alone_has_every_section_and_says_what_is_missing(
         html.contains("400 of them held to it by height observations"),
         "{html}"
     );
-    assert!(html.contains("<td>800 / 900</td>"), "{html}");
+    assert!(html.contains("<td>400 / 800 / 900</td>"), "{html}");
     assert!(html.contains("<b>1.20 ± 0.10</b>"), "{html}");
     assert!(
         html.contains("<td>0.4 ± 0.5</td>") && html.contains("<td>–</td>"),

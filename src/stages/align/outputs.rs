@@ -482,6 +482,7 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
     } = *of;
     let rec = &block.reconstruction;
     let epoch = &project.epochs[e];
+    let epoch_of_images: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
     let in_epoch = |i: usize| project.images[i].epoch.index() == e;
     let given = epoch.images.len();
     let oriented = epoch
@@ -530,7 +531,7 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
             .surface_fits
             .iter()
             .find(|f| f.epoch == e)
-            .map(surface_fit_report),
+            .map(|f| surface_fit_report(f, points_held_in(block, &epoch_of_images, e))),
         gnss_offset: block
             .gnss_offsets
             .iter()
@@ -546,8 +547,32 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
     }
 }
 
-/// An epoch's surface fit in the report's units.
-fn surface_fit_report(f: &timesift_align::SurfaceFit) -> crate::report::SurfaceFitReport {
+/// How many of epoch `e`'s tie points (seen in one of its images) the final adjustment held to
+/// the surface its fit is against: the reference DEM's heights, or the reference epoch's.
+fn points_held_in(block: &Georeferenced, epoch_of_images: &[usize], e: usize) -> usize {
+    let held = match block.fits_against_dem {
+        true => &block.dem_heights,
+        false => &block.surface_held,
+    };
+    let in_epoch: std::collections::BTreeSet<usize> = block
+        .reconstruction
+        .points
+        .iter()
+        .filter(|p| {
+            p.observations
+                .iter()
+                .any(|o| epoch_of_images.get(o.image.index()) == Some(&e))
+        })
+        .map(|p| p.track)
+        .collect();
+    held.iter().filter(|h| in_epoch.contains(&h.track)).count()
+}
+
+/// An epoch's surface fit in the report's units, with how many of its points were held.
+fn surface_fit_report(
+    f: &timesift_align::SurfaceFit,
+    points_held: usize,
+) -> crate::report::SurfaceFitReport {
     use crate::report::Term;
     let (tilt, tilt_sigma) = f.tilt_mm_per_m();
     let term = |value: f64, sigma: f64, unit: f64| Term {
@@ -557,6 +582,7 @@ fn surface_fit_report(f: &timesift_align::SurfaceFit) -> crate::report::SurfaceF
     crate::report::SurfaceFitReport {
         points_compared: f.compared,
         points_kept: f.kept,
+        points_held,
         sigma_m: f.sigma,
         offset_m: term(f.plane[0], f.plane_std[0], 1.0),
         slope_east_mm_per_m: term(f.plane[1], f.plane_std[1], 1e3),
