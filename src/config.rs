@@ -1340,7 +1340,8 @@ pub struct ClusterConfig {
     pub views_per_task: usize,
     /// Ortho cells per task of `ortho`, millions: every epoch's mosaic is made in rows of tiles
     /// shared out among the tasks, then merged by one task per epoch. Default 100 (a task holds
-    /// its part, 4 bytes a cell, in memory).
+    /// its part in memory: 8 bytes a cell in the plan's `--mem`, its RGBA and the band in the
+    /// making).
     #[serde(default = "default_ortho_megapixels_per_task")]
     pub ortho_megapixels_per_task: f64,
 }

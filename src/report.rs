@@ -180,11 +180,13 @@ pub struct EpochOrientation {
 pub struct SurfaceFitReport {
     /// Points compared (on stable ground where given, where the reference surface is known).
     pub points_compared: usize,
-    /// Points kept (the others miss by more than 2.5 σ: ground that changed, wrong points).
+    /// Points kept (the others miss the fitted offset, tilt and dome by more than 2.5 σ, or lie
+    /// where their neighbourhood misses it as a whole: ground that changed, wrong points).
     pub points_kept: usize,
     /// Of the epoch's points, how many the final adjustment held to the surface by height
-    /// observations (others than those compared here, which are never held). None: the epoch
-    /// sits where its ties to the others put it (too few points, or nothing to correct).
+    /// observations (others than those compared here, which are never held; a point of several
+    /// epochs held to a reference DEM counts for the first). 0: the epoch sits where its ties
+    /// to the others put it (too few points, or nothing to correct).
     #[serde(default)]
     pub points_held: usize,
     /// One point's miss about the fit, metres (robust σ).
@@ -232,9 +234,10 @@ pub struct DatumTiltReport {
     pub sigma_min_mm_per_m: f64,
     /// Direction of the loosest tilt's gradient, degrees counter-clockwise from east.
     pub loose_azimuth_deg: f64,
-    /// The datum's height σ at the control's centre, metres, where the control fixes one (the
-    /// prediction from the control only, `datum_tilt`): how far every DEM of the block may sit
-    /// up or down together.
+    /// The datum's height σ at the weighted centre of what fixes it, metres, where that fixes
+    /// one (the prediction from the control points, GNSS priors and reference DEM heights
+    /// alone, `datum_tilt`): how far every DEM of the block may sit up or down together. With a
+    /// reference DEM it is relative to that DEM: the DEM's own vertical error is not in it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma_height_m: Option<f64>,
 }

@@ -30,8 +30,12 @@ use crate::stable_ground::StableGround;
 /// A height observation of a tie point (by its track): from a reference surface, with its σ.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SurfaceHeight {
-    /// Index of the point's track in the input's tracks.
+    /// Index of the point's track in the input's tracks (as the adjustment numbers them: a
+    /// strategy that splits tracks may give the block's final points other numbers).
     pub track: usize,
+    /// The epoch whose point it is: the one it was compared in (the first, for a point of
+    /// several epochs held to a reference DEM, which holds it once).
+    pub epoch: usize,
     /// Height of the reference surface at `at`, metres.
     pub height: f64,
     /// Standard deviation of the observation, metres.
@@ -125,7 +129,7 @@ const SURFACE_SIGMA_GROUND_PX: f64 = 0.5;
 /// on smooth ground scatter by a fraction of a ground pixel in height; more is ground with
 /// no surface between its points (vegetation, buildings, boulders).
 const MAX_ROUGHNESS_GROUND_PX: f64 = 3.0;
-/// A point missing the surface (after the fitted offset and tilt) by more than this many
+/// A point missing the surface (after the fitted offset, tilt and dome) by more than this many
 /// robust σ is on ground that changed, or a wrong point.
 const KEEP_SIGMAS: f64 = 2.5;
 /// Fewest compared points of an epoch before its surface ties are used.
@@ -491,7 +495,8 @@ fn robust_sigma(values: &[f64]) -> f64 {
 
 /// The robust fit of one epoch's misses: which points are kept, and the scatter about the
 /// fit. What the block as a whole got wrong is a smooth surface: an offset, a tilt, and a bend
-/// (the quadratic terms: a dome from radial distortion, a sag along a strip), fitted to the
+/// (a dome: a term in the squared distance from the points' centroid, as radial distortion
+/// bends a block; a sag along one strip is not modelled and shows as misses), fitted to the
 /// points kept; a point is kept while it misses that surface by [`KEEP_SIGMAS`] of the
 /// scatter at most and its neighbourhood does not miss it as a whole ([`REGION_Z`]). The bend
 /// is fitted so that an epoch bent against the surface is not taken for ground that changed
@@ -538,6 +543,11 @@ fn robust_fit(
         }
     };
     let neighbourhoods = Neighbourhoods::of(points, region_radius);
+    // The points whose misses say what one point's noise is.
+    let for_sigma: Vec<bool> = points
+        .iter()
+        .map(|p| !(scatter_of_unheld && holds(p.track)))
+        .collect();
     let mut keep = vec![true; points.len()];
     let mut sigma = f64::INFINITY;
     for _ in 0..ROBUST_ROUNDS {
@@ -581,7 +591,7 @@ fn robust_fit(
         // Noise-free misses (σ 0) keep what the plane fits to rounding.
         let bound = KEEP_SIGMAS * sigma.max(MIN_SIGMA);
         let mut next: Vec<bool> = misses.iter().map(|m| m.abs() <= bound).collect();
-        neighbourhoods.leave_out_changed(&misses, &mut next);
+        neighbourhoods.leave_out_changed(&misses, &for_sigma, &mut next);
         if next == keep {
             break;
         }
@@ -647,8 +657,9 @@ impl Neighbourhoods {
     /// `keep` holds. One point's σ is the scatter of the misses about their neighbourhoods'
     /// medians: the points' own noise, which ground that changed as a whole does not widen (the
     /// scatter about the plane holds the change too, and once points are trimmed it shrinks
-    /// with every round).
-    fn leave_out_changed(&self, misses: &[f64], keep: &mut [bool]) {
+    /// with every round), over the points `for_sigma` names (against a reference DEM, those
+    /// never held: the held ones sit closer to it than their noise).
+    fn leave_out_changed(&self, misses: &[f64], for_sigma: &[bool], keep: &mut [bool]) {
         let mut scratch = Vec::with_capacity(REGION_NEIGHBOURS);
         let medians: Vec<Option<f64>> = self
             .of_point
@@ -667,7 +678,9 @@ impl Neighbourhoods {
         let about_neighbours: Vec<f64> = misses
             .iter()
             .zip(&medians)
-            .filter_map(|(m, median)| median.map(|median| m - median))
+            .zip(for_sigma)
+            .filter(|(_, counts)| **counts)
+            .filter_map(|((m, median), _)| median.map(|median| m - median))
             .collect();
         if about_neighbours.is_empty() {
             return;
@@ -854,6 +867,7 @@ impl SurfaceComparison<'_> {
                 .filter(|(p, k)| **k && holds(p.track))
                 .map(|(p, _)| SurfaceHeight {
                     track: p.track,
+                    epoch,
                     height: p.surface,
                     sigma,
                     at: [p.position.x, p.position.y],
@@ -924,7 +938,6 @@ mod tests {
     /// Images 0–2 in epoch 0 (the reference), 3–5 in epoch 1.
     const EPOCH_OF: [usize; 6] = [0, 0, 0, 1, 1, 1];
 
-    /// Every epoch's height observations, and the fits.
     /// How many of the held points lie where `at(x, y)` holds.
     fn held_where(
         heights: &[SurfaceHeight],
@@ -940,6 +953,7 @@ mod tests {
             .count()
     }
 
+    /// Every epoch's height observations, and the fits.
     fn split(epochs: Vec<EpochSurface>) -> (Vec<SurfaceHeight>, Vec<SurfaceFit>) {
         epochs
             .into_iter()
@@ -1191,7 +1205,7 @@ mod tests {
 
     #[test]
     fn ground_that_changed_by_less_than_the_noise_is_found_by_its_neighbourhood() {
-        // A sixth of the later points raised 0.5 m, within the point-by-point bound (2.5 σ
+        // A seventh of the later points (5/36 of the scene) raised 0.5 m, within the point-by-point bound (2.5 σ
         // of noise 0.3 m): the same side of the surface over the whole region.
         let changed = |x: f64, y: f64| x > 120.0 && y < 50.0;
         let rec = scene_changed_by(0.3, planted, |x, y| if changed(x, y) { 0.5 } else { 0.0 });
@@ -1211,7 +1225,7 @@ mod tests {
             "{on_change} of the changed region's {region} points held"
         );
         assert!(heights.len() > 300, "{}", heights.len());
-        // The tilt is the planted one: the raised quarter would tilt a plane through every
+        // The tilt is the planted one: the raised region would tilt a plane through every
         // point by 1.3 mm/m.
         let f = &fits[0];
         for k in 1..3 {

@@ -57,7 +57,7 @@ pub(super) fn write_outputs(
         .collect();
     let epoch_names: Vec<String> = project.epochs.iter().map(|e| e.name.clone()).collect();
     timesift_io::ply::write_tiepoints(&layout.tiepoints_ply(), &epoch_names, &tiepoints)?;
-    let held: Vec<HeldPoint> = held_points(rec, &block.surface_held, &epoch_of, origin);
+    let held: Vec<HeldPoint> = held_points(&block.surface_held, origin);
     let points = WorldPoints {
         tiepoints: &tiepoints,
         held: &held,
@@ -482,7 +482,6 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
     } = *of;
     let rec = &block.reconstruction;
     let epoch = &project.epochs[e];
-    let epoch_of_images: Vec<usize> = project.images.iter().map(|im| im.epoch.index()).collect();
     let in_epoch = |i: usize| project.images[i].epoch.index() == e;
     let given = epoch.images.len();
     let oriented = epoch
@@ -531,7 +530,7 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
             .surface_fits
             .iter()
             .find(|f| f.epoch == e)
-            .map(|f| surface_fit_report(f, points_held_in(block, &epoch_of_images, e))),
+            .map(|f| surface_fit_report(f, points_held_in(block, e))),
         gnss_offset: block
             .gnss_offsets
             .iter()
@@ -547,25 +546,14 @@ fn epoch_orientation(of: &OrientedBlock<'_>, e: usize) -> EpochOrientation {
     }
 }
 
-/// How many of epoch `e`'s tie points (seen in one of its images) the final adjustment held to
-/// the surface its fit is against: the reference DEM's heights, or the reference epoch's.
-fn points_held_in(block: &Georeferenced, epoch_of_images: &[usize], e: usize) -> usize {
+/// How many of epoch `e`'s points the final adjustment held to the surface its fit is against:
+/// the reference DEM's heights, or the reference epoch's.
+fn points_held_in(block: &Georeferenced, e: usize) -> usize {
     let held = match block.fits_against_dem {
         true => &block.dem_heights,
         false => &block.surface_held,
     };
-    let in_epoch: std::collections::BTreeSet<usize> = block
-        .reconstruction
-        .points
-        .iter()
-        .filter(|p| {
-            p.observations
-                .iter()
-                .any(|o| epoch_of_images.get(o.image.index()) == Some(&e))
-        })
-        .map(|p| p.track)
-        .collect();
-    held.iter().filter(|h| in_epoch.contains(&h.track)).count()
+    held.iter().filter(|h| h.epoch == e).count()
 }
 
 /// An epoch's surface fit in the report's units, with how many of its points were held.

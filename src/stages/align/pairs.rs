@@ -22,28 +22,15 @@ pub(super) struct HeldPoint {
     xy: Vector2<f64>,
 }
 
-/// The points the final adjustment held to the reference epoch's surface, each with the one
-/// epoch it is seen in.
+/// The points the final adjustment held to the reference epoch's surface, each with its epoch.
 pub(super) fn held_points(
-    rec: &timesift_align::Reconstruction,
     held: &[timesift_align::SurfaceHeight],
-    epoch_of: &[usize],
     origin: Vector3<f64>,
 ) -> Vec<HeldPoint> {
-    let epoch_of_track: BTreeMap<usize, usize> = rec
-        .points
-        .iter()
-        .filter_map(|p| {
-            let first = p.observations.first()?;
-            Some((p.track, *epoch_of.get(first.image.index())?))
-        })
-        .collect();
     held.iter()
-        .filter_map(|h| {
-            Some(HeldPoint {
-                epoch: *epoch_of_track.get(&h.track)?,
-                xy: Vector2::new(h.at[0] + origin.x, h.at[1] + origin.y),
-            })
+        .map(|h| HeldPoint {
+            epoch: h.epoch,
+            xy: Vector2::new(h.at[0] + origin.x, h.at[1] + origin.y),
         })
         .collect()
 }

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use timesift_raster::{OrthoOptions, TileRowFigures};
+use timesift_raster::TileRowFigures;
 
 use super::{EpochOrtho, OrthoContext, OrthoWriter};
 use crate::report::{read_sealed_json, write_sealed_json};
@@ -55,7 +55,7 @@ pub(in crate::stages) fn gains_unit(
 /// beside it), for the epochs whose ortho is not up to date. The files it owns.
 pub(in crate::stages) fn unit(project: &Project, part: Part) -> Result<Vec<PathBuf>, ProjectError> {
     let context = OrthoContext::new(project)?;
-    let tile_rows = tile_rows_of(&context)?;
+    let tile_rows = tile_rows_of(project, &context);
     let epochs = project.epochs.len();
     let share = part.range(epochs * tile_rows);
     let mut owned = Vec::new();
@@ -100,10 +100,13 @@ pub(in crate::stages) fn merge_unit(
     Ok(owned)
 }
 
-/// Rows of tiles of every epoch's mosaic (they share one lattice).
-fn tile_rows_of(context: &OrthoContext) -> Result<usize, ProjectError> {
-    let tile = OrthoOptions::default().tile;
-    Ok(context.grid.dem.height().div_ceil(tile))
+/// Rows of tiles of every epoch's mosaic (they share one lattice and the project's options).
+fn tile_rows_of(project: &Project, context: &OrthoContext) -> usize {
+    let options = project.config.raster.ortho_options(
+        context.grid.ortho_factor,
+        project.config.dense.black_is_nodata,
+    );
+    context.grid.dem.height().div_ceil(options.tile.max(1))
 }
 
 /// `work/raster/<epoch>.ortho-gains.json`: an epoch's exposure gains, and what its ortho is
@@ -235,7 +238,7 @@ fn merge_parts(
     context: &OrthoContext,
     epoch: &EpochOrtho,
 ) -> Result<(), ProjectError> {
-    let tile_rows = tile_rows_of(context)?;
+    let tile_rows = tile_rows_of(project, context);
     let prefix = format!("{}.ortho-part-", epoch.name);
     let dir = project.layout().work_dir().join("raster");
     // Every part of the current settings, by split: count → (index → record).
