@@ -306,13 +306,14 @@ pub fn cluster_plan(project: &Project, options: &PlanOptions) -> Result<ClusterP
             n as u64,
         ));
     }
-    // The largest epoch's fused cloud, points.
-    let largest_epoch = project
+    // Each epoch's fused cloud, points; the largest's.
+    let epoch_points: Vec<f64> = project
         .epochs
         .iter()
         .enumerate()
         .map(|(e, ep)| ep.images.len() as f64 * working_px(e) * POINTS_PER_WORKING_PIXEL)
-        .fold(0.0, f64::max);
+        .collect();
+    let largest_epoch = epoch_points.iter().copied().fold(0.0, f64::max);
     steps.push(step(
         "dense-fuse",
         Stage::Dense,
@@ -357,13 +358,7 @@ pub fn cluster_plan(project: &Project, options: &PlanOptions) -> Result<ClusterP
     // Every epoch's mosaic: its gains (a fit over every tile), its rows of tiles shared out
     // among the units, then one merge per epoch. An ortho cell per DEM cell and a DEM cell per
     // fused point, at the default lattices' factor of 2 per side: 4 cells per point.
-    let ortho_cells: f64 = project
-        .epochs
-        .iter()
-        .enumerate()
-        .map(|(e, ep)| ep.images.len() as f64 * working_px(e) * POINTS_PER_WORKING_PIXEL)
-        .map(|points| ORTHO_CELLS_PER_POINT * points)
-        .sum();
+    let ortho_cells: f64 = ORTHO_CELLS_PER_POINT * epoch_points.iter().sum::<f64>();
     let per_unit = options.ortho_megapixels_per_task.max(1e-6) * 1e6;
     let ortho_units = ((ortho_cells / per_unit).ceil() as usize).max(epochs);
     let dem_bytes = largest_epoch * 16.0;

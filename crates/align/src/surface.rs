@@ -181,10 +181,53 @@ const MAX_REGION_SHARE: f64 = 0.5;
 /// The reference surface: the reference epoch's tie points (two observations in its images at
 /// least), horizontally indexed.
 struct ReferenceSurface {
+    index: HorizontalIndex,
+    heights: Vec<f64>,
+}
+
+/// Points indexed by their horizontal position, about the first of them (so that the tree
+/// holds small coordinates).
+struct HorizontalIndex {
     origin: [f64; 2],
     tree: ImmutableKdTree<f64, 2>,
-    heights: Vec<f64>,
+    /// Each point's position about `origin`.
     xy: Vec<[f64; 2]>,
+}
+
+impl HorizontalIndex {
+    /// `None` without a point or where the tree cannot be built.
+    fn of(points: impl Iterator<Item = [f64; 2]>) -> Option<HorizontalIndex> {
+        let mut points = points.peekable();
+        let origin = *points.peek()?;
+        let xy: Vec<[f64; 2]> = points
+            .map(|p| [p[0] - origin[0], p[1] - origin[1]])
+            .collect();
+        let tree = ImmutableKdTree::new_from_slice(&xy).ok()?;
+        Some(HorizontalIndex { origin, tree, xy })
+    }
+
+    /// (x, y) about the index's origin.
+    fn local(&self, x: f64, y: f64) -> [f64; 2] {
+        [x - self.origin[0], y - self.origin[1]]
+    }
+
+    /// The `count` points nearest to `q` (about the origin, [`Self::local`]) that lie within
+    /// `radius` of it, nearest first.
+    fn near(&self, q: &[f64; 2], count: usize, radius: f64) -> impl Iterator<Item = usize> {
+        let found = match std::num::NonZeroUsize::new(count) {
+            Some(n) => self
+                .tree
+                .query(q)
+                .nearest_n::<SquaredEuclidean<f64>>(n)
+                .execute(),
+            None => Vec::new(),
+        };
+        let r2 = radius * radius;
+        found
+            .into_iter()
+            .filter(move |nb| nb.distance <= r2)
+            .map(|nb| nb.item as usize)
+    }
 }
 
 impl ReferenceSurface {
@@ -202,18 +245,9 @@ impl ReferenceSurface {
             .map(|p| [p.position.x, p.position.y, p.position.z])
             .filter(|p| p.iter().all(|v| v.is_finite()))
             .collect();
-        let first = points.first()?;
-        let origin = [first[0], first[1]];
-        let xy: Vec<[f64; 2]> = points
-            .iter()
-            .map(|p| [p[0] - origin[0], p[1] - origin[1]])
-            .collect();
-        let tree = ImmutableKdTree::new_from_slice(&xy).ok()?;
         Some(ReferenceSurface {
-            origin,
-            tree,
+            index: HorizontalIndex::of(points.iter().map(|p| [p[0], p[1]]))?,
             heights: points.iter().map(|p| p[2]).collect(),
-            xy,
         })
     }
 
@@ -221,22 +255,17 @@ impl ReferenceSurface {
     /// lie within `radius` around it (not all on one side or one line) and off the plane by
     /// `max_roughness` at most (RMS).
     fn height_at(&self, x: f64, y: f64, radius: f64, max_roughness: f64) -> Option<f64> {
-        let q = [x - self.origin[0], y - self.origin[1]];
-        let found = self
-            .tree
-            .query(&q)
-            .nearest_n::<SquaredEuclidean<f64>>(std::num::NonZeroUsize::new(NEIGHBOURS)?)
-            .execute();
-        let r2 = radius * radius;
+        let q = self.index.local(x, y);
+        let found: Vec<usize> = self.index.near(&q, NEIGHBOURS, radius).collect();
         // Normal equations of z = a + b dx + c dy about the query: their first row holds the
         // neighbours' count and the sums of their offsets.
         let mut n = Matrix3::<f64>::zeros();
         let mut rhs = Vector3::<f64>::zeros();
-        for nb in found.iter().filter(|nb| nb.distance <= r2) {
-            let p = self.xy[nb.item as usize];
+        for &i in &found {
+            let p = self.index.xy[i];
             let row = Vector3::new(1.0, p[0] - q[0], p[1] - q[1]);
             n += row * row.transpose();
-            rhs += row * self.heights[nb.item as usize];
+            rhs += row * self.heights[i];
         }
         let c = n[(0, 0)];
         if c < MIN_NEIGHBOURS as f64 {
@@ -259,10 +288,10 @@ impl ReferenceSurface {
         // How far the neighbours lie off their plane (RMS, 3 parameters fitted): vegetation,
         // buildings, blocks of rock are no surface a point between them lies on.
         let mut misfit = 0.0;
-        for nb in found.iter().filter(|nb| nb.distance <= r2) {
-            let p = self.xy[nb.item as usize];
+        for &i in &found {
+            let p = self.index.xy[i];
             let fitted = plane[0] + plane[1] * (p[0] - q[0]) + plane[2] * (p[1] - q[1]);
-            misfit += (self.heights[nb.item as usize] - fitted).powi(2);
+            misfit += (self.heights[i] - fitted).powi(2);
         }
         let roughness = (misfit / (c - 3.0)).sqrt();
         (plane[0].is_finite() && roughness <= max_roughness).then_some(plane[0])
@@ -616,31 +645,17 @@ impl Neighbourhoods {
         let empty = || Neighbourhoods {
             of_point: vec![Vec::new(); points.len()],
         };
-        let Some(first) = points.first() else {
+        let Some(index) = HorizontalIndex::of(points.iter().map(|p| [p.position.x, p.position.y]))
+        else {
             return empty();
         };
-        let origin = [first.position.x, first.position.y];
-        let xy: Vec<[f64; 2]> = points
-            .iter()
-            .map(|p| [p.position.x - origin[0], p.position.y - origin[1]])
-            .collect();
-        let (Ok(tree), Some(count)) = (
-            ImmutableKdTree::<f64, 2>::new_from_slice(&xy),
-            std::num::NonZeroUsize::new(REGION_NEIGHBOURS),
-        ) else {
-            return empty();
-        };
-        let r2 = radius * radius;
-        let of_point = xy
+        let of_point = index
+            .xy
             .iter()
             .map(|q| {
-                let near: Vec<u32> = tree
-                    .query(q)
-                    .nearest_n::<SquaredEuclidean<f64>>(count)
-                    .execute()
-                    .iter()
-                    .filter(|nb| nb.distance <= r2)
-                    .map(|nb| nb.item)
+                let near: Vec<u32> = index
+                    .near(q, REGION_NEIGHBOURS, radius)
+                    .map(|i| i as u32)
                     .collect();
                 if near.len() >= MIN_REGION_NEIGHBOURS {
                     near
@@ -938,6 +953,23 @@ mod tests {
     /// Images 0–2 in epoch 0 (the reference), 3–5 in epoch 1.
     const EPOCH_OF: [usize; 6] = [0, 0, 0, 1, 1, 1];
 
+    /// Whether a point of [`scene`] is the later epoch's (images 3–5).
+    fn is_later(p: &SparsePoint) -> bool {
+        p.observations[0].image.index() >= 3
+    }
+
+    /// The fit's slopes are [`planted`]'s within 4 σ.
+    fn assert_planted_slopes(f: &SurfaceFit) {
+        for k in 1..3 {
+            assert!(
+                (f.plane[k] * 1e3 - [0.0, 3.0, -1.0][k]).abs() < 4.0 * f.plane_std[k] * 1e3,
+                "{:?} ± {:?}",
+                f.plane,
+                f.plane_std
+            );
+        }
+    }
+
     /// How many of the held points lie where `at(x, y)` holds.
     fn held_where(
         heights: &[SurfaceHeight],
@@ -1123,25 +1155,11 @@ mod tests {
         // 3 of the 7 rows, would be held): too few to be worth holding to the reference
         // epoch's surface, enough to hold it to a DEM.
         let mut rec = scene(0.0, planted, |_, _| false);
-        rec.points.retain(|p| {
-            let later = p.observations[0].image.index() >= 3;
-            !later || (p.position.x < 30.0 && p.position.y < 20.0)
-        });
-        let later_points = rec
-            .points
-            .iter()
-            .filter(|p| p.observations[0].image.index() >= 3)
-            .count();
-        assert_eq!(later_points, 70);
-        let later_held = |heights: &[SurfaceHeight]| {
-            heights
-                .iter()
-                .filter(|h| {
-                    let p = rec.points.iter().find(|p| p.track == h.track);
-                    p.is_some_and(|p| p.observations[0].image.index() >= 3)
-                })
-                .count()
-        };
+        rec.points
+            .retain(|p| !is_later(p) || (p.position.x < 30.0 && p.position.y < 20.0));
+        assert_eq!(rec.points.iter().filter(|p| is_later(p)).count(), 70);
+        let later_held =
+            |heights: &[SurfaceHeight]| heights.iter().filter(|h| h.epoch == 1).count();
         let (on_epoch, _) = split(compare_with(None).heights(&rec));
         assert_eq!(later_held(&on_epoch), 0);
         let dem = ground_dem();
@@ -1171,14 +1189,7 @@ mod tests {
             "{tilt} ± {sigma}"
         );
         assert!((f.sigma - 0.1).abs() < 0.02, "σ {}", f.sigma);
-        for k in 1..3 {
-            assert!(
-                (f.plane[k] * 1e3 - [0.0, 3.0, -1.0][k]).abs() < 4.0 * f.plane_std[k] * 1e3,
-                "{:?} ± {:?}",
-                f.plane,
-                f.plane_std
-            );
-        }
+        assert_planted_slopes(f);
         // No point on the changed ground is held to the surface.
         let on_change = held_where(&heights, &rec, changed);
         assert_eq!(on_change, 0);
@@ -1205,8 +1216,9 @@ mod tests {
 
     #[test]
     fn ground_that_changed_by_less_than_the_noise_is_found_by_its_neighbourhood() {
-        // A seventh of the later points (5/36 of the scene) raised 0.5 m, within the point-by-point bound (2.5 σ
-        // of noise 0.3 m): the same side of the surface over the whole region.
+        // A seventh of the later points (5/36 of the scene) raised 0.5 m, within the
+        // point-by-point bound (2.5 σ of noise 0.3 m): the same side of the surface over the
+        // whole region.
         let changed = |x: f64, y: f64| x > 120.0 && y < 50.0;
         let rec = scene_changed_by(0.3, planted, |x, y| if changed(x, y) { 0.5 } else { 0.0 });
         let (heights, fits) = split(compare_with(None).heights(&rec));
@@ -1217,7 +1229,7 @@ mod tests {
         let region = rec
             .points
             .iter()
-            .filter(|p| p.observations[0].image.index() >= 3 && holds(p.track))
+            .filter(|p| is_later(p) && holds(p.track))
             .filter(|p| changed(p.position.x, p.position.y))
             .count();
         assert!(
@@ -1227,15 +1239,7 @@ mod tests {
         assert!(heights.len() > 300, "{}", heights.len());
         // The tilt is the planted one: the raised region would tilt a plane through every
         // point by 1.3 mm/m.
-        let f = &fits[0];
-        for k in 1..3 {
-            assert!(
-                (f.plane[k] * 1e3 - [0.0, 3.0, -1.0][k]).abs() < 4.0 * f.plane_std[k] * 1e3,
-                "{:?} ± {:?}",
-                f.plane,
-                f.plane_std
-            );
-        }
+        assert_planted_slopes(&fits[0]);
         // Without the change, the neighbourhoods leave out no more than their test's false
         // alarms.
         let rec = scene_changed_by(0.3, planted, |_, _| 0.0);

@@ -44,7 +44,7 @@ pub(super) fn stable_ground(
     let height = ((hi[1] - lo[1]) / cell).ceil().max(1.0) as usize;
     let (ox, oy) = (frame.origin.x, frame.origin.y);
     let ground = StableGround::rasterise([lo[0] - ox, lo[1] - oy], cell, width, height, |x, y| {
-        polygons.iter().any(|p| p.contains(x + ox, y + oy))
+        on_stable_area(project, x + ox, y + oy)
     })
     .map_err(|e| stage_error(e.to_string()))?;
     tracing::info!(
@@ -390,4 +390,13 @@ pub(super) fn ground_input(
         },
         natural_points,
     ))
+}
+
+/// Whether (x, y), in the project's CRS, lies in one of the stable areas (`stable.csv`).
+pub(super) fn on_stable_area(project: &Project, x: f64, y: f64) -> bool {
+    project
+        .stable_areas
+        .iter()
+        .flat_map(|a| &a.polygons)
+        .any(|polygon| polygon.contains(x, y))
 }

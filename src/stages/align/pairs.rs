@@ -78,14 +78,7 @@ pub(super) fn epoch_pair_ties(
         true => Vec::new(),
         false => tiepoints
             .iter()
-            .filter(|p| {
-                let (x, y) = (p.position.x, p.position.y);
-                project
-                    .stable_areas
-                    .iter()
-                    .flat_map(|a| &a.polygons)
-                    .any(|polygon| polygon.contains(x, y))
-            })
+            .filter(|p| super::input::on_stable_area(project, p.position.x, p.position.y))
             .map(|p| p.position.xy() - mean)
             .collect(),
     };

@@ -303,9 +303,14 @@ impl EpochOrtho {
         self.up_to_date
     }
 
+    /// A failure of this epoch's mosaic, as the stage reports it.
+    fn error(&self, e: impl std::fmt::Display) -> ProjectError {
+        stage_error("ortho", format!("epoch \"{}\": {e}", self.name))
+    }
+
     fn mosaic<'a>(&'a self, context: &'a OrthoContext) -> Result<OrthoMosaic<'a>, ProjectError> {
         OrthoMosaic::new(&self.heights, &context.grid.dem, &self.views, &self.options)
-            .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", self.name)))
+            .map_err(|e| self.error(e))
     }
 
     fn images<'a>(&self, project: &'a Project, context: &'a OrthoContext) -> ImageCache<'a> {
@@ -334,7 +339,7 @@ fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bo
     // of the ortho.
     let gains = mosaic
         .gains(&cache, &progress)
-        .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", epoch.name)))?;
+        .map_err(|e| epoch.error(e))?;
     let mut writer = OrthoWriter::create(project, context, &epoch.name)?;
     let figures = mosaic
         .make_rows(
@@ -344,7 +349,7 @@ fn ortho_epoch(project: &Project, context: &OrthoContext, e: usize) -> Result<bo
             &progress,
             &mut |_, rgba| writer.push(rgba),
         )
-        .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", epoch.name)))?;
+        .map_err(|e| epoch.error(e))?;
     bar.finish_and_clear();
     writer.finish(project, &epoch, &figures, start.elapsed().as_secs_f64())?;
     Ok(true)

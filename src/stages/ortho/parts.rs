@@ -34,7 +34,7 @@ pub(in crate::stages) fn gains_unit(
         let start = Instant::now();
         let gains = mosaic
             .gains(&cache, &|_, _| {})
-            .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", epoch.name)))?;
+            .map_err(|e| epoch.error(e))?;
         let path = project.layout().raster_settings(&epoch.name, "ortho-gains");
         write_sealed_json(
             &path,
@@ -60,12 +60,12 @@ pub(in crate::stages) fn unit(project: &Project, part: Part) -> Result<Vec<PathB
     let share = part.range(epochs * tile_rows);
     let mut owned = Vec::new();
     for e in 0..epochs {
-        let rows = share.start.max(e * tile_rows).min((e + 1) * tile_rows)
-            ..share.end.max(e * tile_rows).min((e + 1) * tile_rows);
+        // The share's rows within epoch e's, counted from its first.
+        let (first, past) = (e * tile_rows, (e + 1) * tile_rows);
+        let rows = share.start.clamp(first, past) - first..share.end.clamp(first, past) - first;
         if rows.is_empty() {
             continue;
         }
-        let rows = rows.start - e * tile_rows..rows.end - e * tile_rows;
         let epoch = EpochOrtho::new(project, &context, e)?;
         if epoch.up_to_date() {
             continue;
@@ -214,7 +214,7 @@ fn write_part(
                 Ok(())
             },
         )
-        .map_err(|e| stage_error("ortho", format!("epoch \"{}\": {e}", epoch.name)))?;
+        .map_err(|e| epoch.error(e))?;
     let (png, record) = part_paths(project, &epoch.name, part);
     timesift_io::image::write_png(&png, width as u32, ortho_rows.len() as u32, 4, &rgba)?;
     write_sealed_json(
