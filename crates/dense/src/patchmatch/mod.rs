@@ -23,6 +23,7 @@
 
 mod board;
 pub mod cost;
+pub(crate) mod fast_exp;
 pub mod refine;
 mod update;
 pub mod upsample;

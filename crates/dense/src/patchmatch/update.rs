@@ -33,6 +33,7 @@ use super::cost::{
     PlaneRow, PlaneWarp, RefCamera, RefWindow, SourceView, WORST, WindowShape, geometric_cost,
     ncc_cost, plane_depth, plane_offset,
 };
+use super::fast_exp;
 use crate::image::{Mask, Plane};
 
 /// Most source views per reference (one bit each in [`PixelState::views`]).
@@ -632,7 +633,7 @@ fn view_likelihood(scratch: &Scratch, candidates: &Candidates, j: usize, tau: f3
         let c = scratch.costs[r][j];
         if c < tau {
             good += 1;
-            good_sum += (-c * c / TWO_BETA2).exp();
+            good_sum += fast_exp::exp_neg(-c * c / TWO_BETA2);
         } else if c > BAD_COST {
             bad += 1;
         }
@@ -640,7 +641,7 @@ fn view_likelihood(scratch: &Scratch, candidates: &Candidates, j: usize, tau: f3
     if good > 2 && bad < 3 {
         good_sum / good as f32
     } else if bad < 3 {
-        (-tau * tau / 0.32).exp()
+        fast_exp::exp_neg(-tau * tau / 0.32)
     } else {
         0.0
     }
