@@ -58,7 +58,7 @@ pub(crate) use units::{fuse_unit, pass_unit, prepare, report_unit};
 
 /// Version of the depth-map algorithm, part of the maps' settings: a change that alters the maps
 /// makes a resumed run redo them.
-const DENSE_ALGORITHM: u32 = 9;
+const DENSE_ALGORITHM: u32 = 10;
 
 /// Version of filtering and fusion, part of the cloud's settings.
 const FUSION_ALGORITHM: u32 = 7;

@@ -17,13 +17,19 @@
 use crate::DenseError;
 use crate::camera::WorkingCamera;
 use crate::depth_map::DepthMap;
+use crate::patchmatch::cost::WORST;
 
 /// When a coarse pixel is matched again at the finer scale.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RefineOptions {
     /// A coarse pixel whose matching cost is at least this (1 − NCC, plus the geometric term)
-    /// is matched again.
+    /// and at least `above_median` more than the map's median cost is matched again.
     pub min_cost: f32,
+    /// How far above the coarse map's median cost (over its matched pixels) a cost must be to
+    /// count as high. 0.1: on `archival` (film, median costs 0.18–0.38) 1.1 times less CPU
+    /// for the whole stage, median and p90 error within +0.01 GSD, completeness within −0.3
+    /// point; the digital scenes' medians (about 0.2) leave the floor in charge.
+    pub above_median: f32,
     /// A coarse pixel whose depth bends by at least this many footprints (second difference
     /// along a row or a column, divided by depth / focal length) is matched again.
     pub min_bend: f32,
@@ -36,6 +42,7 @@ impl Default for RefineOptions {
     fn default() -> Self {
         RefineOptions {
             min_cost: 0.3,
+            above_median: 0.1,
             min_bend: 1.0,
             grow: 2,
         }
@@ -48,6 +55,11 @@ impl RefineOptions {
         if !(self.min_cost > 0.0) || !(self.min_bend > 0.0) {
             return Err(DenseError::InvalidOption(
                 "refine min_cost and min_bend: expected positive numbers".into(),
+            ));
+        }
+        if !(self.above_median >= 0.0) {
+            return Err(DenseError::InvalidOption(
+                "refine above_median: expected a cost of 0 or more".into(),
             ));
         }
         if self.grow > 16 {
@@ -83,11 +95,14 @@ pub fn refine_selection(
         let (a, b, c) = (depth(x - dx, y - dy), depth(x, y), depth(x + dx, y + dy));
         (a > 0.0 && b > 0.0 && c > 0.0).then(|| (a - 2.0 * b + c).abs() * f / b)
     };
+    let min_cost = options
+        .min_cost
+        .max(median_cost(&coarse.cost) + options.above_median);
     let mut picked = vec![false; cw * ch];
     for y in 0..ch {
         for x in 0..cw {
             let k = y * cw + x;
-            picked[k] = coarse.cost[k] >= options.min_cost
+            picked[k] = coarse.cost[k] >= min_cost
                 || bend(x, y, 1, 0).is_some_and(|b| b >= options.min_bend)
                 || bend(x, y, 0, 1).is_some_and(|b| b >= options.min_bend);
         }
@@ -102,6 +117,20 @@ pub fn refine_selection(
         }
     }
     selected
+}
+
+/// The median of the costs of matched pixels (above 0 and below [`WORST`]); 0 when none is.
+fn median_cost(costs: &[f32]) -> f32 {
+    let mut matched: Vec<f32> = costs
+        .iter()
+        .copied()
+        .filter(|&c| c > 0.0 && c < WORST)
+        .collect();
+    if matched.is_empty() {
+        return 0.0;
+    }
+    let middle = matched.len() / 2;
+    *matched.select_nth_unstable_by(middle, f32::total_cmp).1
 }
 
 /// `mask` grown by `radius` pixels in every direction (a square), rows then columns.
@@ -186,6 +215,31 @@ mod tests {
         let count = selected.iter().filter(|&&s| s).count();
         // Two squares of (2 grow + 1 + a little) coarse pixels, four fine pixels each.
         assert!(count < 4 * 2 * 8 * 8, "{count}");
+    }
+
+    #[test]
+    fn uniformly_high_costs_refine_only_their_outliers() {
+        let cam = camera(64, 48, 60.0);
+        let mut map = plane_map(&cam, [0.0, 0.0, -1.0], 50.0);
+        // Film grain: every cost between 0.35 and 0.45, above the floor of 0.3.
+        for (k, c) in map.cost.iter_mut().enumerate() {
+            *c = 0.35 + 0.1 * ((k * 7919) % 101) as f32 / 100.0;
+        }
+        // One window that found no good plane.
+        map.cost[20 * 64 + 30] = 0.9;
+        let options = RefineOptions::default();
+        let selected = refine_selection(&map, &cam, 128, 96, &options);
+        let count = selected.iter().filter(|&&s| s).count();
+        // The median is 0.40: costs of 0.50 and more are high; here only the outlier, grown.
+        let side = 2 * (2 * options.grow + 1);
+        assert_eq!(count, side * side, "{count} pixels matched again");
+        assert!(selected[40 * 128 + 60]);
+        // Where the median is low, the floor decides: a cost of 0.31 is high.
+        let mut clean = plane_map(&cam, [0.0, 0.0, -1.0], 50.0);
+        clean.cost[10 * 64 + 10] = 0.31;
+        let selected = refine_selection(&clean, &cam, 128, 96, &options);
+        assert_eq!(selected.iter().filter(|&&s| s).count(), side * side);
+        assert!(selected[20 * 128 + 20]);
     }
 
     #[test]
