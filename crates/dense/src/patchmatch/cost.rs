@@ -170,13 +170,7 @@ impl RefWindow {
                 sum_w = _mm256_add_ps(sum_w, wt);
             }
         }
-        let lanes = |a: __m256| {
-            let mut out = [0.0f32; LANES];
-            // SAFETY: `out` holds LANES = 8 floats.
-            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), a) };
-            sum_lanes(&out)
-        };
-        let inv = splat(1.0 / lanes(sum_w));
+        let inv = splat(1.0 / sum_lanes_avx2(sum_w));
         let (mut mean, mut second) = (splat(0.0), splat(0.0));
         for k0 in (0..n).step_by(LANES) {
             // SAFETY: as above.
@@ -189,8 +183,8 @@ impl RefWindow {
                 second = _mm256_add_ps(second, _mm256_mul_ps(wr, r));
             }
         }
-        let mean = lanes(mean);
-        self.variance = lanes(second) - mean * mean;
+        let mean = sum_lanes_avx2(mean);
+        self.variance = sum_lanes_avx2(second) - mean * mean;
         self.variance > MIN_VARIANCE
     }
 
@@ -596,19 +590,13 @@ unsafe fn window_moments_avx2<const CAP: usize>(
             acc[5] = _mm256_add_ps(acc[5], _mm256_mul_ps(wr, s));
         }
     }
-    let sum = |a: __m256| {
-        let mut lanes = [0.0f32; LANES];
-        // SAFETY: `lanes` holds LANES = 8 floats.
-        unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), a) };
-        sum_lanes(&lanes)
-    };
     Moments {
-        weight: sum(acc[0]),
-        r: sum(acc[1]),
-        rr: sum(acc[2]),
-        s: sum(acc[3]),
-        ss: sum(acc[4]),
-        rs: sum(acc[5]),
+        weight: sum_lanes_avx2(acc[0]),
+        r: sum_lanes_avx2(acc[1]),
+        rr: sum_lanes_avx2(acc[2]),
+        s: sum_lanes_avx2(acc[3]),
+        ss: sum_lanes_avx2(acc[4]),
+        rs: sum_lanes_avx2(acc[5]),
     }
 }
 
@@ -700,6 +688,17 @@ fn window_moments_portable<const CAP: usize>(
         ss: sum_lanes(&acc[4]),
         rs: sum_lanes(&acc[5]),
     }
+}
+
+/// [`sum_lanes`] of an AVX2 accumulator: the same order, so the same bits as the portable sums.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn sum_lanes_avx2(a: std::arch::x86_64::__m256) -> f32 {
+    let mut lanes = [0.0f32; LANES];
+    // SAFETY: `lanes` holds LANES = 8 floats.
+    unsafe { std::arch::x86_64::_mm256_storeu_ps(lanes.as_mut_ptr(), a) };
+    sum_lanes(&lanes)
 }
 
 /// The lanes of an accumulator added in lane order: both kernels end with it, so their sums
