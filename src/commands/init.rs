@@ -260,7 +260,7 @@ fn dense_section(text: &mut String) {
     let _ = writeln!(text, "# geometric_iterations = 2");
     let _ = writeln!(
         text,
-        "# max_cost = 0.6       # largest 1 - NCC of a kept depth"
+        "# max_cost = 0.6       # largest 1 - NCC of a kept depth (film scans: 0.75)"
     );
     let _ = writeln!(
         text,
