@@ -672,19 +672,15 @@ impl DenseConfig {
     /// The bilateral σ of an epoch's images: the option when set, else the default of their
     /// kind.
     pub fn sigma_color(&self, images: ImageKind) -> f32 {
-        self.sigma_color.unwrap_or(match images {
-            ImageKind::Digital => SIGMA_COLOR_DIGITAL,
-            ImageKind::FilmScan => SIGMA_COLOR_FILM,
-        })
+        self.sigma_color
+            .unwrap_or(images.pick(SIGMA_COLOR_DIGITAL, SIGMA_COLOR_FILM))
     }
 
     /// The largest kept cost of an epoch's images: the option when set, else the default of
     /// their kind.
     pub fn max_cost(&self, images: ImageKind) -> f32 {
-        self.max_cost.unwrap_or(match images {
-            ImageKind::Digital => MAX_COST_DIGITAL,
-            ImageKind::FilmScan => MAX_COST_FILM,
-        })
+        self.max_cost
+            .unwrap_or(images.pick(MAX_COST_DIGITAL, MAX_COST_FILM))
     }
 
     /// The dense crate's options for an epoch of `images`.
@@ -713,6 +709,16 @@ pub enum ImageKind {
     Digital,
     /// Scanned film (a camera group with fiducial marks).
     FilmScan,
+}
+
+impl ImageKind {
+    /// `digital` or `film`, whichever default is this kind's.
+    fn pick<T>(self, digital: T, film: T) -> T {
+        match self {
+            ImageKind::Digital => digital,
+            ImageKind::FilmScan => film,
+        }
+    }
 }
 
 /// A cell size: `"auto"` or metres.
@@ -1240,7 +1246,7 @@ mod tests {
     }
 
     #[test]
-    fn the_bilateral_sigma_reaches_the_matcher_and_bad_values_name_their_key() {
+    fn defaults_by_image_kind_reach_the_matcher_and_bad_values_name_their_key() {
         let with_dense = |line: &str| parse_section("dense", line);
         // Unset, digital images and film scans get their own defaults; a set value is used
         // for both.
@@ -1261,23 +1267,15 @@ mod tests {
         assert_eq!(cost(&set.dense, ImageKind::Digital), 0.5);
         assert_eq!(cost(&set.dense, ImageKind::FilmScan), 0.5);
         assert!(set.dense.differences().contains("max_cost 0.5"));
-        for bad in ["max_cost = 0.0", "max_cost = 2.5"] {
-            let e = with_dense(bad).unwrap_err().to_string();
-            assert!(
-                e.contains("dense.max_cost") && e.contains("(0, 2]"),
-                "{bad}: {e}"
-            );
-        }
-        for bad in [
-            "sigma_color = 0.0",
-            "sigma_color = 1.5",
-            "sigma_color = -0.1",
+        for (bad, key, range) in [
+            ("max_cost = 0.0", "dense.max_cost", "(0, 2]"),
+            ("max_cost = 2.5", "dense.max_cost", "(0, 2]"),
+            ("sigma_color = 0.0", "dense.sigma_color", "(0, 1]"),
+            ("sigma_color = 1.5", "dense.sigma_color", "(0, 1]"),
+            ("sigma_color = -0.1", "dense.sigma_color", "(0, 1]"),
         ] {
             let e = with_dense(bad).unwrap_err().to_string();
-            assert!(
-                e.contains("dense.sigma_color") && e.contains("(0, 1]"),
-                "{bad}: {e}"
-            );
+            assert!(e.contains(key) && e.contains(range), "{bad}: {e}");
         }
     }
 
