@@ -6,7 +6,12 @@
 //! gridded the same way (the median height of its points in 0.6 m cells) and compared with the
 //! epoch's true surface: the DEM's median error and NMAD over the cells it fills, and its
 //! completeness over the cells that can be matched (a true height, seen by at least two of the
-//! epoch's true cameras).
+//! epoch's true cameras). Every cloud is also gridded as the DEM stage grids it (its default
+//! `[raster]`: the median per cell, holes of up to `max_gap` cells interpolated) and scored the
+//! same way: that is the DEM a user gets. A fused cloud has about one point per depth-map
+//! pixel, laid on each view's rotated pixel lattice, so a lattice of that spacing leaves single
+//! cells empty between points (moiré, not missing ground); SGBM's cloud, a point per pixel of
+//! every pair, fills them by redundancy.
 
 use std::path::Path;
 
@@ -36,6 +41,20 @@ pub struct DemScore {
     /// Completeness on the lattice of the level's depth-map pixels ([`level_cell`]).
     pub completeness_level: f64,
     /// Median and NMAD of (cell median − true height), m.
+    pub median_m: f64,
+    pub nmad_m: f64,
+    /// The same cloud gridded by the DEM stage (its default `[raster]`) on the same lattice.
+    pub dem_stage: StageScore,
+}
+
+/// A cloud's DEM as the DEM stage makes it, against the truth over the matchable cells.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct StageScore {
+    /// Matchable cells with a height, measured or interpolated.
+    pub completeness: f64,
+    /// Of those, the share interpolated across a hole.
+    pub interpolated: f64,
+    /// Median and NMAD of (DEM − true height) over them, m.
     pub median_m: f64,
     pub nmad_m: f64,
 }
@@ -217,7 +236,8 @@ pub fn score_project(dir: &Path, sgbm: bool) -> anyhow::Result<String> {
         let cells = (at(CELL_M), at(level_cell(&epoch.name, level)));
         let s = score_both(&cells, cloud, &truth);
         text.push_str(&format!(
-            "{}: {} points, median {:.3} m, NMAD {:.3} m, complete {:.3} ({} of {} cells), at {:.2} m {:.3}\n",
+            "{}: {} points, median {:.3} m, NMAD {:.3} m, complete {:.3} ({} of {} cells), at {:.2} m {:.3}; \
+             DEM stage: median {:.3} m, NMAD {:.3} m, complete {:.3} ({:.3} interpolated)\n",
             epoch.name,
             cloud.len(),
             s.median_m,
@@ -226,7 +246,11 @@ pub fn score_project(dir: &Path, sgbm: bool) -> anyhow::Result<String> {
             s.filled,
             s.matchable,
             level_cell(&epoch.name, level),
-            s.completeness_level
+            s.completeness_level,
+            s.dem_stage.median_m,
+            s.dem_stage.nmad_m,
+            s.dem_stage.completeness,
+            s.dem_stage.interpolated,
         ));
     }
     Ok(text)
@@ -338,6 +362,44 @@ impl MatchableCells {
             completeness_level: f64::NAN,
             median_m: stats.as_ref().map_or(f64::NAN, |s| s.median),
             nmad_m: stats.as_ref().map_or(f64::NAN, |s| s.nmad),
+            dem_stage: self.score_dem_stage(cloud, truth),
+        }
+    }
+
+    /// The cloud gridded on this lattice by the DEM stage's gridding with the default
+    /// `[raster]` options, scored over the matchable cells.
+    fn score_dem_stage(&self, cloud: &[Vector3<f64>], truth: &Dem) -> StageScore {
+        let options = timesift::config::RasterConfig::default().dem_options(self.cell);
+        let points: Vec<[f64; 3]> = cloud.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let dem =
+            timesift_raster::Lattice::new(self.x0, self.y1, self.cell, self.width, self.height)
+                .and_then(|lattice| timesift_raster::grid_cloud(&points, &lattice, &options));
+        let Ok(dem) = dem else {
+            return StageScore {
+                completeness: f64::NAN,
+                interpolated: f64::NAN,
+                median_m: f64::NAN,
+                nmad_m: f64::NAN,
+            };
+        };
+        let (mut errors, mut interpolated) = (Vec::new(), 0usize);
+        for k in (0..self.matchable.len()).filter(|&k| self.matchable[k]) {
+            let h = dem.height[k];
+            if !h.is_finite() {
+                continue;
+            }
+            interpolated += usize::from(dem.filled[k]);
+            let (x, y) = cell_centre(self.x0, self.y1, self.cell, k % self.width, k / self.width);
+            errors.push(h as f64 - truth.bilinear(x, y));
+        }
+        let matchable = self.matchable.iter().filter(|m| **m).count();
+        let with_height = errors.len();
+        let stats = timesift_change::stats::statistics(errors);
+        StageScore {
+            completeness: with_height as f64 / matchable.max(1) as f64,
+            interpolated: interpolated as f64 / with_height.max(1) as f64,
+            median_m: stats.as_ref().map_or(f64::NAN, |s| s.median),
+            nmad_m: stats.as_ref().map_or(f64::NAN, |s| s.nmad),
         }
     }
 }
@@ -387,6 +449,39 @@ fn table(rows: &[EpochRow], runs: &[(String, DenseRun)], megapixels: f64, level:
             r.epoch,
             cell(&r.align),
             cell(&r.align_sgbm)
+        ));
+    }
+    let stage = |s: &Option<DemScore>| {
+        s.map_or("– | – | –".to_string(), |s| {
+            let d = s.dem_stage;
+            format!(
+                "{:.3} | {:.3} | {:.3} ({:.3})",
+                d.median_m, d.nmad_m, d.completeness, d.interpolated
+            )
+        })
+    };
+    text.push_str(&format!(
+        "\nThe same clouds gridded as the DEM stage grids them (default `[raster]`: the median per \
+         {CELL_M} m cell, holes of up to {} cells interpolated): the DEM a user gets. Median / NMAD \
+         (m) / completeness; in brackets the share of its heights interpolated.\n\n\
+         | epoch | cameras | timesift median | NMAD | complete | SGBM median | NMAD | complete | baseline median | NMAD | complete | OpenMVS median | NMAD | complete |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        timesift::config::RasterConfig::default().max_gap
+    ));
+    for r in rows {
+        text.push_str(&format!(
+            "| {} | true | {} | {} | {} | {} |\n",
+            r.epoch,
+            stage(&r.truth),
+            stage(&r.truth_sgbm),
+            stage(&r.truth_before),
+            stage(&r.truth_openmvs)
+        ));
+        text.push_str(&format!(
+            "| {} | align | {} | {} | – | – | – | – | – | – |\n",
+            r.epoch,
+            stage(&r.align),
+            stage(&r.align_sgbm)
         ));
     }
     text.push_str(&format!(
