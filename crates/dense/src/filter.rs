@@ -4,6 +4,7 @@
 //! isolated speckle (a small connected region of similar depths).
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use crate::DenseError;
 use crate::camera::WorkingCamera;
@@ -263,32 +264,39 @@ pub fn filter_depth_map(
         max_rel: options.max_relative_depth,
         min_cos: options.max_normal_angle_deg.to_radians().cos(),
     };
+    // Each pixel's agreement is its own, so rows are checked in parallel (the same result on
+    // any number of threads); which pixels are kept is then copied in one pass.
+    let width = map.width;
+    let mut keep = vec![false; map.depth.len()];
+    keep.par_chunks_mut(width.max(1))
+        .enumerate()
+        .for_each(|(j, row)| {
+            for (i, kept) in row.iter_mut().enumerate() {
+                let k = j * width + i;
+                let d = map.depth[k];
+                if !(d > 0.0) || !(map.cost[k] <= options.max_cost) {
+                    continue;
+                }
+                let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
+                let x = camera.ray(u, v) * d as f64;
+                let nn = map.normal[k];
+                let n = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
+                let agreeing = others
+                    .iter()
+                    .filter(|o| {
+                        o.agrees(&camera, (u, v), &x, &n, &tolerances, &|_| false)
+                            .is_some()
+                    })
+                    .count();
+                *kept = agreeing >= options.min_views;
+            }
+        });
     let mut out = DepthMap::empty(map.width, map.height);
-    for j in 0..map.height {
-        for i in 0..map.width {
-            let k = j * map.width + i;
-            let d = map.depth[k];
-            if !(d > 0.0) || !(map.cost[k] <= options.max_cost) {
-                continue;
-            }
-            let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
-            let x = camera.ray(u, v) * d as f64;
-            let nn = map.normal[k];
-            let n = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
-            let agreeing = others
-                .iter()
-                .filter(|o| {
-                    o.agrees(&camera, (u, v), &x, &n, &tolerances, &|_| false)
-                        .is_some()
-                })
-                .count();
-            if agreeing >= options.min_views {
-                out.depth[k] = d;
-                out.normal[k] = map.normal[k];
-                out.cost[k] = map.cost[k];
-                out.upsampled[k] = map.upsampled[k];
-            }
-        }
+    for k in (0..keep.len()).filter(|&k| keep[k]) {
+        out.depth[k] = map.depth[k];
+        out.normal[k] = map.normal[k];
+        out.cost[k] = map.cost[k];
+        out.upsampled[k] = map.upsampled[k];
     }
     remove_speckles(
         &mut out,

@@ -162,3 +162,27 @@ fn refinement_at_twice_the_resolution_measures_narrow_crowns_and_keeps_the_groun
         "flat ground keeps the level's density"
     );
 }
+
+/// The stage's promise that its products do not depend on the number of threads: the
+/// propagation's checkerboard, the filter's rows and the fusion's order each keep it.
+#[test]
+fn maps_filtering_and_fusion_give_the_same_result_on_any_number_of_threads() {
+    let scene = common::plane(160, 120);
+    let views = scene.views();
+    let masks = vec![None; views.len()];
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool")
+            .install(|| reconstruct_epoch(&scene.input, &views, &masks, &options(1)))
+            .expect("dense")
+    };
+    let one = on(1);
+    assert!(
+        one.filtered.iter().any(|m| m.valid_count() > 0) && one.cloud.len() > 1_000,
+        "the scene must give depths to compare: {} points",
+        one.cloud.len()
+    );
+    assert!(one == on(3), "3 threads gave another result than 1");
+}
