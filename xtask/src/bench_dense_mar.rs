@@ -419,21 +419,12 @@ fn level_cell(epoch: &str, level: u32) -> f64 {
     (level.max(1) as f64 * gsd).max(CELL_M)
 }
 
-fn table(rows: &[EpochRow], runs: &[(String, DenseRun)], megapixels: f64, level: u32) -> String {
-    let cell = |s: &Option<DemScore>| {
-        s.map_or("– | – | –".to_string(), |s| {
-            format!(
-                "{:.3} | {:.3} | {:.3} ({:.3})",
-                s.median_m, s.nmad_m, s.completeness, s.completeness_level
-            )
-        })
-    };
-    let mut text = format!(
-        "\n## rendered-mar (real beach texture, level {level}; clouds gridded at {CELL_M} m, \
-         median / NMAD (m) / completeness against the true DEM; in brackets the completeness on the \
-         lattice of the level's depth-map pixels, level × GSD)\n\n\
-         | epoch | cameras | timesift median | NMAD | complete | SGBM median | NMAD | complete | baseline median | NMAD | complete | OpenMVS median | NMAD | complete |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+/// A row per epoch and cameras: timesift's, SGBM's, the baseline's and OpenMVS's scores, each
+/// shown by `cell`.
+fn score_table(rows: &[EpochRow], cell: &dyn Fn(&Option<DemScore>) -> String) -> String {
+    let mut text = String::from(
+        "| epoch | cameras | timesift median | NMAD | complete | SGBM median | NMAD | complete | baseline median | NMAD | complete | OpenMVS median | NMAD | complete |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         text.push_str(&format!(
@@ -451,39 +442,37 @@ fn table(rows: &[EpochRow], runs: &[(String, DenseRun)], megapixels: f64, level:
             cell(&r.align_sgbm)
         ));
     }
+    text
+}
+
+fn table(rows: &[EpochRow], runs: &[(String, DenseRun)], megapixels: f64, level: u32) -> String {
+    let figures = |[median, nmad, complete, bracket]: [f64; 4]| {
+        format!("{median:.3} | {nmad:.3} | {complete:.3} ({bracket:.3})")
+    };
+    let cell = |s: &Option<DemScore>| {
+        s.map_or("– | – | –".to_string(), |s| {
+            figures([s.median_m, s.nmad_m, s.completeness, s.completeness_level])
+        })
+    };
     let stage = |s: &Option<DemScore>| {
         s.map_or("– | – | –".to_string(), |s| {
             let d = s.dem_stage;
-            format!(
-                "{:.3} | {:.3} | {:.3} ({:.3})",
-                d.median_m, d.nmad_m, d.completeness, d.interpolated
-            )
+            figures([d.median_m, d.nmad_m, d.completeness, d.interpolated])
         })
     };
+    let mut text = format!(
+        "\n## rendered-mar (real beach texture, level {level}; clouds gridded at {CELL_M} m, \
+         median / NMAD (m) / completeness against the true DEM; in brackets the completeness on the \
+         lattice of the level's depth-map pixels, level × GSD)\n\n{}",
+        score_table(rows, &cell)
+    );
     text.push_str(&format!(
         "\nThe same clouds gridded as the DEM stage grids them (default `[raster]`: the median per \
          {CELL_M} m cell, holes of up to {} cells interpolated): the DEM a user gets. Median / NMAD \
-         (m) / completeness; in brackets the share of its heights interpolated.\n\n\
-         | epoch | cameras | timesift median | NMAD | complete | SGBM median | NMAD | complete | baseline median | NMAD | complete | OpenMVS median | NMAD | complete |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-        timesift::config::RasterConfig::default().max_gap
+         (m) / completeness; in brackets the share of its heights interpolated.\n\n{}",
+        timesift::config::RasterConfig::default().max_gap,
+        score_table(rows, &stage)
     ));
-    for r in rows {
-        text.push_str(&format!(
-            "| {} | true | {} | {} | {} | {} |\n",
-            r.epoch,
-            stage(&r.truth),
-            stage(&r.truth_sgbm),
-            stage(&r.truth_before),
-            stage(&r.truth_openmvs)
-        ));
-        text.push_str(&format!(
-            "| {} | align | {} | {} | – | – | – | – | – | – |\n",
-            r.epoch,
-            stage(&r.align),
-            stage(&r.align_sgbm)
-        ));
-    }
     text.push_str(&format!(
         "\nDense stage, 2 threads, {megapixels:.2} depth-map MP:\n\n\
          | run | wall s | CPU s | core-s/MP | peak MiB |\n|---|---|---|---|---|\n"
