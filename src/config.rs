@@ -1251,22 +1251,27 @@ mod tests {
         // Unset, digital images and film scans get their own defaults; a set value is used
         // for both.
         let unset = DenseConfig::default();
-        let sigma = |c: &DenseConfig, kind| c.options(kind).patchmatch.sigma_color;
-        assert_eq!(sigma(&unset, ImageKind::Digital), SIGMA_COLOR_DIGITAL);
-        assert_eq!(sigma(&unset, ImageKind::FilmScan), SIGMA_COLOR_FILM);
-        let set = with_dense("sigma_color = 0.07").unwrap();
-        assert_eq!(sigma(&set.dense, ImageKind::Digital), 0.07);
-        assert_eq!(sigma(&set.dense, ImageKind::FilmScan), 0.07);
-        assert!(set.dense.differences().contains("sigma_color 0.07"));
         assert_eq!(unset.differences(), "defaults");
-        // The same for the largest kept cost.
-        let cost = |c: &DenseConfig, kind| c.options(kind).filter.max_cost;
-        assert_eq!(cost(&unset, ImageKind::Digital), MAX_COST_DIGITAL);
-        assert_eq!(cost(&unset, ImageKind::FilmScan), MAX_COST_FILM);
-        let set = with_dense("max_cost = 0.5").unwrap();
-        assert_eq!(cost(&set.dense, ImageKind::Digital), 0.5);
-        assert_eq!(cost(&set.dense, ImageKind::FilmScan), 0.5);
-        assert!(set.dense.differences().contains("max_cost 0.5"));
+        type Getter = fn(&DenseConfig, ImageKind) -> f32;
+        let sigma: Getter = |c, kind| c.options(kind).patchmatch.sigma_color;
+        let cost: Getter = |c, kind| c.options(kind).filter.max_cost;
+        for (key, option, digital, film, value) in [
+            (
+                "sigma_color",
+                sigma,
+                SIGMA_COLOR_DIGITAL,
+                SIGMA_COLOR_FILM,
+                0.07,
+            ),
+            ("max_cost", cost, MAX_COST_DIGITAL, MAX_COST_FILM, 0.5),
+        ] {
+            assert_eq!(option(&unset, ImageKind::Digital), digital, "{key}");
+            assert_eq!(option(&unset, ImageKind::FilmScan), film, "{key}");
+            let set = with_dense(&format!("{key} = {value}")).unwrap();
+            assert_eq!(option(&set.dense, ImageKind::Digital), value, "{key}");
+            assert_eq!(option(&set.dense, ImageKind::FilmScan), value, "{key}");
+            assert!(set.dense.differences().contains(&format!("{key} {value}")));
+        }
         for (bad, key, range) in [
             ("max_cost = 0.0", "dense.max_cost", "(0, 2]"),
             ("max_cost = 2.5", "dense.max_cost", "(0, 2]"),

@@ -362,13 +362,13 @@ impl MatchableCells {
             completeness_level: f64::NAN,
             median_m: stats.as_ref().map_or(f64::NAN, |s| s.median),
             nmad_m: stats.as_ref().map_or(f64::NAN, |s| s.nmad),
-            dem_stage: self.score_dem_stage(cloud, truth),
+            dem_stage: self.score_dem_stage(cloud, truth, matchable),
         }
     }
 
     /// The cloud gridded on this lattice by the DEM stage's gridding with the default
-    /// `[raster]` options, scored over the matchable cells.
-    fn score_dem_stage(&self, cloud: &[Vector3<f64>], truth: &Dem) -> StageScore {
+    /// `[raster]` options, scored over the `matchable` cells.
+    fn score_dem_stage(&self, cloud: &[Vector3<f64>], truth: &Dem, matchable: usize) -> StageScore {
         let options = timesift::config::RasterConfig::default().dem_options(self.cell);
         let points: Vec<[f64; 3]> = cloud.iter().map(|p| [p.x, p.y, p.z]).collect();
         let dem =
@@ -392,7 +392,6 @@ impl MatchableCells {
             let (x, y) = cell_centre(self.x0, self.y1, self.cell, k % self.width, k / self.width);
             errors.push(h as f64 - truth.bilinear(x, y));
         }
-        let matchable = self.matchable.iter().filter(|m| **m).count();
         let with_height = errors.len();
         let stats = timesift_change::stats::statistics(errors);
         StageScore {

@@ -83,6 +83,22 @@ impl MapCache {
         Some(map)
     }
 
+    /// The map of `view` in `pass`, from the cache or else read from `path` and kept: a map
+    /// read back is a source or neighbour of the next views too. `None` when it is in neither.
+    pub(super) fn get_or_read(
+        &mut self,
+        pass: usize,
+        view: usize,
+        path: &Path,
+    ) -> Option<Arc<DepthMap>> {
+        if let Some(map) = self.get(pass, view) {
+            return Some(map);
+        }
+        let map = Arc::new(read_map(path)?);
+        self.put(pass, view, map.clone());
+        Some(map)
+    }
+
     /// Keeps the map of `view` in `pass`, dropping the least recently used beyond the budget.
     pub(super) fn put(&mut self, pass: usize, view: usize, map: Arc<DepthMap>) {
         self.bytes += map_bytes(&map);

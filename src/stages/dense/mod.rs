@@ -595,17 +595,9 @@ fn filter_maps(
     maps: &mut MapCache,
     phases: &mut DensePhaseSeconds,
 ) -> Result<(usize, usize), FilterError> {
-    // A map read back is kept: it is the neighbour of the next views too (a view's map read
-    // again for each of its up to 16 neighbours was 0.14 s each, most of the phase).
-    let mut final_map = |view: usize| -> Result<Arc<DepthMap>, FilterError> {
-        if let Some(map) = maps.get(last, view) {
-            return Ok(map);
-        }
-        let map = read_map(&final_file(view))
-            .map(Arc::new)
-            .ok_or_else(|| FilterError::Unreadable(final_file(view)))?;
-        maps.put(last, view, map.clone());
-        Ok(map)
+    let mut final_map = |view: usize| {
+        maps.get_or_read(last, view, &final_file(view))
+            .ok_or_else(|| FilterError::Unreadable(final_file(view)))
     };
     let (mut with_depth, mut upsampled) = (0usize, 0usize);
     for (view, vp) in plan.views.iter().enumerate() {
@@ -680,17 +672,10 @@ fn compute_map(
         if k == 0 {
             return Ok(None);
         }
-        if let Some(map) = maps.get(k - 1, v) {
-            return Ok(Some(map));
-        }
-        let map = read_map(&map_file(k - 1, v)).ok_or_else(|| {
-            stage_error(
-                "dense",
-                format!("{}: unreadable depth map", map_file(k - 1, v).display()),
-            )
+        let path = map_file(k - 1, v);
+        let map = maps.get_or_read(k - 1, v, &path).ok_or_else(|| {
+            stage_error("dense", format!("{}: unreadable depth map", path.display()))
         })?;
-        let map = Arc::new(map);
-        maps.put(k - 1, v, map.clone());
         Ok(Some(map))
     };
     let files = Instant::now();
