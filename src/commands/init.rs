@@ -243,6 +243,10 @@ fn dense_section(text: &mut String) {
     let _ = writeln!(text, "# min_images = 3       # images per fused point");
     let _ = writeln!(
         text,
+        "# fill_edges = false   # true: where only two views have a point in their field (edges), points from both"
+    );
+    let _ = writeln!(
+        text,
         "# window_radius = 5    # matching window half-size, pixels"
     );
     let _ = writeln!(

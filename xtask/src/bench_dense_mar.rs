@@ -57,6 +57,9 @@ pub struct StageScore {
     /// Median and NMAD of (DEM − true height) over them, m.
     pub median_m: f64,
     pub nmad_m: f64,
+    /// Matchable cells left without a height, by how many true cameras see them: two, three,
+    /// four or more (a block's edges against its inside).
+    pub holes_by_views: [usize; 3],
 }
 
 /// One epoch's scores: timesift and SGBM, on the true and on the align stage's cameras.
@@ -237,7 +240,8 @@ pub fn score_project(dir: &Path, sgbm: bool) -> anyhow::Result<String> {
         let s = score_both(&cells, cloud, &truth);
         text.push_str(&format!(
             "{}: {} points, median {:.3} m, NMAD {:.3} m, complete {:.3} ({} of {} cells), at {:.2} m {:.3}; \
-             DEM stage: median {:.3} m, NMAD {:.3} m, complete {:.3} ({:.3} interpolated)\n",
+             DEM stage: median {:.3} m, NMAD {:.3} m, complete {:.3} ({:.3} interpolated; \
+             holes seen by 2 / 3 / 4+ true cameras: {:?})\n",
             epoch.name,
             cloud.len(),
             s.median_m,
@@ -251,6 +255,7 @@ pub fn score_project(dir: &Path, sgbm: bool) -> anyhow::Result<String> {
             s.dem_stage.nmad_m,
             s.dem_stage.completeness,
             s.dem_stage.interpolated,
+            s.dem_stage.holes_by_views,
         ));
     }
     Ok(text)
@@ -277,6 +282,8 @@ struct MatchableCells {
     width: usize,
     height: usize,
     matchable: Vec<bool>,
+    /// True cameras that see each cell (0 where it has no true height).
+    seen: Vec<u16>,
 }
 
 impl MatchableCells {
@@ -290,13 +297,13 @@ impl MatchableCells {
             .filter(|im| im.epoch == epoch)
             .filter_map(|im| Some((cameras.cameras.get(&im.camera)?, im.pose?)))
             .collect();
-        let matchable = (0..width * height)
+        let seen: Vec<u16> = (0..width * height)
             .into_par_iter()
             .map(|k| {
                 let (x, y) = cell_centre(x0, y1, cell, k % width, k / width);
                 let z = truth.bilinear(x, y);
                 if !z.is_finite() {
-                    return false;
+                    return 0;
                 }
                 let point = Vector3::new(x, y, z);
                 let seen = views
@@ -311,7 +318,7 @@ impl MatchableCells {
                             })
                     })
                     .count();
-                seen >= 2
+                seen.min(u16::MAX as usize) as u16
             })
             .collect();
         MatchableCells {
@@ -320,7 +327,8 @@ impl MatchableCells {
             y1,
             width,
             height,
-            matchable,
+            matchable: seen.iter().map(|&n| n >= 2).collect(),
+            seen,
         }
     }
 
@@ -380,12 +388,15 @@ impl MatchableCells {
                 interpolated: f64::NAN,
                 median_m: f64::NAN,
                 nmad_m: f64::NAN,
+                holes_by_views: [0; 3],
             };
         };
         let (mut errors, mut interpolated) = (Vec::new(), 0usize);
+        let mut holes_by_views = [0; 3];
         for k in (0..self.matchable.len()).filter(|&k| self.matchable[k]) {
             let h = dem.height[k];
             if !h.is_finite() {
+                holes_by_views[(self.seen[k] as usize).clamp(2, 4) - 2] += 1;
                 continue;
             }
             interpolated += usize::from(dem.filled[k]);
@@ -399,6 +410,7 @@ impl MatchableCells {
             interpolated: interpolated as f64 / with_height.max(1) as f64,
             median_m: stats.as_ref().map_or(f64::NAN, |s| s.median),
             nmad_m: stats.as_ref().map_or(f64::NAN, |s| s.nmad),
+            holes_by_views,
         }
     }
 }
@@ -444,6 +456,41 @@ fn score_table(rows: &[EpochRow], cell: &dyn Fn(&Option<DemScore>) -> String) ->
     text
 }
 
+/// Where the DEM-stage grids keep holes: by how many true cameras see the cell (two: a block's
+/// edges).
+fn holes_table(rows: &[EpochRow]) -> String {
+    let holes = |s: &Option<DemScore>| {
+        s.map_or("–".to_string(), |s| {
+            let [two, three, more] = s.dem_stage.holes_by_views;
+            format!("{two} / {three} / {more}")
+        })
+    };
+    let mut text = String::from(
+        "\nHoles of those DEMs (matchable cells without a height), by how many true cameras see \
+         the cell: 2 / 3 / 4 or more.\n\n| epoch | cameras | timesift | SGBM | baseline | OpenMVS |\n\
+         |---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        for (cameras, [ours, sgbm, before, openmvs]) in [
+            (
+                "true",
+                [&r.truth, &r.truth_sgbm, &r.truth_before, &r.truth_openmvs],
+            ),
+            ("align", [&r.align, &r.align_sgbm, &None, &None]),
+        ] {
+            text.push_str(&format!(
+                "| {} | {cameras} | {} | {} | {} | {} |\n",
+                r.epoch,
+                holes(ours),
+                holes(sgbm),
+                holes(before),
+                holes(openmvs)
+            ));
+        }
+    }
+    text
+}
+
 fn table(rows: &[EpochRow], runs: &[(String, DenseRun)], megapixels: f64, level: u32) -> String {
     let figures = |[median, nmad, complete, bracket]: [f64; 4]| {
         format!("{median:.3} | {nmad:.3} | {complete:.3} ({bracket:.3})")
@@ -472,6 +519,7 @@ fn table(rows: &[EpochRow], runs: &[(String, DenseRun)], megapixels: f64, level:
         timesift::config::RasterConfig::default().max_gap,
         score_table(rows, &stage)
     ));
+    text.push_str(&holes_table(rows));
     text.push_str(&format!(
         "\nDense stage, 2 threads, {megapixels:.2} depth-map MP:\n\n\
          | run | wall s | CPU s | core-s/MP | peak MiB |\n|---|---|---|---|---|\n"

@@ -1,7 +1,9 @@
 //! Filtering of a view's final depth map: a depth survives where at least `min_views`
 //! neighbours (its sources and the views that have it as a source) agree with it (forward–backward reprojection through their maps within a pixel tolerance,
 //! relative depth and normal tolerances), its matching cost is good, and it is not part of an
-//! isolated speckle (a small connected region of similar depths).
+//! isolated speckle (a small connected region of similar depths). With `fill_edges`, a depth
+//! that fewer than `min_views` neighbours can see at all (the block's edges) survives where
+//! every neighbour that sees it agrees, and at least one does.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -9,6 +11,7 @@ use rayon::prelude::*;
 use crate::DenseError;
 use crate::camera::WorkingCamera;
 use crate::depth_map::{DepthMap, NO_COST};
+use crate::image::Mask;
 use crate::plan::EpochPlan;
 
 /// Options of the filter.
@@ -26,6 +29,11 @@ pub struct FilterOptions {
     pub max_cost: f32,
     /// Connected regions of fewer pixels are removed as speckles.
     pub min_region: usize,
+    /// Where fewer than `min_views` neighbours have the point in their field at all (a
+    /// block's edges, where ground is seen by two images), every one that has must agree
+    /// instead (at least one). Occluded ground is in a neighbour's field: it keeps the
+    /// strict count. Off by default: no third view then vets the depth.
+    pub fill_edges: bool,
 }
 
 impl Default for FilterOptions {
@@ -37,6 +45,7 @@ impl Default for FilterOptions {
             max_normal_angle_deg: 30.0,
             max_cost: 0.6,
             min_region: 10,
+            fill_edges: false,
         }
     }
 }
@@ -60,6 +69,15 @@ impl FilterOptions {
         }
         Ok(())
     }
+
+    /// How many neighbours must agree with a depth that `seeing` of them have in their field.
+    pub fn required_views(&self, seeing: usize) -> usize {
+        if self.fill_edges {
+            self.min_views.min(seeing).max(1)
+        } else {
+            self.min_views
+        }
+    }
 }
 
 /// A view's map as seen from another view: its camera at the map's scale and `other_from_ref`.
@@ -70,6 +88,17 @@ pub(crate) struct Neighbour<'a> {
     pub r: nalgebra::Matrix3<f64>,
     /// `other_from_ref` translation.
     pub t: Vector3<f64>,
+    /// Which pixels of the map show the view's image.
+    pub field: Field<'a>,
+}
+
+/// Which pixels of a neighbour's map show its image (a working image is larger than the
+/// original where the lens has barrel distortion; user masks and no-data borders are out too).
+pub(crate) enum Field<'a> {
+    /// Those with a depth: a map before filtering has one at every usable pixel.
+    Depth,
+    /// Those its image's mask at the map's size keeps (filtered maps have holes).
+    Mask(&'a Mask),
 }
 
 /// The outcome of checking a reference depth against a neighbour's map.
@@ -101,6 +130,29 @@ pub(crate) struct Tolerances {
 }
 
 impl Neighbour<'_> {
+    /// Whether the reference point `x` (reference frame) lies in front of the neighbour and
+    /// projects onto a pixel of its map that shows its image: whether it could see it,
+    /// occlusion aside.
+    pub fn sees(&self, x: &Vector3<f64>) -> bool {
+        let Some(p) = self.camera.project(&(self.r * x + self.t)) else {
+            return false;
+        };
+        if !self.camera.contains(p.x, p.y) {
+            return false;
+        }
+        let (i, j) = (p.x as usize, p.y as usize);
+        if i >= self.map.width || j >= self.map.height {
+            return false;
+        }
+        match self.field {
+            Field::Depth => self.map.depth[j * self.map.width + i] > 0.0,
+            Field::Mask(mask) if mask.width == self.map.width && mask.height == self.map.height => {
+                mask.at(i, j)
+            }
+            Field::Mask(_) => true,
+        }
+    }
+
     /// Whether the neighbour's map agrees with the reference point `x` (reference frame) seen at
     /// reference pixel (u, v) with normal `n`: the neighbour's depth at one of the four pixels
     /// nearest to the projection of `x` (nearest first, skipping those `skip` refuses), lifted
@@ -227,6 +279,7 @@ pub(crate) fn neighbours<'a>(
                 camera,
                 r: other_from_ref.rotation_matrix(),
                 t: other_from_ref.translation,
+                field: Field::Depth,
             })
         })
         .collect()
@@ -281,14 +334,20 @@ pub fn filter_depth_map(
                 let x = camera.ray(u, v) * d as f64;
                 let nn = map.normal[k];
                 let n = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
-                let agreeing = others
-                    .iter()
-                    .filter(|o| {
-                        o.agrees(&camera, (u, v), &x, &n, &tolerances, &|_| false)
-                            .is_some()
-                    })
-                    .count();
-                *kept = agreeing >= options.min_views;
+                // A neighbour that agrees sees the point, whichever of its four nearest
+                // pixels agreed.
+                let (mut seeing, mut agreeing) = (0, 0);
+                for o in &others {
+                    if o.agrees(&camera, (u, v), &x, &n, &tolerances, &|_| false)
+                        .is_some()
+                    {
+                        agreeing += 1;
+                        seeing += 1;
+                    } else if options.fill_edges && o.sees(&x) {
+                        seeing += 1;
+                    }
+                }
+                *kept = agreeing >= options.required_views(seeing);
             }
         });
     let mut out = DepthMap::empty(map.width, map.height);

@@ -2,7 +2,9 @@
 //! COLMAP's stereo fusion: every pixel not yet used starts a point; the neighbours (sources, and
 //! views that have this one as a source) whose depth at its projection agrees (reprojection, relative depth and normal tolerances) join it; a point
 //! needs at least `min_images` images (never one) and becomes the mean of its members —
-//! position, colour and normal — with the number of images. Every member pixel is used once.
+//! position, colour and normal — with the number of images. With `fill_edges`, a point that
+//! fewer than `min_images` images can see at all (the reference and the neighbours that have it
+//! in their field: a block's edges) needs every one of them, and still two. Every member pixel is used once.
 //! Pixels whose plane a refinement kept from the coarser scale ([`DepthMap::upsampled`]) stand
 //! for 2 × 2 blocks: a block that a point already stands for (one of its pixels started or
 //! joined it) starts no other, so flat ground keeps the level's density.
@@ -17,8 +19,10 @@ use nalgebra::{Matrix3, Vector3};
 
 use crate::DenseError;
 use crate::camera::WorkingCamera;
+use crate::colours_at;
 use crate::depth_map::DepthMap;
-use crate::filter::{Neighbour, Tolerances, camera_of_map, neighbours};
+use crate::filter::{Field, Neighbour, Tolerances, camera_of_map, neighbours};
+use crate::image::{Mask, WorkingImage};
 use crate::plan::EpochPlan;
 
 /// Options of the fusion.
@@ -32,6 +36,21 @@ pub struct FusionOptions {
     pub max_relative_depth: f64,
     /// Largest angle between the normals, degrees.
     pub max_normal_angle_deg: f64,
+    /// Where fewer than `min_images` images have the point in their field at all (a block's
+    /// edges), a point needs all of them instead, and at least two. Off by default.
+    pub fill_edges: bool,
+}
+
+impl FusionOptions {
+    /// How many images a point must be made from that `seeing` images (the reference among
+    /// them) have in their field.
+    pub fn required_images(&self, seeing: usize) -> usize {
+        if self.fill_edges {
+            self.min_images.min(seeing).max(2)
+        } else {
+            self.min_images
+        }
+    }
 }
 
 impl Default for FusionOptions {
@@ -41,6 +60,7 @@ impl Default for FusionOptions {
             max_reprojection_px: 2.0,
             max_relative_depth: 0.01,
             max_normal_angle_deg: 30.0,
+            fill_edges: false,
         }
     }
 }
@@ -49,13 +69,40 @@ impl Default for FusionOptions {
 /// the reference.
 const SHARED_COARSER: f64 = 1.1;
 
-/// What fusion reads of a view: its filtered map and the colours of its working image.
+/// What fusion reads of a view: its filtered map, the colours of its working image and which of
+/// the map's pixels show the image.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FusionView {
     /// The filtered depth map.
     pub map: DepthMap,
     /// Colour per pixel of the map, 0–1.
     pub rgb: Vec<[f32; 3]>,
+    /// The working image's mask at the map's size: the pixels that show the image.
+    pub field: Mask,
+}
+
+impl FusionView {
+    /// The view of a filtered `map` made for the working `image`: its colours and mask
+    /// averaged down to the map's size.
+    pub fn new(map: DepthMap, image: &WorkingImage) -> FusionView {
+        let rgb = colours_at(image, map.width, map.height);
+        let field = mask_at(&image.mask, map.width, map.height);
+        FusionView { map, rgb, field }
+    }
+}
+
+/// `mask` halved to `width × height` (a pixel usable when all it covers are); every pixel
+/// usable when no halving gives that size.
+fn mask_at(mask: &Mask, width: usize, height: usize) -> Mask {
+    let mut m = mask.clone();
+    while m.width > width && m.width / 2 >= width {
+        m = m.half();
+    }
+    if m.width == width && m.height == height {
+        m
+    } else {
+        Mask::all(width, height)
+    }
 }
 
 /// The fused cloud of an epoch, world coordinates.
@@ -176,7 +223,7 @@ pub fn fuse<E: From<DenseError>>(
             plan,
             reference: &reference,
             tolerances: &tolerances,
-            min_images: options.min_images,
+            options,
         };
         let mut members = Vec::with_capacity(reference.others.len());
         for k in 0..reference.map.width * reference.map.height {
@@ -236,7 +283,7 @@ fn reference_view<'a>(
     })?;
     let source_views: Vec<&FusionView> = vp.neighbours.iter().map(|&s| loaded(s)).collect();
     let maps: Vec<Option<&DepthMap>> = source_views.iter().map(|f| Some(&f.map)).collect();
-    let others: Vec<Neighbour<'_>> = neighbours(plan, view, &maps);
+    let mut others: Vec<Neighbour<'_>> = neighbours(plan, view, &maps);
     let other_view: Vec<usize> = vp
         .neighbours
         .iter()
@@ -250,6 +297,9 @@ fn reference_view<'a>(
         .iter()
         .map(|&v| loaded(v).rgb.as_slice())
         .collect();
+    for (other, &v) in others.iter_mut().zip(&other_view) {
+        other.field = Field::Mask(&loaded(v).field);
+    }
     let world_from_ref = vp.cam_from_local.inverse();
     Ok(ReferenceView {
         local_from_ref: (world_from_ref.rotation_matrix(), world_from_ref.translation),
@@ -269,7 +319,7 @@ struct ViewFusion<'a> {
     plan: &'a EpochPlan,
     reference: &'a ReferenceView<'a>,
     tolerances: &'a Tolerances,
-    min_images: usize,
+    options: &'a FusionOptions,
 }
 
 /// A fused point, world frame.
@@ -326,8 +376,18 @@ impl ViewFusion<'_> {
         };
         self.members(claims, (u, v), &x, &n, &mut sums, members);
         let count = members.len() + 1;
-        if count < self.min_images {
-            return None;
+        if count < self.options.min_images {
+            // Fewer only where no other image has the point in its field (`fill_edges`): the
+            // reference, its members, and the other neighbours that see the point.
+            let seeing = || {
+                count
+                    + (r.others.iter().enumerate())
+                        .filter(|(o, other)| !members.iter().any(|m| m.0 == *o) && other.sees(&x))
+                        .count()
+            };
+            if !self.options.fill_edges || count < self.options.required_images(seeing()) {
+                return None;
+            }
         }
         if let Some(b) = block {
             set_used(&mut claims.blocks[view], b);

@@ -213,8 +213,7 @@ pub fn reconstruct_epoch(
         .collect::<Result<_, _>>()?;
     let cloud = fuse(&plan, &options.fusion, &mut |view: usize| {
         let map = filtered[view].clone();
-        let rgb = colours_at(&working[view], map.width, map.height);
-        Ok::<_, DenseError>(FusionView { map, rgb })
+        Ok::<_, DenseError>(FusionView::new(map, &working[view]))
     })?;
     Ok(EpochResult {
         plan,

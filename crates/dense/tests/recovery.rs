@@ -3,8 +3,11 @@
 
 mod common;
 
+use std::collections::HashSet;
+
 use common::Rendered;
-use timesift_dense::{DenseOptions, reconstruct_epoch};
+use nalgebra::Vector3;
+use timesift_dense::{DenseOptions, FusedCloud, reconstruct_epoch};
 
 /// Depth errors of the final maps expressed in pixel footprints (|δz| · f / z, the depth error
 /// over the size of a pixel on the surface), and the fraction of usable pixels with a depth.
@@ -54,10 +57,20 @@ fn map_errors(r: &Rendered, options: &DenseOptions) -> (MapErrors, MapErrors) {
         .iter()
         .map(|p| r.surface_error_px(p, f))
         .collect();
-    assert!(
-        cloud.images.iter().all(|&n| n >= 3),
-        "points from fewer than 3 images"
-    );
+    // Points from two images only where no third image has the ground in its field (the
+    // images less a border of 3 % of their width: the working cameras' undistorted fields
+    // differ from the images' by a few pixels).
+    let inset = 0.03 * r.size.0 as f64;
+    for (p, &n) in cloud.positions.iter().zip(&cloud.images) {
+        assert!(n >= 2, "a point from one image");
+        if n < 3 {
+            let seeing = r.views_with_in_field(p, inset);
+            assert!(
+                seeing <= 2,
+                "a 2-image point where {seeing} views have it in their field"
+            );
+        }
+    }
     let fused = MapErrors {
         median: quantile(&mut cloud_errors, 0.5),
         p90: quantile(&mut cloud_errors, 0.9),
@@ -185,4 +198,104 @@ fn maps_filtering_and_fusion_give_the_same_result_on_any_number_of_threads() {
         one.cloud.len()
     );
     assert!(one == on(3), "3 threads gave another result than 1");
+}
+
+/// Ground that only two images have in their field (a strip's ends, the bands between every
+/// other image) is fused from those two with `fill_edges`, about as accurately as the rest;
+/// without it none of it is, and where three or more images see the ground no less is fused.
+#[test]
+fn ground_that_only_two_images_see_is_fused_from_both_with_fill_edges() {
+    // A strip of four images 5 m apart, 10 m up, each 12.5 m wide on the ground: bands of
+    // two, three and two images across it, and two images at each end.
+    let cameras = [-7.5, -2.5, 2.5, 7.5].map(|x| (x, 0.0, x));
+    let scene = common::plane_under(160, 120, &cameras);
+    let views = scene.views();
+    let masks = vec![None; views.len()];
+    let run = |fill_edges: bool| {
+        let mut o = options(1);
+        o.filter.fill_edges = fill_edges;
+        o.fusion.fill_edges = fill_edges;
+        reconstruct_epoch(&scene.input, &views, &masks, &o).expect("dense")
+    };
+    let (strict, filled) = (run(false), run(true));
+    let f = filled.plan.views[0].camera.f;
+    let (strict, filled) = (strict.cloud, filled.cloud);
+    // Cells of 0.25 m over the ground: those that two images have clearly in their field (5 %
+    // of the width inside their borders, beyond the matching window's reach) and no other even
+    // 5 % beyond its border, and those that three or more have clearly.
+    let cell = 0.25;
+    let key = |p: &Vector3<f64>| ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64);
+    let inset = 0.05 * scene.size.0 as f64;
+    let (mut two, mut more) = (Vec::new(), Vec::new());
+    for a in -64..64 {
+        for b in -24..24 {
+            let (x, y) = (
+                500_000.0 + cell * (a as f64 + 0.5),
+                5_000_000.0 + cell * (b as f64 + 0.5),
+            );
+            let Some(ground) = scene
+                .scene
+                .hit(&Vector3::new(x, y, 1_000.0), &Vector3::new(0.0, 0.0, -1.0))
+            else {
+                continue;
+            };
+            if scene.views_with_in_field(&ground, -inset) == 2
+                && scene.views_with_in_field(&ground, inset) == 2
+            {
+                two.push(key(&ground));
+            } else if scene.views_with_in_field(&ground, inset) >= 3 {
+                more.push(key(&ground));
+            }
+        }
+    }
+    assert!(
+        two.len() > 500 && more.len() > 200,
+        "{} / {} cells",
+        two.len(),
+        more.len()
+    );
+    let covered = |cloud: &FusedCloud, cells: &[(i64, i64)]| {
+        let occupied: HashSet<(i64, i64)> = cloud.positions.iter().map(key).collect();
+        cells.iter().filter(|c| occupied.contains(c)).count() as f64 / cells.len() as f64
+    };
+    let (strict_two, filled_two) = (covered(&strict, &two), covered(&filled, &two));
+    let (strict_more, filled_more) = (covered(&strict, &more), covered(&filled, &more));
+    let mut pair_errors: Vec<f64> = filled
+        .positions
+        .iter()
+        .zip(&filled.images)
+        .filter(|(_, n)| **n == 2)
+        .map(|(p, _)| scene.surface_error_px(p, f))
+        .collect();
+    let pairs = pair_errors.len();
+    assert!(pairs > 0, "fill_edges fused no point from two images");
+    let (median, p90) = (
+        quantile(&mut pair_errors, 0.5),
+        quantile(&mut pair_errors, 0.9),
+    );
+    println!(
+        "ground seen by two images: {strict_two:.3} covered strict, {filled_two:.3} with fill_edges \
+         ({pairs} 2-image points, median {median:.3} px, p90 {p90:.3} px); by three or more: \
+         {strict_more:.3} / {filled_more:.3}"
+    );
+    assert!(
+        strict.images.iter().all(|&n| n >= 3),
+        "strict: a point from 2 images"
+    );
+    assert!(
+        strict_two < 0.1,
+        "strict fusion covers ground two images see: {strict_two}"
+    );
+    assert!(
+        filled_two > 0.8,
+        "fill_edges leaves ground two images see empty: {filled_two}"
+    );
+    assert!(
+        filled_more >= strict_more - 0.005,
+        "{filled_more} < {strict_more}"
+    );
+    assert!(
+        median < 0.3 && p90 < 1.0,
+        "2-image points: median {median}, p90 {p90}"
+    );
 }

@@ -7,7 +7,7 @@
 //! them and a fingerprint of the epoch's cameras and poses. A run resumes image by image: only
 //! missing maps are computed, and since every result is deterministic, recomputing one gives
 //! the same bits. Options that only change filtering and fusion (`min_views`, `min_images`,
-//! `max_cost`) keep the maps and redo the cloud.
+//! `fill_edges`, `max_cost`) keep the maps and redo the cloud.
 //!
 //! Memory: one reference image with its sources (decoded and resampled, in a small cache) and
 //! their maps at a time.
@@ -25,8 +25,8 @@ use nalgebra::Vector3;
 use timesift_core::{Camera, CameraModel};
 use timesift_dense::{
     DenseError, DenseOptions, DepthMap, EpochInput, EpochPlan, FusionView, ImageView, Pass,
-    PassInput, SparsePoint, UndistortMap, View, WorkingImage, colours_at, filter_depth_map, fuse,
-    plan_epoch, plan_schedule, run_pass,
+    PassInput, SparsePoint, UndistortMap, View, WorkingImage, filter_depth_map, fuse, plan_epoch,
+    plan_schedule, run_pass,
 };
 use timesift_io::cameras_json::{Reconstruction, read_cameras_json};
 use timesift_io::colmap::{ColmapModel, read_colmap_text};
@@ -257,6 +257,7 @@ fn cloud_settings(options: &DenseOptions, maps: &serde_json::Value) -> serde_jso
         "min_views": options.filter.min_views,
         "max_cost": options.filter.max_cost,
         "min_images": options.fusion.min_images,
+        "fill_edges": options.fusion.fill_edges,
     })
 }
 
@@ -462,8 +463,7 @@ fn fuse_filtered(
             )
         })?;
         let image = cache.get(view)?;
-        let rgb = colours_at(&image, map.width, map.height);
-        Ok::<_, FusionError>(FusionView { map, rgb })
+        Ok::<_, FusionError>(FusionView::new(map, &image))
     })
     .map_err(|e| match e {
         FusionError::Project(p) => p,

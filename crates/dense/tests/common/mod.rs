@@ -50,6 +50,21 @@ impl Rendered {
         (self.object)(&hit).then(|| pose.transform_point(&hit).z)
     }
 
+    /// How many of the views have world point `p` in their field (in front, inside the image
+    /// less a border of `inset` pixels), occlusion aside.
+    pub fn views_with_in_field(&self, p: &Vector3<f64>, inset: f64) -> usize {
+        let (w, h) = (self.size.0 as f64 - inset, self.size.1 as f64 - inset);
+        self.input
+            .views
+            .iter()
+            .filter(|v| {
+                v.cam_from_world.transform_point(p).z > 0.0
+                    && timesift_core::project_world(&v.camera, &v.cam_from_world, p)
+                        .is_ok_and(|q| q.x >= inset && q.y >= inset && q.x < w && q.y < h)
+            })
+            .count()
+    }
+
     /// Distance of a world point to the true surface in pixel footprints of the nearest camera
     /// (its distance over the focal length).
     pub fn surface_error_px(&self, p: &Vector3<f64>, f: f64) -> f64 {
@@ -159,6 +174,21 @@ fn render_all(
 /// A plane tilted by about 8° under a 3 × 2 nadir block 10 m above it, in UTM-sized
 /// coordinates.
 pub fn plane(width: u32, height: u32) -> Rendered {
+    // Converging on the origin's north-south line, to within 0.1 m.
+    let cameras = [(0, 0), (1, 0), (2, 0), (0, 1), (1, 1), (2, 1)].map(|(i, j)| {
+        (
+            -3.0 + 3.0 * i as f64,
+            -1.5 + 3.0 * j as f64,
+            0.1 * (i as f64 - 1.0),
+        )
+    });
+    plane_under(width, height, &cameras)
+}
+
+/// The plane of [`plane`] under cameras 10 m above it: `(east, north, aim)` offsets from the
+/// scene's origin, metres, each looking at the point `aim` east of the origin on its
+/// north-south line.
+pub fn plane_under(width: u32, height: u32, cameras: &[(f64, f64, f64)]) -> Rendered {
     let origin = Vector3::new(500_000.0, 5_000_000.0, 200.0);
     let slope = 0.14;
     let z = move |x: f64, y: f64| origin.z + slope * (x - origin.x) - 0.05 * (y - origin.y);
@@ -180,20 +210,22 @@ pub fn plane(width: u32, height: u32) -> Rendered {
     .expect("scene");
     let f = 0.8 * width as f64;
     let cam = camera(width, height, f);
-    let mut poses = Vec::new();
-    for (i, j) in [(0, 0), (1, 0), (2, 0), (0, 1), (1, 1), (2, 1)] {
-        let c = Vector3::new(
-            origin.x - 3.0 + 3.0 * i as f64,
-            origin.y - 1.5 + 3.0 * j as f64,
-            origin.z + 10.0,
-        );
-        let target = Vector3::new(origin.x + 0.1 * (i as f64 - 1.0), origin.y, origin.z);
-        let pose = nadir_towards(&c, &target);
-        poses.push(pose);
-    }
+    let poses = cameras
+        .iter()
+        .map(|&(dx, dy, aim)| {
+            let c = Vector3::new(origin.x + dx, origin.y + dy, origin.z + 10.0);
+            let target = Vector3::new(origin.x + aim, origin.y + dy, origin.z);
+            nadir_towards(&c, &target)
+        })
+        .collect();
+    // Sparse points every 0.6 m over the block's centres and 4.2 m around them.
+    let reach = cameras
+        .iter()
+        .fold(0.0f64, |m, &(dx, dy, _)| m.max(dx.abs()).max(dy.abs()));
+    let n = ((reach + 4.2) / 0.6).round() as i64;
     let mut points = Vec::new();
-    for a in -12..=12 {
-        for b in -12..=12 {
+    for a in -n..=n {
+        for b in -n..=n {
             let (x, y) = (origin.x + 0.6 * a as f64, origin.y + 0.6 * b as f64);
             points.push(Vector3::new(x, y, z(x, y)));
         }
