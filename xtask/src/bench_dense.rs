@@ -19,12 +19,14 @@
 //! core-seconds per depth-map megapixel (CPU seconds over the megapixels of the depth maps at
 //! the level, every image with sources); where the time went (`dense.json` phase_seconds). With
 //! `--baseline <timesift>`, another build's dense stage runs on the same projects first, timed
-//! and scored the same way: the before and after of one run.
+//! and scored the same way: the before and after of one run. With `--reuse --keep-maps`, an
+//! earlier run's depth maps are kept: `[dense]` filtering and fusion options edited in the
+//! scenes' `project.toml` (and `<scene>-truth/`'s) redo only the clouds, in seconds.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::bench_dense_time::{DenseBinary, DenseRun, time_dense};
+use crate::bench_dense_time::{DenseBinary, DenseRun, resume_dense, time_dense};
 use anyhow::Context;
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -50,6 +52,10 @@ pub struct DenseBench {
     pub baseline: Option<PathBuf>,
     /// Only the true cameras (no align-stage cameras).
     pub truth_only: bool,
+    /// With `reuse`: keep the scenes' depth maps, so that a `[dense]` filtering or fusion
+    /// option edited in their `project.toml` redoes only the clouds (the cost table then times
+    /// that alone).
+    pub keep_maps: bool,
     /// A folder with OpenMVS's `InterfaceCOLMAP` and `DensifyPointCloud`: the multi-view peer,
     /// run on the true cameras.
     pub openmvs: Option<PathBuf>,
@@ -205,8 +211,12 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
         }
         before = epoch_clouds(&truth_project)?;
     }
+    let this_run = |dir: &Path, n: usize| match bench.keep_maps && reused {
+        true => resume_dense(&DenseBinary::This, dir, n),
+        false => time_dense(&DenseBinary::This, dir, n),
+    };
     for &n in threads {
-        let run = time_dense(&DenseBinary::This, &truth_dir, n)?;
+        let run = this_run(&truth_dir, n)?;
         println!("{scene}: this build, {n} thread(s): {run:?}");
         timing.runs.push(run);
     }
@@ -223,7 +233,7 @@ fn bench_scene(bench: &DenseBench, scene: &str) -> anyhow::Result<(Vec<Row>, Tim
             time_dense(baseline, &dir, 2)?;
             align_before = epoch_clouds(&project)?;
         }
-        time_dense(&DenseBinary::This, &dir, 2)?;
+        this_run(&dir, 2)?;
     }
     let truth_cameras = read_cameras_json(&truth_project.layout().truth_cameras())?;
     let mut peer_points: Vec<Option<Vec<Vector3<f64>>>> = vec![None; project.epochs.len()];

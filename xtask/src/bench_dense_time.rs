@@ -36,6 +36,12 @@ pub fn time_dense(binary: &DenseBinary, dir: &Path, threads: usize) -> anyhow::R
     let _ = std::fs::remove_dir_all(dir.join("work/dense"));
     let _ = std::fs::remove_dir_all(dir.join("out/epochs"));
     let _ = std::fs::remove_file(dir.join("out/dense.json"));
+    resume_dense(binary, dir, threads)
+}
+
+/// Runs the dense stage of the project in `dir` as a user's rerun does: the depth maps its
+/// settings still allow are kept, so a changed filtering or fusion option redoes only the cloud.
+pub fn resume_dense(binary: &DenseBinary, dir: &Path, threads: usize) -> anyhow::Result<DenseRun> {
     let mut command = match binary {
         DenseBinary::This => {
             let mut c = Command::new(std::env::current_exe()?);

@@ -377,6 +377,11 @@ enum BenchStage {
         /// dense stage alone; the synthetic scenes are not oriented).
         #[arg(long)]
         truth_only: bool,
+        /// With `--reuse`: keep the synthetic scenes' depth maps, so that `[dense]` filtering
+        /// and fusion options edited in their `project.toml` (and `<scene>-truth/`) redo only
+        /// the clouds; the cost table then times that alone.
+        #[arg(long, requires = "reuse")]
+        keep_maps: bool,
     },
     /// DEMs and orthos of the synth ground scenes against the truth (sampled clouds, and the
     /// dense bench's clouds when present), gridding against GDAL's gdal_grid, gdalinfo on the
@@ -719,6 +724,7 @@ fn main() -> anyhow::Result<()> {
                     baseline,
                     truth_only,
                     openmvs,
+                    keep_maps,
                 },
         } => bench_dense::run_bench(&bench_dense::DenseBench {
             scenes: scenes.unwrap_or_else(|| {
@@ -746,6 +752,7 @@ fn main() -> anyhow::Result<()> {
             baseline,
             truth_only,
             openmvs,
+            keep_maps,
         })?,
         Task::BenchMethods {
             scenes,
