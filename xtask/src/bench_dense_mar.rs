@@ -281,7 +281,6 @@ struct MatchableCells {
     y1: f64,
     width: usize,
     height: usize,
-    matchable: Vec<bool>,
     /// True cameras that see each cell (0 where it has no true height).
     seen: Vec<u16>,
 }
@@ -327,9 +326,13 @@ impl MatchableCells {
             y1,
             width,
             height,
-            matchable: seen.iter().map(|&n| n >= 2).collect(),
             seen,
         }
+    }
+
+    /// Whether cell `k` can be matched: a true height, seen by two true cameras or more.
+    fn is_matchable(&self, k: usize) -> bool {
+        self.seen[k] >= 2
     }
 
     /// The cloud gridded (median height per cell) and compared with the truth.
@@ -349,7 +352,7 @@ impl MatchableCells {
         let mut filled = 0;
         for run in keyed.chunk_by(|a, b| a.0 == b.0) {
             let k = run[0].0;
-            if !self.matchable[k] {
+            if !self.is_matchable(k) {
                 continue;
             }
             filled += 1;
@@ -361,7 +364,9 @@ impl MatchableCells {
             let (x, y) = cell_centre(self.x0, self.y1, self.cell, k % self.width, k / self.width);
             errors.push(median - truth.bilinear(x, y));
         }
-        let matchable = self.matchable.iter().filter(|m| **m).count();
+        let matchable = (0..self.seen.len())
+            .filter(|&k| self.is_matchable(k))
+            .count();
         let stats = timesift_change::stats::statistics(errors);
         DemScore {
             matchable,
@@ -393,7 +398,7 @@ impl MatchableCells {
         };
         let (mut errors, mut interpolated) = (Vec::new(), 0usize);
         let mut holes_by_views = [0; 3];
-        for k in (0..self.matchable.len()).filter(|&k| self.matchable[k]) {
+        for k in (0..self.seen.len()).filter(|&k| self.is_matchable(k)) {
             let h = dem.height[k];
             if !h.is_finite() {
                 holes_by_views[(self.seen[k] as usize).clamp(2, 4) - 2] += 1;

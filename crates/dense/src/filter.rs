@@ -97,7 +97,8 @@ pub(crate) struct Neighbour<'a> {
 pub(crate) enum Field<'a> {
     /// Those with a depth: a map before filtering has one at every usable pixel.
     Depth,
-    /// Those its image's mask at the map's size keeps (filtered maps have holes).
+    /// Those its image's mask at the map's size keeps (filtered maps have holes); the caller
+    /// checked that the mask has the map's size.
     Mask(&'a Mask),
 }
 
@@ -137,19 +138,14 @@ impl Neighbour<'_> {
         let Some(p) = self.camera.project(&(self.r * x + self.t)) else {
             return false;
         };
+        // The camera is the map's (same size), so a pixel it contains is one of the map's.
         if !self.camera.contains(p.x, p.y) {
             return false;
         }
         let (i, j) = (p.x as usize, p.y as usize);
-        if i >= self.map.width || j >= self.map.height {
-            return false;
-        }
         match self.field {
             Field::Depth => self.map.depth[j * self.map.width + i] > 0.0,
-            Field::Mask(mask) if mask.width == self.map.width && mask.height == self.map.height => {
-                mask.at(i, j)
-            }
-            Field::Mask(_) => true,
+            Field::Mask(mask) => mask.at(i, j),
         }
     }
 

@@ -298,7 +298,13 @@ fn reference_view<'a>(
         .map(|&v| loaded(v).rgb.as_slice())
         .collect();
     for (other, &v) in others.iter_mut().zip(&other_view) {
-        other.field = Field::Mask(&loaded(v).field);
+        let field = &loaded(v).field;
+        if (field.width, field.height) != (other.map.width, other.map.height) {
+            return Err(DenseError::InvalidInput(format!(
+                "view {v}: depth map and field differ in size"
+            )));
+        }
+        other.field = Field::Mask(field);
     }
     let world_from_ref = vp.cam_from_local.inverse();
     Ok(ReferenceView {
