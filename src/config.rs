@@ -328,6 +328,13 @@ pub struct AlignConfig {
     /// Keypoint limit per image. Default 40000.
     #[serde(default = "default_max_keypoints")]
     pub max_keypoints: usize,
+    /// Keypoints per image (the largest-scale ones) matched exhaustively first: where they
+    /// verify a pair's geometry, every keypoint is then searched near it (along epipolar lines,
+    /// or about a homography's transfer for flat ground) instead of against all of the other
+    /// image's, about a tenth of the cost; pairs they cannot verify are matched exhaustively.
+    /// 0 matches every pair exhaustively. Default 1024.
+    #[serde(default = "default_coarse_match_keypoints")]
+    pub coarse_match_keypoints: usize,
     /// Tie-point accuracy in pixels (bundle weighting). Default 1.0.
     #[serde(default = "default_tie_px")]
     pub tie_point_accuracy_px: f64,
@@ -432,6 +439,9 @@ pub enum InterEpochTies {
 fn default_max_keypoints() -> usize {
     40_000
 }
+fn default_coarse_match_keypoints() -> usize {
+    timesift_matching::StagedOptions::default().coarse_keypoints
+}
 fn default_tie_px() -> f64 {
     1.0
 }
@@ -466,6 +476,7 @@ impl Default for AlignConfig {
             epoch_partners: None,
             mapper: MapperConfig::default(),
             max_keypoints: default_max_keypoints(),
+            coarse_match_keypoints: default_coarse_match_keypoints(),
             tie_point_accuracy_px: default_tie_px(),
             marker_accuracy_px: default_marker_px(),
             gcps_in_all_epochs: false,

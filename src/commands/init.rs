@@ -203,6 +203,10 @@ fn align_section(text: &mut String, reference: &str) {
         "# mapper = \"auto\"  # auto (global from 200 images) | incremental | global (rotation averaging and GNSS-seeded centres: faster on large blocks; needs priors)"
     );
     let _ = writeln!(text, "# max_keypoints = 40000");
+    let _ = writeln!(
+        text,
+        "# coarse_match_keypoints = 1024  # largest-scale keypoints matched first; the rest guided by the geometry they verify (0: every pair exhaustively)"
+    );
     let _ = writeln!(text, "# tie_point_accuracy_px = 1.0");
     let _ = writeln!(text, "# marker_accuracy_px = 0.5");
     let _ = writeln!(text, "# gcps_in_all_epochs = false");

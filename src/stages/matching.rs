@@ -6,13 +6,11 @@ use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use timesift_core::{EpochId, ImageId};
-use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{EpochPartners, PairPolicy, epoch_aware};
 use timesift_matching::preselect::{PreselectOptions, coarse_matches, preselect};
 use timesift_matching::storage::{read_features, read_matches, write_matches};
 use timesift_matching::tracks::{PairMatches, build_tracks};
-use timesift_matching::verify::{VerifyOptions, verify_pair};
-use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
+use timesift_matching::{StagedOptions, staged_matches};
 
 use super::cache::{stage_error, start_with_settings};
 use super::{PipelineStage, Stage};
@@ -48,7 +46,8 @@ const ACROSS_EPOCH_NEIGHBOURS: usize = 5;
 
 /// Version of the match stage's algorithm, part of its settings: a change that alters the
 /// verified matches (such as guided matching, version 2) makes a resumed run redo them.
-const MATCH_ALGORITHM: u32 = 2;
+/// Version 3: pairs matched coarse to fine (`[align] coarse_match_keypoints`).
+const MATCH_ALGORITHM: u32 = 3;
 
 /// Removes the match files of pairs not in `pairs` (sorted), left by a run with another pair
 /// selection: the align stage reads every match file, and its tracks should be this run's.
@@ -101,7 +100,10 @@ fn select_pairs(
     let epoch_of: Vec<EpochId> = project.images.iter().map(|im| im.epoch).collect();
     let candidates = candidate_pairs(project, &epoch_of)?;
     // A pair's matches do not depend on which other pairs are selected: only the algorithm.
-    let settings = serde_json::json!({ "algorithm": MATCH_ALGORITHM });
+    let settings = serde_json::json!({
+        "algorithm": MATCH_ALGORITHM,
+        "coarse_match_keypoints": project.config.align.coarse_match_keypoints,
+    });
     start_with_settings("match", &layout.matches_dir(), "match", &settings, &[])?;
     let candidate_count = candidates.len();
     let pairs = if project.config.align.pair_selection == PairSelection::Preselect {
@@ -225,12 +227,10 @@ fn match_pairs<'f>(
     features: &(dyn Fn(usize) -> Result<&'f ImageFeatures, ProjectError> + Sync),
 ) -> Result<Vec<Vec<timesift_matching::Match>>, ProjectError> {
     let layout = project.layout();
-    let options = MatchOptions {
-        ratio_on: FloatDistance::Angle,
-        ..MatchOptions::default()
+    let options = StagedOptions {
+        coarse_keypoints: project.config.align.coarse_match_keypoints,
+        ..StagedOptions::default()
     };
-    let verify = VerifyOptions::default();
-    let guided = GuidedOptions::default();
     list.pairs
         .par_iter()
         .map(|&(a, b)| {
@@ -238,7 +238,7 @@ fn match_pairs<'f>(
             if let Ok(done) = read_matches(&path) {
                 return Ok(done);
             }
-            let inliers = verified_matches(features(a)?, features(b)?, &options, &verify, &guided)
+            let inliers = verified_matches(features(a)?, features(b)?, &options)
                 .map_err(|e| stage_error("match", e.to_string()))?;
             write_matches(&path, &inliers).map_err(|e| stage_error("match", e.to_string()))?;
             Ok(inliers)
@@ -328,19 +328,13 @@ pub(crate) fn candidate_pairs(
 }
 
 /// One pair's matches: putative by descriptor, verified geometrically, grown by guided
-/// matching (none where verification fails).
+/// matching (none where verification fails); coarse to fine where that stands for the pair.
 fn verified_matches(
     (ka, da): &(Vec<timesift_core::Keypoint>, timesift_core::Descriptors),
     (kb, db): &(Vec<timesift_core::Keypoint>, timesift_core::Descriptors),
-    options: &MatchOptions,
-    verify: &VerifyOptions,
-    guided: &GuidedOptions,
+    options: &StagedOptions,
 ) -> Result<Vec<timesift_matching::Match>, timesift_matching::MatchingError> {
-    let putative = match_descriptors(da, db, options)?;
-    Ok(match verify_pair(ka, kb, &putative, None, verify)? {
-        Some(verified) => grow_verified(ka, da, kb, db, &verified, guided)?,
-        None => Vec::new(),
-    })
+    Ok(staged_matches((ka, da), (kb, db), options)?.matches)
 }
 
 /// Verified pairs per pair of epochs (`<a>__<b>`, earlier first).

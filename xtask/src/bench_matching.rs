@@ -7,7 +7,10 @@
 //! (COLMAP's peak threshold), at most 8192 keypoints, ratio 0.8 on descriptor angles with a mutual
 //! check, fundamental-matrix verification at 4 px with 15 inliers at least, then guided matching
 //! along the epipolar lines of the verified pairs (COLMAP's `guided_matching` is off by default:
-//! its counts are those of the descriptor matches that passed verification).
+//! its counts are those of the descriptor matches that passed verification). Then the same
+//! pairs coarse to fine, as the match stage matches them by default
+//! (`timesift_matching::staged`): its verified pairs, matches, the share of the exhaustive
+//! matches it finds again and the time ratio.
 
 use std::time::Instant;
 
@@ -20,7 +23,10 @@ use timesift_matching::guided::{GuidedOptions, grow_verified};
 use timesift_matching::pairs::{PairPolicy, select};
 use timesift_matching::preselect::{PreselectOptions, coarse_matches, preselect};
 use timesift_matching::verify::{VerifyOptions, verify_pair};
-use timesift_matching::{FloatDistance, MatchOptions, match_descriptors};
+use timesift_matching::{
+    FloatDistance, Match, MatchOptions, MatchedBy, StagedMatches, StagedOptions, match_descriptors,
+    staged_matches,
+};
 
 const SCRIPT: &str = include_str!("../scripts/colmap_db_stats.py");
 const THREADS: usize = 2;
@@ -61,20 +67,30 @@ pub fn run() -> anyhow::Result<()> {
         let start = Instant::now();
         let verified = pairs
             .par_iter()
-            .map(|&(a, b)| -> anyhow::Result<Option<(usize, usize)>> {
-                let (ka, da) = (&ours[a].keypoints, &ours[a].descriptors);
-                let (kb, db) = (&ours[b].keypoints, &ours[b].descriptors);
-                let m = match_descriptors(da, db, &options)?;
-                let Some(verified) = verify_pair(ka, kb, &m, None, &VerifyOptions::default())?
-                else {
-                    return Ok(None);
-                };
-                let grown = grow_verified(ka, da, kb, db, &verified, &GuidedOptions::default())?;
-                Ok(Some((grown.len(), verified.inliers.len())))
-            })
+            .map(
+                |&(a, b)| -> anyhow::Result<Option<(usize, usize, Vec<Match>)>> {
+                    let (ka, da) = (&ours[a].keypoints, &ours[a].descriptors);
+                    let (kb, db) = (&ours[b].keypoints, &ours[b].descriptors);
+                    let m = match_descriptors(da, db, &options)?;
+                    let Some(verified) = verify_pair(ka, kb, &m, None, &VerifyOptions::default())?
+                    else {
+                        return Ok(None);
+                    };
+                    let grown =
+                        grow_verified(ka, da, kb, db, &verified, &GuidedOptions::default())?;
+                    Ok(Some((grown.len(), verified.inliers.len(), grown)))
+                },
+            )
             .collect::<anyhow::Result<Vec<_>>>()?;
         Ok((verified, start.elapsed().as_secs_f64()))
     })?;
+    let (counts, exhaustive): (Vec<_>, Vec<_>) = counts
+        .into_iter()
+        .map(|c| match c {
+            Some((grown, unguided, matches)) => (Some((grown, unguided)), matches),
+            None => (None, Vec::new()),
+        })
+        .unzip();
     let verified_set: Vec<(usize, usize)> = pairs
         .iter()
         .zip(&counts)
@@ -110,6 +126,22 @@ pub fn run() -> anyhow::Result<()> {
         "  verified pair graph: {verified_components} connected component{}",
         if verified_components == 1 { "" } else { "s" }
     );
+    // Coarse to fine, as the match stage matches a pair by default: the same pairs.
+    let (staged, staged_seconds) = pool.install(|| -> anyhow::Result<_> {
+        let start = Instant::now();
+        let staged = pairs
+            .par_iter()
+            .map(|&(a, b)| {
+                staged_matches(
+                    (&ours[a].keypoints, &ours[a].descriptors),
+                    (&ours[b].keypoints, &ours[b].descriptors),
+                    &StagedOptions::default(),
+                )
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok((staged, start.elapsed().as_secs_f64()))
+    })?;
+    print_coarse_to_fine(&exhaustive, &staged, (seconds, staged_seconds));
     // Preselection, as the match stage runs it with `[align] pair_selection = "preselect"`.
     let preselect_options = PreselectOptions::default();
     let features: Vec<_> = ours
@@ -165,6 +197,49 @@ pub fn run() -> anyhow::Result<()> {
         Err(e) => println!("  COLMAP unavailable: {e}"),
     }
     Ok(())
+}
+
+/// The coarse-to-fine matches against the exhaustive ones of the same pairs: verified pairs,
+/// matches, the share of the exhaustive matches found again, how many pairs went which way,
+/// and the time ratio.
+fn print_coarse_to_fine(
+    exhaustive: &[Vec<Match>],
+    staged: &[StagedMatches],
+    (exhaustive_seconds, staged_seconds): (f64, f64),
+) {
+    let verified = staged.iter().filter(|s| !s.matches.is_empty()).count();
+    let coarse = staged
+        .iter()
+        .filter(|s| s.by == MatchedBy::CoarseThenGuided)
+        .count();
+    let (mut found, mut reference, mut total) = (0usize, 0usize, 0usize);
+    for (e, s) in exhaustive.iter().zip(staged) {
+        let mine: std::collections::HashSet<(u32, u32)> =
+            s.matches.iter().map(|m| (m.query, m.train)).collect();
+        found += e
+            .iter()
+            .filter(|m| mine.contains(&(m.query, m.train)))
+            .count();
+        reference += e.len();
+        total += s.matches.len();
+    }
+    let mut sizes: Vec<usize> = staged
+        .iter()
+        .map(|s| s.matches.len())
+        .filter(|&n| n > 0)
+        .collect();
+    sizes.sort_unstable();
+    println!(
+        "  coarse to fine (the match stage's default, {} largest-scale keypoints first): {verified} \
+         verified pairs, median {} inliers, {total} matches against {reference} exhaustive \
+         ({:.1} % of those found again), {coarse} of {} pairs matched coarse then guided, \
+         {staged_seconds:.1} s: {:.2} x faster",
+        StagedOptions::default().coarse_keypoints,
+        sizes.get(sizes.len() / 2).copied().unwrap_or(0),
+        100.0 * found as f64 / reference.max(1) as f64,
+        staged.len(),
+        exhaustive_seconds / staged_seconds,
+    );
 }
 
 /// Connected components of the graph of `n` images with edges `pairs`.

@@ -144,6 +144,14 @@ impl Reduced {
         Reduced::Dense(DMatrix::zeros(n, n))
     }
 
+    /// Every value zero, the storage kept.
+    pub(crate) fn clear(&mut self) {
+        match self {
+            Reduced::Dense(m) => m.fill(0.0),
+            Reduced::Sparse { values, .. } => values.fill(0.0),
+        }
+    }
+
     pub(crate) fn sparse(pattern: Arc<SparsePattern>) -> Self {
         let values = vec![0.0; pattern.row_idx.len()];
         Reduced::Sparse { pattern, values }

@@ -397,6 +397,20 @@ impl LowerBand for SparseBand<'_> {
         let (lo, hi) = (self.pattern.col_ptr[col], self.pattern.col_ptr[col + 1]);
         let rows = &self.pattern.row_idx[lo..hi];
         let mut k = rows.partition_point(|&r| r < row0);
+        // The usual case: the run's rows are consecutive in the pattern too (a pose's six
+        // columns, a group's intrinsics), so its values are, and the run is one slice.
+        let end = k + v.len();
+        if !v.is_empty()
+            && end <= rows.len()
+            && rows[k] == row0
+            && rows[end - 1] == row0 + v.len() - 1
+        {
+            let start = lo + k - self.base;
+            for (o, v) in self.values[start..start + v.len()].iter_mut().zip(v) {
+                *o -= v;
+            }
+            return;
+        }
         for (t, &v) in v.iter().enumerate() {
             let row = row0 + t;
             while k < rows.len() && rows[k] < row {

@@ -17,10 +17,6 @@ use crate::verify::VerifiedPair;
 use crate::{Match, MatchOptions, MatchingError};
 use timesift_geometry::homography::TwoViewType;
 
-/// Guided matches may be at most as far apart in descriptor space as this percentile of the
-/// pair's verified matches.
-const PERCENT: usize = 90;
-
 /// Side of the grid cells over the second image, pixels.
 const CELL_PX: f64 = 32.0;
 
@@ -33,6 +29,9 @@ pub struct GuidedOptions {
     pub max_error_px: f64,
     /// Ratio test, mutual check and maximum distance, applied among the candidates of the band.
     pub matching: MatchOptions,
+    /// [`grow_verified`]'s guided matches may be at most as far apart in descriptor space as
+    /// this percentile of the pair's verified matches (at most 100).
+    pub distance_percentile: usize,
 }
 
 impl Default for GuidedOptions {
@@ -43,6 +42,7 @@ impl Default for GuidedOptions {
                 ratio_on: FloatDistance::Angle,
                 ..MatchOptions::default()
             },
+            distance_percentile: 90,
         }
     }
 }
@@ -64,7 +64,70 @@ pub fn guided_matches(
             expected: "a positive number of pixels",
         });
     }
-    let ratio = options.matching.ratio;
+    check_ratio(&options.matching)?;
+    let distance = DescriptorDistance::new(da, db)?;
+    check_counts((ka, da), (kb, db))?;
+    if !f.iter().all(|v| v.is_finite()) {
+        return Ok(Vec::new());
+    }
+    let band = Region::Line {
+        half_width: options.max_error_px,
+    };
+    Ok(matches_in_regions(
+        (ka, kb),
+        (f, &f.transpose()),
+        band,
+        &distance,
+        &options.matching,
+        matches!(da, Descriptors::Float { .. }),
+    ))
+}
+
+/// Putative matches of keypoints `ka` (descriptors `da`) with `kb` (`db`) near the transfer of
+/// homography `h` (`x_b ~ h x_a`, pixels): each keypoint is compared only with the other
+/// image's keypoints within `radius_px` of where `h` takes it (and back through `h⁻¹` for the
+/// mutual check), and the ratio test, mutual check and maximum distance of `matching` are
+/// applied among those. For pairs a homography explains (nadir views of flat ground), where
+/// epipolar lines are ill-determined: the radius admits the parallax of what stands off the
+/// plane, so unlike [`guided_matches`] these are not inliers by construction and are to be
+/// verified. Matches come ordered by query.
+pub fn transfer_matches(
+    (ka, da): (&[Keypoint], &Descriptors),
+    (kb, db): (&[Keypoint], &Descriptors),
+    h: &Matrix3<f64>,
+    radius_px: f64,
+    matching: &MatchOptions,
+) -> Result<Vec<Match>, MatchingError> {
+    if !(radius_px > 0.0 && radius_px.is_finite()) {
+        return Err(MatchingError::InvalidOption {
+            name: "radius_px",
+            value: radius_px,
+            expected: "a positive number of pixels",
+        });
+    }
+    check_ratio(matching)?;
+    let distance = DescriptorDistance::new(da, db)?;
+    check_counts((ka, da), (kb, db))?;
+    let Some(h_inv) = h.try_inverse().filter(|m| m.iter().all(|v| v.is_finite())) else {
+        return Ok(Vec::new());
+    };
+    if !h.iter().all(|v| v.is_finite()) {
+        return Ok(Vec::new());
+    }
+    let disc = Region::Disc { radius: radius_px };
+    Ok(matches_in_regions(
+        (ka, kb),
+        (h, &h_inv),
+        disc,
+        &distance,
+        matching,
+        matches!(da, Descriptors::Float { .. }),
+    ))
+}
+
+/// An error unless the ratio is in (0, 1].
+fn check_ratio(matching: &MatchOptions) -> Result<(), MatchingError> {
+    let ratio = matching.ratio;
     if !(ratio > 0.0 && ratio <= 1.0) {
         return Err(MatchingError::InvalidOption {
             name: "ratio",
@@ -72,7 +135,14 @@ pub fn guided_matches(
             expected: "in (0, 1]",
         });
     }
-    let distance = DescriptorDistance::new(da, db)?;
+    Ok(())
+}
+
+/// An error unless every keypoint has one descriptor.
+pub(crate) fn check_counts(
+    (ka, da): (&[Keypoint], &Descriptors),
+    (kb, db): (&[Keypoint], &Descriptors),
+) -> Result<(), MatchingError> {
     for (keypoints, descriptors) in [(ka, da), (kb, db)] {
         if keypoints.len() != descriptors.len() {
             return Err(MatchingError::InvalidOption {
@@ -82,27 +152,47 @@ pub fn guided_matches(
             });
         }
     }
-    if ka.is_empty() || kb.is_empty() || !f.iter().all(|v| v.is_finite()) {
-        return Ok(Vec::new());
+    Ok(())
+}
+
+/// Where a keypoint's match is searched in the other image, given the pair's model applied to
+/// the keypoint.
+#[derive(Debug, Clone, Copy)]
+enum Region {
+    /// Within `half_width` pixels of the epipolar line `model · x`.
+    Line { half_width: f64 },
+    /// Within `radius` pixels of the transferred point `model · x`.
+    Disc { radius: f64 },
+}
+
+/// The matches of `ka` with `kb` whose keypoints each lie in the other's region: `forward` takes
+/// a keypoint of a to its region in b, `backward` one of b to its region in a (for the mutual
+/// check); ratio test and maximum distance among the region's candidates.
+fn matches_in_regions(
+    (ka, kb): (&[Keypoint], &[Keypoint]),
+    (forward, backward): (&Matrix3<f64>, &Matrix3<f64>),
+    region: Region,
+    distance: &DescriptorDistance<'_>,
+    matching: &MatchOptions,
+    float: bool,
+) -> Vec<Match> {
+    if ka.is_empty() || kb.is_empty() {
+        return Vec::new();
     }
-    let angles = options.matching.ratio_on == FloatDistance::Angle
-        && matches!(da, Descriptors::Float { .. });
+    let angles = matching.ratio_on == FloatDistance::Angle && float;
     let all_a: Vec<u32> = (0..ka.len() as u32).collect();
-    let forward = nearest_in_band(ka, &all_a, kb, f, options.max_error_px, |i, j| {
-        distance.get(i, j)
-    });
+    let near_a = nearest_in_region(ka, &all_a, kb, forward, region, |i, j| distance.get(i, j));
     // The mutual check needs the reverse search only from the keypoints of b that some
     // keypoint of a chose.
-    let backward = if options.matching.mutual {
-        let mut targets: Vec<u32> = forward
+    let near_b = if matching.mutual {
+        let mut targets: Vec<u32> = near_a
             .iter()
-            .filter(|n| n.passes(&options.matching, angles))
+            .filter(|n| n.passes(matching, angles))
             .map(|n| n.index)
             .collect();
         targets.sort_unstable();
         targets.dedup();
-        let ft = f.transpose();
-        let near = nearest_in_band(kb, &targets, ka, &ft, options.max_error_px, |j, i| {
+        let near = nearest_in_region(kb, &targets, ka, backward, region, |j, i| {
             distance.get(i, j)
         });
         let mut by_b = vec![Nearest::EMPTY; kb.len()];
@@ -114,14 +204,14 @@ pub fn guided_matches(
         None
     };
     let mut matches = Vec::new();
-    for (i, near) in forward.iter().enumerate() {
-        if !near.passes(&options.matching, angles) {
+    for (i, near) in near_a.iter().enumerate() {
+        if !near.passes(matching, angles) {
             continue;
         }
         let j = near.index as usize;
-        if let Some(backward) = &backward {
-            let back = &backward[j];
-            if back.index as usize != i || !back.passes(&options.matching, angles) {
+        if let Some(near_b) = &near_b {
+            let back = &near_b[j];
+            if back.index as usize != i || !back.passes(matching, angles) {
                 continue;
             }
         }
@@ -131,7 +221,7 @@ pub fn guided_matches(
             distance: near.best,
         });
     }
-    Ok(matches)
+    matches
 }
 
 /// The inliers of a verified pair grown by guided matching with its fundamental matrix
@@ -153,25 +243,11 @@ pub fn grow_verified(
     // Few candidates lie in the band, so the ratio test alone is weak there (a keypoint whose
     // true match was not detected meets a lone candidate, and a lone candidate passes): guided
     // matches must also be as alike as the pair's verified matches are.
-    let mut distances: Vec<f32> = verified.inliers.iter().map(|m| m.distance).collect();
-    distances.sort_unstable_by(f32::total_cmp);
-    let Some(&typical) = distances.get(distances.len() * PERCENT / 100) else {
+    let Some(matching) = as_alike_as(&verified.inliers, da, options) else {
         return Ok(verified.inliers.clone());
     };
-    let typical = match (da, options.matching.ratio_on) {
-        (Descriptors::Float { .. }, FloatDistance::Angle) => 2.0 * (0.5 * typical).min(1.0).asin(),
-        _ => typical,
-    };
     let options = GuidedOptions {
-        matching: MatchOptions {
-            max_distance: Some(
-                options
-                    .matching
-                    .max_distance
-                    .map_or(typical, |m| m.min(typical)),
-            ),
-            ..options.matching
-        },
+        matching,
         ..*options
     };
     let guided = guided_matches(ka, da, kb, db, f, &options)?;
@@ -181,6 +257,35 @@ pub fn grow_verified(
         grown
     } else {
         verified.inliers.clone()
+    })
+}
+
+/// `options.matching` with its maximum distance lowered to the `options.distance_percentile`
+/// of the `verified` matches' distances (between descriptors like `descriptors`); `None`
+/// without verified matches.
+pub(crate) fn as_alike_as(
+    verified: &[Match],
+    descriptors: &Descriptors,
+    options: &GuidedOptions,
+) -> Option<MatchOptions> {
+    let mut distances: Vec<f32> = verified.iter().map(|m| m.distance).collect();
+    distances.sort_unstable_by(f32::total_cmp);
+    let rank = (distances.len() * options.distance_percentile.min(100) / 100)
+        .min(distances.len().saturating_sub(1));
+    let typical = *distances.get(rank)?;
+    // Match distances of float descriptors are chords; the options may compare angles.
+    let typical = match (descriptors, options.matching.ratio_on) {
+        (Descriptors::Float { .. }, FloatDistance::Angle) => 2.0 * (0.5 * typical).min(1.0).asin(),
+        _ => typical,
+    };
+    Some(MatchOptions {
+        max_distance: Some(
+            options
+                .matching
+                .max_distance
+                .map_or(typical, |m| m.min(typical)),
+        ),
+        ..options.matching
     })
 }
 
@@ -204,14 +309,15 @@ pub fn grow_inliers(inliers: &[Match], guided: &[Match], num_a: usize, num_b: us
 }
 
 /// For each keypoint `from[i]` with `i` in `which`, its two nearest descriptors among the
-/// keypoints of `to` within `band` pixels of its epipolar line `f · x`. `squared_distance(i, j)`
-/// compares their descriptors; the distances come back unsquared.
-fn nearest_in_band(
+/// keypoints of `to` in its region (`model` applied to it: an epipolar line or a transferred
+/// point). `squared_distance(i, j)` compares their descriptors; the distances come back
+/// unsquared.
+fn nearest_in_region(
     from: &[Keypoint],
     which: &[u32],
     to: &[Keypoint],
-    f: &Matrix3<f64>,
-    band: f64,
+    model: &Matrix3<f64>,
+    region: Region,
     squared_distance: impl Fn(usize, usize) -> f32,
 ) -> Vec<Nearest> {
     let grid = Grid::new(to);
@@ -222,17 +328,34 @@ fn nearest_in_band(
             let i = i as usize;
             let k = &from[i];
             let mut near = Nearest::EMPTY;
-            let line = f * Vector3::new(k.x, k.y, 1.0);
-            let norm = (line.x * line.x + line.y * line.y).sqrt();
-            if !(norm > 0.0 && norm.is_finite()) {
-                return near;
-            }
-            let line = line / norm;
-            grid.cells_near_line(&line, band, &mut cells);
+            let image = model * Vector3::new(k.x, k.y, 1.0);
+            // The test of a candidate, once the cells it may lie in are listed.
+            let inside = match region {
+                Region::Line { half_width } => {
+                    let norm = (image.x * image.x + image.y * image.y).sqrt();
+                    if !(norm > 0.0 && norm.is_finite()) {
+                        return near;
+                    }
+                    let line = image / norm;
+                    grid.cells_near_line(&line, half_width, &mut cells);
+                    Inside::Line { line, half_width }
+                }
+                Region::Disc { radius } => {
+                    let (x, y) = (image.x / image.z, image.y / image.z);
+                    if !(x.is_finite() && y.is_finite()) {
+                        return near;
+                    }
+                    grid.cells_near_point(x, y, radius, &mut cells);
+                    Inside::Disc {
+                        x,
+                        y,
+                        squared_radius: radius * radius,
+                    }
+                }
+            };
             for &cell in &cells {
                 for &j in grid.members(cell) {
-                    let p = &to[j as usize];
-                    if (line.x * p.x + line.y * p.y + line.z).abs() <= band {
+                    if inside.holds(&to[j as usize]) {
                         near.offer(squared_distance(i, j as usize), j);
                     }
                 }
@@ -242,6 +365,36 @@ fn nearest_in_band(
             near
         })
         .collect()
+}
+
+/// One keypoint's region in the other image, in pixels.
+enum Inside {
+    Line {
+        /// Normalised: (x, y) is a unit normal.
+        line: Vector3<f64>,
+        half_width: f64,
+    },
+    Disc {
+        x: f64,
+        y: f64,
+        squared_radius: f64,
+    },
+}
+
+impl Inside {
+    #[inline]
+    fn holds(&self, p: &Keypoint) -> bool {
+        match *self {
+            Inside::Line { line, half_width } => {
+                (line.x * p.x + line.y * p.y + line.z).abs() <= half_width
+            }
+            Inside::Disc {
+                x,
+                y,
+                squared_radius,
+            } => (p.x - x).powi(2) + (p.y - y).powi(2) <= squared_radius,
+        }
+    }
 }
 
 /// Keypoints bucketed in square cells (compressed rows: the members of cell c are
@@ -313,6 +466,27 @@ impl Grid {
 
     fn members(&self, cell: usize) -> &[u32] {
         &self.order[self.start[cell]..self.start[cell + 1]]
+    }
+
+    /// The cells that may hold points within `radius` of `(x, y)`, written into `out`.
+    fn cells_near_point(&self, x: f64, y: f64, radius: f64, out: &mut Vec<usize>) {
+        out.clear();
+        let span = |lo: f64, origin: f64, count: usize| {
+            let first = ((lo - radius - origin) / self.cell).floor();
+            let last = ((lo + radius - origin) / self.cell).floor();
+            if last < 0.0 || first >= count as f64 {
+                return None;
+            }
+            Some((first.max(0.0) as usize, (last as usize).min(count - 1)))
+        };
+        let (Some((c0, c1)), Some((r0, r1))) =
+            (span(x, self.x0, self.cols), span(y, self.y0, self.rows))
+        else {
+            return;
+        };
+        for r in r0..=r1 {
+            out.extend((c0..=c1).map(|c| r * self.cols + c));
+        }
     }
 
     /// The cells that may hold points within `band` of the line `l · (x, y, 1) = 0` (`l`
@@ -546,6 +720,7 @@ mod tests {
                 .collect(),
             homography_inliers: 0,
             fundamental: Some(rectified()),
+            homography: None,
         };
         let options = GuidedOptions::default();
         let tight = grow_verified(&ka, &da, &kb, &db, &verified(0.03), &options).unwrap();
@@ -592,6 +767,101 @@ mod tests {
         // Fewer descriptors than keypoints.
         assert!(matches!(
             guided_matches(&ka, &da, &kb, &da, &f, &GuidedOptions::default()),
+            Err(MatchingError::InvalidOption {
+                name: "descriptors",
+                ..
+            })
+        ));
+    }
+
+    /// Keypoints of image a and their true matches in image b at `h`'s transfer plus up to
+    /// `parallax` px (what stands off the plane), each with a look-alike about as close in
+    /// descriptor space 60 px or more from the transfer. True matches are the even keypoints of
+    /// b.
+    fn planar_with_lookalikes(
+        n: usize,
+        h: &Matrix3<f64>,
+        parallax: f64,
+    ) -> (Vec<Keypoint>, Descriptors, Vec<Keypoint>, Descriptors) {
+        let mut rng = SeededRng::new(11);
+        let (mut ka, mut kb, mut da, mut db) = (vec![], vec![], vec![], vec![]);
+        for _ in 0..n {
+            let (x, y) = (
+                rng.uniform_range(50.0, 950.0),
+                rng.uniform_range(50.0, 700.0),
+            );
+            let d = unit_descriptor(&mut rng, 128);
+            ka.push(keypoint(x, y));
+            da.extend_from_slice(&d);
+            let t = h * Vector3::new(x, y, 1.0);
+            let angle = rng.uniform_range(0.0, std::f64::consts::TAU);
+            let off = parallax * rng.uniform();
+            kb.push(keypoint(
+                t.x / t.z + off * angle.cos(),
+                t.y / t.z + off * angle.sin(),
+            ));
+            db.extend(perturbed(&mut rng, &d, 0.3));
+            let far = rng.uniform_range(60.0, 400.0);
+            kb.push(keypoint(
+                t.x / t.z + far * angle.sin(),
+                t.y / t.z - far * angle.cos(),
+            ));
+            db.extend(perturbed(&mut rng, &d, 0.28));
+        }
+        let float = |data| Descriptors::Float { dim: 128, data };
+        (ka, float(da), kb, float(db))
+    }
+
+    /// A homography of a nadir pair over flat ground: a shift, a small rotation and scale, a
+    /// little perspective.
+    fn ground_homography() -> Matrix3<f64> {
+        let (c, s) = (0.05f64.cos() * 1.02, 0.05f64.sin() * 1.02);
+        Matrix3::new(c, -s, -180.0, s, c, 35.0, 1e-5, -2e-5, 1.0)
+    }
+
+    #[test]
+    fn transfer_matching_finds_matches_off_the_plane_within_its_radius() {
+        let n = 80;
+        let h = ground_homography();
+        let (ka, da, kb, db) = planar_with_lookalikes(n, &h, 10.0);
+        let matching = GuidedOptions::default().matching;
+        let global = crate::match_descriptors(&da, &db, &matching).unwrap();
+        assert!(global.len() < n / 10, "{} global matches", global.len());
+        let near = transfer_matches((&ka, &da), (&kb, &db), &h, 16.0, &matching).unwrap();
+        assert_eq!(near.len(), n);
+        assert!(near.iter().all(|m| m.train == 2 * m.query), "{near:?}");
+        // A radius smaller than the parallax misses the true matches that stand further off,
+        // and a look-alike never comes in their place.
+        let tight = transfer_matches((&ka, &da), (&kb, &db), &h, 5.0, &matching).unwrap();
+        assert!(tight.len() < n && tight.len() > n / 5, "{}", tight.len());
+        assert!(tight.iter().all(|m| m.train == 2 * m.query));
+    }
+
+    #[test]
+    fn transfer_matching_rejects_bad_radii_and_singular_homographies() {
+        let h = ground_homography();
+        let (ka, da, kb, db) = planar_with_lookalikes(10, &h, 0.0);
+        let matching = GuidedOptions::default().matching;
+        for radius in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(matches!(
+                transfer_matches((&ka, &da), (&kb, &db), &h, radius, &matching),
+                Err(MatchingError::InvalidOption {
+                    name: "radius_px",
+                    ..
+                })
+            ));
+        }
+        let singular = Matrix3::new(1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
+        let none = transfer_matches((&ka, &da), (&kb, &db), &singular, 8.0, &matching).unwrap();
+        assert!(none.is_empty());
+        let nan = Matrix3::from_element(f64::NAN);
+        assert!(
+            transfer_matches((&ka, &da), (&kb, &db), &nan, 8.0, &matching)
+                .unwrap()
+                .is_empty()
+        );
+        assert!(matches!(
+            transfer_matches((&ka, &da), (&kb[1..], &db), &h, 8.0, &matching),
             Err(MatchingError::InvalidOption {
                 name: "descriptors",
                 ..

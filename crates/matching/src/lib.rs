@@ -3,7 +3,8 @@
 //! Map: [`matcher`] (nearest neighbours of float descriptors by blocked matrix products, binary
 //! ones by popcount; ratio test, mutual check, maximum distance), [`verify`] (fundamental,
 //! essential and homography RANSAC from `timesift-geometry`, two-view type), [`guided`] (more
-//! matches for a verified pair, searched along its epipolar lines), [`pairs`] (which
+//! matches for a verified pair, searched along its epipolar lines), [`staged`] (a pair matched
+//! coarse to fine: the largest-scale keypoints verified, then guided matching), [`pairs`] (which
 //! image pairs to match: exhaustive, sequential, spatial, epoch-aware),
 //! [`preselect`](mod@preselect) (pairs worth matching in full, from matching the largest-scale
 //! keypoints), [`tracks`]
@@ -47,6 +48,7 @@ pub mod guided;
 pub mod matcher;
 pub mod pairs;
 pub mod preselect;
+pub mod staged;
 pub mod storage;
 pub mod stp;
 pub mod tracks;
@@ -57,6 +59,7 @@ pub use guided::{GuidedOptions, grow_verified};
 pub use matcher::{FloatDistance, Match, MatchOptions, match_descriptors};
 pub use pairs::PairPolicy;
 pub use preselect::{PreselectOptions, preselect};
+pub use staged::{MatchedBy, StagedMatches, StagedOptions, staged_matches};
 pub use stp::{StablePair, StpOptions, StpResult, TiePoint, stable_tie_points};
 pub use tracks::{PairMatches, TrackSet, build_tracks};
 pub use verify::{EpipolarModel, VerifiedPair, VerifyOptions, verify_pair};

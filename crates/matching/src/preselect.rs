@@ -131,6 +131,15 @@ fn largest_scales(
             expected: "one descriptor per keypoint",
         });
     }
+    Ok(descriptor_rows(
+        descriptors,
+        &largest_scale_indices(keypoints, count),
+    ))
+}
+
+/// The indices (ascending) of the `count` largest-scale keypoints, ties to the stronger
+/// response, then the lower index.
+pub(crate) fn largest_scale_indices(keypoints: &[Keypoint], count: usize) -> Vec<usize> {
     let mut order: Vec<usize> = (0..keypoints.len()).collect();
     order.sort_by(|&i, &j| {
         let (p, q) = (&keypoints[i], &keypoints[j]);
@@ -141,23 +150,27 @@ fn largest_scales(
     });
     order.truncate(count);
     order.sort_unstable();
-    // The rows `order` of descriptors `width` values wide.
+    order
+}
+
+/// The descriptors of rows `order` (each below `descriptors.len()`).
+pub(crate) fn descriptor_rows(descriptors: &Descriptors, order: &[usize]) -> Descriptors {
     fn rows<T: Copy>(data: &[T], width: usize, order: &[usize]) -> Vec<T> {
         order
             .iter()
             .flat_map(|&i| data[i * width..(i + 1) * width].iter().copied())
             .collect()
     }
-    Ok(match descriptors {
+    match descriptors {
         Descriptors::Float { dim, data } => Descriptors::Float {
             dim: *dim,
-            data: rows(data, *dim, &order),
+            data: rows(data, *dim, order),
         },
         Descriptors::Binary { bytes, data } => Descriptors::Binary {
             bytes: *bytes,
-            data: rows(data, *bytes, &order),
+            data: rows(data, *bytes, order),
         },
-    })
+    }
 }
 
 #[cfg(test)]

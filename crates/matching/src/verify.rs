@@ -71,6 +71,9 @@ pub struct VerifiedPair {
     /// essential matrix: refitted to its inliers' pixels), for guided matching; `None` for a
     /// homography.
     pub fundamental: Option<Matrix3<f64>>,
+    /// The homography fitted to the same matches (`x_b ~ H x_a`, pixels), when RANSAC found
+    /// one: for guided matching of pairs it explains.
+    pub homography: Option<Matrix3<f64>>,
 }
 
 /// Verifies the matches between images with keypoints `a` and `b`. With `cameras`, the essential
@@ -138,6 +141,7 @@ pub fn verify_pair(
             inliers,
             homography_inliers,
             fundamental,
+            homography: homography.map(|r| r.model.h),
         }));
     }
     // No epipolar geometry, but a homography: planar or rotational.
@@ -148,6 +152,7 @@ pub fn verify_pair(
             inliers: keep(&h.inliers),
             homography_inliers: h.num_inliers,
             fundamental: None,
+            homography: Some(h.model.h),
         })),
         _ => Ok(None),
     }
