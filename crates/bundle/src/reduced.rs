@@ -152,6 +152,21 @@ impl Reduced {
         }
     }
 
+    /// Becomes a copy of `other`, reusing this storage when the two have the same shape.
+    pub(crate) fn assign(&mut self, other: &Reduced) {
+        match (&mut *self, other) {
+            (Reduced::Dense(m), Reduced::Dense(o)) if m.shape() == o.shape() => m.copy_from(o),
+            (
+                Reduced::Sparse { pattern, values },
+                Reduced::Sparse {
+                    pattern: op,
+                    values: ov,
+                },
+            ) if Arc::ptr_eq(pattern, op) => values.copy_from_slice(ov),
+            _ => *self = other.clone(),
+        }
+    }
+
     pub(crate) fn sparse(pattern: Arc<SparsePattern>) -> Self {
         let values = vec![0.0; pattern.row_idx.len()];
         Reduced::Sparse { pattern, values }

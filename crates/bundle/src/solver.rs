@@ -831,23 +831,26 @@ struct Step<const D: usize> {
     points: Vec<SVector<f64, D>>,
 }
 
+/// `s`: storage for the damped reduced system, of `nm.u`'s shape, reused from step to step (on
+/// a block of hundreds of images it is tens of megabytes, fresh pages every time if allocated).
 fn damped_step<const D: usize>(
     nm: &Normal<D>,
     lambda: f64,
     iterative: Option<&[Vec<usize>]>,
+    s: &mut Reduced,
 ) -> Option<Step<D>> {
     if let Some(blocks) = iterative {
         return iterative_step(nm, lambda, blocks);
     }
     let n = nm.g_c.len();
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
-    let mut s = nm.u.clone();
+    s.assign(&nm.u);
     for i in 0..n {
         s.add(i, i, lambda * clamp(nm.u.diagonal(i)));
     }
     let mut rhs = nm.g_c.clone();
     let v_inv = damped_inverses(&nm.v, lambda)?;
-    schur::eliminate(nm.block_rows(), &v_inv, &nm.g_p, &mut s, &mut rhs);
+    schur::eliminate(nm.block_rows(), &v_inv, &nm.g_p, s, &mut rhs);
     let cameras = if n > 0 {
         -s.solve(&rhs)?
     } else {
@@ -1089,13 +1092,11 @@ fn diagonal_blocks<const D: usize>(
 const PCG_TOLERANCE: f64 = 1e-6;
 const PCG_MAX_ITERATIONS: usize = 1000;
 
-fn apply_step<const D: usize>(
-    p: &BundleProblem,
-    layout: &Layout,
-    step: &Step<D>,
-) -> Option<BundleProblem> {
-    let mut q = p.clone();
-    for (i, im) in q.images.iter_mut().enumerate() {
+/// Moves `p` by `step` in place; `false` when the step gives invalid intrinsics (e.g. f ≤ 0),
+/// which rejects it (the damping then grows). `p` is then partly moved: the caller puts back
+/// what it kept ([`Parameters`]).
+fn apply_step<const D: usize>(p: &mut BundleProblem, layout: &Layout, step: &Step<D>) -> bool {
+    for (i, im) in p.images.iter_mut().enumerate() {
         let d = if let Some(off) = layout.pose_offset[i] {
             Vector6::from_iterator((0..6).map(|c| step.cameras[off + c]))
         } else if let Some(bi) = layout.pose_index[i] {
@@ -1105,7 +1106,7 @@ fn apply_step<const D: usize>(
         };
         im.pose = im.pose.retract(&d);
     }
-    for (g, group) in q.groups.iter_mut().enumerate() {
+    for (g, group) in p.groups.iter_mut().enumerate() {
         if let Some(off) = layout.group_offset[g] {
             let mut params = [0.0; MAX_INTRINSICS];
             let n = group.camera.num_params();
@@ -1113,17 +1114,18 @@ fn apply_step<const D: usize>(
             for (q, &k) in layout.group_free[g].iter().enumerate() {
                 params[k] += step.cameras[off + q];
             }
-            // An invalid update (e.g. f ≤ 0) rejects the whole step: the damping then grows.
-            group.camera.set_params(&params[..n]).ok()?;
+            if group.camera.set_params(&params[..n]).is_err() {
+                return false;
+            }
         }
     }
-    for (o, offset) in q.prior_offsets.iter_mut().enumerate() {
+    for (o, offset) in p.prior_offsets.iter_mut().enumerate() {
         if let Some(bo) = layout.bias_offset[o] {
             offset.value +=
                 Vector3::new(step.cameras[bo], step.cameras[bo + 1], step.cameras[bo + 2]);
         }
     }
-    for (j, pt) in q.points.iter_mut().enumerate() {
+    for (j, pt) in p.points.iter_mut().enumerate() {
         if let Some(pi) = layout.point_index[j] {
             pt.position += Vector3::new(step.points[pi][0], step.points[pi][1], step.points[pi][2]);
         } else if let Some(off) = layout.point_offset[j] {
@@ -1134,8 +1136,51 @@ fn apply_step<const D: usize>(
             );
         }
     }
-    Some(q)
+    true
 }
+
+/// The values a step changes (poses, intrinsics, offsets, points), kept so that a rejected step
+/// is undone by putting them back. A trial step on a copy of the problem would copy its
+/// observations too, the largest part of a block of hundreds of images, at every iteration.
+#[derive(Default)]
+struct Parameters {
+    poses: Vec<timesift_core::Pose>,
+    cameras: Vec<timesift_core::Camera>,
+    offsets: Vec<Vector3<f64>>,
+    points: Vec<Vector3<f64>>,
+}
+
+impl Parameters {
+    /// Keeps `p`'s values, reusing the storage of the last call.
+    fn keep(&mut self, p: &BundleProblem) {
+        self.poses.clear();
+        self.poses.extend(p.images.iter().map(|im| im.pose));
+        self.cameras.clear();
+        self.cameras
+            .extend(p.groups.iter().map(|g| g.camera.clone()));
+        self.offsets.clear();
+        self.offsets.extend(p.prior_offsets.iter().map(|o| o.value));
+        self.points.clear();
+        self.points.extend(p.points.iter().map(|pt| pt.position));
+    }
+
+    /// Puts the kept values back into `p` (the problem they were kept from).
+    fn put_back(&self, p: &mut BundleProblem) {
+        for (im, pose) in p.images.iter_mut().zip(&self.poses) {
+            im.pose = *pose;
+        }
+        for (g, camera) in p.groups.iter_mut().zip(&self.cameras) {
+            g.camera.clone_from(camera);
+        }
+        for (o, value) in p.prior_offsets.iter_mut().zip(&self.offsets) {
+            o.value = *value;
+        }
+        for (pt, position) in p.points.iter_mut().zip(&self.points) {
+            pt.position = *position;
+        }
+    }
+}
+
 fn parameter_norm(p: &BundleProblem) -> f64 {
     let mut s = 0.0;
     for im in &p.images {
@@ -1286,6 +1331,8 @@ fn run<const D: usize>(
     let blocks = layout.parameter_blocks(problem);
     let iterative = (options.linear_solver == LinearSolver::IterativeSchur).then_some(&blocks[..]);
     let mut nm = linearize::<D>(problem, layout, &options.loss, &storage);
+    let mut kept = Parameters::default();
+    let mut reduced = storage;
     while iterations < options.max_iterations {
         iterations += 1;
         if max_gradient(&nm) <= options.gradient_tolerance {
@@ -1293,7 +1340,7 @@ fn run<const D: usize>(
             break;
         }
         let lambda = 1.0 / radius;
-        let Some(step) = damped_step(&nm, lambda, iterative) else {
+        let Some(step) = damped_step(&nm, lambda, iterative, &mut reduced) else {
             radius /= nu;
             nu *= 2.0;
             if radius < 1e-32 {
@@ -1308,7 +1355,9 @@ fn run<const D: usize>(
             termination = Termination::ParameterTolerance;
             break;
         }
-        let Some(candidate) = apply_step(problem, layout, &step) else {
+        kept.keep(problem);
+        if !apply_step(problem, layout, &step) {
+            kept.put_back(problem);
             radius /= nu;
             nu *= 2.0;
             if radius < 1e-32 {
@@ -1316,12 +1365,11 @@ fn run<const D: usize>(
                 break;
             }
             continue;
-        };
-        let new_cost = cost_of(&candidate, &options.loss);
+        }
+        let new_cost = cost_of(problem, &options.loss);
         let rho = (cost - new_cost) / model.max(f64::MIN_POSITIVE);
         if new_cost.is_finite() && new_cost < cost && rho > 1e-3 {
             let decrease = (cost - new_cost) / cost;
-            *problem = candidate;
             cost = new_cost;
             successful_steps += 1;
             radius /= (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
@@ -1333,6 +1381,7 @@ fn run<const D: usize>(
             }
             nm.relinearize(problem, layout, &options.loss);
         } else {
+            kept.put_back(problem);
             radius /= nu;
             nu *= 2.0;
             if radius < 1e-32 {
@@ -1419,7 +1468,8 @@ pub fn perturbed(problem: &BundleProblem, delta: &[f64]) -> Option<BundleProblem
             .map(|c| SVector::<f64, 3>::new(c[0], c[1], c[2]))
             .collect(),
     };
-    apply_step(problem, &layout, &step)
+    let mut moved = problem.clone();
+    apply_step(&mut moved, &layout, &step).then_some(moved)
 }
 
 #[cfg(test)]
@@ -1527,7 +1577,7 @@ mod tests {
                 // The block rows kept (refilled) give the step fresh ones give.
                 assert!(nm.rows.get().is_some());
                 let step = |nm: &Normal<3>| {
-                    let s = damped_step(nm, 1e-3, None).unwrap();
+                    let s = damped_step(nm, 1e-3, None, &mut storage.clone()).unwrap();
                     let points = s.points.iter().flat_map(|p| p.iter().copied());
                     s.cameras
                         .iter()
@@ -1539,5 +1589,34 @@ mod tests {
                 assert!(step(&nm) == step(&fresh), "{solver:?} {loss:?}");
             }
         }
+    }
+
+    /// A step applied in place and put back leaves the problem as it was, bit for bit, and one
+    /// that makes the focal length negative is refused.
+    #[test]
+    fn a_step_put_back_leaves_the_problem_as_it_was() {
+        let start = ring(11);
+        let layout = Layout::new(&start);
+        let n = layout.num_camera_params;
+        let step = Step::<3> {
+            cameras: DVector::from_fn(n, |k, _| 1e-2 * ((k * 31) % 7) as f64),
+            points: vec![SVector::<f64, 3>::new(0.1, -0.2, 0.3); start.points.len()],
+        };
+        let mut kept = Parameters::default();
+        let mut p = start.clone();
+        kept.keep(&p);
+        assert!(apply_step(&mut p, &layout, &step));
+        assert_ne!(p, start);
+        kept.put_back(&mut p);
+        assert_eq!(p, start);
+        let f = layout.group_offset[0].unwrap();
+        let mut bad = Step::<3> {
+            cameras: DVector::zeros(n),
+            points: step.points.clone(),
+        };
+        bad.cameras[f] = -1e4;
+        assert!(!apply_step(&mut p, &layout, &bad));
+        kept.put_back(&mut p);
+        assert_eq!(p, start);
     }
 }
