@@ -1331,7 +1331,9 @@ fn run<const D: usize>(
     let blocks = layout.parameter_blocks(problem);
     let iterative = (options.linear_solver == LinearSolver::IterativeSchur).then_some(&blocks[..]);
     let mut nm = linearize::<D>(problem, layout, &options.loss, &storage);
+    // The accepted parameters, to put back when a trial step is rejected.
     let mut kept = Parameters::default();
+    kept.keep(problem);
     let mut reduced = storage;
     while iterations < options.max_iterations {
         iterations += 1;
@@ -1355,18 +1357,13 @@ fn run<const D: usize>(
             termination = Termination::ParameterTolerance;
             break;
         }
-        kept.keep(problem);
-        if !apply_step(problem, layout, &step) {
-            kept.put_back(problem);
-            radius /= nu;
-            nu *= 2.0;
-            if radius < 1e-32 {
-                termination = Termination::NoProgress;
-                break;
-            }
-            continue;
-        }
-        let new_cost = cost_of(problem, &options.loss);
+        // A step that gives invalid intrinsics is rejected like one that does not decrease
+        // the cost.
+        let new_cost = if apply_step(problem, layout, &step) {
+            cost_of(problem, &options.loss)
+        } else {
+            f64::INFINITY
+        };
         let rho = (cost - new_cost) / model.max(f64::MIN_POSITIVE);
         if new_cost.is_finite() && new_cost < cost && rho > 1e-3 {
             let decrease = (cost - new_cost) / cost;
@@ -1380,6 +1377,7 @@ fn run<const D: usize>(
                 break;
             }
             nm.relinearize(problem, layout, &options.loss);
+            kept.keep(problem);
         } else {
             kept.put_back(problem);
             radius /= nu;
