@@ -65,7 +65,9 @@
 #![warn(missing_docs, unnameable_types)]
 
 pub mod bal;
+mod coarse;
 mod error;
+mod layout;
 pub mod libmv;
 pub mod loss;
 pub mod precision;

@@ -12,8 +12,9 @@ use nalgebra::{Matrix3, Matrix6, SMatrix};
 use timesift_core::project_world;
 
 use crate::BundleError;
+use crate::layout::Layout;
 use crate::problem::BundleProblem;
-use crate::solver::{Layout, center_jacobian, reduced_system};
+use crate::solver::{center_jacobian, reduced_system};
 
 /// Root mean square and count.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

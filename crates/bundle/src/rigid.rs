@@ -19,9 +19,10 @@ use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3, Vector6};
 use timesift_core::Pose;
 
 use crate::BundleError;
+use crate::layout::Layout;
 use crate::precision::CovarianceScale;
 use crate::problem::BundleProblem;
-use crate::solver::{Layout, center_jacobian, reduced_system};
+use crate::solver::{center_jacobian, reduced_system};
 
 /// The covariance (6k × 6k, k = `sets.len()`) of the rigid motions `(δθ, δτ)` of `sets` of
 /// images (indices into `p.images`; fixed images and unknown indices are left out of a set):

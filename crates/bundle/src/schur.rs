@@ -396,6 +396,20 @@ impl LowerBand for SparseBand<'_> {
     fn subtract_run(&mut self, col: usize, row0: usize, v: &[f64]) {
         let (lo, hi) = (self.pattern.col_ptr[col], self.pattern.col_ptr[col + 1]);
         let rows = &self.pattern.row_idx[lo..hi];
+        // A run's rows are consecutive columns of one observation: one block, or consecutive
+        // blocks all coupled to this column's (the observation couples them), whose rows then
+        // follow each other in the column. Where the block index places the first row, the
+        // rest follow (checked in debug builds).
+        if let Some(k) = self.pattern.position_in_column(col, row0) {
+            if k + v.len() <= rows.len() {
+                debug_assert!(v.is_empty() || rows[k + v.len() - 1] == row0 + v.len() - 1);
+                let start = lo + k - self.base;
+                for (o, v) in self.values[start..start + v.len()].iter_mut().zip(v) {
+                    *o -= v;
+                }
+                return;
+            }
+        }
         let mut k = rows.partition_point(|&r| r < row0);
         // The usual case: the run's rows are consecutive in the pattern too (a pose's six
         // columns, a group's intrinsics), so its values are, and the run is one slice.

@@ -8,12 +8,14 @@
 
 use std::sync::OnceLock;
 
-use nalgebra::{DVector, SMatrix, SVector, Vector2, Vector3, Vector6};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector2, Vector3, Vector6};
 use timesift_core::camera::MAX_INTRINSICS;
 use timesift_core::{
     CameraModel, ProjectionJacobians, project_world, project_world_with_jacobians,
 };
 
+use crate::coarse::CoarseSpace;
+use crate::layout::{Eliminate, Layout};
 use crate::problem::{BundleProblem, CenterPrior, Observation, PriorOffset, ScaleBar};
 use crate::reduced::{Reduced, SparsePattern};
 use crate::schur::{self, BlockRows, Coupling, damped_inverses};
@@ -64,6 +66,12 @@ pub enum LinearSolver {
     /// eliminated blocks), preconditioned by its block diagonal (Schur–Jacobi): memory linear in
     /// the observations, for very large blocks.
     IterativeSchur,
+    /// Conjugate gradients on the formed (sparse) reduced system, preconditioned by its block
+    /// diagonal and a coarse level of the cameras' joint motions (tiles of ground shifted,
+    /// turned, scaled; each intrinsic with the cameras' response to it): memory of the reduced
+    /// system's non-zeros, never its factor's fill-in; what [`LinearSolver::Auto`] picks for
+    /// large systems with many non-zeros (see [`ITERATIVE_FROM`]).
+    SparseIterativeSchur,
 }
 
 /// Largest number of camera-side parameters solved densely by [`LinearSolver::Auto`].
@@ -121,199 +129,9 @@ pub struct BundleReport {
     pub rms_px: f64,
     /// Observations whose point ended behind its camera (left out of `rms_px`).
     pub unprojected: usize,
-}
-
-/// Which parameter blocks the Schur complement eliminates. Each observation touches one pose and
-/// one point, so either kind forms a block-diagonal set; eliminating the more numerous kind leaves
-/// the smaller reduced system (Ceres picks its elimination groups the same way).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Eliminate {
-    /// Points (3 × 3 blocks): the usual choice, many points seen by fewer cameras.
-    Points,
-    /// Poses (6 × 6 blocks): many cameras, few points (camera tracking); the reduced system holds
-    /// the points and the intrinsics.
-    Poses,
-}
-
-/// Index layout: offsets of reduced-side parameters, indices of eliminated blocks.
-pub(crate) struct Layout {
-    pub(crate) eliminate: Eliminate,
-    /// Reduced-side offset of each free pose (points elimination only).
-    pub(crate) pose_offset: Vec<Option<usize>>,
-    /// Reduced-side offset of each group's free intrinsics.
-    pub(crate) group_offset: Vec<Option<usize>>,
-    /// Reduced-side offset of each free prior offset (GNSS bias); always on the reduced side.
-    pub(crate) bias_offset: Vec<Option<usize>>,
-    pub(crate) group_free: Vec<Vec<usize>>,
-    /// Reduced-side offset of each free point (poses elimination only).
-    pub(crate) point_offset: Vec<Option<usize>>,
-    /// Eliminated block of each free point (points elimination only).
-    pub(crate) point_index: Vec<Option<usize>>,
-    /// Eliminated block of each free pose (poses elimination only).
-    pub(crate) pose_index: Vec<Option<usize>>,
-    /// Size of the reduced system.
-    pub(crate) num_camera_params: usize,
-    /// Number of eliminated blocks.
-    pub(crate) num_free_points: usize,
-}
-
-fn counter(
-    flags: impl Iterator<Item = bool>,
-    start: &mut usize,
-    step: usize,
-) -> Vec<Option<usize>> {
-    flags
-        .map(|free| {
-            free.then(|| {
-                *start += step;
-                *start - step
-            })
-        })
-        .collect()
-}
-
-/// Reduced-side offsets of the groups with free intrinsics, numbered from `start` on.
-fn group_offsets(group_free: &[Vec<usize>], start: &mut usize) -> Vec<Option<usize>> {
-    group_free
-        .iter()
-        .map(|f| {
-            (!f.is_empty()).then(|| {
-                *start += f.len();
-                *start - f.len()
-            })
-        })
-        .collect()
-}
-
-impl Layout {
-    /// The layout that eliminates points (the public parameter order: poses, intrinsics, points).
-    pub(crate) fn new(p: &BundleProblem) -> Self {
-        Self::with(p, Eliminate::Points)
-    }
-
-    pub(crate) fn with(p: &BundleProblem, eliminate: Eliminate) -> Self {
-        let group_free: Vec<Vec<usize>> = p
-            .groups
-            .iter()
-            .map(|g| {
-                g.free
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, f)| **f)
-                    .map(|(k, _)| k)
-                    .collect()
-            })
-            .collect();
-        let free_poses = p.images.iter().map(|im| !im.fixed);
-        let free_points = p.points.iter().map(|pt| !pt.fixed);
-        let mut n = 0;
-        let mut m = 0;
-        let none_i = vec![None; p.images.len()];
-        let (pose_offset, pose_index, point_offset, point_index, group_offset, bias_offset);
-        match eliminate {
-            Eliminate::Points => {
-                pose_offset = counter(free_poses, &mut n, 6);
-                group_offset = group_offsets(&group_free, &mut n);
-                bias_offset = counter(p.prior_offsets.iter().map(|o| !o.fixed), &mut n, 3);
-                // Ends of scale bars couple two points, so they stay in the reduced system.
-                let mut on_bar = vec![false; p.points.len()];
-                for bar in &p.scale_bars {
-                    on_bar[bar.a] = true;
-                    on_bar[bar.b] = true;
-                }
-                let free: Vec<bool> = free_points.collect();
-                point_offset = counter(free.iter().zip(&on_bar).map(|(f, b)| *f && *b), &mut n, 3);
-                point_index = counter(free.iter().zip(&on_bar).map(|(f, b)| *f && !*b), &mut m, 1);
-                pose_index = none_i;
-            }
-            Eliminate::Poses => {
-                point_offset = counter(free_points, &mut n, 3);
-                let none_p = vec![None; p.points.len()];
-                group_offset = group_offsets(&group_free, &mut n);
-                bias_offset = counter(p.prior_offsets.iter().map(|o| !o.fixed), &mut n, 3);
-                pose_index = counter(free_poses, &mut m, 1);
-                pose_offset = none_i;
-                point_index = none_p;
-            }
-        }
-        Layout {
-            eliminate,
-            pose_offset,
-            group_offset,
-            bias_offset,
-            group_free,
-            point_offset,
-            point_index,
-            pose_index,
-            num_camera_params: n,
-            num_free_points: m,
-        }
-    }
-
-    /// The reduced-side parameter blocks of the iterative solver's preconditioner, as column
-    /// lists: each pose (with its camera group's intrinsics when no other image shares them, as in
-    /// BAL's per-camera intrinsics), each point, each shared group's intrinsics.
-    pub(crate) fn parameter_blocks(&self, p: &BundleProblem) -> Vec<Vec<usize>> {
-        let mut users = vec![0usize; p.groups.len()];
-        for (i, im) in p.images.iter().enumerate() {
-            if self.pose_offset[i].is_some() {
-                users[im.group] += 1;
-            }
-        }
-        let group_cols = |g: usize| -> Vec<usize> {
-            self.group_offset[g].map_or(Vec::new(), |o| (o..o + self.group_free[g].len()).collect())
-        };
-        let mut merged = vec![false; p.groups.len()];
-        let mut blocks = Vec::new();
-        for (i, off) in self.pose_offset.iter().enumerate() {
-            if let Some(o) = off {
-                let mut cols: Vec<usize> = (*o..o + 6).collect();
-                let g = p.images[i].group;
-                if users[g] == 1 {
-                    cols.extend(group_cols(g));
-                    merged[g] = true;
-                }
-                blocks.push(cols);
-            }
-        }
-        for o in self.point_offset.iter().flatten() {
-            blocks.push((*o..o + 3).collect());
-        }
-        for g in 0..p.groups.len() {
-            let cols = group_cols(g);
-            if !merged[g] && !cols.is_empty() {
-                blocks.push(cols);
-            }
-        }
-        for o in self.bias_offset.iter().flatten() {
-            blocks.push((*o..o + 3).collect());
-        }
-        blocks
-    }
-
-    /// The eliminated block an observation of `image` and `point` belongs to.
-    fn eliminated(&self, image: usize, point: usize) -> Option<usize> {
-        match self.eliminate {
-            Eliminate::Points => self.point_index[point],
-            Eliminate::Poses => self.pose_index[image],
-        }
-    }
-
-    /// Reduced-side columns of an observation.
-    fn observation_columns(&self, p: &BundleProblem, image: usize, point: usize) -> Vec<usize> {
-        let mut cols = Vec::new();
-        if let Some(off) = self.pose_offset[image] {
-            cols.extend(off..off + 6);
-        }
-        if let Some(off) = self.point_offset[point] {
-            cols.extend(off..off + 3);
-        }
-        let g = p.images[image].group;
-        if let Some(off) = self.group_offset[g] {
-            cols.extend(off..off + self.group_free[g].len());
-        }
-        cols
-    }
+    /// Conjugate-gradient iterations over all trial steps (0 when every step was solved by
+    /// Cholesky).
+    pub linear_iterations: usize,
 }
 
 /// Most reduced-side columns of one observation: a pose, a point (scale-bar ends), every intrinsic.
@@ -366,7 +184,7 @@ pub(crate) fn reduced_system(
     p: &BundleProblem,
     layout: &Layout,
 ) -> Result<Option<Reduced>, BundleError> {
-    let storage = reduced_storage(p, layout, LinearSolver::Auto)?;
+    let (storage, _) = reduced_storage(p, layout, LinearSolver::Auto, true)?;
     let nm = linearize::<3>(p, layout, &Loss::Trivial, &storage);
     let mut s = nm.u.clone();
     let mut rhs = nm.g_c.clone();
@@ -836,11 +654,14 @@ struct Step<const D: usize> {
 fn damped_step<const D: usize>(
     nm: &Normal<D>,
     lambda: f64,
-    iterative: Option<&[Vec<usize>]>,
+    how: StepSolve,
+    blocks: &[Vec<usize>],
+    coarse: Option<&CoarseSpace>,
     s: &mut Reduced,
+    count: &mut usize,
 ) -> Option<Step<D>> {
-    if let Some(blocks) = iterative {
-        return iterative_step(nm, lambda, blocks);
+    if how == StepSolve::ImplicitCg {
+        return iterative_step(nm, lambda, blocks, count);
     }
     let n = nm.g_c.len();
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
@@ -851,10 +672,31 @@ fn damped_step<const D: usize>(
     let mut rhs = nm.g_c.clone();
     let v_inv = damped_inverses(&nm.v, lambda)?;
     schur::eliminate(nm.block_rows(), &v_inv, &nm.g_p, s, &mut rhs);
-    let cameras = if n > 0 {
-        -s.solve(&rhs)?
-    } else {
-        DVector::zeros(0)
+    let cameras = match how {
+        _ if n == 0 => DVector::zeros(0),
+        StepSolve::FormedCg => {
+            let formed: &Reduced = s;
+            let blocks_of_s = blocks
+                .iter()
+                .map(|cols| {
+                    DMatrix::from_fn(cols.len(), cols.len(), |i, j| formed.get(cols[i], cols[j]))
+                })
+                .collect();
+            let preconditioner = BlockJacobi::new(blocks, blocks_of_s);
+            let mut scratch = Vec::new();
+            let product = |x: &DVector<f64>, y: &mut DVector<f64>| {
+                formed.mul_vec_into(x.as_slice(), y.as_mut_slice(), &mut scratch)
+            };
+            let correction = coarse.and_then(|c| c.correction(formed));
+            let precondition = |r: &DVector<f64>, z: &mut DVector<f64>| {
+                preconditioner.apply_into(r, z);
+                if let Some(c) = &correction {
+                    c.add_to(r, z);
+                }
+            };
+            -conjugate_gradients(product, precondition, &rhs, PCG_TOLERANCE, count)?
+        }
+        _ => -s.solve(&rhs)?,
     };
     Some(Step {
         points: back_substitute(nm, &cameras, &v_inv),
@@ -895,6 +737,7 @@ fn iterative_step<const D: usize>(
     nm: &Normal<D>,
     lambda: f64,
     blocks: &[Vec<usize>],
+    count: &mut usize,
 ) -> Option<Step<D>> {
     let n = nm.g_c.len();
     let clamp = |d: f64| d.clamp(1e-6, 1e32);
@@ -906,45 +749,60 @@ fn iterative_step<const D: usize>(
         v_inv: &v_inv,
         damping: &damping,
     };
-    let preconditioner = BlockJacobi::new(&schur, blocks);
-    // PCG on S x = −rhs.
-    let b = -rhs;
-    let b_norm = b.norm();
+    let preconditioner = BlockJacobi::new(blocks, diagonal_blocks(&schur, blocks));
+    let product = |x: &DVector<f64>, y: &mut DVector<f64>| *y = schur.apply(x);
+    let precondition = |r: &DVector<f64>, z: &mut DVector<f64>| preconditioner.apply_into(r, z);
+    let x = -conjugate_gradients(product, precondition, &rhs, PCG_TOLERANCE, count)?;
+    Some(Step {
+        points: back_substitute(nm, &x, &v_inv),
+        cameras: x,
+    })
+}
+
+/// Preconditioned conjugate gradients on `S x = rhs` from `x = 0`, `S` applied by `product`
+/// (`y = S x`); the step is `−x`. Stops at a relative residual of [`PCG_TOLERANCE`], after
+/// [`PCG_MAX_ITERATIONS`], or where a search direction finds no positive curvature (then with
+/// the iterate so far). `None` when the result is not finite.
+fn conjugate_gradients(
+    mut product: impl FnMut(&DVector<f64>, &mut DVector<f64>),
+    precondition: impl Fn(&DVector<f64>, &mut DVector<f64>),
+    rhs: &DVector<f64>,
+    tolerance: f64,
+    count: &mut usize,
+) -> Option<DVector<f64>> {
+    let n = rhs.len();
     let mut x = DVector::zeros(n);
+    let b_norm = rhs.norm();
     if b_norm == 0.0 {
-        return Some(Step {
-            points: back_substitute(nm, &x, &v_inv),
-            cameras: x,
-        });
+        return Some(x);
     }
-    let mut r = b.clone();
-    let mut z = preconditioner.apply(&r);
+    let mut r = rhs.clone();
+    let mut z = DVector::zeros(n);
+    precondition(&r, &mut z);
     let mut p = z.clone();
+    let mut q = DVector::zeros(n);
     let mut rz = r.dot(&z);
+    let mut iterations = 0;
     for _ in 0..PCG_MAX_ITERATIONS.min(10 * n + 10) {
-        let q = schur.apply(&p);
+        iterations += 1;
+        product(&p, &mut q);
         let pq = p.dot(&q);
         if !(pq > 0.0) {
             break;
         }
         let alpha = rz / pq;
-        x += alpha * &p;
-        r -= alpha * &q;
-        if r.norm() <= PCG_TOLERANCE * b_norm {
+        x.axpy(alpha, &p, 1.0);
+        r.axpy(-alpha, &q, 1.0);
+        if r.norm() <= tolerance * b_norm {
             break;
         }
-        z = preconditioner.apply(&r);
+        precondition(&r, &mut z);
         let rz_new = r.dot(&z);
-        p = &z + (rz_new / rz) * &p;
+        p.axpy(1.0, &z, rz_new / rz);
         rz = rz_new;
     }
-    if !x.iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    Some(Step {
-        points: back_substitute(nm, &x, &v_inv),
-        cameras: x,
-    })
+    *count += iterations;
+    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
 /// Right-hand side of the reduced system, `g_c − Σ E V⁻¹ g_p`, without forming `S`.
@@ -1006,38 +864,37 @@ impl<const D: usize> ImplicitSchur<'_, D> {
 /// diagonal block of `S` (from each observation's own contribution to it).
 struct BlockJacobi<'a> {
     blocks: &'a [Vec<usize>],
-    inverses: Vec<nalgebra::DMatrix<f64>>,
+    inverses: Vec<DMatrix<f64>>,
 }
 
 impl<'a> BlockJacobi<'a> {
-    /// Forms and inverts the diagonal blocks of `schur` over `blocks` (column lists).
-    fn new<const D: usize>(schur: &ImplicitSchur<'_, D>, blocks: &'a [Vec<usize>]) -> Self {
-        let inverses = diagonal_blocks(schur, blocks)
+    /// Inverts the diagonal blocks `matrices` of `S` over `blocks` (column lists); a block
+    /// that is not positive definite is preconditioned by its diagonal alone.
+    fn new(blocks: &'a [Vec<usize>], matrices: Vec<DMatrix<f64>>) -> Self {
+        let inverses = matrices
             .into_iter()
             .map(|b| {
                 let d = b.diagonal();
-                match b.clone().cholesky() {
+                match b.cholesky() {
                     Some(c) => c.inverse(),
-                    None => nalgebra::DMatrix::from_diagonal(
-                        &d.map(|v| if v > 0.0 { 1.0 / v } else { 1.0 }),
-                    ),
+                    None => DMatrix::from_diagonal(&d.map(|v| if v > 0.0 { 1.0 / v } else { 1.0 })),
                 }
             })
             .collect();
         BlockJacobi { blocks, inverses }
     }
 
-    /// `M⁻¹ r`, block by block.
-    fn apply(&self, r: &DVector<f64>) -> DVector<f64> {
-        let mut z = DVector::zeros(r.len());
-        for (k, cols) in self.blocks.iter().enumerate() {
-            let rk = DVector::from_iterator(cols.len(), cols.iter().map(|&c| r[c]));
-            let zk = &self.inverses[k] * rk;
-            for (q, &c) in cols.iter().enumerate() {
-                z[c] = zk[q];
+    /// `z = M⁻¹ r`, block by block.
+    fn apply_into(&self, r: &DVector<f64>, z: &mut DVector<f64>) {
+        for (cols, inverse) in self.blocks.iter().zip(&self.inverses) {
+            for (i, &ci) in cols.iter().enumerate() {
+                z[ci] = cols
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &cj)| inverse[(i, j)] * r[cj])
+                    .sum();
             }
         }
-        z
     }
 }
 
@@ -1222,22 +1079,53 @@ fn reprojection_rms(p: &BundleProblem) -> (f64, usize) {
     (if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }, lost)
 }
 
-/// Empty storage of the reduced system for the chosen solver; the sparse pattern couples the
-/// columns of each observation and of all observations of each eliminated block.
+/// How each damped step solves the reduced system.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StepSolve {
+    /// Cholesky of the formed `S` (dense or sparse storage).
+    Factor,
+    /// Conjugate gradients on the formed (sparse) `S`, preconditioned by its block diagonal
+    /// and the coarse level of [`CoarseSpace`] (when the reduced side holds the poses).
+    FormedCg,
+    /// Conjugate gradients through the eliminated blocks, `S` never formed.
+    ImplicitCg,
+}
+
+/// Camera-side parameters from which [`LinearSolver::Auto`] solves a reduced system denser
+/// than [`ITERATIVE_DENSITY`] by conjugate gradients rather than by Cholesky.
+/// Why: epochs flown over the same ground tie every image to the images of every other epoch
+/// there, so `S` of a multi-epoch block has a share of non-zeros that stays about constant as
+/// the block grows and its Cholesky factor fills in to nearly dense: its cost grows with the
+/// cube of the images. A product with the formed `S` costs its non-zeros, and the conjugate
+/// gradients need some tens to hundreds of them per step (scale bench: the factorisation was
+/// most of the align stage at 1,600 images, 9,600 parameters).
+pub const ITERATIVE_FROM: usize = DENSE_FILL_LIMIT + 1;
+
+/// Share of the reduced system's lower triangle that is non-zero above which
+/// [`LinearSolver::Auto`] expects its Cholesky factor to fill in (see [`ITERATIVE_FROM`]).
+pub const ITERATIVE_DENSITY: f64 = 0.05;
+
+/// Empty storage of the reduced system for the chosen solver, and how steps solve it; the
+/// sparse pattern couples the columns of each observation and of all observations of each
+/// eliminated block. `factorise`: the caller needs the Cholesky factor (covariances), so
+/// [`LinearSolver::Auto`] never picks conjugate gradients.
 fn reduced_storage(
     p: &BundleProblem,
     layout: &Layout,
     solver: LinearSolver,
-) -> Result<Reduced, BundleError> {
+    factorise: bool,
+) -> Result<(Reduced, StepSolve), BundleError> {
     let n = layout.num_camera_params;
-    let iterative = solver == LinearSolver::IterativeSchur;
+    let implicit = solver == LinearSolver::IterativeSchur;
     let sparse = match solver {
         LinearSolver::DenseSchur => false,
-        LinearSolver::SparseSchur | LinearSolver::IterativeSchur => true,
+        LinearSolver::SparseSchur
+        | LinearSolver::IterativeSchur
+        | LinearSolver::SparseIterativeSchur => true,
         LinearSolver::Auto => n > DENSE_LIMIT,
     };
     if !sparse || n == 0 {
-        return Ok(Reduced::dense(n));
+        return Ok((Reduced::dense(n), StepSolve::Factor));
     }
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut per_block: Vec<Vec<usize>> = vec![Vec::new(); layout.num_free_points];
@@ -1266,24 +1154,37 @@ fn reduced_storage(
             .collect();
         groups.push(cols);
     }
-    // The iterative solver never forms S: U's pattern (observations, priors, bars) is enough.
-    if !iterative {
+    // The implicit solver never forms S: U's pattern (observations, priors, bars) is enough.
+    if !implicit {
         for mut cols in per_block {
             cols.sort_unstable();
             cols.dedup();
             groups.push(cols);
         }
     }
-    let pattern = SparsePattern::new(n, &groups, !iterative).ok_or_else(|| {
-        BundleError::InvalidProblem("symbolic analysis of the reduced system failed".to_string())
-    })?;
+    let analysis_failed =
+        || BundleError::InvalidProblem("symbolic analysis of the reduced system failed".into());
+    let pattern = SparsePattern::new(n, &groups, false).ok_or_else(analysis_failed)?;
     // Few eliminated blocks seen by many reduced-side blocks make `S` nearly full: then dense
-    // storage (direct indexing, dense Cholesky) beats sparse, up to a size where n² stays modest.
+    // storage (direct indexing, dense Cholesky) beats sparse, up to a size where n² stays
+    // modest; beyond it, a dense-ish S is solved iteratively.
     let density = pattern.nnz_lower() as f64 / (0.5 * n as f64 * (n + 1) as f64);
-    if solver == LinearSolver::Auto && density > 0.25 && n <= DENSE_FILL_LIMIT && !iterative {
-        return Ok(Reduced::dense(n));
-    }
-    Ok(Reduced::sparse(pattern))
+    let how = match solver {
+        LinearSolver::IterativeSchur => StepSolve::ImplicitCg,
+        LinearSolver::SparseIterativeSchur => StepSolve::FormedCg,
+        LinearSolver::Auto if !factorise && n >= ITERATIVE_FROM && density > ITERATIVE_DENSITY => {
+            StepSolve::FormedCg
+        }
+        LinearSolver::Auto if density > 0.25 && n <= DENSE_FILL_LIMIT => {
+            return Ok((Reduced::dense(n), StepSolve::Factor));
+        }
+        _ => StepSolve::Factor,
+    };
+    let pattern = match how {
+        StepSolve::Factor => pattern.analysed().ok_or_else(analysis_failed)?,
+        _ => pattern,
+    };
+    Ok((Reduced::sparse(pattern), how))
 }
 
 /// Adjusts the problem in place and reports what happened. Points are eliminated, or the poses
@@ -1327,9 +1228,16 @@ fn run<const D: usize>(
     let mut iterations = 0;
     let mut successful_steps = 0;
     let mut termination = Termination::MaxIterations;
-    let storage = reduced_storage(problem, layout, options.linear_solver)?;
-    let blocks = layout.parameter_blocks(problem);
-    let iterative = (options.linear_solver == LinearSolver::IterativeSchur).then_some(&blocks[..]);
+    let mut linear_iterations = 0;
+    let (storage, how) = reduced_storage(problem, layout, options.linear_solver, false)?;
+    let blocks = match how {
+        StepSolve::Factor => Vec::new(),
+        _ => layout.parameter_blocks(problem),
+    };
+    let coarse = match how {
+        StepSolve::FormedCg => CoarseSpace::new(problem, layout),
+        _ => None,
+    };
     let mut nm = linearize::<D>(problem, layout, &options.loss, &storage);
     // The accepted parameters, to put back when a trial step is rejected.
     let mut kept = Parameters::default();
@@ -1342,7 +1250,15 @@ fn run<const D: usize>(
             break;
         }
         let lambda = 1.0 / radius;
-        let Some(step) = damped_step(&nm, lambda, iterative, &mut reduced) else {
+        let Some(step) = damped_step(
+            &nm,
+            lambda,
+            how,
+            &blocks,
+            coarse.as_ref(),
+            &mut reduced,
+            &mut linear_iterations,
+        ) else {
             radius /= nu;
             nu *= 2.0;
             if radius < 1e-32 {
@@ -1397,6 +1313,7 @@ fn run<const D: usize>(
         termination,
         rms_px,
         unprojected,
+        linear_iterations,
     })
 }
 
@@ -1561,7 +1478,7 @@ mod tests {
             .collect();
         let moved = perturbed(&start, &delta).unwrap();
         for solver in [LinearSolver::DenseSchur, LinearSolver::SparseSchur] {
-            let storage = reduced_storage(&start, &layout, solver).unwrap();
+            let (storage, how) = reduced_storage(&start, &layout, solver, false).unwrap();
             for loss in [Loss::Trivial, Loss::Huber(1.5)] {
                 let mut nm = linearize::<3>(&start, &layout, &loss, &storage);
                 let _ = nm.block_rows();
@@ -1575,7 +1492,8 @@ mod tests {
                 // The block rows kept (refilled) give the step fresh ones give.
                 assert!(nm.rows.get().is_some());
                 let step = |nm: &Normal<3>| {
-                    let s = damped_step(nm, 1e-3, None, &mut storage.clone()).unwrap();
+                    let s = damped_step(nm, 1e-3, how, &[], None, &mut storage.clone(), &mut 0)
+                        .unwrap();
                     let points = s.points.iter().flat_map(|p| p.iter().copied());
                     s.cameras
                         .iter()
@@ -1587,6 +1505,170 @@ mod tests {
                 assert!(step(&nm) == step(&fresh), "{solver:?} {loss:?}");
             }
         }
+    }
+
+    /// `images` views on a ring about the scene of [`ring`], point `j` seen by the `seen_by`
+    /// views from view `j · images / points` on: every view tied to about `2 · seen_by`
+    /// others, as a view of a multi-epoch block is to the views of every epoch over its ground.
+    fn views_on_a_ring(images: usize, points: usize, seen_by: usize) -> BundleProblem {
+        let mut rng = SeededRng::new(3);
+        let cam = BrownCamera::new(1600, 1200, 1500.0).unwrap();
+        let images: Vec<BundleImage> = (0..images)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / images as f64;
+                BundleImage {
+                    pose: Pose::look_at(
+                        &Vector3::new(30.0 * a.cos(), 30.0 * a.sin(), 20.0),
+                        &Vector3::zeros(),
+                    )
+                    .unwrap(),
+                    group: 0,
+                    fixed: k == 0,
+                }
+            })
+            .collect();
+        let points: Vec<BundlePoint> = (0..points)
+            .map(|_| BundlePoint {
+                position: Vector3::new(
+                    rng.uniform_range(-3.0, 3.0),
+                    rng.uniform_range(-3.0, 3.0),
+                    rng.uniform_range(-1.0, 1.0),
+                ),
+                fixed: false,
+            })
+            .collect();
+        let mut observations = Vec::new();
+        for (point, pt) in points.iter().enumerate() {
+            let first = point * images.len() / points.len();
+            for k in first..first + seen_by {
+                let image = k % images.len();
+                if let Ok(pixel) = project_world(&cam, &images[image].pose, &pt.position) {
+                    observations.push(Observation {
+                        image,
+                        point,
+                        pixel,
+                        sigma_px: 1.0,
+                    });
+                }
+            }
+        }
+        BundleProblem {
+            groups: vec![CameraGroup::with_free(Camera::Brown(cam), &["f", "k1"]).unwrap()],
+            images,
+            points,
+            observations,
+            ..BundleProblem::default()
+        }
+    }
+
+    /// Auto solves a large reduced system with a large share of non-zeros by conjugate
+    /// gradients on the formed system (its Cholesky factor would fill in), but factorises it
+    /// when the caller needs the factor (covariances); a small or sparse one it factorises.
+    #[test]
+    fn auto_iterates_on_large_filled_systems_and_factorises_when_asked() {
+        let images = ITERATIVE_FROM / 6 + 1;
+        let big = views_on_a_ring(images, images, images / 12);
+        let layout = Layout::new(&big);
+        assert!(layout.num_camera_params >= ITERATIVE_FROM);
+        let (_, how) = reduced_storage(&big, &layout, LinearSolver::Auto, false).unwrap();
+        assert_eq!(how, StepSolve::FormedCg);
+        let (mut s, how) = reduced_storage(&big, &layout, LinearSolver::Auto, true).unwrap();
+        assert_eq!(how, StepSolve::Factor);
+        for i in 0..layout.num_camera_params {
+            s.add(i, i, 1.0);
+        }
+        assert!(
+            s.factor().is_some(),
+            "the storage for covariances factorises"
+        );
+        // As many views, each tied to a few neighbours only: a sparse factor stays sparse.
+        let banded = views_on_a_ring(images, images, 4);
+        let layout = Layout::new(&banded);
+        let (_, how) = reduced_storage(&banded, &layout, LinearSolver::Auto, false).unwrap();
+        assert_eq!(how, StepSolve::Factor);
+        let small = views_on_a_ring(40, 40, 10);
+        let layout = Layout::new(&small);
+        let (_, how) = reduced_storage(&small, &layout, LinearSolver::Auto, false).unwrap();
+        assert_eq!(how, StepSolve::Factor);
+    }
+
+    /// On a block of views each tied to a sixth of the others, noisy observations and free
+    /// intrinsics, the conjugate gradients preconditioned with and without the coarse level
+    /// reach the minimum the Cholesky factor reaches, and the coarse level needs fewer
+    /// products.
+    #[test]
+    fn the_coarse_level_reaches_the_factors_minimum_in_fewer_products() {
+        let mut start = views_on_a_ring(120, 240, 20);
+        let mut rng = SeededRng::new(9);
+        for o in &mut start.observations {
+            o.pixel += Vector2::new(rng.normal(), rng.normal()) * 0.5;
+        }
+        let solved = |solver: LinearSolver, coarse: bool| {
+            let mut p = start.clone();
+            let layout = Layout::new(&p);
+            let (storage, how) = reduced_storage(&p, &layout, solver, false).unwrap();
+            let blocks = layout.parameter_blocks(&p);
+            let space = coarse.then(|| CoarseSpace::new(&p, &layout).unwrap());
+            let nm = linearize::<3>(&p, &layout, &Loss::Trivial, &storage);
+            let mut count = 0;
+            let step = damped_step(
+                &nm,
+                1e-4,
+                how,
+                &blocks,
+                space.as_ref(),
+                &mut storage.clone(),
+                &mut count,
+            )
+            .unwrap();
+            assert!(apply_step(&mut p, &layout, &step));
+            (cost(&p, &Loss::Trivial), count)
+        };
+        let (direct, _) = solved(LinearSolver::SparseSchur, false);
+        let (jacobi, plain) = solved(LinearSolver::SparseIterativeSchur, false);
+        let (two_level, fewer) = solved(LinearSolver::SparseIterativeSchur, true);
+        println!(
+            "Cholesky {direct}, block Jacobi {jacobi} in {plain}, coarse {two_level} in {fewer}"
+        );
+        assert!(direct < cost(&start, &Loss::Trivial));
+        for c in [jacobi, two_level] {
+            assert!((c / direct - 1.0).abs() < 1e-6, "{c} against {direct}");
+        }
+        assert!(
+            fewer < plain,
+            "{fewer} products with the coarse level, {plain} without"
+        );
+    }
+
+    /// On a noisy self-calibrating ring, every linear solver reaches the same minimum: the
+    /// conjugate gradients' steps are inexact, not different.
+    #[test]
+    fn every_linear_solver_reaches_the_same_minimum() {
+        let mut finals = Vec::new();
+        for solver in [
+            LinearSolver::DenseSchur,
+            LinearSolver::SparseSchur,
+            LinearSolver::IterativeSchur,
+            LinearSolver::SparseIterativeSchur,
+        ] {
+            let mut p = ring(21);
+            p.images[0].fixed = true;
+            let options = BundleOptions {
+                linear_solver: solver,
+                ..BundleOptions::default()
+            };
+            let report = solve(&mut p, &options).unwrap();
+            let iterative = matches!(
+                solver,
+                LinearSolver::IterativeSchur | LinearSolver::SparseIterativeSchur
+            );
+            assert_eq!(report.linear_iterations > 0, iterative, "{solver:?}");
+            finals.push(report.final_cost);
+        }
+        for cost in &finals[1..] {
+            assert!((cost / finals[0] - 1.0).abs() < 1e-6, "{finals:?}");
+        }
+        assert!(finals[0] < cost(&ring(21), &Loss::Trivial));
     }
 
     /// A step applied in place and put back leaves the problem as it was, bit for bit, and one
