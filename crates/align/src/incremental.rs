@@ -153,6 +153,7 @@ pub(crate) fn global(state: &mut State<'_>, intrinsics: Intrinsics) -> Result<()
         points = state.rec.points.len(),
         rms_px = report.rms_px,
         iterations = report.iterations,
+        linear_iterations = report.linear_iterations,
         initial_cost = report.initial_cost,
         termination = ?report.termination,
         dropped,

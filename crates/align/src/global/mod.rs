@@ -90,6 +90,7 @@ fn adjust_on_a_subset(
         points = subset.len(),
         rms_px = report.rms_px,
         iterations = report.iterations,
+        linear_iterations = report.linear_iterations,
         "global mapper: seeded block adjusted on a subset of its points"
     );
     Ok((subset, report.rms_px))
