@@ -181,6 +181,20 @@ impl Layout {
         }
     }
 
+    /// How many reduced-side columns an observation has ([`Self::observation_columns`]'s
+    /// length), without listing them.
+    pub(crate) fn observation_column_count(
+        &self,
+        p: &BundleProblem,
+        image: usize,
+        point: usize,
+    ) -> usize {
+        let g = p.images[image].group;
+        6 * usize::from(self.pose_offset[image].is_some())
+            + 3 * usize::from(self.point_offset[point].is_some())
+            + self.group_offset[g].map_or(0, |_| self.group_free[g].len())
+    }
+
     /// Reduced-side columns of an observation.
     pub(crate) fn observation_columns(
         &self,

@@ -186,6 +186,7 @@ pub(crate) fn reduced_system(
 ) -> Result<Option<Reduced>, BundleError> {
     let (storage, _) = reduced_storage(p, layout, LinearSolver::Auto, true)?;
     let nm = linearize::<3>(p, layout, &Loss::Trivial, &storage);
+    drop(storage);
     let mut s = nm.u.clone();
     let mut rhs = nm.g_c.clone();
     let Some(v_inv) = damped_inverses(&nm.v, 0.0) else {
@@ -346,14 +347,21 @@ impl<const D: usize> Normal<D> {
     /// Zeroed normal equations of the layout's sizes, the reduced side in `storage`'s form.
     fn empty(p: &BundleProblem, layout: &Layout, storage: &Reduced) -> Self {
         let n = layout.num_camera_params;
+        // Exact upper bounds (an observation that does not project has no columns): grown by
+        // doubling, `e` was the largest allocation of an adjustment and copied on every growth.
+        let cols: usize = p
+            .observations
+            .iter()
+            .map(|o| layout.observation_column_count(p, o.image, o.point))
+            .sum();
         Normal::<D> {
             u: storage.clone(),
             g_c: DVector::zeros(n),
             v: vec![SMatrix::zeros(); layout.num_free_points],
             g_p: vec![SVector::zeros(); layout.num_free_points],
             obs_cols: Vec::with_capacity(p.observations.len()),
-            cols: Vec::with_capacity(p.observations.len() * 9),
-            e: Vec::with_capacity(p.observations.len() * 3 * D),
+            cols: Vec::with_capacity(cols),
+            e: Vec::with_capacity(cols * D),
             point_obs: vec![Vec::new(); layout.num_free_points],
             cost: 0.0,
             rows: OnceLock::new(),
@@ -427,6 +435,10 @@ impl<const D: usize> Normal<D> {
             let inv_sigma = 1.0 / o.sigma_px;
             rows.count =
                 self.push_reduced_jacobian(layout, o, im.group, &j, &d_int[..2 * np], &mut rows.jc);
+            debug_assert_eq!(
+                rows.count,
+                layout.observation_column_count(p, o.image, o.point)
+            );
             self.obs_cols.push((start, rows.count));
             self.add_reduced_rows(start, &rows);
             if let Some(bi) = layout.eliminated(o.image, o.point) {
@@ -1131,10 +1143,11 @@ fn reduced_storage(
     let mut per_block: Vec<Vec<usize>> = vec![Vec::new(); layout.num_free_points];
     for o in &p.observations {
         let cols = layout.observation_columns(p, o.image, o.point);
-        if let Some(bi) = layout.eliminated(o.image, o.point) {
-            per_block[bi].extend_from_slice(&cols);
+        match layout.eliminated(o.image, o.point) {
+            // Its block's set holds these columns (the elimination couples all of them).
+            Some(bi) if !implicit => per_block[bi].extend_from_slice(&cols),
+            _ => groups.push(cols),
         }
-        groups.push(cols);
     }
     for c in &p.center_priors {
         let mut cols: Vec<usize> =
