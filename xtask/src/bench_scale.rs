@@ -245,6 +245,13 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
 }
 
 /// Per epoch of an oriented project: check-point RMSE (dE, dN, dH) in GSD.
+/// Check-point RMSE per epoch (dE, dN, dH in GSD) of a block oriented by hand.
+pub fn score_align(dir: &Path) -> anyhow::Result<Vec<(String, Option<[f64; 3]>)>> {
+    let project = Project::load(dir)?;
+    let truth = timesift::eval::project_truth(&project)?;
+    check_errors(&project, &truth, nadir_gsd(&project)?)
+}
+
 fn check_errors(
     project: &Project,
     truth: &timesift_eval::ProjectTruth<'_>,

@@ -221,6 +221,13 @@ enum Task {
         #[arg(long, env = "PYCOLMAP_PYTHON")]
         python: PathBuf,
     },
+    /// Check points of an oriented `synth scale-N` block against its truth, per epoch in GSD
+    /// (the scale bench's accuracy columns, for an align stage run by hand).
+    #[command(hide = true)]
+    ScoreAlign {
+        /// Project directory (a `synth scale-N` block after its align stage).
+        dir: PathBuf,
+    },
     /// The DEM scores of a rendered-mar project's dense clouds as they are (the dense bench's
     /// scoring, for trying `[dense]` settings by hand).
     #[command(hide = true)]
@@ -827,6 +834,16 @@ fn main() -> anyhow::Result<()> {
         Task::ScalePeers { dir, python } => {
             for row in bench_scale_colmap::run_peers(&dir, &python, 2)? {
                 println!("{}", serde_json::to_string(&row)?);
+            }
+        }
+        Task::ScoreAlign { dir } => {
+            for (epoch, rmse) in bench_scale::score_align(&dir)? {
+                match rmse {
+                    Some([e, n, h]) => {
+                        println!("{epoch}: check points dE {e:.3} dN {n:.3} dH {h:.3} GSD")
+                    }
+                    None => println!("{epoch}: no check point"),
+                }
             }
         }
         Task::RunDense { dir } => {
