@@ -10,6 +10,7 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use nalgebra::{DMatrix, DVector};
 
 /// The fixed sparsity pattern of `S` (lower triangle) and its symbolic factorisation.
+#[derive(Clone)]
 pub(crate) struct SparsePattern {
     n: usize,
     pub(crate) col_ptr: Vec<usize>,
@@ -18,7 +19,14 @@ pub(crate) struct SparsePattern {
     symbolic: Option<SymbolicLlt<usize>>,
     /// Where each column's run of a block's rows starts, without a search ([`BlockIndex`]).
     blocks: Option<BlockIndex>,
+    /// Column runs of about equal stored entries, one task each in [`Reduced::mul_vec_into`]
+    /// ([`PRODUCT_PARTS`] of them, whatever the threads: the partial sums, and so the bits,
+    /// depend on the pattern alone).
+    product_runs: Vec<usize>,
 }
+
+/// Parts of the parallel product with a sparse `S`.
+const PRODUCT_PARTS: usize = 8;
 
 /// The pattern's blocks and, per pair of coupled blocks (A below or at B), where A's rows start
 /// among the rows every column of B holds below B itself. The pattern is built block by block,
@@ -26,6 +34,7 @@ pub(crate) struct SparsePattern {
 /// elimination adds some (6k)²/2 runs per point seen k times, and finding each by a binary
 /// search through a column of thousands of rows was most of its time on multi-epoch blocks of
 /// 1,600 images.
+#[derive(Clone)]
 struct BlockIndex {
     /// Block of each column.
     block_of: Vec<u32>,
@@ -144,13 +153,16 @@ impl SparsePattern {
             starts,
             below: pairs,
         });
-        Some(Arc::new(SparsePattern {
+        let mut pattern = SparsePattern {
             n,
             col_ptr,
             row_idx,
             symbolic,
             blocks,
-        }))
+            product_runs: Vec::new(),
+        };
+        pattern.product_runs = pattern.column_runs(PRODUCT_PARTS);
+        Some(Arc::new(pattern))
     }
 
     /// Where row `row` (≥ `col`) of column `col` is held among the column's stored rows, found
@@ -184,17 +196,7 @@ impl SparsePattern {
         if self.symbolic.is_some() {
             return Some(self);
         }
-        let mut pattern = Arc::try_unwrap(self).unwrap_or_else(|shared| SparsePattern {
-            n: shared.n,
-            col_ptr: shared.col_ptr.clone(),
-            row_idx: shared.row_idx.clone(),
-            symbolic: None,
-            blocks: shared.blocks.as_ref().map(|b| BlockIndex {
-                block_of: b.block_of.clone(),
-                starts: b.starts.clone(),
-                below: b.below.clone(),
-            }),
-        });
+        let mut pattern = Arc::try_unwrap(self).unwrap_or_else(|shared| (*shared).clone());
         pattern.symbolic = Some(
             SymbolicLlt::try_new(
                 SymbolicSparseColMatRef::new_checked(
@@ -333,9 +335,9 @@ impl Reduced {
     }
 
     /// `y = S x` into `y` (the conjugate gradients' product, hundreds of times per step).
-    /// The sparse storage's columns are split between the workers in runs of about equal
-    /// stored entries, each adding into its own part of `scratch` (kept by the caller across
-    /// products), summed after.
+    /// The sparse storage's columns are split into the pattern's runs of about equal stored
+    /// entries (fixed by the pattern, so the bits do not depend on the threads), each adding
+    /// into its own part of `scratch` (kept by the caller across products), summed in order.
     pub(crate) fn mul_vec_into(&self, x: &[f64], y: &mut [f64], scratch: &mut Vec<f64>) {
         use rayon::prelude::*;
         match self {
@@ -349,7 +351,7 @@ impl Reduced {
             }
             Reduced::Sparse { pattern, values } => {
                 let n = pattern.n;
-                let runs = pattern.column_runs(rayon::current_num_threads());
+                let runs = &pattern.product_runs;
                 let lower_times = |c0: usize, c1: usize, out: &mut [f64]| {
                     out.fill(0.0);
                     for c in c0..c1 {
