@@ -244,7 +244,6 @@ fn run_size(bench: &ScaleBench, n: usize) -> anyhow::Result<SizeRow> {
     })
 }
 
-/// Per epoch of an oriented project: check-point RMSE (dE, dN, dH) in GSD.
 /// Check-point RMSE per epoch (dE, dN, dH in GSD) of a block oriented by hand.
 pub fn score_align(dir: &Path) -> anyhow::Result<Vec<(String, Option<[f64; 3]>)>> {
     let project = Project::load(dir)?;
@@ -252,6 +251,7 @@ pub fn score_align(dir: &Path) -> anyhow::Result<Vec<(String, Option<[f64; 3]>)>
     check_errors(&project, &truth, nadir_gsd(&project)?)
 }
 
+/// Per epoch of an oriented project: check-point RMSE (dE, dN, dH) in GSD.
 fn check_errors(
     project: &Project,
     truth: &timesift_eval::ProjectTruth<'_>,

@@ -438,10 +438,10 @@ mod tests {
             entries.dedup_by_key(|e| e.0);
             p.push_row(entries);
         }
-        // The serial pass over the lower triangle, then Pᵀ W by rows of P.
+        // The serial pass over the whole lower triangle, then Pᵀ W by rows of P.
         let serial = |s: &Reduced| {
             let mut w = vec![0.0; n * k];
-            s.for_each_lower(|r, c, v| {
+            s.for_each_lower_touching(0..n, |r, c, v| {
                 if v == 0.0 {
                     return;
                 }

@@ -203,6 +203,19 @@ impl Layout {
         point: usize,
     ) -> Vec<usize> {
         let mut cols = Vec::new();
+        self.extend_observation_columns(p, image, point, &mut cols);
+        cols
+    }
+
+    /// Appends an observation's reduced-side columns to `cols`: its pose's, its point's, its
+    /// group's free intrinsics (the order of its Jacobian's columns in the linearisation).
+    pub(crate) fn extend_observation_columns(
+        &self,
+        p: &BundleProblem,
+        image: usize,
+        point: usize,
+        cols: &mut Vec<usize>,
+    ) {
         if let Some(off) = self.pose_offset[image] {
             cols.extend(off..off + 6);
         }
@@ -213,6 +226,5 @@ impl Layout {
         if let Some(off) = self.group_offset[g] {
             cols.extend(off..off + self.group_free[g].len());
         }
-        cols
     }
 }

@@ -393,28 +393,6 @@ impl Reduced {
         }
     }
 
-    /// Calls `f(row, col, value)` for every stored entry on and below the diagonal (each entry
-    /// of the symmetric matrix once, as its lower-triangle twin).
-    #[cfg(test)]
-    pub(crate) fn for_each_lower(&self, mut f: impl FnMut(usize, usize, f64)) {
-        match self {
-            Reduced::Dense(m) => {
-                for c in 0..m.ncols() {
-                    for r in c..m.nrows() {
-                        f(r, c, m[(r, c)]);
-                    }
-                }
-            }
-            Reduced::Sparse { pattern, values } => {
-                for c in 0..pattern.n {
-                    for k in pattern.col_ptr[c]..pattern.col_ptr[c + 1] {
-                        f(pattern.row_idx[k], c, values[k]);
-                    }
-                }
-            }
-        }
-    }
-
     /// Calls `f(row, col, value)`, column by column and down each column, for every stored entry
     /// that rows `rows` of a product with the symmetric matrix read: those of columns before
     /// `rows` whose row is in it, and every entry of the columns in it. Why: tasks that each own

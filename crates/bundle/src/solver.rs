@@ -388,8 +388,8 @@ fn observation_rows<const D: usize>(
 }
 
 /// Fills `jc` with an observation's σ-scaled reduced-side Jacobian — its pose or point
-/// columns, then its group's free intrinsics (`d_int`: both pixel rows' derivatives); returns
-/// how many columns.
+/// columns, then its group's free intrinsics (`d_int`: both pixel rows' derivatives), in
+/// [`Layout::extend_observation_columns`]'s order; returns how many columns.
 fn reduced_jacobian(
     layout: &Layout,
     o: &Observation,
@@ -509,12 +509,8 @@ impl<const D: usize> Normal<D> {
                     continue;
                 };
                 self.cost += 0.5 * rho;
-                self.push_columns(layout, o, p.images[o.image].group);
+                layout.extend_observation_columns(p, o.image, o.point, &mut self.cols);
                 debug_assert_eq!(self.cols.len() - start, rows.count);
-                debug_assert_eq!(
-                    rows.count,
-                    layout.observation_column_count(p, o.image, o.point)
-                );
                 self.obs_cols.push((start, rows.count));
                 self.add_reduced_rows(start, rows);
                 if let Some(bi) = layout.eliminated(o.image, o.point) {
@@ -523,20 +519,6 @@ impl<const D: usize> Normal<D> {
                     self.e.extend(std::iter::repeat_n(0.0, D * rows.count));
                 }
             }
-        }
-    }
-
-    /// Appends an observation's reduced-side columns to `cols`, in [`reduced_jacobian`]'s
-    /// order: its pose, its point, its group's free intrinsics.
-    fn push_columns(&mut self, layout: &Layout, o: &Observation, group: usize) {
-        if let Some(off) = layout.pose_offset[o.image] {
-            self.cols.extend(off..off + 6);
-        }
-        if let Some(off) = layout.point_offset[o.point] {
-            self.cols.extend(off..off + 3);
-        }
-        if let Some(off) = layout.group_offset[group] {
-            self.cols.extend(off..off + layout.group_free[group].len());
         }
     }
 
